@@ -1,0 +1,48 @@
+"""Entry point of ``apt-filters``.
+
+Each sub-command lives in its own module of this package and exposes
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
+User mistakes arrive as :class:`~apt_filters.core.errors.AptFiltersError` and are printed
+on one line with exit status 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from apt_filters import __version__
+from apt_filters.core.errors import AptFiltersError
+
+# Sub-command modules in the order ``--help`` lists them.
+COMMANDS: list[str] = []
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="apt-filters",
+        description="Atom probe tomography iso-surfaces, MeshLab filter chains and interface chemistry.",
+    )
+    parser.add_argument("--version", action="version", version=f"apt-filters {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        importlib.import_module(f"apt_filters.cli.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except AptFiltersError as exc:
+        print(f"apt-filters {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("apt-filters: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,128 @@
+"""Range tables and ranging: m/z windows -> ion species -> element counts.
+
+A range maps the closed window ``[lower, upper]`` Da to an ion species such as ``CrO2``
+whose decomposition into elements (``Cr: 1, O: 2``) is kept, so that element fields count
+molecular ions by their atoms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from apt_filters.core.errors import AptFiltersError
+
+UNRANGED = -1
+"""Ion index given to ions outside every range (they are kept, and flagged by this value)."""
+
+
+def ion_name(composition: tuple[tuple[str, int], ...]) -> str:
+    """Canonical ion name from its elements, in the given order: (("Cr", 1), ("O", 2)) -> "CrO2"."""
+    return "".join(el if n == 1 else f"{el}{n}" for el, n in composition)
+
+
+@dataclass(frozen=True)
+class Range:
+    """One m/z window.
+
+    Attributes
+    ----------
+    lower, upper : float
+        Window bounds in Da, ``lower < upper``; both inclusive.
+    composition : tuple of (element, count)
+        Atoms of the ion, e.g. ``(("Cr", 1), ("O", 2))``.
+    color : str or None
+        ``"RRGGBB"`` hex colour from the range file.
+    volume : float or None
+        Atomic volume (nm³) from the range file, if given.
+    """
+
+    lower: float
+    upper: float
+    composition: tuple[tuple[str, int], ...]
+    color: str | None = None
+    volume: float | None = None
+
+    @property
+    def ion(self) -> str:
+        return ion_name(self.composition)
+
+    def describe(self) -> str:
+        return f"{self.ion} [{self.lower:g}, {self.upper:g}] Da"
+
+
+@dataclass
+class RangeTable:
+    """An ordered list of ranges, checked for overlaps.
+
+    ``ions`` lists the distinct ion species in order of first appearance; ``elements`` the
+    distinct elements. Several ranges may share one ion (isotopes, charge states).
+    """
+
+    ranges: list[Range]
+    source: str | None = None
+    _order: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for r in self.ranges:
+            if not (np.isfinite(r.lower) and np.isfinite(r.upper) and r.lower < r.upper):
+                raise AptFiltersError(f"range {r.describe()} has lower bound not below upper bound", self.source)
+            if not r.composition or any(n < 1 for _, n in r.composition):
+                raise AptFiltersError(f"range {r.describe()} has no atoms", self.source)
+        self._order = np.argsort([r.lower for r in self.ranges], kind="stable")
+        sorted_ranges = [self.ranges[i] for i in self._order]
+        for a, b in zip(sorted_ranges, sorted_ranges[1:]):
+            if b.lower < a.upper:
+                raise AptFiltersError(f"ranges overlap: {a.describe()} and {b.describe()}", self.source)
+
+    def __len__(self) -> int:
+        return len(self.ranges)
+
+    @property
+    def ions(self) -> list[str]:
+        return list(dict.fromkeys(r.ion for r in self.ranges))
+
+    @property
+    def elements(self) -> list[str]:
+        return list(dict.fromkeys(el for r in self.ranges for el, _ in r.composition))
+
+    def ion_compositions(self) -> dict[str, tuple[tuple[str, int], ...]]:
+        """Ion name -> its composition."""
+        return {r.ion: r.composition for r in self.ranges}
+
+    def ion_colors(self) -> dict[str, str | None]:
+        """Ion name -> ``"RRGGBB"`` colour of its first range (None where the file gives none)."""
+        colors: dict[str, str | None] = {}
+        for r in self.ranges:
+            colors.setdefault(r.ion, r.color)
+        return colors
+
+    def element_matrix(self) -> np.ndarray:
+        """(n_ions, n_elements) int64: atoms of each element per ion, rows in ``ions`` order."""
+        ions, elements = self.ions, self.elements
+        m = np.zeros((len(ions), len(elements)), dtype=np.int64)
+        for ion, comp in self.ion_compositions().items():
+            for el, n in comp:
+                m[ions.index(ion), elements.index(el)] = n
+        return m
+
+    def range_index(self, mz: np.ndarray) -> np.ndarray:
+        """(N,) int32 index into ``ranges`` for each m/z, ``UNRANGED`` (-1) outside every range.
+
+        Vectorised: one ``searchsorted`` over the sorted lower bounds.
+        """
+        mz = np.asarray(mz)
+        lowers = np.array([self.ranges[i].lower for i in self._order], dtype=np.float64)
+        uppers = np.array([self.ranges[i].upper for i in self._order], dtype=np.float64)
+        pos = np.searchsorted(lowers, mz, side="right") - 1
+        inside = (pos >= 0) & (mz <= uppers[np.clip(pos, 0, None)]) if len(lowers) else np.zeros(mz.shape, bool)
+        out = np.full(mz.shape, UNRANGED, dtype=np.int32)
+        out[inside] = self._order[pos[inside]]
+        return out
+
+    def ion_index(self, mz: np.ndarray) -> np.ndarray:
+        """(N,) int32 index into ``ions`` for each m/z, ``UNRANGED`` (-1) outside every range."""
+        ions = self.ions
+        lookup = np.array([ions.index(r.ion) for r in self.ranges] + [UNRANGED], dtype=np.int32)
+        return lookup[self.range_index(mz)]  # index -1 picks the trailing UNRANGED entry

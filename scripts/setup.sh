@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Set up apt-filters on a bare Debian machine: system libraries, a virtual environment in
+# .venv, the package (editable) with its runtime dependencies.
+#   bash scripts/setup.sh          runtime only (enough for `apt-filters demo`)
+#   bash scripts/setup.sh --dev    plus tests and benchmark peers (pytest, hypothesis,
+#                                  scikit-image, vtk, pyacvd, apav)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+dev=0
+[ "${1:-}" = "--dev" ] && dev=1
+
+# System libraries: libusb-1.0 for open3d, libOpenGL/libGL for pymeshlab's meshing filters,
+# libgomp for open3d's OpenMP. Installed only where missing, and only when we may.
+need=()
+ldconfig -p | grep -q 'libusb-1.0.so.0' || need+=(libusb-1.0-0)
+ldconfig -p | grep -q 'libOpenGL.so.0' || need+=(libopengl0)
+ldconfig -p | grep -q 'libGL.so.1' || need+=(libgl1)
+ldconfig -p | grep -q 'libgomp.so.1' || need+=(libgomp1)
+ldconfig -p | grep -q 'libGLU.so.1' || need+=(libglu1-mesa)
+if [ ${#need[@]} -gt 0 ]; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    echo "setup: installing system libraries: ${need[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq && apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null \
+      || echo "setup: apt-get failed; libusb falls back to the pip package libusb-package" >&2
+  else
+    echo "setup: missing system libraries ${need[*]} (not root): libusb falls back to libusb-package;" \
+         "pymeshlab's meshing filters need libopengl0" >&2
+  fi
+fi
+
+python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+if [ $dev = 1 ]; then
+  .venv/bin/python -m pip install -q -e ".[dev,bench]"
+  # apav 1.4 pins an old GUI stack it does not need for RangedGrid; its own code is all we use.
+  .venv/bin/python -m pip install -q --no-deps "apav==1.4.0"
+else
+  .venv/bin/python -m pip install -q -e .
+fi
+.venv/bin/python -c "import apt_filters.core.deps as d; d.check_runtime()"

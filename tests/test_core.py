@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+
+from apt_filters.core import AptFiltersError, TriMesh, atomic_output, atomic_write_text
+from apt_filters.io import Range, RangeTable, UNRANGED
+
+
+def unit_cube() -> TriMesh:
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float) * [2.0, 3.0, 5.0]
+    # vertex index = 4x + 2y + z; faces counter-clockwise seen from outside
+    f = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    return TriMesh(v, f)
+
+
+def test_trimesh_box_volume_area_and_unpacking():
+    m = unit_cube()
+    assert m.signed_volume() == pytest.approx(30.0)
+    assert m.area() == pytest.approx(2 * (6 + 10 + 15))
+    v, f = m
+    assert v.shape == (8, 3) and f.shape == (12, 3)
+    assert len(m.boundary_edges()) == 0 and m.non_manifold_edge_count() == 0
+    # normals point outward: the +x face's normal is +x
+    n = m.face_normals()
+    assert np.allclose(n[2], [1, 0, 0])
+    flipped = TriMesh(m.vertices, m.faces[:, ::-1])
+    assert flipped.signed_volume() == pytest.approx(-30.0)
+
+
+def test_trimesh_rejects_mismatched_scalars():
+    with pytest.raises(ValueError):
+        TriMesh(np.zeros((3, 3)), [[0, 1, 2]], vertex_scalars={"value": np.zeros(2)})
+
+
+def test_atomic_output_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.txt"
+    with pytest.raises(RuntimeError):
+        with atomic_output(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("crash")
+    assert list(tmp_path.iterdir()) == []
+    atomic_write_text(target, "done")
+    assert target.read_text() == "done"
+    with pytest.raises(AptFiltersError, match="exists"):
+        atomic_write_text(target, "again")
+    atomic_write_text(target, "again", overwrite=True)
+    assert target.read_text() == "again"
+
+
+def table() -> RangeTable:
+    return RangeTable([
+        Range(27.5, 28.5, (("Si", 1),)),
+        Range(13.8, 14.3, (("Si", 1),)),
+        Range(83.5, 86.5, (("Cr", 1), ("O", 2))),
+        Range(15.8, 16.5, (("O", 1),)),
+    ], source="t.rrng")
+
+
+def test_ranging_is_vectorised_and_keeps_unranged():
+    t = table()
+    assert t.ions == ["Si", "CrO2", "O"]
+    assert t.elements == ["Si", "Cr", "O"]
+    mz = np.array([14.0, 28.5, 85.0, 16.0, 1.0, 20.0, 90.0, 13.8], np.float32)
+    assert t.range_index(mz).tolist() == [1, 0, 2, 3, UNRANGED, UNRANGED, UNRANGED, 1]
+    assert t.ion_index(mz).tolist() == [0, 0, 1, 2, UNRANGED, UNRANGED, UNRANGED, 0]
+    assert t.element_matrix().tolist() == [[1, 0, 0], [0, 1, 2], [0, 0, 1]]
+
+
+def test_overlapping_ranges_name_both():
+    with pytest.raises(AptFiltersError, match=r"t.rrng: ranges overlap: Si \[27.5, 28.5\] Da and O \[28, 29\] Da"):
+        RangeTable(table().ranges + [Range(28.0, 29.0, (("O", 1),))], source="t.rrng")
