@@ -69,3 +69,21 @@ def test_ranging_is_vectorised_and_keeps_unranged():
 def test_overlapping_ranges_name_both():
     with pytest.raises(AptFiltersError, match=r"t.rrng: ranges overlap: Si \[27.5, 28.5\] Da and O \[28, 29\] Da"):
         RangeTable(table().ranges + [Range(28.0, 29.0, (("O", 1),))], source="t.rrng")
+
+
+def test_pos_epos_rrng_writers(tmp_path):
+    from apt_filters.io.ions import IonTable
+    from apt_filters.io.writers import EPOS_DTYPE, format_rrng, write_epos, write_pos
+
+    rng = np.random.default_rng(0)
+    ions = IonTable(rng.normal(size=(10, 3)).astype(np.float32), rng.uniform(1, 100, 10).astype(np.float32),
+                    extra={"multiplicity": np.arange(10, dtype=np.int32)})
+    write_pos(tmp_path / "a.pos", ions, chunk=3)
+    raw = np.fromfile(tmp_path / "a.pos", ">f4").reshape(-1, 4)
+    assert np.array_equal(raw[:, :3], ions.positions) and np.array_equal(raw[:, 3], ions.mz)
+    write_epos(tmp_path / "a.epos", ions, chunk=4)
+    rec = np.fromfile(tmp_path / "a.epos", EPOS_DTYPE)
+    assert EPOS_DTYPE.itemsize == 44
+    assert np.array_equal(rec["y"], ions.positions[:, 1]) and rec["multiplicity"].tolist() == list(range(10))
+    text = format_rrng(table())
+    assert "Range3=83.5000 86.5000 Cr:1 O:2" in text and "Ion2=Cr" in text

@@ -1,7 +1,9 @@
 """Entry point of ``apt-filters``.
 
 Each sub-command lives in its own module of this package and exposes
-``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``, and
+``ORDER``, an int that places it in ``--help``. Modules are found by discovery, so adding a
+command touches no shared file.
 User mistakes arrive as :class:`~apt_filters.core.errors.AptFiltersError` and are printed
 on one line with exit status 2; no traceback.
 """
@@ -10,13 +12,21 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 
 from apt_filters import __version__
 from apt_filters.core.errors import AptFiltersError
 
-# Sub-command modules in the order ``--help`` lists them.
-COMMANDS: list[str] = []
+
+
+def command_modules() -> list:
+    """The sub-command modules of this package, in ``ORDER``."""
+    import apt_filters.cli as package
+
+    modules = [importlib.import_module(f"{package.__name__}.{info.name}")
+               for info in pkgutil.iter_modules(package.__path__) if info.name != "main"]
+    return sorted((m for m in modules if hasattr(m, "register")), key=lambda m: (getattr(m, "ORDER", 99), m.__name__))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,8 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"apt-filters {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"apt_filters.cli.{name}").register(sub)
+    for module in command_modules():
+        module.register(sub)
     return parser
 
 
