@@ -252,9 +252,14 @@ def write_specimen(outdir: str | os.PathLike, spec: model.SpecimenSpec, seed: in
 def summary(truth: dict) -> str:
     """Human-readable summary of a specimen's truth (ion count, bounds, composition, features, excess)."""
     ions, geo = truth["ions"], truth["geometry"]
-    shape = ", ".join(f"{k} {v:g}" for k, v in geo.items() if isinstance(v, (int, float)) and k != "top_z")
+    if geo["kind"] == "tip":
+        shape = (f"apex radius {geo['apex_radius']:g} nm, half-angle {geo['half_angle_deg']:g} deg, "
+                 f"length {geo['length']:g} nm")
+    else:
+        shape = " x ".join(f"{v:g}" for v in geo["size"]) + " nm"
     lines = [f"specimen {truth['name']!r} (seed {truth['seed']}): {ions['total']:,} ions "
-             f"({ions['noise']:,} noise; expected {ions['expected']:,.0f}) in a {geo['kind']} ({shape})"]
+             f"({ions['noise']:,} noise; expected {ions['expected']:,.0f}) in a {geo['kind']} ({shape}; "
+             f"{geo['volume_nm3']:,.0f} nm3)"]
     if ions["bounds_nm"]:
         lo, hi = ions["bounds_nm"]
         lines.append("bounding box: " + "  ".join(f"{a} [{lo[i]:.1f}, {hi[i]:.1f}]" for i, a in enumerate("xyz")) + " nm")

@@ -51,6 +51,10 @@ class Tip:
         r = np.where(z > z_tangent, cap, shank)
         return np.where((z > 0) | (z < -self.length), 0.0, r)
 
+    def cross_section_area(self, z: np.ndarray) -> np.ndarray:
+        """Area (nm²) of the section at height z."""
+        return math.pi * self.radius_at(z) ** 2
+
     def sdf(self, points: np.ndarray) -> np.ndarray:
         p = np.asarray(points, dtype=np.float64)
         rho = np.hypot(p[:, 0], p[:, 1])
@@ -108,6 +112,11 @@ class Box:
 
     def volume(self) -> float:
         return float(np.prod(self.size))
+
+    def cross_section_area(self, z: np.ndarray) -> np.ndarray:
+        """Area (nm²) of the section at height z."""
+        z = np.asarray(z, dtype=np.float64)
+        return np.where((z <= 0) & (z >= -self.size[2]), self.size[0] * self.size[1], 0.0)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         h = self.size / 2

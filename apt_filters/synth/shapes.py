@@ -31,6 +31,8 @@ class Within(Protocol):
 
     def sdf(self, points: np.ndarray) -> np.ndarray: ...
 
+    def cross_section_area(self, z: np.ndarray) -> np.ndarray: ...
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]: ...
 
 
@@ -340,12 +342,18 @@ class HalfSpace(Shape):
         lo, hi = within.bounds()
         middle = (lo + hi) / 2
         plane_point = self.point + d * self.normal
-        origin = middle - ((middle - plane_point) @ self.normal) * self.normal
+        centre = middle - ((middle - plane_point) @ self.normal) * self.normal
+        # the deepest point of a grid over the plane is inside the section if anything is
+        size = float(np.linalg.norm(hi - lo))
+        u, v = np.meshgrid(np.linspace(-size, size, 65), np.linspace(-size, size, 65), indexing="ij")
+        grid = centre + u.reshape(-1, 1) * self.rotation[:, 0] + v.reshape(-1, 1) * self.rotation[:, 1]
+        depth = within.sdf(grid)
+        origin = grid[np.argmin(depth)]
         phi = 2 * math.pi * np.arange(n_angles) / n_angles
         dirs = np.cos(phi)[:, None] * self.rotation[:, 0] + np.sin(phi)[:, None] * self.rotation[:, 1]
-        if within.sdf(origin[None])[0] >= 0:
+        if depth.min() >= 0:
             return origin, dirs, np.zeros(n_angles)
-        t_lo, t_hi = np.zeros(n_angles), np.full(n_angles, float(np.linalg.norm(hi - lo)))
+        t_lo, t_hi = np.zeros(n_angles), np.full(n_angles, 2 * size)
         for _ in range(48):
             t = (t_lo + t_hi) / 2
             inside = within.sdf(origin + t[:, None] * dirs) < 0
@@ -353,7 +361,10 @@ class HalfSpace(Shape):
         return origin, dirs, (t_lo + t_hi) / 2
 
     def level_area(self, d, within=None):
+        """Section areas; exact (the outline's own cross-section) for planes normal to z, else polygons."""
         d = np.atleast_1d(np.asarray(d, dtype=np.float64))
+        if within is not None and abs(self.normal[2]) == 1.0:
+            return within.cross_section_area(self.point[2] + d * self.normal[2])
         out = np.empty(len(d))
         for i, di in enumerate(d):
             r = self._section(float(di), within, self._ANGLES)[2]
@@ -405,19 +416,21 @@ class HalfSpace(Shape):
 class CustomShape(Shape):
     """Any user SDF ``fn(points (N, 3)) -> (N,)`` (negative inside) within the box ``lower``-``upper``.
 
-    Volume, area, level-set areas and mesh come from marching cubes on a grid of ``grid`` nm
-    (error O(grid²)); the SDF should be a true distance near its surface for the excess to be exact.
+    Volume, area, level-set areas and mesh come from marching cubes on a grid of ``grid`` nm spanning
+    the box grown by ``pad`` nm (error O(grid²); level sets farther out than ``pad`` are not seen);
+    the SDF should be a true distance near its surface for the excess to be exact.
     """
 
     kind = "custom"
 
-    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], lower, upper, name: str = "custom", grid: float = 0.05):
+    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], lower, upper, name: str = "custom", grid: float = 0.1,
+                 pad: float = 3.0):
         self.fn = fn
         self.lower = np.asarray(lower, dtype=np.float64).reshape(3)
         self.upper = np.asarray(upper, dtype=np.float64).reshape(3)
         if not (self.upper > self.lower).all():
             raise AptFiltersError("custom shape bounds: upper must exceed lower on every axis")
-        self.name, self.grid = name, float(grid)
+        self.name, self.grid, self.pad = name, float(grid), float(pad)
         self._field: np.ndarray | None = None
 
     def sdf(self, points):
@@ -428,7 +441,7 @@ class CustomShape(Shape):
 
     def _values(self) -> np.ndarray:
         if self._field is None:
-            axes = [np.arange(lo - 2 * self.grid, hi + 2 * self.grid, self.grid) for lo, hi in zip(self.lower, self.upper)]
+            axes = [np.arange(lo - self.pad, hi + self.pad + self.grid, self.grid) for lo, hi in zip(self.lower, self.upper)]
             pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
             self._field = self.sdf(pts.reshape(-1, 3)).reshape(pts.shape[:3])
             self._origin = np.array([a[0] for a in axes])
@@ -461,7 +474,7 @@ class CustomShape(Shape):
 
     def params(self):
         return {"kind": self.kind, "name": self.name, "lower": self.lower.tolist(), "upper": self.upper.tolist(),
-                "grid": self.grid}
+                "grid": self.grid, "pad": self.pad}
 
 
 def _positive(value: float, what: str) -> float:
