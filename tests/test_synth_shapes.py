@@ -19,7 +19,7 @@ SOLIDS = {
 }
 
 
-def _monte_carlo(shape, n=1_000_000, seed=0):
+def _monte_carlo(shape, n=400_000, seed=0):
     """(points, sdf values, box volume) uniform in the shape's bounds grown by 1 nm."""
     lo, hi = shape.bounds()
     lo, hi = lo - 1.0, hi + 1.0
@@ -68,14 +68,20 @@ def test_mesh_is_closed_outward_and_on_the_surface(name):
 
 @pytest.mark.parametrize("name", SOLIDS)
 def test_sdf_is_the_euclidean_distance(name):
-    """|sdf| equals the distance to a dense sampling of the surface, inside and outside."""
+    """Eikonal |grad sdf| = 1, and p - sdf(p) grad sdf(p) lands on the surface (a bound such as
+    max(|p| - h) for a box passes the first test but not the second near edges and corners)."""
     shape = SOLIDS[name]
-    mesh = shape.mesh(0.04)
-    p, d, _ = _monte_carlo(shape, n=20_000, seed=1)
-    nearest, _ = cKDTree(mesh.vertices).query(p)
-    # the nearest vertex is never closer than the surface and at most ~half a cell diagonal farther
-    assert (nearest - np.abs(d) > -1e-3).all()
-    assert (nearest - np.abs(d) < 0.04).all()
+    p, d, _ = _monte_carlo(shape, n=50_000, seed=1)
+    h = 1e-6
+    grad = np.stack([(shape.sdf(p + h * e) - shape.sdf(p - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+    norm = np.linalg.norm(grad, axis=1)
+    smooth = np.abs(norm - 1) < 1e-5
+    assert smooth.mean() > 0.999  # the rest straddle the medial axis, where the gradient jumps
+    foot = p[smooth] - d[smooth, None] * grad[smooth]
+    assert np.abs(shape.sdf(foot)).max() < 1e-5
+    mesh = shape.mesh(0.1)
+    near = cKDTree(mesh.vertices).query(p[:2000])[0]
+    assert (near - np.abs(d[:2000]) > -2e-3).all()  # no surface point is closer than the SDF says
 
 
 def test_axes_are_x_y_z_in_order():
@@ -105,7 +111,7 @@ def test_rotations():
 @pytest.mark.parametrize("outline", [Tip(10.0, 10.0, 40.0), Box((16.0, 14.0, 28.0))])
 def test_outline_volume_sdf_and_sampling(outline):
     lo, hi = outline.bounds()
-    p = np.random.default_rng(2).uniform(lo, hi, (1_000_000, 3))
+    p = np.random.default_rng(2).uniform(lo, hi, (400_000, 3))
     d = outline.sdf(p)
     frac = (d < 0).mean()
     box = float(np.prod(hi - lo))
@@ -151,7 +157,7 @@ def test_halfspace_section_in_tip_and_box():
 
 def test_custom_shape_matches_the_analytic_one():
     ref = Sphere((0.0, 0.0, 0.0), 2.0)
-    custom = CustomShape(ref.sdf, (-2.0, -2.0, -2.0), (2.0, 2.0, 2.0), name="ball")
+    custom = CustomShape(ref.sdf, (-2.0, -2.0, -2.0), (2.0, 2.0, 2.0), name="ball", pad=1.0)
     assert custom.volume() == pytest.approx(ref.volume(), rel=2e-3)
     assert custom.area() == pytest.approx(ref.area(), rel=2e-3)
     assert custom.level_area(np.array([-0.5, 0.5])) == pytest.approx(ref.level_area(np.array([-0.5, 0.5])), rel=5e-3)
