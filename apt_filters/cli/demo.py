@@ -38,12 +38,10 @@ def demo_specimen(outdir: str | Path = DEFAULT_OUT, seed: int = 0, force: bool =
 
 
 def _run(args: argparse.Namespace) -> int:
-    from apt_filters.synth import summary
+    from apt_filters.cli.synth import report
 
     truth, reused = demo_specimen(args.out, args.seed, args.force)
-    print(summary(truth))
-    print(f"{'reused' if reused else 'wrote'} {args.out}/: specimen.pos, specimen.rrng, truth.json, "
-          f"{len(truth['features'])} true surfaces (PLY)")
+    report(args.out, truth, "reused" if reused else "wrote")
     return 0
 
 

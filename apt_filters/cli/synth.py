@@ -19,15 +19,21 @@ def ion_count(text: str) -> int:
     return int(value)
 
 
+def report(outdir, truth: dict, verb: str) -> None:
+    """Print a specimen's summary and what is in ``outdir``."""
+    from apt_filters.synth import summary
+
+    print(summary(truth))
+    print(f"{verb} {outdir}/: specimen.pos, specimen.rrng, truth.json and {len(truth['features'])} true surfaces (PLY)")
+
+
 def _run(args: argparse.Namespace) -> int:
     from apt_filters.synth import preset, write_specimen
 
     start = time.perf_counter()
     specimen = write_specimen(args.outdir, preset(args.preset, args.ions), seed=args.seed,
                               overwrite=args.force, keep_ions=False)
-    print(specimen.summary())
-    print(f"wrote {args.outdir}/: specimen.pos, specimen.rrng, truth.json and "
-          f"{len(specimen.meshes)} true surfaces (PLY) in {time.perf_counter() - start:.1f} s")
+    report(args.outdir, specimen.truth, f"wrote in {time.perf_counter() - start:.1f} s")
     return 0
 
 

@@ -218,15 +218,22 @@ class Cuboid(_Solid):
         return {"kind": self.kind, "size": self.size.tolist(), **self._placement()}
 
 
-class Capsule(_Solid):
-    """Rod: a cylinder of ``radius`` and axis ``length`` (nm) with hemispherical caps, along local z."""
-
-    kind = "capsule"
+class _Axial(_Solid):
+    """A solid of revolution about local z with a ``radius`` and a ``length`` (nm)."""
 
     def __init__(self, center, radius: float, length: float, rotation=None):
         super().__init__(center, rotation)
-        self.radius = _positive(radius, "rod radius")
-        self.length = _positive(length, "rod length")
+        self.radius = _positive(radius, f"{self.kind} radius")
+        self.length = _positive(length, f"{self.kind} length")
+
+    def params(self):
+        return {"kind": self.kind, "radius": self.radius, "length": self.length, **self._placement()}
+
+
+class Capsule(_Axial):
+    """Rod: a cylinder of ``radius`` and axis ``length`` (nm) with hemispherical caps, along local z."""
+
+    kind = "capsule"
 
     def _half_extent(self):
         return np.array([self.radius, self.radius, self.radius + self.length / 2])
@@ -254,19 +261,11 @@ class Capsule(_Solid):
                        _arc(h, r, math.pi / 2, 0.0, spacing))
         return _revolve(rho, z, spacing)
 
-    def params(self):
-        return {"kind": self.kind, "radius": self.radius, "length": self.length, **self._placement()}
 
-
-class Cylinder(_Solid):
+class Cylinder(_Axial):
     """Cylinder with flat caps along local z: a rod if long, a plate (disc) if ``length`` < ``radius``."""
 
     kind = "cylinder"
-
-    def __init__(self, center, radius: float, length: float, rotation=None):
-        super().__init__(center, rotation)
-        self.radius = _positive(radius, "cylinder radius")
-        self.length = _positive(length, "cylinder length")
 
     def _half_extent(self):
         return np.array([self.radius, self.radius, self.length / 2])
@@ -299,9 +298,6 @@ class Cylinder(_Solid):
                        _segment((r, -h), (r, h), spacing),
                        _segment((r, h), (0.0, h), spacing))
         return _revolve(rho, z, spacing)
-
-    def params(self):
-        return {"kind": self.kind, "radius": self.radius, "length": self.length, **self._placement()}
 
 
 class HalfSpace(Shape):
