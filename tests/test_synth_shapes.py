@@ -7,8 +7,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.synth.geometry import Box, Tip, sample_uniform
+from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.shapes import Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Sphere, rotation_matrix
+
+SIGMAS = 4.0
 
 SOLIDS = {
     "sphere": Sphere((1.0, -2.0, 3.0), 3.0),
@@ -120,8 +122,14 @@ def test_outline_volume_sdf_and_sampling(outline):
     for z in (-0.5 * outline.length, -0.9 * outline.length):
         slab = ((p[:, 2] > z - 0.5) & (p[:, 2] < z + 0.5) & (d < 0)).mean() * box
         assert slab == pytest.approx(outline.cross_section_area(np.array([z]))[0], rel=0.03)
-    s = sample_uniform(outline, 50_000, np.random.default_rng(3))
-    assert (outline.sdf(s) < 0).all()
+    s = outline.sample(200_000, np.random.default_rng(3))
+    assert (outline.sdf(s) < 1e-12).all()
+    # uniform in volume: the counts in the MC cells of a coarse grid match the MC volume fractions
+    edges = [np.linspace(lo[i], hi[i], 5) for i in range(3)]
+    ref = np.histogramdd(p[d < 0], bins=edges)[0].ravel() / (d < 0).sum()
+    got = np.histogramdd(s, bins=edges)[0].ravel() / len(s)
+    err = np.sqrt(ref * (1 - ref) * (1 / len(s) + 1 / (d < 0).sum()))
+    assert (np.abs(got - ref) <= SIGMAS * err + 1e-12).all()
     # uniform: the fraction in the upper half of the z range matches its volume fraction
     upper = (p[:, 2] > -0.5 * outline.length) & (d < 0)
     expected = upper.mean() / frac

@@ -10,7 +10,7 @@ density, efficiency, blur, spectrum) or take a preset, then :func:`generate` it 
 """
 
 from apt_filters.synth.generate import Specimen, build_truth, generate, iter_ions, summary, write_specimen
-from apt_filters.synth.geometry import Box, Tip, sample_uniform
+from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.instruments import DETECTION_EFFICIENCY
 from apt_filters.synth.ply import write_ply
 from apt_filters.synth.presets import PRESETS, preset, with_ions
@@ -21,6 +21,6 @@ from apt_filters.synth.spectrum import SpectrumModel
 __all__ = [
     "Box", "Capsule", "Cuboid", "CustomShape", "Cylinder", "DETECTION_EFFICIENCY", "Feature", "HalfSpace",
     "PRESETS", "Segregation", "Shape", "Specimen", "SpecimenSpec", "SpectrumModel", "Sphere", "Tip",
-    "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix", "sample_uniform",
+    "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix",
     "summary", "with_ions", "write_ply", "write_specimen",
 ]

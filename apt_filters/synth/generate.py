@@ -30,7 +30,6 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.io.writers import write_rrng
 from apt_filters.synth import specimen as model
-from apt_filters.synth.geometry import sample_uniform
 from apt_filters.synth.ply import write_ply
 from apt_filters.synth.spectrum import MzSampler, noise_window, peaks, range_table, ranged_noise_fraction
 
@@ -175,7 +174,7 @@ def iter_ions(spec: model.SpecimenSpec, seed: int, sampler: MzSampler,
     for k, start in enumerate(range(0, total, chunk)):
         n = min(chunk, total - start)
         rng = np.random.default_rng(np.random.SeedSequence([seed, 1, k]))
-        true = sample_uniform(spec.geometry, n, rng)
+        true = spec.geometry.sample(n, rng)
         noise = rng.random(n) < spec.spectrum.noise_fraction
         atoms = np.flatnonzero(~noise)
         cum = np.cumsum(model.composition_at(spec, true[atoms]), axis=1)

@@ -73,6 +73,37 @@ class Tip:
         r2 = r1 + height * math.tan(a)
         return cap + math.pi * height * (r1 * r1 + r1 * r2 + r2 * r2) / 3
 
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n, 3) float64 points uniform in the tip, in random order.
+
+        Shank (a frustum): dV is proportional to r^2 dr, so r = cbrt(r1^3 + u (r2^3 - r1^3)) exactly,
+        then a point uniform in that disc. Apex cap: rejection from its bounding cylinder. Each
+        point is in the cap with probability V_cap / V.
+        """
+        r0, a = self.apex_radius, self._alpha
+        hc = self._cap_height()
+        z_tangent = -hc
+        r1 = r0 * math.cos(a)
+        in_cap = rng.random(n) < math.pi * hc * hc * (3 * r0 - hc) / 3 / self.volume()
+        out = np.empty((n, 3))
+        m = int((~in_cap).sum())
+        u = rng.random(m)
+        if a > 0:
+            r2 = r1 + (self.length - hc) * math.tan(a)
+            radius = np.cbrt(r1**3 + u * (r2**3 - r1**3))
+            z = z_tangent - (radius - r1) / math.tan(a)
+        else:
+            radius, z = np.full(m, r1), z_tangent - u * (self.length - hc)
+        out[~in_cap] = _in_discs(radius, z, rng)
+        cap, have, k = np.empty((int(in_cap.sum()), 3)), 0, int(in_cap.sum())
+        while have < k:
+            p = _in_discs(np.full(2 * (k - have) + 16, r1), z_tangent + hc * rng.random(2 * (k - have) + 16), rng)
+            p = p[p[:, 0] ** 2 + p[:, 1] ** 2 + (p[:, 2] + r0) ** 2 < r0 * r0][: k - have]
+            cap[have:have + len(p)] = p
+            have += len(p)
+        out[in_cap] = cap
+        return out
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         r = float(self.radius_at(np.array([-self.length]))[0])
         return np.array([-r, -r, -self.length]), np.array([r, r, 0.0])
@@ -118,6 +149,11 @@ class Box:
         z = np.asarray(z, dtype=np.float64)
         return np.where((z <= 0) & (z >= -self.size[2]), self.size[0] * self.size[1], 0.0)
 
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n, 3) float64 points uniform in the box."""
+        lo, hi = self.bounds()
+        return lo + (hi - lo) * rng.random((n, 3))
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         h = self.size / 2
         return np.array([-h[0], -h[1], -self.size[2]]), np.array([h[0], h[1], 0.0])
@@ -131,15 +167,8 @@ class Box:
         return {"kind": self.kind, "size": self.size.tolist(), "top_z": 0.0}
 
 
-def sample_uniform(geometry: Tip | Box, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 3) float64 points uniform in the specimen, by rejection from its bounding box."""
-    lo, hi = geometry.bounds()
-    accept = geometry.volume() / float(np.prod(hi - lo))
-    out, have = np.empty((n, 3)), 0
-    while have < n:
-        m = int((n - have) / accept * 1.05) + 64
-        p = lo + (hi - lo) * rng.random((m, 3))
-        p = p[geometry.sdf(p) < 0][: n - have]
-        out[have:have + len(p)] = p
-        have += len(p)
-    return out
+def _in_discs(radius: np.ndarray, z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) points uniform in the discs of the given radii centred on the z axis at heights z."""
+    rho = radius * np.sqrt(rng.random(len(radius)))
+    phi = 2 * math.pi * rng.random(len(radius))
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)

@@ -181,22 +181,28 @@ def blend(c: np.ndarray, d: np.ndarray, feature: Feature, target: np.ndarray, sp
 def composition_at(spec: SpecimenSpec, points: np.ndarray, upto: int | None = None) -> np.ndarray:
     """(N, S) local composition at points (N, 3) nm, from the first ``upto`` features (all if None).
 
-    Features are evaluated only for points in their bounding box grown by their reach, so the
-    cost is about N * S plus the ions near each feature. Peak memory ~ N * (S + 4) * 8 bytes.
+    Features are evaluated only for points in their bounding box grown by their reach, and blended
+    only within their reach of the interface (changes below ``CULL_TOLERANCE`` are skipped), so
+    the cost is about N * S plus the ions near each feature. Peak memory ~ N * (S + 4) * 8 bytes.
     """
     species = spec.species
     c = np.tile(spec.vector(spec.matrix), (len(points), 1))
     for feature in spec.features[:upto]:
+        reach = feature.reach(CULL_TOLERANCE)
         box = feature.shape.bounds()
         if box is None:
             idx = np.arange(len(points))
         else:
-            pad = feature.reach(CULL_TOLERANCE)
-            idx = np.flatnonzero(np.all((points >= box[0] - pad) & (points <= box[1] + pad), axis=1))
-        if len(idx):
-            sub = c[idx]
-            blend(sub, feature.shape.sdf(points[idx]), feature, spec.vector(feature.composition), species)
-            c[idx] = sub
+            lo, hi = box[0] - reach, box[1] + reach
+            idx = np.flatnonzero((points[:, 2] >= lo[2]) & (points[:, 2] <= hi[2]))  # most features are thin in z
+            idx = idx[np.all((points[idx, :2] >= lo[:2]) & (points[idx, :2] <= hi[:2]), axis=1)]
+        d = feature.shape.sdf(points[idx])
+        target = spec.vector(feature.composition)
+        c[idx[d <= -reach]] = target  # deep inside, where blending changes nothing above 1e-12
+        near = np.abs(d) < reach
+        sub = c[idx[near]]
+        blend(sub, d[near], feature, target, species)
+        c[idx[near]] = sub
     return c
 
 

@@ -152,16 +152,16 @@ class MzSampler:
 
     def __init__(self, species: list[str], peak_list: list[Peak], window: tuple[float, float]):
         self.window = window
-        by_species = [[p for p in peak_list if p.species == sp] for sp in species]
-        width = max(len(b) for b in by_species)
-        self.cum = np.ones((len(species), width))
-        self.mz = np.zeros((len(species), width))
-        self.sigma = np.zeros((len(species), width))
-        self.count = np.array([len(b) for b in by_species])
-        for s, block in enumerate(by_species):
-            self.cum[s, : len(block)] = np.cumsum([p.probability for p in block])
-            self.mz[s, : len(block)] = [p.mz for p in block]
-            self.sigma[s, : len(block)] = [p.sigma for p in block]
+        order = sorted(range(len(peak_list)), key=lambda i: species.index(peak_list[i].species))
+        ordered = [peak_list[i] for i in order]
+        owner = np.array([species.index(p.species) for p in ordered])
+        # species s owns the edges s + (cumulative probability of its peaks), all in one sorted array
+        within = np.array([p.probability for p in ordered])
+        cum = [within[owner == s].cumsum() for s in range(len(species))]
+        self.edges = np.concatenate([s + c for s, c in enumerate(cum)]).astype(np.float64)
+        self.last = np.cumsum([len(c) for c in cum]) - 1
+        self.mz = np.array([p.mz for p in ordered])
+        self.sigma = np.array([p.sigma for p in ordered])
 
     def sample(self, species_index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(N,) float64 m/z; species_index -1 marks noise ions (uniform over the window)."""
@@ -169,7 +169,6 @@ class MzSampler:
         u, g = rng.random(n), rng.standard_normal(n)
         noise = species_index < 0
         s = np.where(noise, 0, species_index)
-        k = np.minimum((self.cum[s] < u[:, None]).sum(axis=1), self.count[s] - 1)
-        mz = self.mz[s, k] + self.sigma[s, k] * g
+        k = np.minimum(np.searchsorted(self.edges, s + u, side="right"), self.last[s])
         lo, hi = self.window
-        return np.where(noise, lo + (hi - lo) * u, mz)
+        return np.where(noise, lo + (hi - lo) * u, self.mz[k] + self.sigma[k] * g)
