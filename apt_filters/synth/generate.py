@@ -146,6 +146,7 @@ def build_truth(spec: model.SpecimenSpec, seed: int) -> tuple[dict, RangeTable, 
         "efficiency": spec.efficiency,
         "ion_density_per_nm3": ion_density,
         "blur_sigma_nm": {"lateral": spec.blur[0], "depth": spec.blur[1]},
+        "mesh_spacing_nm": spec.mesh_spacing,
         "species": species,
         "matrix_composition": as_dict(spec.vector(spec.matrix)),
         "composition_model": "c <- c + 0.5 (1 - tanh(d / w)) (c_feature - c) per feature in order; then per "
