@@ -231,7 +231,7 @@ def test_files_pos_ply_and_truth(small):
     specimen, out = small
     raw = np.fromfile(out / "specimen.pos", dtype=">f4").reshape(-1, 4)
     assert np.array_equal(raw[:, :3], specimen.ions.positions) and np.array_equal(raw[:, 3], specimen.ions.mz)
-    truth = json.loads((out / "truth.json").read_text())
+    truth = json.loads((out / "truth.json").read_text(), parse_constant=lambda c: pytest.fail(f"not JSON: {c}"))
     assert truth["seed"] == 11 and truth["files"]["pos"] == "specimen.pos"
     for f, mesh in zip(truth["features"], specimen.meshes):
         data = (out / f["mesh"]["file"]).read_bytes()
@@ -330,3 +330,48 @@ def test_bad_specs_are_clear_errors():
                                                                    mass_resolution=20)), 0)
     with pytest.raises(AptFiltersError, match="too few"):
         with_ions(preset("small"), 1000)
+
+
+def test_composition_field_is_the_one_dimensional_profile_of_the_truth(small):
+    """Near each feature the 3-D field (culling, painting order) equals the profile the excess integrates."""
+    from apt_filters.synth.specimen import CULL_TOLERANCE, blend, composition_at
+
+    specimen, _ = small
+    spec, t = specimen.spec, specimen.truth
+    rng = np.random.default_rng(9)
+    for i, f in enumerate(t["features"]):
+        feature = spec.features[i]
+        mesh = specimen.meshes[i]
+        base = mesh.vertices[rng.integers(0, mesh.n_vertices, 3000)]
+        p = base + rng.normal(scale=0.8, size=base.shape)
+        keep = spec.geometry.sdf(p) < 0
+        for j, other in enumerate(spec.features):  # stay on this feature's side of, and away from, the others
+            if j != i:
+                side = np.sign(other.shape.sdf(mesh.vertices[:1]))
+                keep &= other.shape.sdf(p) * side > other.reach(CULL_TOLERANCE)
+        p = p[keep]
+        assert len(p) > 1000
+        d = feature.shape.sdf(p)
+        expected = np.tile(spec.vector(f["composition_outside"]), (len(d), 1))
+        blend(expected, d, feature, spec.vector(f["composition_inside"]), spec.species)
+        assert np.abs(composition_at(spec, p) - expected).max() < 1e-9, f["name"]
+
+
+def test_species_are_drawn_from_the_local_composition(small):
+    """Without blur the ions sit where their species was drawn: counts match the summed probabilities."""
+    from apt_filters.synth.specimen import composition_at
+
+    spec = small[0].spec
+    sharp = generate(SpecimenSpec(spec.geometry, spec.matrix, spec.features, blur=(0.0, 0.0), name="sharp"), seed=12)
+    species = sharp.ions.extra["species"]
+    atoms = species >= 0
+    prob = composition_at(spec, sharp.ions.positions[atoms].astype(np.float64))
+    counts = np.bincount(species[atoms], minlength=prob.shape[1])
+    expected, var = prob.sum(axis=0), (prob * (1 - prob)).sum(axis=0)
+    assert (np.abs(counts - expected) < SIGMAS * np.sqrt(var)).all(), (counts, expected)
+    # and the same near the interfaces alone, where the B shells are
+    near = np.min([np.abs(spec.features[i].shape.sdf(sharp.ions.positions[atoms].astype(np.float64)))
+                   for i in range(len(spec.features))], axis=0) < 1.0
+    counts = np.bincount(species[atoms][near], minlength=prob.shape[1])
+    expected, var = prob[near].sum(axis=0), (prob[near] * (1 - prob[near])).sum(axis=0)
+    assert (np.abs(counts - expected) < SIGMAS * np.sqrt(var)).all(), (counts, expected)

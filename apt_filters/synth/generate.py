@@ -125,7 +125,8 @@ def build_truth(spec: model.SpecimenSpec, seed: int) -> tuple[dict, RangeTable, 
             "width_nm": f.width, "segregation": [vars(s).copy() for s in f.segregation],
             "composition_inside": as_dict(spec.vector(f.composition)),
             "composition_outside": as_dict(c_out),
-            "volume_nm3": volume, "area_nm2": area, "depth_nm": f.shape.depth(),
+            "volume_nm3": volume, "area_nm2": area,
+            "depth_nm": f.shape.depth() if f.shape.bounds() is not None else None,
             "expected_detected_atoms_inside": ion_density * volume,
             "excess": {sp: {"atoms_per_nm2": float(g), "ions_per_nm2": float(g * spec.efficiency),
                             "excess_ions": float(g * spec.efficiency * area)}
@@ -145,6 +146,7 @@ def build_truth(spec: model.SpecimenSpec, seed: int) -> tuple[dict, RangeTable, 
         "efficiency": spec.efficiency,
         "ion_density_per_nm3": ion_density,
         "blur_sigma_nm": {"lateral": spec.blur[0], "depth": spec.blur[1]},
+        "mesh_spacing_nm": spec.mesh_spacing,
         "species": species,
         "matrix_composition": as_dict(spec.vector(spec.matrix)),
         "composition_model": "c <- c + 0.5 (1 - tanh(d / w)) (c_feature - c) per feature in order; then per "
@@ -244,7 +246,7 @@ def write_specimen(outdir: str | os.PathLike, spec: model.SpecimenSpec, seed: in
     for feature, mesh in zip(result.truth["features"], result.meshes):
         write_ply(out / feature["mesh"]["file"], mesh, overwrite)
     result.truth["files"] = {"pos": names[0], "rrng": names[1], "meshes": names[3:]}
-    atomic_write_text(out / "truth.json", json.dumps(result.truth, indent=1) + "\n", overwrite)
+    atomic_write_text(out / "truth.json", json.dumps(result.truth, indent=1, allow_nan=False) + "\n", overwrite)
     return result
 
 

@@ -225,7 +225,12 @@ def check_layout(spec: SpecimenSpec) -> list[np.ndarray]:
     _check_composition(spec.matrix, "matrix")
     for i, f in enumerate(spec.features):
         _check_composition(f.composition, f"feature {i} ({f.name})")
-    points = [f.shape.mesh(0.5, spec.geometry).vertices for f in spec.features]
+    points = []
+    for i, f in enumerate(spec.features):
+        try:
+            points.append(f.shape.mesh(0.5, spec.geometry).vertices)
+        except AptFiltersError as exc:
+            raise AptFiltersError(f"feature {i} ({f.name}): {exc}") from exc
     for i, f in enumerate(spec.features):
         reach = f.reach(LAYOUT_TOLERANCE)
         if f.shape.bounds() is not None and spec.geometry.sdf(points[i]).max() > -reach:
