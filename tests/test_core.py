@@ -87,3 +87,14 @@ def test_pos_epos_rrng_writers(tmp_path):
     assert np.array_equal(rec["y"], ions.positions[:, 1]) and rec["multiplicity"].tolist() == list(range(10))
     text = format_rrng(table())
     assert "Range3=83.5000 86.5000 Cr:1 O:2" in text and "Ion2=Cr" in text
+
+
+def test_atomic_output_gives_ordinary_permissions(tmp_path):
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = atomic_write_text(tmp_path / "p.txt", "x")
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -22,6 +22,12 @@ def _check_target(path: Path, overwrite: bool) -> None:
         raise AptFiltersError("folder does not exist", path.parent)
 
 
+def _default_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary path to write; on success it is renamed to ``path``.
@@ -37,6 +43,7 @@ def atomic_output(path: str | os.PathLike, overwrite: bool = False) -> Iterator[
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, _default_mode())  # mkstemp makes 0600 files; outputs are ordinary files
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
