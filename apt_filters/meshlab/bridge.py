@@ -8,7 +8,7 @@ Layout in MeshLab terms (what the GUI shows):
 - the face scalar ``"object_id"`` (if present) becomes the *face quality*; every face scalar
   is also kept as a custom per-face attribute (float64 in MeshLab, cast back on return);
 - vertex scalars named ``red``, ``green``, ``blue`` (and optionally ``alpha``), in [0, 1],
-  are the vertex colour.
+  are the vertex colour (MeshLab keeps 8 bits per channel).
 
 pymeshlab offers no way to list custom attributes, so :class:`AttributeNames` records what
 was put in and is handed back to :func:`from_pymeshlab`. Memory: one copy of the arrays
