@@ -273,7 +273,7 @@ def read_ply(path: str | os.PathLike) -> TriMesh:
             if words[1] == "list":
                 if words[2] not in ("uchar", "uint8") or _PLY_TYPES.get(words[3]) not in ("<i4", "<u4"):
                     raise InputError(f"unsupported face list {' '.join(words[2:4])}", path)
-                elements[-1][2] += [(f"{words[4]}_n", "u1"), (words[4], _PLY_TYPES[words[3]], (3,))]
+                elements[-1][2].extend([(f"{words[4]}_n", "u1"), (words[4], _PLY_TYPES[words[3]], (3,))])
             elif words[1] in _PLY_TYPES:
                 elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
             else:
