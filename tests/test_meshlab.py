@@ -256,3 +256,16 @@ def test_meshlabserver_replays_our_script(tmp_path, scalar_sphere):
     ms = pymeshlab.MeshSet()
     ms.load_new_mesh(str(tmp_path / "out.ply"))
     np.testing.assert_allclose(ms.current_mesh().vertex_matrix(), out.vertices, atol=1e-5)
+
+
+def test_pymeshlab_example_script_runs(tmp_path, capsys):
+    import runpy
+
+    from tests.conftest import ROOT
+
+    example = runpy.run_path(str(ROOT / "scripts" / "pymeshlab_example.py"))
+    assert example["main"]([str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "object 2: closed" in out and "genus 1" in out and "Reading filter" not in out
+    assert {"clean.mlx", "clean.json", "smooth.mlx", "objects.csv", "smoothed.ply", "scene.mlp"} <= \
+        {p.name for p in tmp_path.iterdir()}

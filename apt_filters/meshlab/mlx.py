@@ -11,8 +11,11 @@ meanwhile) to MeshLab's own engine (``load_filter_script`` + ``apply_filter_scri
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 import re
+import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -110,6 +113,21 @@ def check_params(ms: pymeshlab.MeshSet, filters: list[ScriptFilter], path: str |
             raise InputError(f"filter {f.mlx_name!r} has no parameter {', '.join(unknown)}", path)
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence C++ writes to file descriptor 1 (MeshLab echoes every filter it reads)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        ctypes.CDLL(None).fflush(None)  # C stdio buffers the echo: flush it into /dev/null
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def replay_on_meshset(ms: pymeshlab.MeshSet, script: str | os.PathLike) -> list[ScriptFilter]:
     """Apply a checked ``.mlx`` script to the current mesh of ``ms`` with MeshLab's engine."""
     data, filters = read_script(script)
@@ -118,7 +136,8 @@ def replay_on_meshset(ms: pymeshlab.MeshSet, script: str | os.PathLike) -> list[
         checked = Path(tmp) / "script.mlx"
         checked.write_bytes(data)
         try:
-            ms.load_filter_script(str(checked))
+            with _quiet_stdout():
+                ms.load_filter_script(str(checked))
             ms.apply_filter_script()
         except pymeshlab.PyMeshLabException as exc:
             raise AptFiltersError(f"MeshLab could not apply the script: {exc}", script) from exc
