@@ -17,11 +17,15 @@ was put in and is handed back to :func:`from_pymeshlab`. Memory: one copy of the
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pymeshlab
 
+from apt_filters.core.atomic import atomic_output
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 
 COLOR_KEYS = ("red", "green", "blue", "alpha")
@@ -160,3 +164,13 @@ def from_pymeshlab(m: pymeshlab.Mesh | pymeshlab.MeshSet, names: AttributeNames 
 def _cast(values: np.ndarray, dtype: str) -> np.ndarray:
     dt = np.dtype(dtype)
     return np.rint(values).astype(dt) if dt.kind in "iub" else values.astype(dt)
+
+
+def save_current_mesh(ms: pymeshlab.MeshSet, path: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Save ``ms``'s current mesh atomically, in the format of ``path``'s extension."""
+    with atomic_output(path, overwrite) as tmp:
+        try:
+            ms.save_current_mesh(str(tmp))
+        except pymeshlab.PyMeshLabException as exc:
+            raise AptFiltersError(f"cannot write mesh: {exc}", path) from exc
+    return Path(path)

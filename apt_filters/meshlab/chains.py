@@ -102,7 +102,8 @@ def resolve(params: Mapping[str, Param], diagonal: float) -> dict[str, bool | in
     return out
 
 
-def _pymeshlab_args(values: Mapping[str, bool | int | float], step: Step) -> dict[str, Any]:
+def pymeshlab_args(values: Mapping[str, bool | int | float], step: Step) -> dict[str, Any]:
+    """Keyword arguments for the pymeshlab filter of ``step`` from resolved ``values``."""
     # pymeshlab takes lengths of MeshLab's "AbsPerc" type as PureValue (absolute units)
     return {k: pymeshlab.PureValue(v) if isinstance(step.params[k], Percent) else v for k, v in values.items()}
 
@@ -182,7 +183,7 @@ def run_on_meshset(ms: pymeshlab.MeshSet, chain: Chain | str) -> ChainRun:
         diag = float(ms.current_mesh().bounding_box().diagonal())
         values = resolve(step.params, diag)
         try:
-            getattr(ms, step.filter)(**_pymeshlab_args(values, step))
+            getattr(ms, step.filter)(**pymeshlab_args(values, step))
         except pymeshlab.PyMeshLabException as exc:
             raise AptFiltersError(f"chain {chain.name!r}: MeshLab filter {FILTERS[step.filter]!r} failed: {exc}") from exc
         resolved.append(values)

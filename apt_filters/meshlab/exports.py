@@ -22,14 +22,13 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import pymeshlab
 
-from apt_filters.core.atomic import atomic_output, atomic_write_bytes, atomic_write_text
+from apt_filters.core.atomic import atomic_write_bytes, atomic_write_text
 from apt_filters.core.errors import AptFiltersError, InputError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.meshlab.bridge import COLOR_KEYS, OBJECT_ID, to_meshset
+from apt_filters.meshlab.bridge import COLOR_KEYS, OBJECT_ID, save_current_mesh, to_meshset
 
 GUI_POINTS = 2_000_000
 """Default largest ion cloud written for the GUI (MeshLab stays interactive at this size)."""
@@ -136,13 +135,7 @@ def write_mesh(mesh: TriMesh, path: str | os.PathLike, overwrite: bool = False, 
         return write_ply(mesh, path, quality=quality, overwrite=overwrite)
     if ext not in {".obj", ".stl", ".off"}:
         raise AptFiltersError("mesh format must be .ply, .obj, .stl or .off", path)
-    ms, _ = to_meshset(mesh, quality=quality)
-    with atomic_output(path, overwrite) as tmp:
-        try:
-            ms.save_current_mesh(str(tmp))
-        except pymeshlab.PyMeshLabException as exc:
-            raise AptFiltersError(f"cannot write mesh: {exc}", path) from exc
-    return path
+    return save_current_mesh(to_meshset(mesh, quality=quality)[0], path, overwrite)
 
 
 def _hex_rgb(color: str | None, fallback: tuple[int, int, int]) -> tuple[int, int, int]:

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import pymeshlab
 
-from apt_filters.core.atomic import atomic_output
 from apt_filters.core.errors import AptFiltersError, InputError
+from apt_filters.meshlab.bridge import save_current_mesh
 from apt_filters.meshlab.filters import MLX_NAMES
 
 MAX_SCRIPT_BYTES = 1 << 20
@@ -168,9 +168,5 @@ def replay_file(script: str | os.PathLike, mesh_in: str | os.PathLike, mesh_out:
         raise AptFiltersError("output would overwrite the input mesh", mesh_out)
     ms = load_mesh(mesh_in)
     filters = replay_on_meshset(ms, script)
-    with atomic_output(mesh_out, overwrite) as tmp:
-        try:
-            ms.save_current_mesh(str(tmp))
-        except pymeshlab.PyMeshLabException as exc:
-            raise AptFiltersError(f"cannot write mesh: {exc}", mesh_out) from exc
+    save_current_mesh(ms, mesh_out, overwrite)
     return filters
