@@ -269,3 +269,16 @@ def test_pymeshlab_example_script_runs(tmp_path, capsys):
     assert "object 2: closed" in out and "genus 1" in out and "Reading filter" not in out
     assert {"clean.mlx", "clean.json", "smooth.mlx", "objects.csv", "smoothed.ply", "scene.mlp"} <= \
         {p.name for p in tmp_path.iterdir()}
+
+
+def test_import_fails_clearly_without_the_meshing_filters(monkeypatch):
+    import importlib
+
+    import apt_filters.meshlab as package
+
+    real = pymeshlab.filter_list()
+    monkeypatch.setattr(pymeshlab, "filter_list", lambda: [f for f in real if not f.startswith("meshing_")])
+    with pytest.raises(AptFiltersError, match="libopengl0"):
+        importlib.reload(package)
+    monkeypatch.undo()
+    importlib.reload(package)

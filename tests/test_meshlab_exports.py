@@ -150,3 +150,21 @@ def test_decimation_keeps_boundary_loops_exactly_and_is_serialised():
     assert set(d.face_scalars["object_id"]) == {7}
     with pytest.raises(AptFiltersError):
         decimate(s, 1.0)
+
+
+def test_ion_cloud_sampling_is_uniform_across_chunks(tmp_path, ions_ranges, monkeypatch):
+    import apt_filters.meshlab.exports as exports
+
+    ions, ranges = ions_ranges
+    monkeypatch.setattr(exports, "CLOUD_CHUNK", 7_000)  # 5 chunks, the last one short
+    cloud = exports.write_ion_cloud(ions, ranges, tmp_path / "c.ply", max_points=6_000, include_unranged=True)
+    assert (cloud.n_written, cloud.n_ions) == (6_000, len(ions))
+    back = read_ply(tmp_path / "c.ply")
+    lookup = {tuple(p): i for i, p in enumerate(ions.positions)}
+    index = np.array([lookup[tuple(p)] for p in back.vertices.astype(np.float32)])
+    assert np.all(np.diff(index) > 0)  # file order, no repeats
+    per_chunk = np.bincount(index // 7_000)
+    np.testing.assert_allclose(per_chunk / per_chunk.sum(), [7, 7, 7, 7, 2] / np.float64(30), atol=0.02)
+    assert set(np.rint(back.vertex_scalars["quality"]).astype(int)) == {-1, 0, 1, 2}
+    full = exports.write_ion_cloud(ions, ranges, tmp_path / "all.ply", include_unranged=True)
+    assert full.n_written == len(ions) and full.ratio == 1.0

@@ -139,3 +139,11 @@ def test_table_written_as_csv_and_json(tmp_path):
         table.write_csv(tmp_path / "objects.csv")
     with pytest.raises(AptFiltersError, match="both"):
         object_table(_scene(), ions)
+
+
+def test_json_writes_undefined_values_as_null(tmp_path):
+    table = object_table(cut_below(sphere(5.0), 0.0), cap_open=False)
+    table.write_json(tmp_path / "o.json")
+    data = json.loads((tmp_path / "o.json").read_text())
+    assert data["objects"][0]["status"] == "open" and data["objects"][0]["volume"] is None
+    assert data["number_density_per_nm3"] is None  # no specimen given

@@ -171,36 +171,56 @@ class CloudExport:
         return self.n_written / self.n_ions if self.n_ions else 1.0
 
 
+CLOUD_CHUNK = 10_000_000
+"""Ions ranged per chunk by :func:`write_ion_cloud` (about 20 bytes each while in flight)."""
+
+
+_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                         ("quality", "<f4")])
+
+
+def _pool(ranges: RangeTable, mz: np.ndarray, include_unranged: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Species of a chunk of ions and the chunk-local indices eligible for the cloud."""
+    species = ranges.ion_index(mz)
+    return species, (np.arange(len(mz)) if include_unranged else np.flatnonzero(species >= 0))
+
+
 def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike, max_points: int = GUI_POINTS,
                     include_unranged: bool = False, seed: int = 0, overwrite: bool = False) -> CloudExport:
     """Write ions as a coloured point-cloud PLY (x, y, z float32 nm; RGB by species; quality = species index).
 
     At most ``max_points`` ions, drawn uniformly without replacement (reproducible with
     ``seed``) and kept in file order; the header comment states the sampling ratio.
-    Memory: the ranged mask and the sample index, O(N) bytes, plus the written rows.
+    Two passes over chunks of :data:`CLOUD_CHUNK` ions: count the eligible ions per chunk,
+    split the sample between chunks (multivariate hypergeometric, so the draw is uniform over
+    all ions), then draw inside each chunk. Memory: one chunk's work arrays plus the written
+    rows (19 bytes per point), whatever the number of ions.
     """
     if max_points < 1:
         raise AptFiltersError(f"max_points must be at least 1, got {max_points}")
-    species = ranges.ion_index(ions.mz)
-    candidates = np.arange(len(ions)) if include_unranged else np.flatnonzero(species >= 0)
-    if len(candidates) > max_points:
-        rng = np.random.default_rng(seed)
-        candidates = np.sort(rng.choice(candidates, size=max_points, replace=False))
-    s = species[candidates]
-    colors = species_colors(ranges)[s]  # index -1 selects the unranged row
-    v = np.empty(len(candidates), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"),
-                                          ("green", "u1"), ("blue", "u1"), ("quality", "<f4")])
-    v["x"], v["y"], v["z"] = ions.positions[candidates].T
-    v["red"], v["green"], v["blue"] = colors.T
-    v["quality"] = s
-    n_pool = len(ions) if include_unranged else int((species >= 0).sum())
-    comments = [f"apt-filters ion cloud; units nm; {len(candidates)} of {n_pool} "
-                f"{'ions' if include_unranged else 'ranged ions'} (sampling ratio {len(candidates) / max(n_pool, 1):.6g})",
-                "quality = species index: " + ", ".join(f"{i}={n}" for i, n in enumerate(ranges.ions))
+    chunks = [slice(i, i + CLOUD_CHUNK) for i in range(0, len(ions), CLOUD_CHUNK)]
+    counts = np.array([len(_pool(ranges, ions.mz[c], include_unranged)[1]) for c in chunks], dtype=np.int64)
+    n_pool = int(counts.sum())
+    rng = np.random.default_rng(seed)
+    take = counts if n_pool <= max_points else rng.multivariate_hypergeometric(counts, max_points)
+    rows = []
+    for c, k in zip(chunks, take):
+        species, pool = _pool(ranges, ions.mz[c], include_unranged)
+        chosen = pool if k == len(pool) else np.sort(rng.choice(pool, size=k, replace=False))
+        part = np.empty(len(chosen), dtype=_CLOUD_DTYPE)
+        part["x"], part["y"], part["z"] = ions.positions[c][chosen].T
+        part["red"], part["green"], part["blue"] = species_colors(ranges)[species[chosen]].T  # -1: unranged row
+        part["quality"] = species[chosen]
+        rows.append(part)
+    v = np.concatenate(rows) if rows else np.empty(0, dtype=_CLOUD_DTYPE)
+    n = len(v)
+    comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} "
+                f"{'ions' if include_unranged else 'ranged ions'} (sampling ratio {n / max(n_pool, 1):.6g})",
+                "quality = species index: " + ", ".join(f"{i}={name}" for i, name in enumerate(ranges.ions))
                 + (", -1=unranged" if include_unranged else "")]
-    header = _ply_header(len(v), v.dtype, None, None, comments)
+    header = _ply_header(n, v.dtype, None, None, comments)
     out = atomic_write_bytes(path, header + v.tobytes(), overwrite)
-    return CloudExport(out, len(candidates), n_pool)
+    return CloudExport(out, n, n_pool)
 
 
 def write_project(path: str | os.PathLike, meshes: Sequence[str | os.PathLike], labels: Sequence[str] | None = None,
