@@ -158,6 +158,10 @@ class ObjectStats:
     ``area`` is the iso-surface only (caps excluded), sphericity uses the closed
     (capped) area of a proxy. ``obb_extents`` are sorted longest first; ``aspect_ratios``
     = (middle / longest, shortest / longest). ``genus`` = (2 - chi - boundary_loops) / 2.
+    ``edge_distance`` is the smallest distance of the object's vertices to the specimen edge
+    (about 0 for objects cut by it; NaN without a specimen). ``n_ions`` is -1 when no ions
+    were given; ``ion_counts`` has an ``unranged`` entry; ``composition`` is by element,
+    molecular ions split into their atoms.
     """
 
     object_id: int
