@@ -168,3 +168,13 @@ def test_ion_cloud_sampling_is_uniform_across_chunks(tmp_path, ions_ranges, monk
     assert set(np.rint(back.vertex_scalars["quality"]).astype(int)) == {-1, 0, 1, 2}
     full = exports.write_ion_cloud(ions, ranges, tmp_path / "all.ply", include_unranged=True)
     assert full.n_written == len(ions) and full.ratio == 1.0
+
+
+def test_explicit_vertex_colours_win_over_the_colour_map(tmp_path, iso):
+    n = iso.n_vertices
+    iso.vertex_scalars.update(red=np.ones(n), green=np.zeros(n), blue=np.full(n, 0.5))
+    for cmap in ("viridis", None):
+        write_ply(iso, tmp_path / f"{cmap}.ply", cmap=cmap)
+        ms = _load(tmp_path / f"{cmap}.ply")
+        rgba = np.rint(ms.current_mesh().vertex_color_matrix() * 255)
+        assert np.all(rgba == [255, 0, 128, 255])

@@ -82,7 +82,8 @@ def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "val
     quality : str or None
         Vertex scalar written as ``quality`` and coloured; falls back to the first scalar.
     cmap : str or None
-        matplotlib colour map for the vertex colour; None writes no colour.
+        matplotlib colour map for the vertex colour; None writes no colour map (explicit
+        colour scalars are still written).
     limits : (low, high), optional
         Colour-map range; default 1st-99th percentile.
     """
@@ -90,7 +91,7 @@ def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "val
     if quality not in scalars:
         quality = next(iter(scalars), None)
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
-    has_color = cmap is not None and (quality is not None or "red" in mesh.vertex_scalars)
+    has_color = "red" in mesh.vertex_scalars or (cmap is not None and quality is not None)
     if has_color:
         fields += [(c, "u1") for c in COLOR_KEYS]
     if quality is not None:
