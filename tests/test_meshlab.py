@@ -116,8 +116,12 @@ def test_close_chain_closes_an_open_cap_to_a_watertight_proxy():
     open_mesh = cut_below(s, -4.0)  # a hole at the south pole, rim near z = -4
     rim = open_mesh.vertices[np.unique(open_mesh.boundary_edges()), 2]
     assert len(rim) > 0
+    open_mesh.face_scalars["object_id"] = np.full(open_mesh.n_faces, 3)
     out, _ = apply_chain(open_mesh, "close")
     assert len(out.boundary_edges()) == 0 and out.non_manifold_edge_count() == 0
+    cap = out.face_scalars["cap"].astype(bool)
+    assert cap.sum() == out.n_faces - open_mesh.n_faces and not cap[:open_mesh.n_faces].any()
+    assert np.all(out.face_scalars["object_id"] == 3)  # caps take their surface's id
     h = 5.0 + rim.mean()  # height of the missing cap
     truth = 4 / 3 * np.pi * 125 - np.pi * h**2 * (15.0 - h) / 3
     assert out.signed_volume() == pytest.approx(truth, rel=0.01)

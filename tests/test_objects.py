@@ -14,6 +14,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
+from apt_filters.meshlab.chains import apply_chain
 from tests.meshlab_shapes import box, cut_below, merge, sphere, torus
 
 SPECIMEN = np.array([40.0, 30.0, 60.0])  # x, y, z extents of the constructed specimen (nm)
@@ -65,6 +66,14 @@ def test_open_object_is_proxy_when_capped_and_open_otherwise():
     assert proxy.area == pytest.approx(half.area())  # the surface only, not the cap
     opened = object_table(half, cap_open=False).objects[0]
     assert opened.status == "open" and math.isnan(opened.volume)
+    meshlab_closed, _ = apply_chain(half, "close")  # MeshLab's caps, flagged in face scalar "cap"
+    by_meshlab = object_table(meshlab_closed, cap_open=False).objects[0]
+    assert by_meshlab.status == "proxy" and by_meshlab.area == pytest.approx(half.area(), rel=1e-12)
+    # caps lie in the slab of the jagged rim, so the volume lies between the two planar caps
+    rim = half.vertices[np.unique(half.boundary_edges()), 2]
+    lower, upper = (math.pi * (5 - z) ** 2 * (10 + z) / 3 for z in (rim.max(), rim.min()))
+    assert lower <= proxy.volume <= upper and lower <= by_meshlab.volume <= upper
+    assert (by_meshlab.boundary_loops, by_meshlab.genus) == (1, 0)
     capped, loop = cap_boundaries(half)
     assert len(capped.boundary_edges()) == 0 and capped.non_manifold_edge_count() == 0
     assert set(loop) == {0}

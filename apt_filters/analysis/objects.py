@@ -36,6 +36,10 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 
+CAP = "cap"
+"""Face scalar flagging faces that close a hole (non-zero), as the meshlab ``close`` chain sets it:
+components with such faces are proxies and their area leaves those faces out."""
+
 ION_CHUNK = 4_000_000
 """Ions tested per chunk; peak extra memory about 60 bytes per ion of a chunk (~240 MB)."""
 
@@ -310,7 +314,8 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         hull of the ions (if given).
     cap_open : bool
         Cap open objects at their boundary loops and report them as ``proxy`` with a
-        volume; otherwise they stay ``open`` without volume.
+        volume; otherwise they stay ``open`` without volume. Objects closed by faces flagged
+        in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too.
 
     Memory: a few copies of the face array, plus :data:`ION_CHUNK`-sized ion work arrays.
     """
@@ -321,17 +326,20 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
     n_obj, face_label = _components(mesh)
     order = np.argsort(face_label, kind="stable")
     starts = np.searchsorted(face_label[order], np.arange(n_obj + 1))
+    is_cap = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces)), dtype=bool)
     objects: list[ObjectStats] = []
     shapes: list[tuple[np.ndarray, np.ndarray]] = []
     for k in range(n_obj):
-        faces = mesh.faces[order[starts[k]:starts[k + 1]]]
-        used, local = np.unique(faces, return_inverse=True)
-        part = TriMesh(mesh.vertices[used], local.reshape(-1, 3))
-        closed = cap_boundaries(part)[0] if cap_open else part
-        objects.append(_stats(k + 1, part, closed))
+        index = order[starts[k]:starts[k + 1]]
+        whole = _submesh(mesh.vertices, mesh.faces[index])
+        surface = _submesh(mesh.vertices, mesh.faces[index[~is_cap[index]]]) \
+            if is_cap[index].any() and not is_cap[index].all() else whole
+        closed = cap_boundaries(whole)[0] if cap_open else whole
+        status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
+        objects.append(_stats(k + 1, surface, closed, status))
         shapes.append((closed.vertices, closed.faces))
         if specimen is not None:
-            objects[-1].edge_distance = float(specimen.distance(part.vertices).min())
+            objects[-1].edge_distance = float(specimen.distance(surface.vertices).min())
     n_dropped = 0
     if ions is not None:
         closed = [i for i, o in enumerate(objects) if o.status != "open"]
@@ -351,14 +359,19 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
     return ObjectTable(objects, volume, n_dropped)
 
 
-def _stats(object_id: int, part: TriMesh, closed: TriMesh) -> ObjectStats:
-    """Statistics of one component ``part``; ``closed`` is it capped (or ``part`` itself)."""
+def _submesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:
+    used, local = np.unique(faces, return_inverse=True)
+    return TriMesh(vertices[used], local.reshape(-1, 3))
+
+
+def _stats(object_id: int, part: TriMesh, closed: TriMesh, status: str) -> ObjectStats:
+    """Statistics of one component: ``part`` its iso-surface faces, ``closed`` the same with
+    caps (or ``part`` itself when nothing was capped)."""
     n_loops, _ = _loops(_boundary_half_edges(part.faces), part.n_vertices)
     n_edges = len(np.unique(np.sort(part.edges(), axis=1), axis=0))
     chi = part.n_vertices - n_edges + part.n_faces
     areas = part.face_areas()
     face_centres = part.vertices[part.faces].mean(axis=1)
-    status = "closed" if n_loops == 0 else ("proxy" if closed is not part else "open")
     volume = radius = sphericity = math.nan
     centroid = (areas @ face_centres) / areas.sum() if areas.sum() > 0 else part.vertices.mean(axis=0)
     if status != "open":

@@ -22,13 +22,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
 import pymeshlab
 
 from apt_filters.core.atomic import atomic_output, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.meshlab.bridge import from_pymeshlab, to_meshset
+from apt_filters.meshlab.bridge import OBJECT_ID, from_pymeshlab, to_meshset
 from apt_filters.meshlab.filters import FILTERS
+
+
+CAP = "cap"
+"""Face scalar set by chains that close holes: 1 on the faces added (``apt_filters.analysis.objects``
+then reports the object as a proxy)."""
 
 
 @dataclass(frozen=True)
@@ -121,7 +127,7 @@ CHAINS: dict[str, Chain] = {
         Step("meshing_remove_unreferenced_vertices"),
     )),
     "close": Chain("close", "close holes up to a boundary length (edges), for proxy volumes", (
-        Step("meshing_close_holes", {"maxholesize": 100, "selected": False, "newfaceselected": False,
+        Step("meshing_close_holes", {"maxholesize": 100, "selected": False, "newfaceselected": True,
                                      "selfintersection": True, "refinehole": False,
                                      "refineholeedgelen": Percent(1.0)}),
     )),
@@ -236,7 +242,22 @@ def apply_chain(mesh: TriMesh, chain: Chain | str, script: str | os.PathLike | N
     run = run_on_meshset(ms, chain)
     if script is not None:
         save_script(ms, run, script, overwrite)
-    return from_pymeshlab(ms, names), run
+    out = from_pymeshlab(ms, names)
+    if any(s.filter == "meshing_close_holes" and s.params.get("newfaceselected") for s in run.chain.steps):
+        _flag_caps(out, ms.current_mesh().face_selection_array())
+    return out, run
+
+
+def _flag_caps(mesh: TriMesh, selected: np.ndarray) -> None:
+    """Mark the faces Close Holes added (left selected) in face scalar ``cap``, and give them
+    the ``object_id`` of the surface around them (MeshLab initialises it to 0)."""
+    mesh.face_scalars[CAP] = selected.astype(np.int8)
+    if OBJECT_ID in mesh.face_scalars and selected.any():
+        # without hole refinement, every new face has only vertices of the hole's rim
+        oid = mesh.face_scalars[OBJECT_ID]
+        rim = np.zeros(mesh.n_vertices, dtype=oid.dtype)
+        rim[mesh.faces[~selected].ravel()] = np.repeat(oid[~selected], 3)
+        oid[selected] = rim[mesh.faces[selected, 0]]
 
 
 def chain_from_json(path: str | os.PathLike) -> Chain:
