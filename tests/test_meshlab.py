@@ -122,6 +122,9 @@ def test_close_chain_closes_an_open_cap_to_a_watertight_proxy():
     cap = out.face_scalars["cap"].astype(bool)
     assert cap.sum() == out.n_faces - open_mesh.n_faces and not cap[:open_mesh.n_faces].any()
     assert np.all(out.face_scalars["object_id"] == 3)  # caps take their surface's id
+    smoothed, _ = apply_chain(out, "smooth")
+    np.testing.assert_array_equal(smoothed.face_scalars["cap"], out.face_scalars["cap"])  # flags travel on
+    np.testing.assert_array_equal(apply_chain(smoothed, "close")[0].face_scalars["cap"], out.face_scalars["cap"])
     h = 5.0 + rim.mean()  # height of the missing cap
     truth = 4 / 3 * np.pi * 125 - np.pi * h**2 * (15.0 - h) / 3
     assert out.signed_volume() == pytest.approx(truth, rel=0.01)

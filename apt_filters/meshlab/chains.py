@@ -251,7 +251,8 @@ def apply_chain(mesh: TriMesh, chain: Chain | str, script: str | os.PathLike | N
 def _flag_caps(mesh: TriMesh, selected: np.ndarray) -> None:
     """Mark the faces Close Holes added (left selected) in face scalar ``cap``, and give them
     the ``object_id`` of the surface around them (MeshLab initialises it to 0)."""
-    mesh.face_scalars[CAP] = selected.astype(np.int8)
+    earlier = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces))) != 0  # caps of an earlier close
+    mesh.face_scalars[CAP] = (earlier | selected).astype(np.int8)
     if OBJECT_ID in mesh.face_scalars and selected.any():
         # without hole refinement, every new face has only vertices of the hole's rim
         oid = mesh.face_scalars[OBJECT_ID]
