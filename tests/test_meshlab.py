@@ -220,6 +220,8 @@ EXTERNAL = b"""<!DOCTYPE FilterScript SYSTEM "file:///etc/passwd"><FilterScript/
     (b"<FilterScript><filter name='Delete Everything Smartly'/></FilterScript>", "unknown filter.*Delete Everything"),
     (b"<FilterScript><xmlfilter name='Taubin Smooth'/></FilterScript>", "unknown filter"),
     (b"<?xml-stylesheet href='x'?><FilterScript/>", "processing instruction"),
+    (BOMB.decode().replace('"1.0"', '"1.0" encoding="UTF-16"').encode("utf-16"), "not UTF-8"),
+    (BOMB.decode().encode("utf-16-le"), "not UTF-8"),  # no BOM: expat would still sniff UTF-16
 ])
 def test_unsafe_or_unknown_scripts_are_refused(data, message):
     with pytest.raises(InputError, match=message):

@@ -48,6 +48,9 @@ def check_markup(data: bytes, path: str | os.PathLike | None = None) -> None:
     """Refuse DTDs, entity declarations and processing instructions (XML bombs, external entities)."""
     if len(data) > MAX_SCRIPT_BYTES:
         raise InputError(f"filter script larger than {MAX_SCRIPT_BYTES} bytes", path)
+    # the byte checks below only see markup in an ASCII-compatible encoding: refuse UTF-16/32
+    if b"\x00" in data or data.startswith((b"\xfe\xff", b"\xff\xfe")):
+        raise InputError("filter script is not UTF-8 text; refused", path)
     stripped = _ALLOWED_DOCTYPE.sub(b"", data, count=1)
     if _MARKUP_DECL.search(stripped):
         raise InputError("filter script holds a DTD or entity declaration (<!DOCTYPE/<!ENTITY); refused", path)
