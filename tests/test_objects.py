@@ -156,3 +156,13 @@ def test_json_writes_undefined_values_as_null(tmp_path):
     data = json.loads((tmp_path / "o.json").read_text())
     assert data["objects"][0]["status"] == "open" and data["objects"][0]["volume"] is None
     assert data["number_density_per_nm3"] is None  # no specimen given
+
+
+def test_hull_built_in_chunks_equals_the_hull_of_all_points():
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(20_000, 3)) * [3.0, 1.0, 2.0]
+    whole = SpecimenHull.from_points(pts, chunk=len(pts))
+    chunked = SpecimenHull.from_points(pts, chunk=3_000)
+    assert chunked.volume == pytest.approx(whole.volume, rel=1e-12)
+    probe = rng.normal(size=(100, 3))
+    np.testing.assert_allclose(chunked.distance(probe), whole.distance(probe), atol=1e-9)

@@ -63,9 +63,14 @@ class SpecimenHull:
     volume: float
 
     @classmethod
-    def from_points(cls, points: np.ndarray) -> "SpecimenHull":
-        """Hull of (N, 3) points (nm). Memory: Qhull's copy of the points as float64."""
-        hull = ConvexHull(np.asarray(points, dtype=np.float64))
+    def from_points(cls, points: np.ndarray, chunk: int = ION_CHUNK) -> "SpecimenHull":
+        """Hull of (N, 3) points (nm), built chunk by chunk: the hull of the chunks' hull
+        vertices is the hull of all points. Memory: one chunk as float64 (24 bytes/point)."""
+        corners = np.empty((0, 3))
+        for start in range(0, len(points), chunk):
+            block = np.vstack([corners, np.asarray(points[start:start + chunk], dtype=np.float64)])
+            corners = block[ConvexHull(block).vertices]
+        hull = ConvexHull(corners)
         return cls(hull.equations, float(hull.volume))
 
     def distance(self, points: np.ndarray) -> np.ndarray:
@@ -342,10 +347,10 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
             objects[-1].edge_distance = float(specimen.distance(surface.vertices).min())
     n_dropped = 0
     if ions is not None:
-        closed = [i for i, o in enumerate(objects) if o.status != "open"]
-        counts = _count_ions(ions, ranges, [shapes[i] for i in closed])
+        countable = [i for i, o in enumerate(objects) if o.status != "open"]
+        counts = _count_ions(ions, ranges, [shapes[i] for i in countable])
         matrix = ranges.element_matrix()
-        for i, c in zip(closed, counts):
+        for i, c in zip(countable, counts):
             o = objects[i]
             o.n_ions = int(c.sum())
             o.ion_counts = dict(zip(ranges.ions + ["unranged"], map(int, c)))
