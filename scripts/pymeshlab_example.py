@@ -3,12 +3,12 @@
 Run: ``python scripts/pymeshlab_example.py OUTDIR``. It builds a noisy, badly welded
 iso-surface-like mesh in a MeshSet the way a pymeshlab script would, then
 
-1. runs apt-filters' ``clean`` and ``smooth`` chains on it, each recorded as a replayable
-   ``.mlx`` (+ ``.json`` with the relative parameters) -- the user's MeshSet history is not
-   mixed into the scripts;
-2. replays the ``clean`` script with MeshLab's own engine on the user's MeshSet;
-3. computes per-object statistics and writes them with a MeshLab project (.mlp) opening the
-   cleaned surface, coloured by a per-vertex value.
+1. runs apt-filters' ``clean`` and ``smooth`` chains on the MeshSet's current mesh, each
+   recorded as a replayable ``.mlx`` (+ ``.json`` with the relative parameters) -- the user's
+   MeshSet history is not mixed into the scripts -- and gets the results back in the MeshSet;
+2. replays the ``clean`` script with MeshLab's own engine on the original mesh;
+3. converts the result to a TriMesh for per-object statistics, and writes a coloured PLY and
+   a MeshLab project (.mlp) opening it.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import numpy as np
 import pymeshlab
 
 from apt_filters.analysis.objects import object_table
-from apt_filters.meshlab.bridge import from_pymeshlab, to_meshset
-from apt_filters.meshlab.chains import apply_chain
+from apt_filters.meshlab.bridge import from_pymeshlab
+from apt_filters.meshlab.chains import apply_chain_to_meshset
 from apt_filters.meshlab.exports import write_ply, write_project
 from apt_filters.meshlab.mlx import replay_on_meshset
 
@@ -54,15 +54,20 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
 
     ms = users_meshset()
-    mesh = from_pymeshlab(ms)  # the current mesh, vertex quality as "value"
-    cleaned, run = apply_chain(mesh, "clean", out / "clean.mlx")
-    smoothed, _ = apply_chain(cleaned, "smooth", out / "smooth.mlx")
-    print(f"clean: {mesh.n_faces} -> {cleaned.n_faces} faces ({len(run.resolved)} filters, script clean.mlx)")
+    original = ms.current_mesh_id()
+    n_faces = ms.current_mesh().face_number()
+    run = apply_chain_to_meshset(ms, "clean", out / "clean.mlx")  # adds "iso-surface (clean)"
+    cleaned = ms.current_mesh_id()
+    apply_chain_to_meshset(ms, "smooth", out / "smooth.mlx")  # adds "iso-surface (clean) (smooth)"
+    print(f"clean: {n_faces} -> {ms.mesh(cleaned).face_number()} faces ({len(run.resolved)} filters, "
+          f"script clean.mlx); current mesh: {ms.current_mesh().label()!r}")
 
-    replay_on_meshset(ms, out / "clean.mlx")  # MeshLab's engine on the user's own MeshSet
-    assert ms.current_mesh().face_number() == cleaned.n_faces
+    again = pymeshlab.MeshSet()  # MeshLab's engine replays the script on the original mesh
+    again.add_mesh(ms.mesh(original))
+    replay_on_meshset(again, out / "clean.mlx")
+    assert np.array_equal(again.current_mesh().vertex_matrix(), ms.mesh(cleaned).vertex_matrix())
 
-    to_meshset(smoothed, "smoothed", meshset=ms)  # hand the result back to the user's MeshSet
+    smoothed = from_pymeshlab(ms)  # current mesh -> TriMesh, vertex quality as "value"
     table = object_table(smoothed)
     table.write_csv(out / "objects.csv")
     for o in table.objects:

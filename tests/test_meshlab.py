@@ -15,7 +15,8 @@ from apt_filters.cli.main import main
 from apt_filters.core.errors import AptFiltersError, InputError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.meshlab.bridge import AttributeNames, from_pymeshlab, to_meshset, to_pymeshlab
-from apt_filters.meshlab.chains import CHAINS, Chain, Percent, Step, apply_chain, chain_from_json, resolve
+from apt_filters.meshlab.chains import (CHAINS, Chain, Percent, Step, apply_chain, apply_chain_to_meshset,
+                                        chain_from_json, resolve)
 from apt_filters.meshlab.exports import write_ply
 from apt_filters.meshlab.filters import FILTERS, check_filters
 from apt_filters.meshlab.mlx import parse_script, replay_file
@@ -267,15 +268,16 @@ def test_meshlabserver_replays_our_script(tmp_path, scalar_sphere):
     np.testing.assert_allclose(ms.current_mesh().vertex_matrix(), out.vertices, atol=1e-5)
 
 
-def test_pymeshlab_example_script_runs(tmp_path, capsys):
+def test_pymeshlab_example_script_runs(tmp_path, capfd):
     import runpy
 
     from tests.conftest import ROOT
 
     example = runpy.run_path(str(ROOT / "scripts" / "pymeshlab_example.py"))
     assert example["main"]([str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    assert "object 2: closed" in out and "genus 1" in out and "Reading filter" not in out
+    captured = capfd.readouterr()  # file-descriptor level: MeshLab's own echo would show here
+    assert "object 2: closed" in captured.out and "genus 1" in captured.out
+    assert "Reading filter" not in captured.out + captured.err
     assert {"clean.mlx", "clean.json", "smooth.mlx", "objects.csv", "smoothed.ply", "scene.mlp"} <= \
         {p.name for p in tmp_path.iterdir()}
 
@@ -291,3 +293,19 @@ def test_import_fails_clearly_without_the_meshing_filters(monkeypatch):
         importlib.reload(package)
     monkeypatch.undo()
     importlib.reload(package)
+
+
+def test_chain_on_a_users_meshset_records_only_the_chain(tmp_path):
+    ms = pymeshlab.MeshSet()
+    ms.create_sphere(subdiv=3)  # the user's history: a creation filter and a smoothing
+    ms.apply_coord_laplacian_smoothing()
+    ms.current_mesh().add_vertex_custom_scalar_attribute(ms.current_mesh().vertex_matrix()[:, 2].copy(), "z")
+    run = apply_chain_to_meshset(ms, "decimate", tmp_path / "d.mlx")
+    assert ms.mesh_number() == 2 and ms.current_mesh().label().endswith("(decimate)")
+    assert re.findall(r'<filter name="([^"]+)"', (tmp_path / "d.mlx").read_text()) == \
+        ["Simplification: Quadric Edge Collapse Decimation"]
+    m = ms.current_mesh()
+    assert m.face_number() == ms.mesh(0).face_number() // 2
+    assert run.resolved[0]["targetperc"] == 0.5
+    z = m.vertex_custom_scalar_attribute_array("z")  # custom attributes stay inside MeshLab
+    assert np.all(np.abs(z - m.vertex_matrix()[:, 2]) < 0.2)

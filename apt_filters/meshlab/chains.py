@@ -238,14 +238,37 @@ def apply_chain(mesh: TriMesh, chain: Chain | str, script: str | os.PathLike | N
     Memory: about three copies of the mesh (ours, MeshLab's, the result).
     """
     ms, names = to_meshset(mesh, quality=quality)
-    ms.clear_filter_script()
-    run = run_on_meshset(ms, chain)
-    if script is not None:
-        save_script(ms, run, script, overwrite)
+    run = _run_recorded(ms, chain, script, overwrite)
     out = from_pymeshlab(ms, names)
     if any(s.filter == "meshing_close_holes" and s.params.get("newfaceselected") for s in run.chain.steps):
         _flag_caps(out, ms.current_mesh().face_selection_array())
     return out, run
+
+
+def apply_chain_to_meshset(ms: pymeshlab.MeshSet, chain: Chain | str, script: str | os.PathLike | None = None,
+                           overwrite: bool = False) -> ChainRun:
+    """For pymeshlab users: apply a chain to ``ms``'s current mesh, recorded as ``script``.
+
+    The chain runs on a copy in a fresh MeshSet, so the script holds the chain only, not
+    ``ms``'s history; the result is added to ``ms`` as a new current mesh labelled
+    ``"<label> (<chain>)"``, with every MeshLab attribute (custom ones too) kept.
+    """
+    chain = get_chain(chain)
+    source = ms.current_mesh()
+    work = pymeshlab.MeshSet()
+    work.add_mesh(source, source.label())
+    run = _run_recorded(work, chain, script, overwrite)
+    ms.add_mesh(work.current_mesh(), f"{source.label()} ({chain.name})")
+    return run
+
+
+def _run_recorded(ms: pymeshlab.MeshSet, chain: Chain | str, script: str | os.PathLike | None,
+                  overwrite: bool) -> ChainRun:
+    ms.clear_filter_script()
+    run = run_on_meshset(ms, chain)
+    if script is not None:
+        save_script(ms, run, script, overwrite)
+    return run
 
 
 def _flag_caps(mesh: TriMesh, selected: np.ndarray) -> None:

@@ -117,18 +117,22 @@ def check_params(ms: pymeshlab.MeshSet, filters: list[ScriptFilter], path: str |
 
 
 @contextlib.contextmanager
-def _quiet_stdout():
-    """Silence C++ writes to file descriptor 1 (MeshLab echoes every filter it reads)."""
+def _quiet():
+    """Silence C/C++ writes to file descriptors 1 and 2 (MeshLab echoes every filter it
+    reads, through Qt's debug log); failures still arrive as exceptions."""
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in (1, 2)]
     try:
         with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 1)
+            for fd in (1, 2):
+                os.dup2(null.fileno(), fd)
         yield
     finally:
-        ctypes.CDLL(None).fflush(None)  # C stdio buffers the echo: flush it into /dev/null
-        os.dup2(saved, 1)
-        os.close(saved)
+        ctypes.CDLL(None).fflush(None)  # C stdio may buffer the echo: flush it into /dev/null
+        for fd, copy in zip((1, 2), saved):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def replay_on_meshset(ms: pymeshlab.MeshSet, script: str | os.PathLike) -> list[ScriptFilter]:
@@ -139,7 +143,7 @@ def replay_on_meshset(ms: pymeshlab.MeshSet, script: str | os.PathLike) -> list[
         checked = Path(tmp) / "script.mlx"
         checked.write_bytes(data)
         try:
-            with _quiet_stdout():
+            with _quiet():
                 ms.load_filter_script(str(checked))
             ms.apply_filter_script()
         except pymeshlab.PyMeshLabException as exc:
