@@ -1,0 +1,321 @@
+"""Files the MeshLab GUI opens and shows well: iso-surfaces, ion point clouds, projects.
+
+- :func:`write_ply`: binary little-endian PLY with vertex ``quality`` (the chosen scalar),
+  vertex colour from a colour map of it, every other vertex scalar as a float property, and
+  per face ``quality`` and ``object_id`` (MeshLab reads vertex/face quality and colour; the
+  extra properties are for other tools and :func:`read_ply`).
+- :func:`write_mesh`: OBJ, STL, OFF (or PLY) through pymeshlab, when asked for.
+- :func:`write_ion_cloud`: ions as a coloured point cloud PLY, one colour per species
+  (from the range file), subsampled to a size the GUI handles; the ratio is stated in the
+  header comment and returned.
+- :func:`write_project`: a MeshLab project ``.mlp`` opening several files together.
+
+Every file is written atomically and never replaces an existing one unless asked.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from apt_filters.core.atomic import atomic_write_bytes, atomic_write_text
+from apt_filters.core.errors import AptFiltersError, InputError
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.meshlab.bridge import COLOR_KEYS, OBJECT_ID, save_current_mesh, to_meshset
+
+GUI_POINTS = 2_000_000
+"""Default largest ion cloud written for the GUI (MeshLab stays interactive at this size)."""
+
+UNRANGED_COLOR = (128, 128, 128)
+
+
+def colormap_rgba(values: np.ndarray, cmap: str = "viridis", limits: tuple[float, float] | None = None) -> np.ndarray:
+    """(n, 4) uint8 colours of ``values`` through a matplotlib colour map.
+
+    ``limits`` defaults to the 1st and 99th percentiles, so a few outliers do not wash the
+    map out; NaN maps to grey.
+    """
+    from matplotlib import colormaps
+
+    values = np.asarray(values, dtype=np.float64)
+    finite = np.isfinite(values)
+    if limits is None:
+        limits = tuple(np.percentile(values[finite], [1, 99])) if finite.any() else (0.0, 1.0)
+    lo, hi = limits
+    t = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+    rgba = colormaps[cmap](np.where(finite, t, 0.0), bytes=True)
+    rgba[~finite] = (*UNRANGED_COLOR, 255)
+    return rgba
+
+
+def _ply_header(n_vertices: int, vertex_dtype: np.dtype, n_faces: int | None, face_dtype: np.dtype | None,
+                comments: Sequence[str]) -> bytes:
+    ply_types = {"f4": "float", "f8": "double", "u1": "uchar", "i4": "int", "u4": "uint"}
+    lines = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments),
+             f"element vertex {n_vertices}"]
+    lines += [f"property {ply_types[vertex_dtype[n].str[1:]]} {n}" for n in vertex_dtype.names]
+    if face_dtype is not None:
+        lines.append(f"element face {n_faces}")
+        for n in face_dtype.names:
+            lines.append("property list uchar int vertex_indices" if n == "vertex_indices"
+                         else f"property {ply_types[face_dtype[n].str[1:]]} {n}")
+    lines.append("end_header")
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "value", cmap: str | None = "viridis",
+              limits: tuple[float, float] | None = None, overwrite: bool = False) -> Path:
+    """Write ``mesh`` as a binary PLY the MeshLab GUI shows coloured at once.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        Vertices nm; scalars become properties (see module doc). Colour scalars
+        (``red``... in [0, 1]) win over the colour map.
+    quality : str or None
+        Vertex scalar written as ``quality`` and coloured; falls back to the first scalar.
+    cmap : str or None
+        matplotlib colour map for the vertex colour; None writes no colour map (explicit
+        colour scalars are still written).
+    limits : (low, high), optional
+        Colour-map range; default 1st-99th percentile.
+    """
+    scalars = {k: np.asarray(v) for k, v in mesh.vertex_scalars.items() if k not in COLOR_KEYS}
+    if quality not in scalars:
+        quality = next(iter(scalars), None)
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    has_color = "red" in mesh.vertex_scalars or (cmap is not None and quality is not None)
+    if has_color:
+        fields += [(c, "u1") for c in COLOR_KEYS]
+    if quality is not None:
+        fields.append(("quality", "<f4"))
+    reserved = {"x", "y", "z", "quality", *COLOR_KEYS}
+    extra = [k for k in scalars if k != quality and k not in reserved]
+    fields += [(k, "<f4") for k in extra]
+    v = np.empty(mesh.n_vertices, dtype=fields)
+    v["x"], v["y"], v["z"] = mesh.vertices.T
+    if has_color:
+        if "red" in mesh.vertex_scalars:
+            for c in COLOR_KEYS:
+                v[c] = np.rint(255 * np.clip(mesh.vertex_scalars.get(c, np.ones(mesh.n_vertices)), 0, 1))
+        else:
+            rgba = colormap_rgba(scalars[quality], cmap, limits)
+            for i, c in enumerate(COLOR_KEYS):
+                v[c] = rgba[:, i]
+    if quality is not None:
+        v["quality"] = scalars[quality]
+    for k in extra:
+        v[k] = scalars[k]
+    f_fields = [("vertex_indices_n", "u1"), ("vertex_indices", "<i4", (3,))]
+    if OBJECT_ID in mesh.face_scalars:
+        f_fields += [("quality", "<f4"), (OBJECT_ID, "<i4")]
+    f = np.empty(mesh.n_faces, dtype=f_fields)
+    f["vertex_indices_n"] = 3
+    f["vertex_indices"] = mesh.faces
+    if OBJECT_ID in mesh.face_scalars:
+        f["quality"] = mesh.face_scalars[OBJECT_ID]
+        f[OBJECT_ID] = mesh.face_scalars[OBJECT_ID]
+    header_dtype = np.dtype([d for d in f_fields if d[0] != "vertex_indices_n"])
+    comments = [f"apt-filters iso-surface; units nm; quality = {quality}"]
+    header = _ply_header(mesh.n_vertices, v.dtype, mesh.n_faces, header_dtype, comments)
+    return atomic_write_bytes(path, header + v.tobytes() + f.tobytes(), overwrite)
+
+
+def write_mesh(mesh: TriMesh, path: str | os.PathLike, overwrite: bool = False, quality: str | None = "value") -> Path:
+    """Write ``mesh`` in the format of ``path``'s extension: .ply (:func:`write_ply`), .obj, .stl, .off."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext == ".ply":
+        return write_ply(mesh, path, quality=quality, overwrite=overwrite)
+    if ext not in {".obj", ".stl", ".off"}:
+        raise AptFiltersError("mesh format must be .ply, .obj, .stl or .off", path)
+    return save_current_mesh(to_meshset(mesh, quality=quality)[0], path, overwrite)
+
+
+def _hex_rgb(color: str | None, fallback: tuple[int, int, int]) -> tuple[int, int, int]:
+    if color is None:
+        return fallback
+    return tuple(int(color[i:i + 2], 16) for i in (0, 2, 4))
+
+
+def species_colors(ranges: RangeTable) -> np.ndarray:
+    """(n_ions + 1, 3) uint8: one RGB per ion species in ``ranges.ions`` order, last row unranged.
+
+    Species without a colour in the range file get one from matplotlib's ``tab20``.
+    """
+    from matplotlib import colormaps
+
+    tab = colormaps["tab20"].colors
+    rows = [_hex_rgb(c, tuple(int(255 * x) for x in tab[i % len(tab)]))
+            for i, c in enumerate(ranges.ion_colors().values())]
+    return np.array(rows + [UNRANGED_COLOR], dtype=np.uint8)
+
+
+@dataclass(frozen=True)
+class CloudExport:
+    """What :func:`write_ion_cloud` wrote."""
+
+    path: Path
+    n_written: int
+    n_ions: int
+
+    @property
+    def ratio(self) -> float:
+        """Fraction of the ions written (1 = all)."""
+        return self.n_written / self.n_ions if self.n_ions else 1.0
+
+
+CLOUD_CHUNK = 10_000_000
+"""Ions ranged per chunk by :func:`write_ion_cloud` (about 20 bytes each while in flight)."""
+
+
+_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                         ("quality", "<f4")])
+
+
+def _pool(ranges: RangeTable, mz: np.ndarray, include_unranged: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Species of a chunk of ions and the chunk-local indices eligible for the cloud."""
+    species = ranges.ion_index(mz)
+    return species, (np.arange(len(mz)) if include_unranged else np.flatnonzero(species >= 0))
+
+
+def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike, max_points: int = GUI_POINTS,
+                    include_unranged: bool = False, seed: int = 0, overwrite: bool = False) -> CloudExport:
+    """Write ions as a coloured point-cloud PLY (x, y, z float32 nm; RGB by species; quality = species index).
+
+    At most ``max_points`` ions, drawn uniformly without replacement (reproducible with
+    ``seed``) and kept in file order; the header comment states the sampling ratio.
+    Two passes over chunks of :data:`CLOUD_CHUNK` ions: count the eligible ions per chunk,
+    split the sample between chunks (multivariate hypergeometric, so the draw is uniform over
+    all ions), then draw inside each chunk. Memory: one chunk's work arrays plus the written
+    rows (19 bytes per point), whatever the number of ions.
+    """
+    if max_points < 1:
+        raise AptFiltersError(f"max_points must be at least 1, got {max_points}")
+    chunks = [slice(i, i + CLOUD_CHUNK) for i in range(0, len(ions), CLOUD_CHUNK)]
+    counts = np.array([len(_pool(ranges, ions.mz[c], include_unranged)[1]) for c in chunks], dtype=np.int64)
+    n_pool = int(counts.sum())
+    rng = np.random.default_rng(seed)
+    take = counts if n_pool <= max_points else rng.multivariate_hypergeometric(counts, max_points)
+    rows = []
+    for c, k in zip(chunks, take):
+        species, pool = _pool(ranges, ions.mz[c], include_unranged)
+        chosen = pool if k == len(pool) else np.sort(rng.choice(pool, size=k, replace=False))
+        part = np.empty(len(chosen), dtype=_CLOUD_DTYPE)
+        part["x"], part["y"], part["z"] = ions.positions[c][chosen].T
+        part["red"], part["green"], part["blue"] = species_colors(ranges)[species[chosen]].T  # -1: unranged row
+        part["quality"] = species[chosen]
+        rows.append(part)
+    v = np.concatenate(rows) if rows else np.empty(0, dtype=_CLOUD_DTYPE)
+    n = len(v)
+    comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} "
+                f"{'ions' if include_unranged else 'ranged ions'} (sampling ratio {n / max(n_pool, 1):.6g})",
+                "quality = species index: " + ", ".join(f"{i}={name}" for i, name in enumerate(ranges.ions))
+                + (", -1=unranged" if include_unranged else "")]
+    header = _ply_header(n, v.dtype, None, None, comments)
+    out = atomic_write_bytes(path, header + v.tobytes(), overwrite)
+    return CloudExport(out, n, n_pool)
+
+
+def write_project(path: str | os.PathLike, meshes: Sequence[str | os.PathLike], labels: Sequence[str] | None = None,
+                  overwrite: bool = False) -> Path:
+    """Write a MeshLab project (.mlp) that opens ``meshes`` together (identity transforms).
+
+    Mesh paths are stored relative to the project's folder when they lie under it, so the
+    folder can be moved as a whole.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".mlp":
+        raise AptFiltersError("a MeshLab project must end in .mlp", path)
+    labels = [Path(m).stem for m in meshes] if labels is None else list(labels)
+    if len(labels) != len(meshes):
+        raise AptFiltersError(f"{len(labels)} labels for {len(meshes)} meshes", path)
+    root = ET.Element("MeshLabProject")
+    group = ET.SubElement(root, "MeshGroup")
+    base = path.parent.resolve()
+    for mesh, label in zip(meshes, labels):
+        mesh = Path(mesh).resolve()
+        if not mesh.is_file():
+            raise InputError("mesh of the project not found", mesh)
+        name = mesh.relative_to(base).as_posix() if mesh.is_relative_to(base) else str(mesh)
+        element = ET.SubElement(group, "MLMesh", idInFile="-1", visible="1", label=label, filename=name)
+        ET.SubElement(element, "MLMatrix44").text = "\n1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 \n"
+    ET.SubElement(root, "RasterGroup")
+    ET.indent(root, " ")
+    text = "<!DOCTYPE MeshLabDocument>\n" + ET.tostring(root, encoding="unicode") + "\n"
+    return atomic_write_text(path, text, overwrite)
+
+
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4", "uint": "<u4",
+              "float": "<f4", "double": "<f8", "int8": "i1", "uint8": "u1", "int16": "<i2", "uint16": "<u2",
+              "int32": "<i4", "uint32": "<u4", "float32": "<f4", "float64": "<f8"}
+
+
+def read_ply(path: str | os.PathLike) -> TriMesh:
+    """Read a binary little-endian triangle PLY with all its vertex and face properties.
+
+    For files written by :func:`write_ply` (and similar: scalar properties, one
+    ``list uchar int|uint`` of 3 indices per face). Colours come back as ``red``... in
+    [0, 1], vertex ``quality`` under the name stated in :func:`write_ply`'s header comment
+    (else ``"quality"``), face properties as face scalars (``quality`` dropped when
+    ``object_id`` holds the same).
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise InputError("not a PLY file", path)
+    lines = data[:end].decode("ascii", "replace").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise InputError("only binary little-endian PLY is read", path)
+    elements: list[tuple[str, int, list]] = []
+    quality_name = "quality"
+    for line in lines:
+        words = line.split()
+        if words[:1] == ["comment"] and "quality =" in line and "iso-surface" in line:
+            quality_name = line.rsplit("quality =", 1)[1].strip()
+        elif words[:1] == ["element"]:
+            elements.append((words[1], int(words[2]), []))
+        elif words[:1] == ["property"] and elements:
+            if words[1] == "list":
+                if words[2] not in ("uchar", "uint8") or _PLY_TYPES.get(words[3]) not in ("<i4", "<u4"):
+                    raise InputError(f"unsupported face list {' '.join(words[2:4])}", path)
+                elements[-1][2].extend([(f"{words[4]}_n", "u1"), (words[4], _PLY_TYPES[words[3]], (3,))])
+            elif words[1] in _PLY_TYPES:
+                elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+            else:
+                raise InputError(f"unknown PLY type {words[1]}", path)
+    arrays, offset = {}, end + len(b"end_header\n")
+    for name, count, fields in elements:
+        dtype = np.dtype(fields)
+        if offset + count * dtype.itemsize > len(data):
+            raise InputError(f"PLY truncated in element {name}", path)
+        arrays[name] = np.frombuffer(data, dtype, count, offset)
+        offset += count * dtype.itemsize
+    v = arrays.get("vertex")
+    if v is None:
+        raise InputError("PLY has no vertices", path)
+    f = arrays.get("face")
+    faces = np.zeros((0, 3), np.int64)
+    face_scalars = {}
+    if f is not None:
+        if np.any(f["vertex_indices_n"] != 3):
+            raise InputError("PLY has faces that are not triangles", path)
+        faces = f["vertex_indices"].astype(np.int64)
+        face_scalars = {n: f[n].copy() for n in f.dtype.names if not n.startswith("vertex_indices")}
+        if OBJECT_ID in face_scalars:
+            face_scalars.pop("quality", None)
+    vertex_scalars = {}
+    for n in v.dtype.names:
+        if n in ("x", "y", "z"):
+            continue
+        values = v[n] / 255.0 if n in COLOR_KEYS else v[n].astype(np.float64)
+        vertex_scalars[quality_name if n == "quality" else n] = values
+    return TriMesh(np.stack([v["x"], v["y"], v["z"]], axis=1), faces, vertex_scalars, face_scalars)
