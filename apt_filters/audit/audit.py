@@ -7,7 +7,8 @@ The audit never changes the ranges. It
    ranges, and fits their natural isotope patterns jointly to the spectrum (:mod:`.model`);
    the fit of each label alone gives its goodness-of-fit figures (G statistic, p-value,
    normalised residual);
-3. explains the counts that the labels leave unexplained by adding, one at a time, the species
+3. explains the counts that the labels leave unexplained (in their windows and at the peaks
+   found inside ranges) by adding, one at a time, the species
    from a candidate table (elements and common molecular ions, charges 1-3) that lowers the
    deviance most, judged on all its isotopes;
 4. reports, per range, the share of its ions that belongs to other species than its label (a
@@ -207,7 +208,9 @@ def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Rang
     labels_only = fit(label_species, windows, spectrum)
     label_compositions = {sp.composition for sp in label_species}
     pool = CandidatePool.build(_candidate_species(settings, spectrum.max_mz, label_compositions), windows, spectrum)
-    final, added = explain_excess(label_species, pool, windows, spectrum, z=settings.z,
+    apex, _ = find_peaks(spectrum, settings.z)
+    ranged_peaks = apex[_in_any_range(apex, range_list)]
+    final, _ = explain_excess(label_species, pool, windows, spectrum, ranged_peaks, z=settings.z,
                                   min_counts=settings.min_counts, min_fraction=settings.min_foreign_fraction,
                                   min_gain=settings.min_gain, max_added=settings.max_added)
 

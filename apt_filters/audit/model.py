@@ -116,8 +116,9 @@ def poisson_deviance(observed: np.ndarray, expected: np.ndarray) -> float:
     return float(2.0 * np.sum(n * np.log(ratio) - (n - mu)))
 
 
-def clusters(species: list[Species], windows: Windows, spectrum: Spectrum) -> tuple[np.ndarray, ...]:
-    """Merged windows of all species' peaks and each species' abundance in each.
+def clusters(species: list[Species], windows: Windows, spectrum: Spectrum,
+             probes: np.ndarray = np.zeros(0)) -> tuple[np.ndarray, ...]:
+    """Merged windows of all species' peaks (and of ``probes``, observed peaks no species need explain).
 
     Returns
     -------
@@ -127,7 +128,7 @@ def clusters(species: list[Species], windows: Windows, spectrum: Spectrum) -> tu
         Abundance of species ``s`` in cluster ``c``.
     """
     peaks = [(sp.mz[sp.abundance >= _WINDOW_PEAK]) for sp in species]
-    centres = np.concatenate(peaks) if peaks else np.zeros(0)
+    centres = np.concatenate(peaks + [probes])
     lo, hi = windows.bounds(np.sort(centres))
     hi = np.maximum.accumulate(hi)
     start = np.ones(len(lo), dtype=bool)
@@ -145,9 +146,13 @@ def clusters(species: list[Species], windows: Windows, spectrum: Spectrum) -> tu
     return c_lo, c_hi, design
 
 
-def fit(species: list[Species], windows: Windows, spectrum: Spectrum) -> Fit:
-    """Fit non-negative amplitudes of ``species`` to the spectrum in their clusters."""
-    lo, hi, design = clusters(species, windows, spectrum)
+def fit(species: list[Species], windows: Windows, spectrum: Spectrum, probes: np.ndarray = np.zeros(0)) -> Fit:
+    """Fit non-negative amplitudes of ``species`` to the spectrum in their clusters.
+
+    ``probes`` (Da) add windows around observed peaks, so that counts there that no species
+    explains show up as excess.
+    """
+    lo, hi, design = clusters(species, windows, spectrum, probes)
     observed = spectrum.count(lo, hi)
     background = spectrum.expected_background(lo, hi)
     weight = 1.0 / np.sqrt(np.maximum(observed, 1.0))
@@ -239,7 +244,8 @@ def complexity(species: Species) -> int:
     return sum(n for _, n in species.composition) - 1 + species.charge - 1
 
 
-def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, spectrum: Spectrum, *,
+def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, spectrum: Spectrum,
+                   probes: np.ndarray, *,
                    z: float, min_counts: float, min_fraction: float, min_gain: float, max_added: int,
                    shortlist: int = 32, complexity_cost: float = 10.0) -> tuple[Fit, list[Species]]:
     """Greedy forward selection: add the pool species that best explains the remaining excess.
@@ -253,10 +259,10 @@ def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, s
 
     Returns
     -------
-    fit : Fit of ``base`` plus the added species
+    fit : Fit of ``base`` plus the added species (with the ``probes`` windows)
     added : list of Species added, in order
     """
-    current = fit(base, windows, spectrum)
+    current = fit(base, windows, spectrum, probes)
     added: list[Species] = []
     skip = {sp.key for sp in base}
     for _ in range(max_added):
@@ -269,7 +275,7 @@ def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, s
             if not np.isfinite(approx[i]):
                 break
             cand = pool.species[i]
-            trial = fit(current.species + [cand], windows, spectrum)
+            trial = fit(current.species + [cand], windows, spectrum, probes)
             before = Fit(current.species, trial.lo, trial.hi, trial.design[:, :-1], trial.observed,
                          trial.background, current.amplitude)
             score = before.deviance() - trial.deviance() - complexity_cost * complexity(cand)
