@@ -84,18 +84,28 @@ def synth_ranges(specimen=SPECIMEN, min_ions: float = 60.0) -> list[Range]:
 
     Peaks below ``min_ions`` stay unranged, as a careful analyst would leave them; the check
     below makes sure the largest of them is far below the audit's 20-ion, 5-sigma detection.
+    Where peaks of two species coincide (54Fe/54Cr), one range takes the label of the species
+    with more ions there.
     """
-    ranges = []
+    peaks = []  # (lower, upper, expected ions, composition)
     for sp in specimen:
         mz, abundance = isotope_pattern(sp.composition, sp.charge, resolution=RESOLUTION)
         expected = sp.ions * abundance
         half = 3.5 * mz / (2.355 * RESOLUTION)
         for m, e, h in zip(mz, expected, half):
             if e >= min_ions:
-                ranges.append(Range(round(m - h, 3), round(m + h, 3), sp.composition))
+                peaks.append((round(m - h, 3), round(m + h, 3), e, sp.composition))
             else:
                 assert e < 10, f"synthetic design: unranged peak of {e:.0f} ions at {m:.2f} Da is detectable"
-    return ranges
+    peaks.sort()
+    merged = []
+    for lo, hi, e, comp in peaks:
+        if merged and lo < merged[-1][1]:
+            plo, phi, pe, pcomp = merged[-1]
+            merged[-1] = (plo, max(hi, phi), max(e, pe), comp if e > pe else pcomp)
+        else:
+            merged.append((lo, hi, e, comp))
+    return [Range(lo, hi, comp) for lo, hi, _, comp in merged]
 
 
 def relabel(ranges: list[Range], near_mz: float, composition) -> tuple[list[Range], int]:

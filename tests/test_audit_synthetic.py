@@ -26,6 +26,23 @@ def test_correct_range_file_raises_no_flag(seed):
     assert not [s for s in result.species if not s.labelled], "species added to a spectrum the labels explain"
 
 
+FE_CR = (SynthSpecies((("Fe", 1),), 1, 40_000), SynthSpecies((("Cr", 1),), 1, 20_000),
+         SynthSpecies((("Fe", 1),), 2, 3_000), SynthSpecies((("Cr", 1), ("O", 1)), 1, 5_000))
+
+
+@pytest.mark.parametrize("seed", [41, 42])
+def test_isotopes_shared_by_two_labelled_species_are_a_note_not_a_flag(seed):
+    """54Fe+/54Cr+ share one range labelled Fe: a known overlap of ranged species, not a labelling error."""
+    ranges = synth_ranges(FE_CR)
+    result = audit_ranges(synth_mz(seed, FE_CR), RangeTable(ranges))
+    assert result.flagged == [], str(result)
+    (note,) = [f for f in result.findings if f.kind == "shared_peak"]
+    assert ranges[note.range].lower < 53.94 < ranges[note.range].upper
+    fe, cr = 40_000 * 0.05845, 20_000 * 0.02365  # planted 54Fe+ and 54Cr+ ions
+    assert note.figures["foreign_species"] == "Cr+"
+    assert note.figures["foreign_fraction"] == pytest.approx(cr / (fe + cr), abs=0.03)
+
+
 @pytest.mark.parametrize("seed", [11, 12])
 @pytest.mark.parametrize("near, wrong, kind", [
     (57.94, (("Fe", 1),), "mislabelled"),        # 58Fe exists (0.28 %): the label fits the m/z, not the pattern

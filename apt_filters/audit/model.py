@@ -239,21 +239,33 @@ def _deviance_rows(n: np.ndarray, mu: np.ndarray) -> np.ndarray:
     return 2.0 * (n * np.log(np.where(n > 0, n / mu, 1.0)) - (n - mu)).sum(axis=1)
 
 
-def complexity(species: Species) -> int:
-    """Atoms beyond the first plus charges beyond the first: the simpler explanation wins ties."""
-    return sum(n for _, n in species.composition) - 1 + species.charge - 1
+COMMON_IMPURITIES = frozenset({"H", "C", "N", "O"})
+"""Elements present in nearly every atom probe spectrum (residual gas, surface contamination)."""
+
+
+def prior_cost(species: Species, known: set[str], per_atom: float, per_element: float) -> float:
+    """Deviance charged to a candidate so that, of equal fits, the plausible one wins.
+
+    ``per_atom`` for each atom beyond the first and each charge beyond the first (simpler ions
+    first), ``per_element`` for each element that is neither in ``known`` nor a common impurity
+    (so H2O+ wins over Be2+ at 18 Da in a specimen without beryllium).
+    """
+    atoms = sum(n for _, n in species.composition) - 1 + species.charge - 1
+    novel = sum(el not in known and el not in COMMON_IMPURITIES for el, _ in species.composition)
+    return per_atom * atoms + per_element * novel
 
 
 def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, spectrum: Spectrum,
                    probes: np.ndarray, *,
                    z: float, min_counts: float, min_fraction: float, min_gain: float, max_added: int,
-                   shortlist: int = 32, complexity_cost: float = 10.0) -> tuple[Fit, list[Species]]:
+                   shortlist: int = 32, per_atom_cost: float = 10.0,
+                   per_element_cost: float = 20.0) -> tuple[Fit, list[Species]]:
     """Greedy forward selection: add the pool species that best explains the remaining excess.
 
     At each step, the pool is screened (:meth:`CandidatePool.screen`) and the ``shortlist`` best
     candidates are refitted with the whole model, on the cluster set with their own windows added
-    (so their other isotopes must fit too). The one with the largest deviance drop, less
-    ``complexity_cost`` per extra atom or charge, is kept if that is at least ``min_gain`` and it
+    (so their other isotopes must fit too). The one with the largest deviance drop, less its
+    :func:`prior_cost` (elements of the model so far are known), is kept if that is at least ``min_gain`` and it
     takes at least ``min_counts`` ions. Stops when no cluster holds significant excess, or after
     ``max_added`` species.
 
@@ -265,6 +277,7 @@ def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, s
     current = fit(base, windows, spectrum, probes)
     added: list[Species] = []
     skip = {sp.key for sp in base}
+    known = {el for sp in base for el, _ in sp.composition}
     for _ in range(max_added):
         hot = excess_clusters(current, z, min_counts, min_fraction)
         if not np.any(hot):
@@ -278,7 +291,7 @@ def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, s
             trial = fit(current.species + [cand], windows, spectrum, probes)
             before = Fit(current.species, trial.lo, trial.hi, trial.design[:, :-1], trial.observed,
                          trial.background, current.amplitude)
-            score = before.deviance() - trial.deviance() - complexity_cost * complexity(cand)
+            score = before.deviance() - trial.deviance() - prior_cost(cand, known, per_atom_cost, per_element_cost)
             if trial.amplitude[-1] * cand.abundance.sum() >= min_counts and (best is None or score > best[0]):
                 best = (score, trial, cand)
         if best is None or best[0] < min_gain:
@@ -286,4 +299,5 @@ def explain_excess(base: list[Species], pool: CandidatePool, windows: Windows, s
         _, current, chosen = best
         added.append(chosen)
         skip.add(chosen.key)
+        known |= {el for el, _ in chosen.composition}
     return current, added
