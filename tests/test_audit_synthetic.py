@@ -67,7 +67,7 @@ SI_NI = (SynthSpecies((("Si", 1),), 1, 20_000), SynthSpecies((("Ni", 1),), 2, 15
 @pytest.mark.parametrize("seed", [21, 22])
 def test_unranged_species_under_ranged_isotopes_is_named(seed):
     """The real data's case: Ni++ (58Ni++ at 28.97, 60Ni++ at 29.97) hidden under ranges labelled Si."""
-    ranges = [r for r in synth_ranges(SI_NI) if r.composition != (("Ni", 1),) or r.lower > 40]
+    ranges = synth_ranges((SI_NI[0], SI_NI[2]))  # Ni++ left unranged
     result = audit_ranges(synth_mz(seed, SI_NI), RangeTable(ranges))
     si29 = next(i for i, r in enumerate(ranges) if r.lower < 28.97 < r.upper)
     si30 = next(i for i, r in enumerate(ranges) if r.lower < 29.97 < r.upper)
@@ -78,10 +78,11 @@ def test_unranged_species_under_ranged_isotopes_is_named(seed):
         (f,) = [f for f in result.flagged if f.range == index]
         assert f.figures["foreign_species"] == "Ni++"
         assert f.figures["foreign_fraction"] == pytest.approx(ni / (ni + si), abs=0.02)
-    # the other Ni++ isotopes (61, 62, 64) are reported as uncovered peaks that fit Ni++
-    uncovered = [f for f in result.flagged if f.kind == "uncovered_peak"]
-    assert sorted(round(f.figures["mz"], 1) for f in uncovered) == [30.5, 31.0, 32.0]
-    assert {f.figures["likely_species"] for f in uncovered} == {"Ni++"}
+    # Ni is ranged (as Ni+), so the other Ni++ isotopes (61, 62, 64) are its missing isotopes, once each
+    missing = [f for f in result.flagged if f.kind == "missing_isotope"]
+    assert sorted(round(f.figures["mz"], 1) for f in missing) == [30.5, 31.0, 32.0]
+    assert {f.figures["species"] for f in missing} == {"Ni++"}
+    assert not [f for f in result.flagged if f.kind == "uncovered_peak"]
 
 
 def test_overlap_background_only_and_missing_isotope():
@@ -97,8 +98,7 @@ def test_overlap_background_only_and_missing_isotope():
     missing = [f for f in result.flagged if f.kind == "missing_isotope"]
     assert [(f.figures["species"], round(f.figures["mz"], 1)) for f in missing] == [("Ni+", 59.9)]
     assert missing[0].figures["expected"] == pytest.approx(20_000 * 0.2622, rel=0.05)
-    uncovered = [f for f in result.flagged if f.kind == "uncovered_peak"]
-    assert [round(f.figures["mz"], 1) for f in uncovered] == [59.9]
+    assert not [f for f in result.flagged if f.kind == "uncovered_peak"]  # reported once, as missing isotope
 
 
 def test_result_prints_and_serialises():
@@ -113,6 +113,19 @@ def test_result_prints_and_serialises():
 
 def test_settings_change_the_thresholds():
     """A higher required foreign share silences the mixed-range warning: the threshold is live."""
-    ranges = [r for r in synth_ranges(SI_NI) if r.composition != (("Ni", 1),) or r.lower > 40]
+    ranges = synth_ranges((SI_NI[0], SI_NI[2]))  # Ni++ left unranged
     strict = audit_ranges(synth_mz(21, SI_NI), ranges, AuditSettings(min_foreign_fraction=0.999))
     assert not [f for f in strict.flagged if f.range is not None]
+
+
+def test_counts_no_candidate_explains_are_reported_as_unexplained():
+    """With a candidate table and labels that lack Ni, the Ni++ under the Si ranges stays unexplained."""
+    ranges = synth_ranges(SI_NI[:1])
+    result = audit_ranges(synth_mz(23, SI_NI), ranges, AuditSettings(candidates=((("Al", 1),),)))
+    si29 = next(i for i, r in enumerate(ranges) if r.lower < 28.97 < r.upper)
+    si30 = next(i for i, r in enumerate(ranges) if r.lower < 29.97 < r.upper)
+    unexplained = {f.range: f.figures["unexplained_ions"] for f in result.flagged if f.kind == "unexplained_counts"}
+    assert set(unexplained) == {si29, si30}, str(result)
+    ni = isotope_pattern((("Ni", 1),), 2)[1]
+    assert unexplained[si29] == pytest.approx(15_000 * ni[0], rel=0.1)
+    assert unexplained[si30] == pytest.approx(15_000 * ni[1], rel=0.1)

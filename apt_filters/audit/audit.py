@@ -27,7 +27,8 @@ from scipy import stats
 
 from apt_filters.audit.candidates import candidate_compositions
 from apt_filters.audit.isotopes import Composition, canonical
-from apt_filters.audit.model import CandidatePool, Fit, Species, Windows, explain_excess, fit, make_species
+from apt_filters.audit.model import (CandidatePool, Fit, Species, Windows, excess_clusters, explain_excess, fit,
+                                    make_species, refit_without)
 from apt_filters.audit.spectrum import Spectrum, build_spectrum, find_peaks
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
@@ -213,12 +214,16 @@ def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Rang
     final, _ = explain_excess(label_species, pool, windows, spectrum, ranged_peaks, z=settings.z,
                                   min_counts=settings.min_counts, min_fraction=settings.min_foreign_fraction,
                                   min_gain=settings.min_gain, max_added=settings.max_added)
+    left = excess_clusters(final, settings.z, settings.min_counts, settings.min_foreign_fraction)
+    if np.any(left):
+        final = refit_without(final, left)
 
     findings = _overlaps(range_list)
     for index, r in enumerate(range_list):
         findings += _range_findings(index, r, labels[index], labels_only, final, spectrum, label_compositions, settings)
-    findings += _missing_isotopes(final, label_compositions, range_list, spectrum, windows, settings)
-    findings += _uncovered_peaks(final, range_list, spectrum, windows, settings)
+    missing = _missing_isotopes(final, label_compositions, range_list, spectrum, windows, settings)
+    findings += missing + _uncovered_peaks(final, range_list, [f.figures["mz"] for f in missing], spectrum,
+                                           windows, settings)
     findings.sort(key=lambda f: (SEVERITIES.index(f.severity), f.range if f.range is not None else len(range_list)))
 
     species = [_species_fit(sp, s, s < len(label_species), labels_only, final) for s, sp in enumerate(final.species)]
@@ -337,11 +342,8 @@ def _unexplained(final: Fit, r: Range, settings: AuditSettings) -> float:
     """Ions in the range's clusters that the final model leaves significantly unexplained."""
     centre = 0.5 * (final.lo + final.hi)
     inside = (centre >= r.lower) & (centre <= r.upper)
-    excess = final.observed - final.expected
-    net = np.maximum(final.observed - final.background, 0.0)
-    hot = inside & (excess > settings.z * np.sqrt(np.maximum(final.expected, 1.0))) \
-        & (excess >= settings.min_counts) & (excess >= settings.min_foreign_fraction * net)
-    return float(excess[hot].sum())
+    hot = inside & excess_clusters(final, settings.z, settings.min_counts, settings.min_foreign_fraction)
+    return float((final.observed - final.expected)[hot].sum())
 
 
 def _in_any_range(mz: np.ndarray, range_list: list[Range]) -> np.ndarray:
@@ -371,8 +373,9 @@ def _missing_isotopes(final: Fit, label_compositions: set, range_list: list[Rang
     return out
 
 
-def _uncovered_peaks(final: Fit, range_list: list[Range], spectrum: Spectrum, windows: Windows,
-                     settings: AuditSettings) -> list[Finding]:
+def _uncovered_peaks(final: Fit, range_list: list[Range], reported: list[float], spectrum: Spectrum,
+                     windows: Windows, settings: AuditSettings) -> list[Finding]:
+    """Peaks outside every range, except those already ``reported`` (m/z, Da) as missing isotopes."""
     apex, height = find_peaks(spectrum, settings.z)
     keep = (apex >= settings.min_mz) & ~_in_any_range(apex, range_list)
     apex, height = apex[keep], height[keep]
@@ -380,7 +383,8 @@ def _uncovered_peaks(final: Fit, range_list: list[Range], spectrum: Spectrum, wi
     observed = spectrum.count(lo, hi)
     background = spectrum.expected_background(lo, hi)
     net = observed - background
-    out, taken = [], []
+    out = []
+    taken = list(zip(*windows.bounds(np.asarray(reported, dtype=np.float64))))
     for k in np.argsort(-height):
         if net[k] < settings.min_counts or net[k] < settings.z * np.sqrt(max(background[k], 1.0)):
             continue

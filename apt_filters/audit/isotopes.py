@@ -22,6 +22,7 @@ _CONVOLUTION_TOLERANCE = 0.005  # Da: isotopologues closer than this are one pea
 _PRUNE = 1e-7  # isotopologues rarer than this never matter against APT backgrounds
 
 
+@lru_cache(maxsize=65536)
 def canonical(composition: Composition) -> Composition:
     """Merge repeated elements and sort by symbol: (("O", 1), ("Cr", 2)) -> (("Cr", 2), ("O", 1))."""
     total: Counter[str] = Counter()

@@ -155,13 +155,30 @@ def fit(species: list[Species], windows: Windows, spectrum: Spectrum, probes: np
     lo, hi, design = clusters(species, windows, spectrum, probes)
     observed = spectrum.count(lo, hi)
     background = spectrum.expected_background(lo, hi)
+    return Fit(list(species), lo, hi, design, observed, background, _amplitudes(design, observed, background))
+
+
+def refit_without(result: Fit, exclude: np.ndarray) -> Fit:
+    """The same model with amplitudes fitted on all clusters but the ``exclude`` ones.
+
+    Used once no candidate explains the excess left in some clusters: fitted without them, the
+    species' amplitudes are no longer pulled up by counts they cannot explain, so the excess
+    there is measured against what the clean isotopes predict.
+    """
+    keep = ~exclude
+    amplitude = _amplitudes(result.design[keep], result.observed[keep], result.background[keep])
+    return Fit(result.species, result.lo, result.hi, result.design, result.observed, result.background, amplitude)
+
+
+def _amplitudes(design: np.ndarray, observed: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """Non-negative species amplitudes: Poisson-weighted NNLS, refined by Poisson EM."""
     weight = 1.0 / np.sqrt(np.maximum(observed, 1.0))
     amplitude, _ = nnls(design * weight[:, None], (observed - background) * weight)
     usable = design.sum(axis=0)
     for _ in range(_EM_ITERATIONS):  # Poisson EM: keeps zeros at zero, fixes the NNLS low-count bias
         mu = np.maximum(background + design @ amplitude, 1e-9)
         amplitude = amplitude * (design.T @ (observed / mu)) / np.maximum(usable, 1e-12)
-    return Fit(list(species), lo, hi, design, observed, background, amplitude)
+    return amplitude
 
 
 def excess_clusters(result: Fit, z: float, min_counts: float, min_fraction: float) -> np.ndarray:
