@@ -10,7 +10,9 @@ The audit never changes the ranges. It
 3. explains the counts that the labels leave unexplained (in their windows and at the peaks
    found inside ranges) by adding, one at a time, the species
    from a candidate table (elements and common molecular ions, charges 1-3) that lowers the
-   deviance most, judged on all its isotopes;
+   deviance most, judged on all its isotopes, less a small plausibility cost (extra atoms and
+   charges, elements foreign to the range file and to H, C, N, O); counts that nothing explains
+   are left out of a last refit and reported as unexplained;
 4. reports, per range, the share of its ions that belongs to other species than its label (a
    wrong label names the best-fitting species), plus overlapping ranges, ranges on background
    only, isotopes of ranged species without a range, and peaks no range covers.
@@ -304,12 +306,12 @@ def _range_findings(index: int, r: Range, labels: list[Species], labels_only: Fi
         figures |= {"foreign_fraction": fraction, "foreign_ions": foreign, "foreign_species": name}
         if fraction >= 0.5:
             out.append(Finding("error", "mislabelled", index,
-                               f"{r.describe()}: isotope pattern does not fit the label; {fraction:.0%} of its "
-                               f"ions are {name} (best fit {figures['best_fit']})", figures))
+                               f"{r.describe()}: isotope pattern does not fit the label{_fit_text(figures)}; "
+                               f"{fraction:.0%} of its ions are {name} (best fit {figures['best_fit']})", figures))
         elif final.species[other].composition not in label_compositions:
             out.append(Finding("warning", "foreign_species", index,
-                               f"{r.describe()}: {fraction:.0%} of its ions are {name}, which no range labels",
-                               figures))
+                               f"{r.describe()}: {fraction:.0%} of its ions are {name}, which no range labels"
+                               f"{_fit_text(figures)}", figures))
         else:
             out.append(Finding("info", "shared_peak", index,
                                f"{r.describe()}: {fraction:.0%} of its ions are {name} (isotopes overlap)", figures))
@@ -320,6 +322,15 @@ def _range_findings(index: int, r: Range, labels: list[Species], labels_only: Fi
                            f"{r.describe()}: {unexplained:.0f} ions fit neither the label nor any candidate species",
                            figures))
     return out
+
+
+def _fit_text(figures: dict) -> str:
+    """`` (label fit: G = 1234 on 3 dof, p = 1e-12, residual 45 %)`` from the range's pattern figures."""
+    if figures.get("label_residual") is None:
+        return ""
+    p = figures["label_p_value"]
+    return (f" (label fit: G = {figures['label_deviance']:.0f} on {figures['label_dof']} dof, "
+            f"p = {'n/a' if p is None else f'{p:.1g}'}, residual {figures['label_residual']:.0%})")
 
 
 def _charges(settings: AuditSettings) -> str:
