@@ -32,6 +32,7 @@ from apt_filters.audit.isotopes import Composition, canonical
 from apt_filters.audit.model import (CandidatePool, Fit, Species, Windows, excess_clusters, explain_excess, fit,
                                     make_species, refit_without)
 from apt_filters.audit.spectrum import Spectrum, build_spectrum, find_peaks
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 
@@ -64,6 +65,8 @@ class AuditSettings:
         Histogram bin, Da.
     min_mz : float
         Peaks below this m/z (Da) are not reported as uncovered.
+    max_mz : float
+        The spectrum ends here (Da); ions above are left out.
     candidates : tuple of compositions or None
         Candidate table; None uses :func:`~apt_filters.audit.candidates.candidate_compositions`.
     """
@@ -78,6 +81,7 @@ class AuditSettings:
     max_added: int = 12
     bin_width: float = 0.005
     min_mz: float = 0.5
+    max_mz: float = 1000.0
     candidates: tuple[Composition, ...] | None = None
 
 
@@ -203,10 +207,13 @@ def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Rang
     """
     mz = ions.mz if isinstance(ions, IonTable) else np.asarray(ions)
     range_list = list(ranges.ranges if isinstance(ranges, RangeTable) else ranges)
-    spectrum = build_spectrum(mz, settings.bin_width)
+    spectrum = build_spectrum(mz, settings.bin_width, settings.max_mz)
     windows = Windows(settings.resolution, settings.min_halfwidth)
 
-    labels = [_label_species(r, settings, spectrum.max_mz) for r in range_list]
+    try:
+        labels = [_label_species(r, settings, spectrum.max_mz) for r in range_list]
+    except AptFiltersError as exc:
+        raise AptFiltersError(str(exc), getattr(ranges, "source", None)) from None
     label_species = list({sp.key: sp for sps in labels for sp in sps}.values())
     labels_only = fit(label_species, windows, spectrum)
     label_compositions = {sp.composition for sp in label_species}

@@ -172,6 +172,8 @@ def refit_without(result: Fit, exclude: np.ndarray) -> Fit:
 
 def _amplitudes(design: np.ndarray, observed: np.ndarray, background: np.ndarray) -> np.ndarray:
     """Non-negative species amplitudes: Poisson-weighted NNLS, refined by Poisson EM."""
+    if design.size == 0:  # scipy's nnls corrupts memory on an empty matrix
+        return np.zeros(design.shape[1])
     weight = 1.0 / np.sqrt(np.maximum(observed, 1.0))
     amplitude, _ = nnls(design * weight[:, None], (observed - background) * weight)
     usable = design.sum(axis=0)

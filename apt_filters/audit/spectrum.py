@@ -103,15 +103,19 @@ def estimate_background(counts: np.ndarray, bin_width: float, coarse_width: floa
     return np.repeat(level / factor, factor)[:len(counts)]
 
 
-def build_spectrum(mz: np.ndarray, bin_width: float = 0.005, max_mz: float | None = None) -> Spectrum:
+def build_spectrum(mz: np.ndarray, bin_width: float = 0.005, max_mz: float = 1000.0) -> Spectrum:
     """Histogram and background of an m/z array (Da).
 
-    ``max_mz`` defaults to the largest m/z rounded up to 1 Da (ions above a given ``max_mz`` are left out).
-    Peak memory: the histogram and a few arrays of its length, plus one 4M-ion chunk.
+    The spectrum ends 1 Da above the largest finite m/z, or at ``max_mz`` (ions above it are
+    left out, so that a corrupt value cannot blow up the histogram). Peak memory: the histogram
+    and a few arrays of its length (8 bytes x max_mz / bin_width at most), plus one 4M-ion chunk.
     """
-    if max_mz is None:
-        max_mz = float(np.ceil(np.nanmax(mz))) + 1.0 if len(mz) else 1.0
-    counts = histogram(mz, bin_width, max_mz)
+    top = 0.0
+    for start in range(0, len(mz), _CHUNK):
+        chunk = np.asarray(mz[start:start + _CHUNK], dtype=np.float64)
+        finite = chunk[np.isfinite(chunk) & (chunk <= max_mz)]
+        top = max(top, float(finite.max()) if len(finite) else 0.0)
+    counts = histogram(mz, bin_width, min(max_mz, np.ceil(top) + 1.0))
     return Spectrum(counts, estimate_background(counts, bin_width), bin_width)
 
 
