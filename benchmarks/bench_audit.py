@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from apt_filters.audit import audit_ranges
-from tests.audit_helpers import read_pos_mz, read_rrng
+from apt_filters.io import read_ions, read_ranges
 
 SI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "apav-si"
 
@@ -35,8 +35,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args()
     repeats = 1 if args.quick else 3
-    mz = np.ascontiguousarray(read_pos_mz(SI / "Si.pos"), dtype=np.float32)
-    ranges = read_rrng(SI / "Si.RRNG")
+    mz = read_ions(SI / "Si.pos").mz
+    ranges = read_ranges(SI / "Si.RRNG")
     audit_ranges(mz[:1000], ranges)  # build the candidate isotope patterns once (cached per process)
     cases = [("Si.pos", mz)] + ([] if args.quick else [("Si.pos x10", np.tile(mz, 10))])
     print("| data | ions | audit (s) | numpy.histogram 0.005 Da (s) | ratio |")

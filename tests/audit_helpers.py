@@ -15,32 +15,6 @@ from apt_filters.audit.isotopes import isotope_pattern
 from apt_filters.io.ranges import Range, RangeTable
 
 
-def read_pos_mz(path: Path) -> np.ndarray:
-    """(N,) float32 m/z column of a POS file (big-endian float32 x, y, z, m/z)."""
-    return np.memmap(path, dtype=">f4", mode="r").reshape(-1, 4)[:, 3]
-
-
-def read_rrng(path: Path) -> RangeTable:
-    """Ranges of a simple RRNG file: ``RangeK=lo hi Vol:v El:n ... Color:hex``."""
-    ranges = []
-    for line in Path(path).read_text().splitlines():
-        key, _, value = line.partition("=")
-        if not key.strip().lower().startswith("range") or key.strip().lower() == "number" or not value:
-            continue
-        fields = value.split()
-        lower, upper, composition, color, volume = float(fields[0]), float(fields[1]), [], None, None
-        for f in fields[2:]:
-            name, _, v = f.partition(":")
-            if name.lower() == "vol":
-                volume = float(v)
-            elif name.lower() == "color":
-                color = v
-            elif name.lower() != "name":
-                composition.append((name, int(v)))
-        ranges.append(Range(lower, upper, tuple(composition), color, volume))
-    return RangeTable(ranges, source=str(path))
-
-
 @dataclass
 class SynthSpecies:
     """A species of a synthetic spectrum: composition, charge and number of ions."""

@@ -1,26 +1,25 @@
-"""``apt-filters audit``: wiring of the sub-command (the io readers are stood in until they merge)."""
+"""``apt-filters audit``: the sub-command on written files and on the real Si data."""
 
 import json
 
 import numpy as np
 import pytest
 
-import apt_filters.io
 from apt_filters.cli.main import main
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
+from apt_filters.io.writers import write_pos, write_rrng
 from tests.audit_helpers import relabel, synth_mz, synth_ranges
 
 
 @pytest.fixture
-def readers(monkeypatch):
-    """Stand-ins for apt_filters.io.read_ions / read_ranges returning a mislabelled synthetic file."""
+def readers(tmp_path, monkeypatch):
+    """A mislabelled synthetic spectrum written as spec.pos + spec.rrng; returns the bad range's index."""
     ranges, index = relabel(synth_ranges(), 57.94, (("Fe", 1),))
     mz = synth_mz(31)
-    monkeypatch.setattr(apt_filters.io, "read_ions", lambda path: IonTable(np.zeros((len(mz), 3), np.float32), mz,
-                                                                           source=str(path)), raising=False)
-    monkeypatch.setattr(apt_filters.io, "read_ranges", lambda path: RangeTable(ranges, source=str(path)),
-                        raising=False)
+    write_pos(tmp_path / "spec.pos", IonTable(np.zeros((len(mz), 3), np.float32), mz))
+    write_rrng(tmp_path / "spec.rrng", RangeTable(ranges))
+    monkeypatch.chdir(tmp_path)
     return index
 
 
@@ -36,3 +35,17 @@ def test_cli_prints_text_and_json(readers, capsys):
 def test_cli_rejects_bad_resolution(readers, capsys):
     assert main(["audit", "spec.pos", "-r", "spec.rrng", "--resolution", "0"]) == 2
     assert "resolution must be positive" in capsys.readouterr().err
+
+
+def test_cli_on_the_real_si_data(real_si, capsys):
+    assert main(["audit", str(real_si / "Si.pos"), "--range", str(real_si / "Si.RRNG"), "--json"]) == 0
+    findings = json.loads(capsys.readouterr().out)["findings"]
+    by_lower = {}
+    for f in findings:
+        if f.get("range") is not None and f["severity"] == "error":
+            by_lower.setdefault(round(f["lower"], 3) if "lower" in f else None, []).append(f)
+    cr2o = [f for f in findings if f["severity"] == "error" and "57.819" in f["message"]]
+    assert cr2o and cr2o[0]["figures"]["best_fit"] == "Ni+"
+    for lower in ("28.826", "29.783"):
+        hits = [f for f in findings if f["severity"] == "error" and lower in f["message"]]
+        assert hits and hits[0]["figures"]["foreign_species"] == "Ni++"

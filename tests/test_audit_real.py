@@ -7,13 +7,13 @@ The range 57.8-61.2 Da is labelled Cr2O but holds Ni+ (58/60/61/62/64 Da); the r
 import pytest
 
 from apt_filters.audit import audit_ranges
-from tests.audit_helpers import read_pos_mz, read_rrng
+from apt_filters.io import read_ions, read_ranges
 
 
 @pytest.fixture(scope="module")
 def si_audit(real_si):
-    ranges = read_rrng(real_si / "Si.RRNG")
-    return ranges, audit_ranges(read_pos_mz(real_si / "Si.pos"), ranges)
+    ranges = read_ranges(real_si / "Si.RRNG")
+    return ranges, audit_ranges(read_ions(real_si / "Si.pos"), ranges)
 
 
 def _index(ranges, lower):
