@@ -137,8 +137,8 @@ def _rng_table(lines: list[Line], i: int, path: str, check: bool, formulas: bool
     i += 1
     names: list[tuple[str, str]] = []
     columns: list[tuple[Composition, str]] = []
-    for k in range(n_ions):
-        long_line, short_line = _take(lines, i + 2 * k, 2, path, "ion name lines")
+    name_lines = _take(lines, i, 2 * n_ions, path, "ion name lines")
+    for long_line, short_line in zip(name_lines[::2], name_lines[1::2]):
         toks = short_line.tokens
         if len(toks) < 4 or toks[0].startswith("-"):
             raise InputError(f"line {short_line.no}: expected 'name red green blue', got {short_line.text[:40]!r}", path)
@@ -286,8 +286,6 @@ def parse_rrng(lines: list[Line], path: str, check_elements: bool = True) -> lis
             found[k] = _rrng_range(line, value, path, check_elements)
         else:
             raise InputError(f"line {line.no}: unknown key {key!r} in [Ranges]", path)
-    if section is None and not found:
-        raise InputError("no [Ranges] section", path)
     if declared is not None and declared[1] != len(found):
         raise InputError(f"line {declared[0].no}: declares Number={declared[1]} but lists {len(found)} ranges", path)
     if not found:
