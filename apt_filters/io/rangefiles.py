@@ -44,6 +44,7 @@ from apt_filters.io.ranges import Range, RangeTable, ion_name
 
 RANGE_EXTENSIONS = (".rrng", ".rng", ".env")
 _HEX = re.compile(r"[0-9A-Fa-f]{6}")
+_WHOLE = re.compile(r"[0-9]{1,12}")  # ASCII digits: str.isdigit() also takes "²", which int() refuses
 
 
 @dataclass(frozen=True)
@@ -105,7 +106,7 @@ def _counts_header(lines: list[Line], i: int, path: str) -> tuple[int, int]:
         raise InputError(f"ends before its 'ion count, range count' line (after line {lines[-1].no})", path)
     line = lines[i]
     toks = line.tokens
-    if len(toks) != 2 or not all(t.isdigit() for t in toks):
+    if len(toks) != 2 or not all(_WHOLE.fullmatch(t) for t in toks):
         raise InputError(f"line {line.no}: expected 'ion count, range count', got {line.text[:40]!r}", path)
     n_ions, n_ranges = int(toks[0]), int(toks[1])
     if n_ions < 1 or n_ranges < 1:
@@ -161,7 +162,7 @@ def _rng_table(lines: list[Line], i: int, path: str, check: bool, formulas: bool
     for line in _take(lines, i + 1, n_ranges, path, "range rows"):
         toks = line.tokens
         if len(toks) == n_ions + 3:
-            if not (toks[0] == "." or toks[0].isdigit()):
+            if not (toks[0] == "." or _WHOLE.fullmatch(toks[0])):
                 raise InputError(f"line {line.no}: range row starts with {toks[0]!r}, expected '.'", path)
             toks = toks[1:]
         if len(toks) != n_ions + 2:
@@ -276,7 +277,7 @@ def parse_rrng(lines: list[Line], path: str, check_elements: bool = True) -> lis
         key = key.strip()
         match = _RANGE_KEY.fullmatch(key)
         if key.lower() == "number":
-            if not value.strip().isdigit():
+            if not _WHOLE.fullmatch(value.strip()):
                 raise InputError(f"line {line.no}: Number={value.strip()!r} is not a count", path)
             declared = (line, int(value))
         elif match:
@@ -338,7 +339,7 @@ def range_dialect(path: str, lines: list[Line]) -> str:
         return "rrng"
     content = [line for line in lines if not line.text.startswith("#")]
     toks = content[0].tokens if content else []
-    if len(toks) == 2 and all(t.isdigit() for t in toks):
+    if len(toks) == 2 and all(_WHOLE.fullmatch(t) for t in toks):
         return "rng" if any(line.text.startswith("-") for line in content[1:]) else "env"
     raise InputError("not a range file: no [Ranges] section and no 'ion count, range count' first line", path)
 
