@@ -28,6 +28,8 @@ ENV
 
 Species names are element formulas checked against the periodic table (see
 :mod:`apt_filters.io.formula`); ``check_elements=False`` reads made-up names as opaque species.
+3Depict's odd test files (anonymised names) all parse that way except test4.rng (overlapping
+ranges); tests/test_io_ranges.py lists the outcome of each and where ours differs from 3Depict's.
 """
 
 from __future__ import annotations
