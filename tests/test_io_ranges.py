@@ -165,6 +165,8 @@ RRNG_HEAD = "[Ions]\nNumber=2\nIon1=Fe\nIon2=O\n[Ranges]\n"
     ("a.env", "1 1\nFe 1 0 0\nO 27 28\n", "line 3: range names ion 'O', which is not listed above"),
     ("a.env", "1 2\nFe 1 0 0\nFe 27 28\n", "ends after 1 of the 2 declared range lines"),
     ("a.rng", "hello\n", "not a range file"),
+    ("a.rng", "\u00b2 1\nFe\nFe 1 0 0\n-- Fe\n. 1 2 1\n", "not a range file"),  # "²".isdigit() is True
+    ("a.rrng", RRNG_HEAD + "Number=\u00b2\n", "line 6: Number='²' is not a count"),
     ("a.rng", "1 1\nFe\x00\n", "NUL bytes"),
 ])
 def test_bad_range_files(tmp_path, name, text, fragment):

@@ -142,6 +142,7 @@ def test_format_by_extension(tmp_path):
 
 
 def _expect_input_error(path, *words):
+    """read_ions(path) raises one line naming the file and holding every word (shared with test_io_apt6)."""
     with pytest.raises(InputError) as err:
         read_ions(path)
     msg = str(err.value)

@@ -73,6 +73,9 @@ def _native(view: np.ndarray, dtype: np.dtype | type) -> np.ndarray:
 
 
 def _check_finite(path: str, positions: np.ndarray, mz: np.ndarray, start: int) -> None:
+    # flat reductions first: a per-row all(axis=1) costs 15x more, and is only needed to name the ion
+    if np.isfinite(positions).all() and np.isfinite(mz).all():
+        return
     ok = np.isfinite(positions).all(axis=1) & np.isfinite(mz)
     if not ok.all():
         i = int(np.argmin(ok))

@@ -16,8 +16,6 @@ EPOS_RECORD = EPOS_DTYPE.itemsize  # 44
 
 
 def _record_count(path: str, size: int, record: int, name: str) -> int:
-    if size == 0:
-        raise InputError(f"empty {name} file (0 bytes)", path)
     if size % record:
         raise InputError(
             f"size {size} bytes is not a whole number of {record}-byte {name} records "
