@@ -10,7 +10,9 @@ Two estimates from the same counts:
   excess is their vertical offset there.
 
 Plateau levels come from straight-line fits ``c(s) = a + b s`` over windows away from the
-interface (``inner <= |s| <= outer``), weighted by the ions per bin, with binomial errors.
+interface (``inner <= |s| <= outer``), weighted by the ions per bin, with binomial errors; a
+slope that is not significant (below 2 standard errors) falls back to the window's mean, because
+extrapolating a noise slope to the interface only adds noise (on a 4 nm sphere it moved Γ by 15%).
 
 The excess is divided by the object's own surface area: Γ in detected ions (or decomposed atoms)
 per nm², and in atoms per nm² after dividing by the detection efficiency. The pooled figure
@@ -99,11 +101,14 @@ class Excess:
     window_nm: tuple[float, float]
 
 
-def fit_level(s: np.ndarray, n: np.ndarray, total: np.ndarray) -> tuple[Level, np.ndarray]:
+def fit_level(s: np.ndarray, n: np.ndarray, total: np.ndarray,
+              slope_sigmas: float = 2.0) -> tuple[Level, np.ndarray]:
     """Weighted straight-line fit of the fraction ``n / total`` against distance ``s`` (bins).
 
     Weights are the ions per bin (binomial variance c(1 - c)/N with c nearly constant over a
-    plateau). Returns the level at s = 0 and the (2, 2) covariance of (a, b).
+    plateau). A slope smaller than ``slope_sigmas`` standard errors is not significant and the
+    level is the window's mean fraction instead (set 0 to always keep the line). Returns the
+    level at s = 0 and the (2, 2) covariance of (a, b).
     """
     used = total > 0
     s, n, total = s[used], n[used].astype(np.float64), total[used].astype(np.float64)
@@ -117,6 +122,10 @@ def fit_level(s: np.ndarray, n: np.ndarray, total: np.ndarray) -> tuple[Level, n
         return Level(float(c_mean), float(np.sqrt(cov[0, 0])), 0.0, int(total.sum())), cov
     coef = np.linalg.solve(normal, design.T @ n)
     cov = c_mean * (1 - c_mean) * np.linalg.inv(normal)
+    if abs(coef[1]) < slope_sigmas * np.sqrt(cov[1, 1]):
+        # no significant gradient: extrapolating a noise slope to s = 0 would only add noise
+        cov = np.diag([c_mean * (1 - c_mean) / total.sum(), 0.0])
+        return Level(float(c_mean), float(np.sqrt(cov[0, 0])), 0.0, int(total.sum())), cov
     return Level(float(coef[0]), float(np.sqrt(cov[0, 0])), float(coef[1]), int(total.sum())), cov
 
 
