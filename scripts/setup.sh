@@ -34,8 +34,6 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 if [ $dev = 1 ]; then
   .venv/bin/python -m pip install -q -e ".[dev,bench]"
-  # apav 1.4 pins an old GUI stack it does not need for RangedGrid; its own code is all we use.
-  .venv/bin/python -m pip install -q --no-deps "apav==1.4.0"
 else
   .venv/bin/python -m pip install -q -e .
 fi

@@ -31,3 +31,16 @@ def test_open3d_imports_with_libusb_provided():
     o3d = deps.open3d()
     mesh = o3d.geometry.TriangleMesh.create_sphere(radius=1.0)
     assert len(mesh.triangles) > 0
+
+
+def test_libusb_fallback_preloads_the_pip_copy(monkeypatch):
+    """On a machine without the system libusb-1.0, the copy from libusb-package is loaded."""
+    import ctypes
+
+    from apt_filters.core import deps
+
+    loaded = []
+    monkeypatch.setattr(deps.ctypes.util, "find_library", lambda name: None)
+    monkeypatch.setattr(deps.ctypes, "CDLL", lambda path, mode=0: loaded.append((path, mode)))
+    deps._preload_libusb()
+    assert len(loaded) == 1 and loaded[0][0].endswith(".so") and loaded[0][1] == ctypes.RTLD_GLOBAL

@@ -1,0 +1,77 @@
+"""Ion species names -> element compositions, checked against the periodic table.
+
+``"CrO2"`` -> ``(("Cr", 1), ("O", 2))``. Symbols are checked against the table maintained
+by the ``periodictable`` package (H..Og; the isotope labels D and T are not elements).
+Range files written by anonymising tools use made-up species names ("Aa", "In-P"); reading
+them with ``check_elements=False`` keeps every name as one opaque species instead.
+"""
+
+from __future__ import annotations
+
+import re
+
+import periodictable
+
+from apt_filters.core.errors import InputError
+
+ELEMENTS = frozenset(el.symbol for el in periodictable.elements if el.number >= 1)
+"""Chemical element symbols (118)."""
+
+Composition = tuple[tuple[str, int], ...]
+
+_PART = re.compile(r"([A-Z][a-z]*)(\d*)")
+_OPAQUE = re.compile(r"[^\s:=]+")
+
+
+def split_formula(text: str) -> Composition | None:
+    """Symbols and counts of a formula such as ``"Cr2O"``, in order; None if ``text`` is not one.
+
+    Repeated symbols are summed (``"CrOCr"`` -> ``(("Cr", 2), ("O", 1))``); symbols are not
+    checked here.
+    """
+    if not text or _PART.sub("", text):
+        return None
+    counts: dict[str, int] = {}
+    for symbol, digits in _PART.findall(text):
+        n = int(digits) if digits else 1
+        if n < 1:
+            return None
+        counts[symbol] = counts.get(symbol, 0) + n
+    return tuple(counts.items())
+
+
+def species(text: str, path: str, line_no: int, check_elements: bool = True, formula: bool = False) -> Composition:
+    """Composition of the species named ``text`` on line ``line_no`` of range file ``path``.
+
+    With ``check_elements`` the name must be a formula of known element symbols. Without
+    it the name is one opaque species, unless ``formula`` says the text is given as a
+    formula (an RNG column's ``(formula)`` or a polyatomic block name), which is then split.
+
+    Raises
+    ------
+    InputError
+        Naming the file, the line and the offending name.
+    """
+    if not check_elements and not formula:
+        if not _OPAQUE.fullmatch(text):
+            raise InputError(f"line {line_no}: {text!r} is not a species name", path)
+        return ((text, 1),)
+    comp = split_formula(text)
+    if comp is None:
+        what = "unknown element" if check_elements else "not a chemical formula"
+        raise InputError(f"line {line_no}: {what} {text!r}", path)
+    if check_elements:
+        unknown = [el for el, _ in comp if el not in ELEMENTS]
+        if unknown:
+            raise InputError(f"line {line_no}: unknown element {unknown[0]!r}"
+                             + (f" in {text!r}" if text != unknown[0] else ""), path)
+    return comp
+
+
+def combine(parts: list[tuple[Composition, int]]) -> Composition:
+    """Sum of compositions times multiplicities, elements in order of first appearance."""
+    counts: dict[str, int] = {}
+    for comp, times in parts:
+        for el, n in comp:
+            counts[el] = counts.get(el, 0) + n * times
+    return tuple((el, n) for el, n in counts.items() if n > 0)

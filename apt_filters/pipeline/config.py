@@ -1,0 +1,162 @@
+"""The pipeline's configuration: defaults, TOML files, and command-line overrides.
+
+Every run writes its fully resolved configuration as ``config.toml``; running again with
+``--config config.toml`` reproduces the same numbers and meshes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from apt_filters.core.errors import AptFiltersError
+from apt_filters.pipeline import toml
+
+
+@dataclass
+class InputConfig:
+    ions: str = ""
+    """Ion file (POS, EPOS, APT, CSV)."""
+    ranges: str = ""
+    """Range file (RRNG, RNG, ENV)."""
+
+
+@dataclass
+class VoxelConfig:
+    size: float = 1.0
+    """Voxel edge in nm (AP Suite default)."""
+    kernel: str = "gaussian"
+    """Contribution transfer function: gaussian (AP Suite two-pass), sawtooth or square."""
+    delocalization: list[float] = field(default_factory=lambda: [3.0, 3.0, 1.5])
+    """Delocalization as 3 sigma per axis x, y, z in nm (AP Suite default)."""
+    exclude: list[str] = field(default_factory=list)
+    """Elements left out of the concentration's denominator (e.g. a segregant)."""
+    include_unranged: bool = False
+    """Count unranged (background) ions in the denominator."""
+
+
+@dataclass
+class SurfaceConfig:
+    species: str = ""
+    """Element (or ion) whose concentration is contoured; empty for an iso-density surface."""
+    iso: float = 0.0
+    """Iso-concentration as a fraction (0..1), or iso-density in atoms/nm³ when species is empty."""
+
+
+@dataclass
+class ContourConfig:
+    method: str = "dc"
+    """dc (dual contouring, sharp features) or mc (marching cubes)."""
+    close_at_edge: bool = False
+    """Close objects that meet the specimen edge (proxies) instead of leaving them open."""
+
+
+@dataclass
+class CleanConfig:
+    min_component_faces: int = 20
+    """Connected components with fewer faces are noise specks and removed."""
+
+
+@dataclass
+class RemeshConfig:
+    method: str = "cvt"
+    """cvt (feature-preserving centroidal Voronoi) or none."""
+    edge_length: float = 0.0
+    """Target edge length in nm; 0 means half the voxel size."""
+    feature_angle: float = 40.0
+    """Dihedral angle in degrees above which an edge is a sharp feature that is kept."""
+
+
+@dataclass
+class ProxigramConfig:
+    bin: float = 0.1
+    """Bin width in nm (AP Suite default)."""
+    extent: float = 3.0
+    """Signed distances from -extent to +extent nm are binned."""
+    exclude_edge: bool = True
+    """Leave out ions whose closest surface point is on the specimen edge (AP Suite default)."""
+    solutes: list[str] = field(default_factory=list)
+    """Elements whose interfacial excess is reported; empty means all minority elements."""
+
+
+@dataclass
+class AnalysisConfig:
+    efficiency: float = 0.5
+    """Detection efficiency, to turn ion counts into atoms."""
+    audit: bool = True
+    """Audit the range file against the mass spectrum and report its warnings."""
+
+
+@dataclass
+class PipelineConfig:
+    input: InputConfig = field(default_factory=InputConfig)
+    voxel: VoxelConfig = field(default_factory=VoxelConfig)
+    surface: list[SurfaceConfig] = field(default_factory=list)
+    contour: ContourConfig = field(default_factory=ContourConfig)
+    clean: CleanConfig = field(default_factory=CleanConfig)
+    remesh: RemeshConfig = field(default_factory=RemeshConfig)
+    proxigram: ProxigramConfig = field(default_factory=ProxigramConfig)
+    analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
+
+    def to_toml(self) -> str:
+        return toml.dumps(dataclasses.asdict(self))
+
+
+CHOICES = {
+    ("voxel", "kernel"): ("gaussian", "sawtooth", "square"),
+    ("contour", "method"): ("dc", "mc"),
+    ("remesh", "method"): ("cvt", "none"),
+}
+
+
+def _coerce(section: str, cls, values: dict, source: str | None):
+    if not isinstance(values, dict):
+        raise AptFiltersError(f"[{section}] must be a table", source)
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise AptFiltersError(f"unknown key(s) in [{section}]: {', '.join(unknown)}", source)
+    obj = cls()
+    for key, value in values.items():
+        expected = type(getattr(obj, key))
+        # TOML writes 3.0 as 3 if a user types it so: ints are fine where floats are expected.
+        accepted = (int, float) if expected is float else expected
+        if not isinstance(value, accepted) or (isinstance(value, bool) and expected is not bool):
+            raise AptFiltersError(f"[{section}] {key} = {value!r} should be {expected.__name__}", source)
+        choices = CHOICES.get((section, key))
+        if choices and value not in choices:
+            raise AptFiltersError(f"[{section}] {key} must be one of {', '.join(choices)}, not {value!r}", source)
+        setattr(obj, key, float(value) if expected is float else value)
+    return obj
+
+
+def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
+    """Build a configuration from parsed TOML, refusing unknown sections and keys."""
+    config = PipelineConfig()
+    sections = {f.name: f for f in dataclasses.fields(PipelineConfig)}
+    unknown = sorted(set(data) - set(sections))
+    if unknown:
+        raise AptFiltersError(f"unknown section(s): {', '.join(unknown)}", source)
+    for name, value in data.items():
+        if name == "surface":
+            if not isinstance(value, list):
+                raise AptFiltersError("surfaces are given as [[surface]] tables", source)
+            config.surface = [_coerce(name, SurfaceConfig, v, source) for v in value]
+        else:
+            setattr(config, name, _coerce(name, type(getattr(config, name)), value, source))
+    return config
+
+
+def load(path: str | os.PathLike) -> PipelineConfig:
+    """Read a pipeline configuration TOML file."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise AptFiltersError("no such configuration file", path) from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise AptFiltersError(f"not valid TOML: {exc}", path) from None
+    return from_dict(data, str(path))

@@ -1,0 +1,69 @@
+import tomllib
+
+import numpy as np
+import pytest
+
+from apt_filters.core import AptFiltersError
+from apt_filters.pipeline import config as cfg
+from apt_filters.pipeline.staging import staged_folder
+from apt_filters.pipeline.steps import StepLog
+
+
+def test_config_round_trips_through_toml(tmp_path):
+    c = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15), cfg.SurfaceConfig("", 40.0)])
+    c.voxel.exclude = ["B"]
+    path = tmp_path / "c.toml"
+    path.write_text(c.to_toml())
+    assert cfg.load(path) == c
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("[voxel]\nsize = 'big'\n", "size = 'big' should be float"),
+    ("[voxel]\nkernel = 'cubic'\n", "kernel must be one of gaussian, sawtooth, square"),
+    ("[voxle]\nsize = 1\n", "unknown section(s): voxle"),
+    ("[clean]\nmin_component_faces = 2.5\n", "should be int"),
+    ("[proxigram]\nbins = 0.1\n", "unknown key(s) in [proxigram]: bins"),
+    ("[voxel\n", "not valid TOML"),
+])
+def test_config_mistakes_are_one_line_naming_the_file(tmp_path, text, problem):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(AptFiltersError) as info:
+        cfg.load(path)
+    msg = str(info.value)
+    assert msg.startswith(str(path)) and problem in msg and "\n" not in msg
+
+
+def test_int_where_float_expected_is_accepted():
+    c = cfg.from_dict(tomllib.loads("[voxel]\nsize = 2\n"))
+    assert c.voxel.size == 2.0 and isinstance(c.voxel.size, float)
+
+
+def test_staged_folder_appears_whole_or_not_at_all(tmp_path):
+    target = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        with staged_folder(target) as stage:
+            (stage / "half.json").write_text("{")
+            raise RuntimeError("crash")
+    assert list(tmp_path.iterdir()) == []
+    with staged_folder(target) as stage:
+        (stage / "report.json").write_text("{}")
+    assert [p.name for p in target.iterdir()] == ["report.json"]
+    with pytest.raises(AptFiltersError, match="not empty"):
+        with staged_folder(target):
+            pass
+    with staged_folder(target, force=True) as stage:
+        (stage / "new.json").write_text("{}")
+    assert [p.name for p in target.iterdir()] == ["new.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_step_log_measures_peak_memory_of_each_step():
+    log = StepLog(quiet=True)
+    with log.step("big"):
+        block = np.ones(40_000_000)  # 320 MB, touched
+        del block
+    with log.step("small"):
+        np.ones(10)
+    big, small = log.records
+    assert big.peak_bytes - small.peak_bytes > 250e6
