@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -243,15 +244,16 @@ def shell_volumes(edges: np.ndarray, area: np.ndarray, mean: np.ndarray, gauss: 
     return np.maximum(v, 0.0)
 
 
-def compute_proxigram(ions: IonTable, ranges: RangeTable, mesh: TriMesh, bin_width: float = 0.1,
+def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, mesh: TriMesh, bin_width: float = 0.1,
                       max_distance: float = 3.0, keep_edge: bool = False, iso_value: float | None = None,
                       chunk: int = 1 << 22, band_voxel: float = 0.5) -> Proxigram:
     """Proxigram of ``ions`` across ``mesh``, per object.
 
     Parameters
     ----------
-    ions : IonTable
-        Ions (may be memory-mapped: read ``chunk`` at a time).
+    ions : IonTable or iterable of IonTable
+        Ions, processed ``chunk`` at a time, or consecutive chunks of them (such as
+        :func:`apt_filters.io.iter_ion_chunks` yields, for files larger than memory).
     ranges : RangeTable
         Ranging and decomposition.
     mesh : TriMesh
@@ -263,7 +265,8 @@ def compute_proxigram(ions: IonTable, ranges: RangeTable, mesh: TriMesh, bin_wid
     iso_value : float, optional
         Iso-value (fraction), only recorded for the plot.
     chunk : int
-        Ions per chunk. Peak memory about 60 bytes x ``chunk`` (250 MB at the default 4 M) plus
+        Ions per chunk of an ``IonTable``. Peak memory about 60 bytes x chunk size (250 MB at the
+        default 4 M; the ions themselves not counted) plus
         the narrow-band grid (:meth:`NarrowBand.build`, at most about 180 MB while built), independent
         of the number of ions.
     band_voxel : float
@@ -287,8 +290,12 @@ def compute_proxigram(ions: IonTable, ranges: RangeTable, mesh: TriMesh, bin_wid
     n_obj, n_ion = len(object_ids), len(ranges.ions)
     counts = np.zeros(n_obj * n_bins * (n_ion + 1), dtype=np.int64)
     n_candidates = n_edge = 0
-    for start in range(0, len(ions), chunk):
-        points = np.asarray(ions.positions[start:start + chunk], dtype=np.float32)
+    n_ions = 0
+    parts = ((ions.subset(slice(a, a + chunk)) for a in range(0, len(ions), chunk))
+             if isinstance(ions, IonTable) else ions)
+    for part in parts:
+        points = np.asarray(part.positions, dtype=np.float32)
+        n_ions += len(points)
         candidates = np.flatnonzero(band.contains(points))
         sd = surface.query(points[candidates])
         n_candidates += len(candidates)
@@ -296,7 +303,7 @@ def compute_proxigram(ions: IonTable, ranges: RangeTable, mesh: TriMesh, bin_wid
         n_edge += int(np.count_nonzero(keep & sd.on_boundary))
         if not keep_edge:
             keep &= ~sd.on_boundary
-        species = ranges.ion_index(np.asarray(ions.mz[start:start + chunk])[candidates[keep]]) + 1
+        species = ranges.ion_index(np.asarray(part.mz)[candidates[keep]]) + 1
         bins = np.minimum(((sd.distance[keep] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
         slot = (face_slot[sd.face[keep]] * n_bins + bins) * (n_ion + 1) + species
         counts += np.bincount(slot, minlength=len(counts))
@@ -305,6 +312,6 @@ def compute_proxigram(ions: IonTable, ranges: RangeTable, mesh: TriMesh, bin_wid
     return Proxigram(edges=edges, ions=ranges.ions, elements=ranges.elements,
                      element_matrix=ranges.element_matrix(), colors=ranges.ion_colors(),
                      object_ids=object_ids, counts=counts[:, :, 1:], unranged=counts[:, :, 0], areas=area,
-                     shell_volumes=shell_volumes(edges, area, mean, gauss), n_ions=len(ions),
+                     shell_volumes=shell_volumes(edges, area, mean, gauss), n_ions=n_ions,
                      n_candidates=n_candidates, n_rim=n_edge, rim_kept=keep_edge,
                      iso_value=iso_value)
