@@ -91,7 +91,7 @@ class _Curve:
         return np.mod(new, self.length) if self.closed else new
 
 
-def _patch_scenes(mesh: TriMesh, features: Features) -> list:
+def patch_scenes(mesh: TriMesh, features: Features) -> list:
     o3d = open3d()
     scenes = []
     for p in range(features.n_patches):
@@ -189,7 +189,7 @@ def assign(samples: Samples, sample_patch: np.ndarray, positions: np.ndarray, al
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, gens: Generators, curves: list,
           density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps."""
-    scenes = _patch_scenes(mesh, features)
+    scenes = patch_scenes(mesh, features)
     sample_patch = features.patch[samples.parent]
     allowed = _allowed(features, gens)
     w = samples.weights * density

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import cvt, extract, features as feat
+from apt_filters.remesh import cvt, extract, features as feat, optimize
 from apt_filters.remesh.sampling import closest_points, refine
 
 
@@ -61,7 +62,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float) -> np.ndarray
 
 def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | None = None,
            feature_angle: float = 40.0, adaptive: float = 0.0, max_iter: int = 30, tol: float = 1e-4,
-           seed: int = 0) -> RemeshResult:
+           smooth_rounds: int = 5, seed: int = 0) -> RemeshResult:
     """Remesh ``mesh`` into near-equilateral triangles, keeping sharp features and boundaries.
 
     Parameters
@@ -112,12 +113,46 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces, skipped = extract.dual_faces(samples, result.labels, gens.positions, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
-    vertices = gens.positions[used]
-    out = TriMesh(vertices, faces)
+    kind, owner = gens.kind[used], gens.owner[used]
+    vertices = _optimise(mesh, features, gens.positions[used], faces, kind, owner, smooth_rounds)
+    out = TriMesh(vertices[0], vertices[1])
     out = _transfer_scalars(mesh, out)
     timings["extract"] = time.perf_counter() - t0 - timings["prepare"] - timings["lloyd"]
     return RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, len(features.corners),
                         len(features.curves), timings)
+
+
+def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
+              kind: np.ndarray, owner: np.ndarray, rounds: int) -> tuple[np.ndarray, np.ndarray]:
+    """Valence flips and tangential relaxation of the patch vertices (feature vertices stay)."""
+    if rounds == 0 or len(faces) == 0:
+        return vertices, faces
+    o3d = open3d()
+    scenes = cvt.patch_scenes(mesh, features)
+    pinned = kind != cvt.PATCH
+    boundary = optimize.boundary_vertices(TriMesh(vertices, faces))
+    valence = np.bincount(faces.ravel(), minlength=len(vertices)).astype(float)
+    target = np.where(boundary, 3.0, 6.0)
+    target[kind == cvt.CORNER] = valence[kind == cvt.CORNER]
+
+    def fixed(a, b):
+        return pinned[a] & pinned[b]
+
+    def project(points, ids):
+        out = points.copy()
+        for p in np.unique(owner[ids]):
+            sel = owner[ids] == p
+            res = scenes[p].compute_closest_points(o3d.core.Tensor(points[sel].astype(np.float32)))
+            out[sel] = res["points"].numpy()
+        return out
+
+    for r in range(rounds):
+        for k in range(3):
+            faces, flipped = optimize.flip_pass(vertices, faces, fixed, target, seed=r * 3 + k)
+            if flipped == 0:
+                break
+        vertices = optimize.relax(vertices, faces, ~pinned, project)
+    return vertices, faces
 
 
 def _transfer_scalars(source: TriMesh, target: TriMesh) -> TriMesh:
