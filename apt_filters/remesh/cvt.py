@@ -158,7 +158,7 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
     return gens, curves
 
 
-def _allowed(features: Features, gens: Generators) -> list[np.ndarray]:
+def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
     """For each patch, the generators its samples may belong to."""
     allowed = [[] for _ in range(features.n_patches)]
     for g_kind, lists in ((CORNER, features.corner_patches), (CURVE, features.curve_patches)):
@@ -191,14 +191,14 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, gens: Generators,
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps."""
     scenes = patch_scenes(mesh, features)
     sample_patch = features.patch[samples.parent]
-    allowed = _allowed(features, gens)
+    permitted = allowed(features, gens)
     w = samples.weights * density
     o3d = open3d()
     energy: list = []
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
     for it in range(max_iter + 1):
-        labels = assign(samples, sample_patch, gens.positions, allowed)
+        labels = assign(samples, sample_patch, gens.positions, permitted)
         d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
         energy.append(float((w * d2).sum()))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):

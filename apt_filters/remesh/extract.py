@@ -75,8 +75,8 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     inc_v = faces.ravel()
     inc_f = np.repeat(np.arange(len(faces)), 3)
     inc_l = labels[inc_f]
-    pairs = np.unique(np.stack([inc_v, inc_l], 1), axis=0)
-    distinct = np.bincount(pairs[:, 0], minlength=len(vertices))
+    pairs = np.unique(inc_v * (int(labels.max()) + 1) + inc_l)
+    distinct = np.bincount(pairs // (int(labels.max()) + 1), minlength=len(vertices))
     keep = distinct[inc_v] >= 3
     inc_v, inc_f, inc_l = inc_v[keep], inc_f[keep], inc_l[keep]
     normals = vertex_normals(vertices, faces)

@@ -107,10 +107,13 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         vertex_density = lambda p: np.ones(len(p))  # noqa: E731
     timings["prepare"] = time.perf_counter() - t0
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
-    result = cvt.lloyd(mesh, features, samples, gens, curves, density, max_iter, tol)
+    coarse = samples.coarser()
+    coarse_density = density.reshape(len(coarse.points), -1).mean(axis=1)
+    result = cvt.lloyd(mesh, features, coarse, gens, curves, coarse_density, max_iter, tol)
+    labels = cvt.assign(samples, features.patch[samples.parent], gens.positions, cvt.allowed(features, gens))
     timings["lloyd"] = time.perf_counter() - t0 - timings["prepare"]
     pinned = gens.kind != cvt.PATCH
-    faces, skipped = extract.dual_faces(samples, result.labels, gens.positions, pinned)
+    faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     kind, owner = gens.kind[used], gens.owner[used]
