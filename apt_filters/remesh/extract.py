@@ -26,13 +26,41 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def _tangent_angles(d: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Angle of each vector ``d`` about the normal ``n`` in a per-row tangent frame."""
-    helper = np.where(np.abs(n[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t1 = np.cross(n, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    return np.arctan2(np.einsum("ij,ij->i", d, t2), np.einsum("ij,ij->i", d, t1))
+def fan_order(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Incidences (vertex, face) sorted counter-clockwise around each vertex, from connectivity alone.
+
+    Face ``(v, x, y)`` is followed around ``v`` by the face holding ``(v, y, z)``. Each fan
+    is cut once (at its boundary, or anywhere for a closed fan) and ranked by list ranking
+    (pointer jumping), so no geometry enters: sliver faces cannot swap places.
+
+    Returns ``vertex`` and ``face`` arrays of the 3m incidences in that order.
+    """
+    v = faces.ravel()
+    nxt = np.roll(faces, -1, axis=1).ravel()
+    prv = np.roll(faces, 1, axis=1).ravel()
+    face = np.repeat(np.arange(len(faces)), 3)
+    key = v * n_vertices + nxt
+    order = np.argsort(key)
+    want = v * n_vertices + prv
+    pos = np.minimum(np.searchsorted(key[order], want), len(key) - 1)
+    succ = np.where(key[order[pos]] == want, order[pos], -1)
+    has_pred = np.zeros(len(v), bool)
+    has_pred[succ[succ >= 0]] = True
+    # closed fans: cut before their lowest incidence
+    open_vertex = np.zeros(n_vertices, bool)
+    open_vertex[v[~has_pred]] = True
+    first = np.full(n_vertices, len(v))
+    np.minimum.at(first, v, np.arange(len(v)))
+    cut = (succ >= 0) & ~open_vertex[v] & (succ == first[v])
+    succ[cut] = -1
+    dist = (succ >= 0).astype(np.int64)
+    jump = succ.copy()
+    while (jump >= 0).any():
+        live = jump >= 0
+        dist[live] += dist[jump[live]]
+        jump[live] = jump[jump[live]]
+    ranked = np.lexsort((-dist, v))
+    return v[ranked], face[ranked]
 
 
 def _min_angle(p: np.ndarray) -> float:
@@ -77,12 +105,10 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     inc_l = labels[inc_f]
     pairs = np.unique(inc_v * (int(labels.max()) + 1) + inc_l)
     distinct = np.bincount(pairs // (int(labels.max()) + 1), minlength=len(vertices))
+    inc_v, inc_f = fan_order(faces, len(vertices))
     keep = distinct[inc_v] >= 3
-    inc_v, inc_f, inc_l = inc_v[keep], inc_f[keep], inc_l[keep]
-    normals = vertex_normals(vertices, faces)
-    ang = _tangent_angles(samples.points[inc_f] - vertices[inc_v], normals[inc_v])
-    order = np.lexsort((ang, inc_v))
-    inc_v, inc_l = inc_v[order], inc_l[order]
+    inc_v, inc_f = inc_v[keep], inc_f[keep]
+    inc_l = labels[inc_f]
     first = np.r_[True, inc_v[1:] != inc_v[:-1]]
     start = np.flatnonzero(first)
     group = np.cumsum(first) - 1
