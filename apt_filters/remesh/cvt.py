@@ -159,38 +159,62 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
 
 
 def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
-    """For each patch, the generators its samples may belong to."""
-    allowed = [[] for _ in range(features.n_patches)]
+    """Generators that each sample group may belong to.
+
+    Group ``p`` holds the samples of patch ``p``: its own generators and those of the curves
+    and corners around it. Group ``n_patches + p`` holds the samples of ``p`` that touch a
+    feature curve: only curve and corner generators, so that consecutive generators on a curve
+    always have adjacent cells and the curve becomes a chain of mesh edges.
+    """
+    n = features.n_patches
+    rim = [[] for _ in range(n)]
     for g_kind, lists in ((CORNER, features.corner_patches), (CURVE, features.curve_patches)):
         for i, patches in enumerate(lists):
             ids = np.flatnonzero((gens.kind == g_kind) & (gens.owner == i))
             for p in patches:
-                allowed[p].append(ids)
-    for p in range(features.n_patches):
-        allowed[p].append(np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)))
-    return [np.concatenate(a) for a in allowed]
+                rim[p].append(ids)
+    rim = [np.concatenate(r) if r else np.empty(0, np.int64) for r in rim]
+    full = [np.concatenate([rim[p], np.flatnonzero((gens.kind == PATCH) & (gens.owner == p))]) for p in range(n)]
+    return full + [r if len(r) else f for r, f in zip(rim, full)]
 
 
-def assign(samples: Samples, sample_patch: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
-    """Nearest allowed generator of every sample (open3d nearest-neighbour search, per patch)."""
+def sample_groups(samples: Samples, features: Features) -> np.ndarray:
+    """(f,) group of each sample for :func:`allowed`: its patch, plus ``n_patches`` beside a feature curve."""
+    patch = features.patch[samples.parent]
+    faces = samples.faces
+    n_v = len(samples.vertices)
+    lo = np.full(n_v, np.iinfo(np.int64).max)
+    hi = np.full(n_v, -1)
+    np.minimum.at(lo, faces.ravel(), np.repeat(patch, 3))
+    np.maximum.at(hi, faces.ravel(), np.repeat(patch, 3))
+    feature_vertex = lo != hi
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = half[:, 0] * n_v + half[:, 1]
+    lone = ~np.isin(half[:, 1] * n_v + half[:, 0], key)
+    feature_vertex[half[lone].ravel()] = True
+    near = feature_vertex[faces].any(axis=1)
+    return patch + features.n_patches * near
+
+
+def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
+    """Nearest allowed generator of every sample point (open3d nearest-neighbour search, per group)."""
     o3d = open3d()
-    labels = np.full(len(samples.points), -1)
-    for p, ids in enumerate(allowed):
-        sel = np.flatnonzero(sample_patch == p)
+    labels = np.full(len(points), -1)
+    for g, ids in enumerate(allowed):
+        sel = np.flatnonzero(group == g)
         if len(sel) == 0 or len(ids) == 0:
             continue
         nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(positions[ids]))
         nns.knn_index()
-        idx, _ = nns.knn_search(o3d.core.Tensor(samples.points[sel]), 1)
+        idx, _ = nns.knn_search(o3d.core.Tensor(points[sel]), 1)
         labels[sel] = ids[idx.numpy().ravel()]
     return labels
 
 
-def lloyd(mesh: TriMesh, features: Features, samples: Samples, gens: Generators, curves: list,
-          density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
+def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
+          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps."""
     scenes = patch_scenes(mesh, features)
-    sample_patch = features.patch[samples.parent]
     permitted = allowed(features, gens)
     w = samples.weights * density
     o3d = open3d()
@@ -198,7 +222,7 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, gens: Generators,
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
     for it in range(max_iter + 1):
-        labels = assign(samples, sample_patch, gens.positions, permitted)
+        labels = assign(samples.points, group, gens.positions, permitted)
         d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
         energy.append(float((w * d2).sum()))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):

@@ -10,7 +10,7 @@ import numpy as np
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import cvt, extract, features as feat, optimize
+from apt_filters.remesh import cvt, extract, features as feat, optimize, repair
 from apt_filters.remesh.sampling import closest_points, refine
 
 
@@ -109,11 +109,19 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     coarse = samples.coarser()
     coarse_density = density.reshape(len(coarse.points), -1).mean(axis=1)
-    result = cvt.lloyd(mesh, features, coarse, gens, curves, coarse_density, max_iter, tol)
-    labels = cvt.assign(samples, features.patch[samples.parent], gens.positions, cvt.allowed(features, gens))
+    group = cvt.sample_groups(samples, features)
+    coarse_group = group.reshape(len(coarse.points), -1).max(axis=1)
+    result = cvt.lloyd(mesh, features, coarse, coarse_group, gens, curves, coarse_density, max_iter, tol)
+    labels = cvt.assign(samples.points, group, gens.positions, cvt.allowed(features, gens))
     timings["lloyd"] = time.perf_counter() - t0 - timings["prepare"]
     pinned = gens.kind != cvt.PATCH
     faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
+    boundary_curves = np.flatnonzero(features.boundary_curve)
+    on_boundary = (gens.kind == cvt.CURVE) & np.isin(gens.owner, boundary_curves)
+    corner_ids = features.corners[gens.owner[gens.kind == cvt.CORNER]]
+    on_boundary[gens.kind == cvt.CORNER] = np.isin(corner_ids, np.concatenate(
+        [features.curves[i] for i in boundary_curves] or [np.empty(0, np.int64)]))
+    faces = repair.repair(gens.positions, faces, on_boundary, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     kind, owner = gens.kind[used], gens.owner[used]
