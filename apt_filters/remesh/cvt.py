@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from apt_filters.remesh._arrays import isin
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.features import Features
@@ -190,7 +191,7 @@ def sample_groups(samples: Samples, features: Features) -> np.ndarray:
     feature_vertex = lo != hi
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
     key = half[:, 0] * n_v + half[:, 1]
-    lone = ~np.isin(half[:, 1] * n_v + half[:, 0], key)
+    lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
     feature_vertex[half[lone].ravel()] = True
     near = feature_vertex[faces].any(axis=1)
     return patch + features.n_patches * near

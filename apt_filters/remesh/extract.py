@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from apt_filters.remesh._arrays import unique
 from apt_filters.remesh.sampling import Samples
 
 
@@ -103,7 +104,7 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     inc_v = faces.ravel()
     inc_f = np.repeat(np.arange(len(faces)), 3)
     inc_l = labels[inc_f]
-    pairs = np.unique(inc_v * (int(labels.max()) + 1) + inc_l)
+    pairs = unique(inc_v * (int(labels.max()) + 1) + inc_l)
     distinct = np.bincount(pairs // (int(labels.max()) + 1), minlength=len(vertices))
     inc_v, inc_f = fan_order(faces, len(vertices))
     keep = distinct[inc_v] >= 3

@@ -19,6 +19,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
+from apt_filters.remesh._arrays import unique, unique_rows
 from apt_filters.core.mesh import TriMesh
 
 
@@ -62,7 +63,7 @@ def edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ``edges[half_edge[i]]`` the edge of half-edge ``i`` (face ``i // 3``, corner ``i % 3``).
     """
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    edges, half_edge = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
+    edges, _, half_edge, _ = unique_rows(np.sort(half, axis=1))
     return edges, np.repeat(np.arange(len(faces)), 3), half_edge.ravel()
 
 
@@ -97,7 +98,7 @@ def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray,
             break
         shared = sparse.coo_matrix((w[small], (a[small], b[small])), shape=(n, n)).tocsr()
         target = np.arange(n)
-        rows = np.unique(a[small])
+        rows = unique(a[small])
         best = np.asarray(shared[rows].argmax(axis=1)).ravel()
         # a small patch only moves into a larger one, so two small neighbours cannot swap
         grow = parea[best] >= parea[rows]
@@ -188,7 +189,7 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0) -> Feature
     for c in curves:
         e = lookup[tuple(sorted((int(c[0]), int(c[1]))))]
         f = pair[e][pair[e] >= 0]
-        curve_patches.append(np.unique(patch[f]))
+        curve_patches.append(unique(patch[f]))
         is_boundary.append(bool(boundary[e]))
     corners = np.flatnonzero(corner)
     vf = sparse.coo_matrix((np.ones(faces.size), (faces.ravel(), np.repeat(patch, 3))),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from apt_filters.remesh._arrays import isin, unique
 from apt_filters.core.mesh import TriMesh
 
 
@@ -66,9 +67,9 @@ def flip_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, target: np.nd
     cand = (after < before) & flat & valid & ~fixed_edge(a, b) & (val[a] > 3) & (val[b] > 3)
     # the new edge c-d must not exist already
     n = len(vertices)
-    existing = np.unique(np.minimum(faces, np.roll(faces, -1, 1)).ravel() * n
+    existing = unique(np.minimum(faces, np.roll(faces, -1, 1)).ravel() * n
                          + np.maximum(faces, np.roll(faces, -1, 1)).ravel())
-    cand &= ~np.isin(np.minimum(c, d) * n + np.maximum(c, d), existing)
+    cand &= ~isin(np.minimum(c, d) * n + np.maximum(c, d), existing)
     idx = np.flatnonzero(cand)
     if len(idx) == 0:
         return faces, 0

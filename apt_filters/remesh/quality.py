@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from apt_filters.remesh._arrays import isin, unique_rows
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 
@@ -77,7 +78,7 @@ def feature_edges(mesh: TriMesh, angle: float = 40.0) -> np.ndarray:
     order = np.lexsort((e[:, 1], e[:, 0]))
     e, face = e[order], face[order]
     pair = np.flatnonzero((e[1:] == e[:-1]).all(axis=1))
-    pair = pair[~np.isin(pair, pair + 1) & ~np.isin(pair + 1, pair + 2)]  # exactly two faces
+    pair = pair[~isin(pair, pair + 1) & ~isin(pair + 1, pair + 2)]  # exactly two faces
     n = mesh.face_normals()
     cos = np.einsum("ij,ij->i", n[face[pair]], n[face[pair + 1]])
     return e[pair[cos < np.cos(np.radians(angle))]]
@@ -107,7 +108,7 @@ def edge_f1(points: np.ndarray, reference: np.ndarray, tol: float) -> float:
 
 def orientation_conflicts(mesh: TriMesh) -> int:
     """Number of directed half-edges used twice (neighbouring faces with opposite orientation)."""
-    _, counts = np.unique(mesh.edges(), axis=0, return_counts=True)
+    counts = unique_rows(mesh.edges())[3]
     return int((counts > 1).sum())
 
 

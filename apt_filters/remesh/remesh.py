@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from apt_filters.remesh._arrays import isin, unique, unique_rows
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
@@ -50,7 +51,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float) -> np.ndarray
     factor 1 + adaptive·L·κ (at most 4).
     """
     normals = extract.vertex_normals(mesh.vertices, mesh.faces)
-    edges = np.unique(np.sort(mesh.edges(), axis=1), axis=0)
+    edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
     length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
     turn = np.linalg.norm(normals[edges[:, 0]] - normals[edges[:, 1]], axis=1)
     kappa = turn / np.maximum(length, 0.25 * edge)  # short sliver edges would inflate κ
@@ -117,9 +118,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     pinned = gens.kind != cvt.PATCH
     faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     boundary_curves = np.flatnonzero(features.boundary_curve)
-    on_boundary = (gens.kind == cvt.CURVE) & np.isin(gens.owner, boundary_curves)
+    on_boundary = (gens.kind == cvt.CURVE) & isin(gens.owner, boundary_curves)
     corner_ids = features.corners[gens.owner[gens.kind == cvt.CORNER]]
-    on_boundary[gens.kind == cvt.CORNER] = np.isin(corner_ids, np.concatenate(
+    on_boundary[gens.kind == cvt.CORNER] = isin(corner_ids, np.concatenate(
         [features.curves[i] for i in boundary_curves] or [np.empty(0, np.int64)]))
     faces = repair.repair(gens.positions, faces, on_boundary, pinned)
     used, faces = np.unique(faces, return_inverse=True)
@@ -151,7 +152,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     def project(points, ids):
         out = points.copy()
-        for p in np.unique(owner[ids]):
+        for p in unique(owner[ids]):
             sel = owner[ids] == p
             res = scenes[p].compute_closest_points(o3d.core.Tensor(points[sel].astype(np.float32)))
             out[sel] = res["points"].numpy()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from apt_filters.remesh._arrays import isin, unique_rows
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.extract import triangulate_polygon
 from apt_filters.remesh.quality import triangle_angles
@@ -20,7 +21,7 @@ def drop_duplicates(faces: np.ndarray) -> np.ndarray:
     """Keep the first of triangles with the same three vertices; drop triangles with repeated vertices."""
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     faces = faces[ok]
-    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    first = unique_rows(np.sort(faces, axis=1))[1]
     return faces[np.sort(first)]
 
 
@@ -28,7 +29,7 @@ def trim_overfull_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Remove the worst-shaped triangles on edges used by more than two, until none is."""
     for _ in range(10):
         e = np.sort(TriMesh(vertices, faces).edges(), axis=1)
-        _, inverse, counts = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+        _, _, inverse, counts = unique_rows(e)
         over = counts[inverse.ravel()].reshape(-1, 3).max(axis=1) > 2
         if not over.any():
             break
@@ -50,7 +51,7 @@ def boundary_loops(faces: np.ndarray) -> list[list[int]]:
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
     n = int(faces.max()) + 1
     key = half[:, 0] * n + half[:, 1]
-    lone = ~np.isin(half[:, 1] * n + half[:, 0], key)
+    lone = ~isin(half[:, 1] * n + half[:, 0], key)
     nxt = {}
     for a, b in half[lone].tolist():
         nxt.setdefault(a, []).append(b)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from apt_filters.remesh._arrays import unique_rows
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 
@@ -78,7 +79,7 @@ def closest_points(mesh: TriMesh, points: np.ndarray) -> dict:
 def split4(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One midpoint subdivision step: every face into four; face ``i`` becomes faces ``4i .. 4i+3``."""
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    edges, inverse = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
+    edges, _, inverse, _ = unique_rows(np.sort(half, axis=1))
     mid = (len(vertices) + inverse.reshape(-1, 3))  # midpoint of edge (v_i, v_i+1)
     vertices = np.vstack([vertices, vertices[edges].mean(axis=1)])
     a, b, c = faces.T
