@@ -27,19 +27,23 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def fan_order(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+def fan_order(faces: np.ndarray, n_vertices: int, wanted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Incidences (vertex, face) sorted counter-clockwise around each vertex, from connectivity alone.
 
     Face ``(v, x, y)`` is followed around ``v`` by the face holding ``(v, y, z)``. Each fan
     is cut once (at its boundary, or anywhere for a closed fan) and ranked by list ranking
     (pointer jumping), so no geometry enters: sliver faces cannot swap places.
 
-    Returns ``vertex`` and ``face`` arrays of the 3m incidences in that order.
+    Returns ``vertex`` and ``face`` arrays of the incidences in that order, only around the
+    vertices flagged in ``wanted`` (v,) bool when given.
     """
     v = faces.ravel()
     nxt = np.roll(faces, -1, axis=1).ravel()
     prv = np.roll(faces, 1, axis=1).ravel()
     face = np.repeat(np.arange(len(faces)), 3)
+    if wanted is not None:  # fans only link incidences of one vertex, so others can go
+        keep = wanted[v]
+        v, nxt, prv, face = v[keep], nxt[keep], prv[keep], face[keep]
     key = v * n_vertices + nxt
     order = np.argsort(key)
     want = v * n_vertices + prv
@@ -106,9 +110,7 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     inc_l = labels[inc_f]
     pairs = unique(inc_v * (int(labels.max()) + 1) + inc_l)
     distinct = np.bincount(pairs // (int(labels.max()) + 1), minlength=len(vertices))
-    inc_v, inc_f = fan_order(faces, len(vertices))
-    keep = distinct[inc_v] >= 3
-    inc_v, inc_f = inc_v[keep], inc_f[keep]
+    inc_v, inc_f = fan_order(faces, len(vertices), distinct >= 3)
     inc_l = labels[inc_f]
     first = np.r_[True, inc_v[1:] != inc_v[:-1]]
     start = np.flatnonzero(first)
