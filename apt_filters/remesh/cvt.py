@@ -197,24 +197,53 @@ def sample_groups(samples: Samples, features: Features) -> np.ndarray:
     return patch + features.n_patches * near
 
 
-def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
-    """Nearest allowed generator of every sample point (open3d nearest-neighbour search, per group)."""
+def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
+    """(q, k) indices of the k nearest reference points (open3d KD-tree, batched)."""
     o3d = open3d()
+    nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(reference))
+    nns.knn_index()
+    idx, _ = nns.knn_search(o3d.core.Tensor(queries), k)
+    return idx.numpy().astype(np.int64).reshape(len(queries), k)
+
+
+def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list,
+           previous: np.ndarray | None = None, k: int = 10) -> np.ndarray:
+    """Nearest allowed generator of every sample point, per group.
+
+    Without ``previous`` every sample is searched in an open3d KD-tree of the group's
+    generators. With ``previous`` labels (generators have moved a little since), only the
+    ``k`` generators nearest to each sample's previous generator are candidates: the KD-tree
+    then runs on the generators alone and the samples need k distances each, several times
+    cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
+    """
     labels = np.full(len(points), -1)
+    order = np.argsort(group, kind="stable")
+    bounds = np.searchsorted(group[order], np.arange(len(allowed) + 1))
+    lut = np.full(len(positions), -1)
     for g, ids in enumerate(allowed):
-        sel = np.flatnonzero(group == g)
+        sel = order[bounds[g]:bounds[g + 1]]
         if len(sel) == 0 or len(ids) == 0:
             continue
-        nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(positions[ids]))
-        nns.knn_index()
-        idx, _ = nns.knn_search(o3d.core.Tensor(points[sel]), 1)
-        labels[sel] = ids[idx.numpy().ravel()]
+        if previous is None:
+            labels[sel] = ids[_knn(positions[ids], points[sel], 1)[:, 0]]
+            continue
+        lut[ids] = np.arange(len(ids))
+        near = _knn(positions[ids], positions[ids], min(k, len(ids)))
+        for chunk in np.array_split(sel, max(1, len(sel) // 200_000)):
+            cand = near[lut[previous[chunk]]]
+            d2 = ((points[chunk, None, :] - positions[ids][cand]) ** 2).sum(axis=2)
+            labels[chunk] = ids[cand[np.arange(len(chunk)), d2.argmin(axis=1)]]
     return labels
 
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
-          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
-    """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps."""
+          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4,
+          full_every: int = 5) -> LloydResult:
+    """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
+
+    Every ``full_every``-th assignment searches all generators; the others only the
+    neighbours of each sample's previous generator (see :func:`assign`).
+    """
     scenes = patch_scenes(mesh, features)
     permitted = allowed(features, gens)
     w = samples.weights * density
@@ -222,8 +251,10 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     energy: list = []
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
+    labels = None
     for it in range(max_iter + 1):
-        labels = assign(samples.points, group, gens.positions, permitted)
+        local = labels is not None and it % full_every != 0
+        labels = assign(samples.points, group, gens.positions, permitted, labels if local else None)
         d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
         energy.append(float((w * d2).sum()))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
