@@ -103,3 +103,24 @@ def test_json_and_errors(segregated, tmp_path):
         interfacial_excess(prox, "B", efficiency=1.5)
     with pytest.raises(AptFiltersError, match="windows"):
         interfacial_excess(prox, "B", efficiency=0.5, inner=2.5, outer=2.0)
+
+
+def test_unmeasurable_objects_are_an_error_or_skipped():
+    """An object with no ions in its inner plateau window has no excess to measure."""
+    from apt_filters.analysis.proxigram import Proxigram
+
+    centers = np.arange(-2.95, 3.0, 0.1)
+    edges = np.append(centers - 0.05, centers[-1] + 0.05)
+    counts = np.zeros((2, len(centers), 2), dtype=np.int64)
+    counts[:, :, 1] = 100
+    counts[:, :, 0] = 5
+    counts[1, centers > 0.5, :] = 0  # object 1 is thin: nothing deeper than 0.5 nm inside
+    prox = Proxigram(edges=edges, ions=["B", "Ni"], elements=["B", "Ni"], element_matrix=np.eye(2, dtype=np.int64),
+                     colors={}, object_ids=np.array([0, 1]), counts=counts,
+                     unranged=np.zeros((2, len(centers)), np.int64), areas=np.array([10.0, 10.0]),
+                     shell_volumes=np.ones((2, len(centers))))
+    with pytest.raises(AptFiltersError, match="no ions in a plateau window"):
+        interfacial_excess(prox, "B", 0.5)
+    kept = interfacial_excess(prox, "B", 0.5, skip_unmeasurable=True)
+    assert [e.object_id for e in kept] == [0, -1]
+    assert kept[0].cumulative.count == pytest.approx(0.0, abs=1e-6)

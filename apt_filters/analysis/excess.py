@@ -198,11 +198,14 @@ def excess_of_profile(s: np.ndarray, n: np.ndarray, total: np.ndarray, area: flo
 
 
 def interfacial_excess(proxigram: Proxigram, solute: str, efficiency: float, inner: float = 1.0,
-                       outer: float | None = None) -> list[Excess]:
+                       outer: float | None = None, skip_unmeasurable: bool = False) -> list[Excess]:
     """Excess of ``solute`` per object (own area) and, when there are several objects, pooled
     (summed counts over the summed area, last in the list, ``object_id`` = ``POOLED``).
 
-    ``outer`` defaults to the proxigram's range.
+    ``outer`` defaults to the proxigram's range. An object with no ions in a plateau window
+    (thinner than ``inner``, or cut away by the edge exclusion) has no measurable excess: an
+    error, or left out of the list with ``skip_unmeasurable`` (the pipeline does so and
+    reports which objects are missing).
     """
     if not 0 < efficiency <= 1:
         raise AptFiltersError(f"detection efficiency must be in (0, 1], got {efficiency}")
@@ -216,7 +219,12 @@ def interfacial_excess(proxigram: Proxigram, solute: str, efficiency: float, inn
         area = float(profiles.areas[k])
         if area <= 0:
             raise AptFiltersError(f"object {obj} has no area")
-        levels = excess_of_profile(profiles.centers, n[k], total[k], area, efficiency, inner, outer)
+        try:
+            levels = excess_of_profile(profiles.centers, n[k], total[k], area, efficiency, inner, outer)
+        except AptFiltersError:
+            if skip_unmeasurable:
+                continue
+            raise
         out.append(Excess(solute, int(obj), area, efficiency, *levels, (inner, outer)))
     return out
 

@@ -163,10 +163,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                     el for el, c in report["composition"].items() if c < MINORITY and el != surface.species]
                 for solute in solutes:
                     res.excess += [dataclasses.asdict(e) for e in
-                                   interfacial_excess(prox, solute, config.analysis.efficiency)]
+                                   interfacial_excess(prox, solute, config.analysis.efficiency, skip_unmeasurable=True)]
                 res.proxigram = prox
-                s.summary = f"{label}: excess of {', '.join(solutes) or 'no solute'}"
-            res.stats = {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
+                measured = {e["object_id"] for e in res.excess}
+                res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
+                s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
+                             f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
+            res.stats |= {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:
