@@ -44,9 +44,13 @@ def bench_ranges() -> RangeTable:
 
 
 def synthetic(n: int, seed: int) -> IonTable:
-    """Uniform ions strictly inside the box (a non-integer lower corner, see APAV's grid quirk)."""
+    """Uniform ions strictly inside the box (a non-integer lower corner, see APAV's grid quirk).
+
+    In detection order, as reconstructions store them: z falls from the top of the box down.
+    """
     rng = np.random.default_rng(seed)
     pos = (rng.random((n, 3), dtype=np.float32) * (BOX - 0.5) + 0.25).astype(np.float32)
+    pos = pos[np.argsort(-pos[:, 2], kind="stable")]
     mz = (10.0 * rng.integers(1, len(ELEMENTS) + 1, n) + rng.uniform(-0.4, 0.4, n)).astype(np.float32)
     return IonTable(pos, mz)
 

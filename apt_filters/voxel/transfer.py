@@ -28,7 +28,6 @@ TRUNCATE = 4.0
 _E18 = float(np.exp(-18.0))
 
 
-
 def second_pass_sigma(voxel: float, delocalization) -> np.ndarray:
     """(3,) second-pass sigma in voxels: sqrt((deloc/3)² − (voxel/6)²) / voxel.
 
@@ -223,8 +222,9 @@ class BlockAccumulator:
         self.rows = tuple(np.ascontiguousarray(a) for a in rows)
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
         self.table = np.full(grid.block_shape, -1, dtype=np.int32)
-        self.pool = np.zeros((n_channels, 64, BLOCK, BLOCK, BLOCK))
-        self.coords = np.zeros((64, 3), dtype=np.int32)
+        capacity = int(min(np.prod(grid.block_shape), 512))
+        self.pool = np.zeros((n_channels, capacity, BLOCK, BLOCK, BLOCK))
+        self.coords = np.zeros((capacity, 3), dtype=np.int32)
         self.n_active = 0
 
     def add(self, positions: np.ndarray, rows: np.ndarray) -> None:
