@@ -160,7 +160,7 @@ def main(argv=None) -> int:
         ions = synthetic(n, 7)
         print(f"{n / 1e6:.0f} M ions, box {BOX.tolist()} nm, grid {grid.shape}, 8 species")
         species = rt.ion_index(ions.mz).astype(np.int64)
-        row = species + 1
+        row = rt.ion_index(ions.mz) + 1  # int32, as voxelize passes it
 
         def scatter(kernel):
             acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)

@@ -221,7 +221,7 @@ def voxelize(
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization)
     matrix_counts = np.zeros(len(ranges.ions) + 1)
     for chunk in chunks:
-        row = ranges.ion_index(chunk.mz).astype(np.int64) + 1
+        row = ranges.ion_index(chunk.mz) + 1  # int32: 4 bytes per ion
         acc.add(chunk.positions, row)
         matrix_counts += np.bincount(row, minlength=len(matrix_counts))
     coords, channels = acc.result()

@@ -230,7 +230,7 @@ class BlockAccumulator:
     def add(self, positions: np.ndarray, rows: np.ndarray) -> None:
         """Scatter ions: positions (N, 3) nm, rows (N,) int (ion species index + 1)."""
         positions = np.ascontiguousarray(positions)
-        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        rows = np.ascontiguousarray(rows)
         scatter = _SCATTER[self.kernel]
         origin = np.asarray(self.grid.origin)
         start = 0
@@ -261,7 +261,8 @@ class BlockAccumulator:
     def result(self) -> tuple[np.ndarray, list[np.ndarray]]:
         """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian."""
         coords = self.coords[: self.n_active].copy()
-        channels = [np.ascontiguousarray(self.pool[c, : self.n_active]) for c in range(self.pool.shape[0])]
+        # copies, so that the fields hold their occupied blocks only, not the spare capacity
+        channels = [self.pool[c, : self.n_active].copy() for c in range(self.pool.shape[0])]
         self.pool = self.coords = None  # release the over-allocated pool before pass 2
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
