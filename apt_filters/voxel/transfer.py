@@ -199,8 +199,8 @@ class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
     Memory: ``n_channels * capacity * 512 * 8`` bytes of pool (capacity grows by doubling, so up
-    to twice the occupied blocks while scattering) plus the block table (4 bytes per block of
-    the bounding box).
+    to twice the occupied blocks while scattering, capped at the box's blocks + 8) plus the
+    block table (4 bytes per block of the bounding box).
 
     Parameters
     ----------
@@ -252,9 +252,11 @@ class BlockAccumulator:
 
     def _grow(self) -> None:
         cap = self.pool.shape[1]
-        pool = np.zeros((self.pool.shape[0], 2 * cap, BLOCK, BLOCK, BLOCK))
+        # never beyond the box's blocks (+8: an ion starts only with room for 8 new blocks)
+        new_cap = int(min(2 * cap, np.prod(self.grid.block_shape) + 8))
+        pool = np.zeros((self.pool.shape[0], new_cap, BLOCK, BLOCK, BLOCK))
         pool[:, :cap] = self.pool
-        coords = np.zeros((2 * cap, 3), dtype=np.int32)
+        coords = np.zeros((new_cap, 3), dtype=np.int32)
         coords[:cap] = self.coords
         self.pool, self.coords = pool, coords
 
