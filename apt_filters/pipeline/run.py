@@ -23,6 +23,7 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.io import IonTable, RangeTable, read_ions, read_ranges
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.pipeline.steps import StepLog
 
@@ -163,10 +164,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                     el for el, c in report["composition"].items() if c < MINORITY and el != surface.species]
                 for solute in solutes:
                     res.excess += [dataclasses.asdict(e) for e in
-                                   interfacial_excess(prox, solute, config.analysis.efficiency)]
+                                   interfacial_excess(prox, solute, config.analysis.efficiency, skip_unmeasurable=True)]
                 res.proxigram = prox
-                s.summary = f"{label}: excess of {', '.join(solutes) or 'no solute'}"
-            res.stats = {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
+                measured = {e["object_id"] for e in res.excess}
+                res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
+                s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
+                             f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
+            res.stats |= {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:
@@ -176,6 +180,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             cloud = write_ion_cloud(ions, ranges, stage / "meshes" / "ions.ply")
             paths.append(stage / "meshes" / "ions.ply")
             write_project(stage / "project.mlp", paths)
+            sample = ions.positions[:: max(1, len(ions) // 20_000)]
+            render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
             report["ion_cloud"] = dataclasses.asdict(cloud) if dataclasses.is_dataclass(cloud) else str(cloud)
             s.summary = f"{len(paths)} PLY files and project.mlp"
         report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,
@@ -189,7 +195,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         atomic_write_text(stage / "config.toml", config.to_toml())
         rep.write_json(stage / "report.json", report)
         rep.write_html(stage / "report.html", "apt-filters report", _html_sections(report),
-                       sorted(stage.glob("proxigram_*.png")))
+                       [stage / "surfaces.png", *sorted(stage.glob("proxigram_*.png"))])
     return report
 
 

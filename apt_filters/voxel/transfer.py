@@ -28,7 +28,6 @@ TRUNCATE = 4.0
 _E18 = float(np.exp(-18.0))
 
 
-
 def second_pass_sigma(voxel: float, delocalization) -> np.ndarray:
     """(3,) second-pass sigma in voxels: sqrt((deloc/3)² − (voxel/6)²) / voxel.
 
@@ -200,8 +199,8 @@ class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
     Memory: ``n_channels * capacity * 512 * 8`` bytes of pool (capacity grows by doubling, so up
-    to twice the occupied blocks while scattering) plus the block table (4 bytes per block of
-    the bounding box).
+    to twice the occupied blocks while scattering, capped at the box's blocks + 8) plus the
+    block table (4 bytes per block of the bounding box).
 
     Parameters
     ----------
@@ -223,14 +222,15 @@ class BlockAccumulator:
         self.rows = tuple(np.ascontiguousarray(a) for a in rows)
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
         self.table = np.full(grid.block_shape, -1, dtype=np.int32)
-        self.pool = np.zeros((n_channels, 64, BLOCK, BLOCK, BLOCK))
-        self.coords = np.zeros((64, 3), dtype=np.int32)
+        capacity = int(min(np.prod(grid.block_shape), 512))
+        self.pool = np.zeros((n_channels, capacity, BLOCK, BLOCK, BLOCK))
+        self.coords = np.zeros((capacity, 3), dtype=np.int32)
         self.n_active = 0
 
     def add(self, positions: np.ndarray, rows: np.ndarray) -> None:
         """Scatter ions: positions (N, 3) nm, rows (N,) int (ion species index + 1)."""
         positions = np.ascontiguousarray(positions)
-        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        rows = np.ascontiguousarray(rows)
         scatter = _SCATTER[self.kernel]
         origin = np.asarray(self.grid.origin)
         start = 0
@@ -252,16 +252,19 @@ class BlockAccumulator:
 
     def _grow(self) -> None:
         cap = self.pool.shape[1]
-        pool = np.zeros((self.pool.shape[0], 2 * cap, BLOCK, BLOCK, BLOCK))
+        # never beyond the box's blocks (+8: an ion starts only with room for 8 new blocks)
+        new_cap = int(min(2 * cap, np.prod(self.grid.block_shape) + 8))
+        pool = np.zeros((self.pool.shape[0], new_cap, BLOCK, BLOCK, BLOCK))
         pool[:, :cap] = self.pool
-        coords = np.zeros((2 * cap, 3), dtype=np.int32)
+        coords = np.zeros((new_cap, 3), dtype=np.int32)
         coords[:cap] = self.coords
         self.pool, self.coords = pool, coords
 
     def result(self) -> tuple[np.ndarray, list[np.ndarray]]:
         """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian."""
         coords = self.coords[: self.n_active].copy()
-        channels = [np.ascontiguousarray(self.pool[c, : self.n_active]) for c in range(self.pool.shape[0])]
+        # copies, so that the fields hold their occupied blocks only, not the spare capacity
+        channels = [self.pool[c, : self.n_active].copy() for c in range(self.pool.shape[0])]
         self.pool = self.coords = None  # release the over-allocated pool before pass 2
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
