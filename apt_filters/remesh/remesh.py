@@ -62,7 +62,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float) -> np.ndarray
 
 
 def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | None = None,
-           feature_angle: float = 40.0, adaptive: float = 0.0, max_iter: int = 30, tol: float = 1e-4,
+           feature_angle: float = 40.0, adaptive: float = 0.0, max_iter: int = 30, tol: float = 1e-3,
            smooth_rounds: int = 5, seed: int = 0) -> RemeshResult:
     """Remesh ``mesh`` into near-equilateral triangles, keeping sharp features and boundaries.
 
