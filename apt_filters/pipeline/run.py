@@ -147,8 +147,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             if config.remesh.method == "cvt":
                 with log.step("remesh") as s:
                     edge = config.remesh.edge_length or fields.grid.voxel / 2
-                    mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
-                    s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                    try:
+                        mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
+                        s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                    except Exception as exc:  # noqa: BLE001 - a remesher failure must not cost the whole run
+                        warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
+                        report.setdefault("warnings", []).append(" ".join(warning.split()))
+                        s.summary = "WARNING " + report["warnings"][-1]
             # One object numbering for the object table, the proxigram and the excess.
             mesh.face_scalars["object_id"] = mesh.face_components()
             res = SurfaceResult(label, surface, mesh)

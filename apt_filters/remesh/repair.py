@@ -117,4 +117,6 @@ def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pin
     faces = drop_duplicates(faces)
     faces = trim_overfull_edges(vertices, faces)
     faces = close_holes(vertices, faces, on_boundary, pinned)
-    return orient_coherently(vertices, drop_duplicates(faces))
+    # A hole fill can add a third face to an edge (two holes sharing a vertex pair).
+    faces = trim_overfull_edges(vertices, drop_duplicates(faces))
+    return orient_coherently(vertices, faces)
