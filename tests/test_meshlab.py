@@ -276,7 +276,7 @@ def test_pymeshlab_example_script_runs(tmp_path, capfd):
     example = runpy.run_path(str(ROOT / "scripts" / "pymeshlab_example.py"))
     assert example["main"]([str(tmp_path)]) == 0
     captured = capfd.readouterr()  # file-descriptor level: MeshLab's own echo would show here
-    assert "object 2: closed" in captured.out and "genus 1" in captured.out
+    assert "object 1: closed" in captured.out and "genus 1" in captured.out
     assert "Reading filter" not in captured.out + captured.err
     assert {"clean.mlx", "clean.json", "smooth.mlx", "objects.csv", "smoothed.ply", "scene.mlp"} <= \
         {p.name for p in tmp_path.iterdir()}

@@ -109,3 +109,19 @@ def test_run_on_real_si(real_si, tmp_path):
     assert interface["status"] == "open"
     assert -19.0 < interface["centroid_z"] < -14.0, "flat interface near z = -16 nm"
     assert interface["obb_short"] < 0.15 * interface["obb_long"], "it is flat"
+
+
+def test_a_remesher_failure_keeps_the_cleaned_mesh_and_warns(specimen, tmp_path, monkeypatch):
+    import apt_filters.remesh
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("synthetic failure")
+
+    monkeypatch.setattr(apt_filters.remesh, "remesh", broken)
+    folder, truth = specimen
+    config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
+    config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+    config.analysis.audit = False
+    report = run_pipeline(config, tmp_path / "out", quiet=True)
+    assert report["warnings"] == ["remeshing Al15 failed (RuntimeError: synthetic failure); the cleaned mesh is used"]
+    assert report["surfaces"][0]["mesh"]["faces"] > 0

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from apt_filters.cli.main import main
-from apt_filters.cli.proxigram import read_mesh
+from apt_filters.meshlab.bridge import read_mesh
 from apt_filters.core.mesh import TriMesh
 from apt_filters.synth import preset, write_ply, write_specimen
 
@@ -64,11 +64,11 @@ def test_cli_bad_inputs(small_specimen, tmp_path, capsys):
     folder, _ = small_specimen
     base = [str(folder / "specimen.pos"), "-r", str(folder / "specimen.rrng"), "-o", str(tmp_path / "o")]
     assert main(["proxigram", *base, "-m", str(folder / "truth.json")]) == 2
-    assert "unknown mesh extension" in capsys.readouterr().err
+    assert "truth.json: cannot read mesh: Unknown format" in capsys.readouterr().err
     bad = tmp_path / "bad.ply"
     bad.write_text("ply\nnot really\n")
     assert main(["proxigram", *base, "-m", str(bad)]) == 2
-    assert "bad.ply: no triangles" in capsys.readouterr().err
+    assert "bad.ply: cannot read mesh" in capsys.readouterr().err
     assert main(["proxigram", *base, "-m", str(tmp_path / "missing.ply")]) == 2
-    assert "no such file" in capsys.readouterr().err
+    assert "missing.ply: mesh file not found" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

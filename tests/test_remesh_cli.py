@@ -3,20 +3,21 @@
 import numpy as np
 
 from apt_filters.cli.main import main
-from apt_filters.cli.remesh import read_mesh, write_mesh
+from apt_filters.meshlab.bridge import read_mesh
+from apt_filters.meshlab.exports import write_mesh
 from benchmarks import remesh_shapes as shapes
 
 
 def test_remesh_cli_round_trip(tmp_path, capsys):
     src = tmp_path / "in.ply"
     mesh = shapes.sphere(6.0)
-    mesh.vertex_scalars["quality"] = mesh.vertices[:, 0].copy()
+    mesh.vertex_scalars["value"] = mesh.vertices[:, 0].copy()
     write_mesh(mesh, src, overwrite=False)
     out = tmp_path / "out.ply"
     assert main(["remesh", str(src), "-o", str(out), "--edge-length", "1.0"]) == 0
     result = read_mesh(out)
     assert result.n_faces > 100
-    assert np.allclose(result.vertex_scalars["quality"], result.vertices[:, 0], atol=1e-3)
+    assert np.allclose(result.vertex_scalars["value"], result.vertices[:, 0], atol=1e-3)
     assert main(["remesh", str(src), "-o", str(out)]) == 2  # exists, no --force
     assert "exists already" in capsys.readouterr().err
     assert main(["remesh", str(src), "-o", str(out), "--force", "--edge-length", "1.5"]) == 0

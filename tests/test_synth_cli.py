@@ -34,20 +34,21 @@ def test_synth_ions_resizes_the_specimen(tmp_path, capsys):
         main(["synth", str(tmp_path / "y"), "--ions", "lots"])
 
 
-def test_demo_generates_then_reuses(tmp_path, capsys, monkeypatch):
+def test_demo_runs_the_pipeline_then_reuses_the_specimen(tmp_path, capsys, monkeypatch):
+    from apt_filters.cli.demo import demo_specimen
+
     monkeypatch.setitem(presets.PRESETS, "default", lambda: dataclasses.replace(presets.small(), name="default"))
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
+    assert main(["demo", "--out", str(out), "--quiet"]) == 0
     first = capsys.readouterr().out
-    assert "ions" in first and "bounding box" in first and "volume" in first and first.rstrip().endswith("(PLY)")
-    assert "wrote" in first
-    pos = (out / "specimen.pos").read_bytes()
-    assert main(["demo", "--out", str(out)]) == 0
-    assert "reused" in capsys.readouterr().out
-    assert (out / "specimen.pos").read_bytes() == pos
+    assert "ions" in first and "bounding box" in first and "wrote" in first
+    assert "volume/true" in first and "cube 6 nm" in first and "sphere 3 nm" in first
+    assert (out / "run" / "report.html").is_file() and (out / "run" / "meshes" / "Al15.ply").is_file()
+    pos = (out / "specimen" / "specimen.pos").read_bytes()
+    assert demo_specimen(out / "specimen")[1], "the same seed reuses the specimen"
+    assert (out / "specimen" / "specimen.pos").read_bytes() == pos
     assert main(["demo", "--out", str(out), "--seed", "1"]) == 2
     assert "another specimen" in capsys.readouterr().err
-    assert main(["demo", "--out", str(out), "--seed", "1", "--force"]) == 0
 
 
 def test_help_texts(capsys):

@@ -77,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Generate the built-in synthetic specimen (a conical tip with rotated cubes, spheres, a rod, "
                     "a plate and a flat interface, B segregated at every interface; ~3.4M ions) into OUT/specimen, "
                     "run the whole pipeline on it (Al iso-surface at 15 at.%) into OUT/run, and print the objects' "
-                    "volumes, areas and B excess against the ground truth.")
+                    "volumes, areas and B excess over their true values.")
     p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT})")
     p.add_argument("--seed", type=int, default=0, help="random seed of the ions (default 0)")
     p.add_argument("--force", action="store_true", help="regenerate even if the folder holds a specimen")

@@ -8,38 +8,16 @@ ion file is streamed in chunks, so memory stays bounded for 10^8-10^9 ions.
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-import numpy as np
 
 from apt_filters.analysis.excess import INSTRUMENT_EFFICIENCY, interfacial_excess, write_excess_json
 from apt_filters.analysis.proxigram import compute_proxigram
-from apt_filters.core.deps import open3d
-from apt_filters.core.errors import AptFiltersError, InputError
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import iter_ion_chunks, read_ranges
+from apt_filters.meshlab.bridge import read_mesh
 
 ORDER = 80
-MESH_FORMATS = (".ply", ".obj", ".stl", ".off")
-
-
-def read_mesh(path: str | os.PathLike) -> TriMesh:
-    """Read a triangle mesh (PLY, OBJ, STL, OFF) with open3d; winding is kept as in the file."""
-    path = Path(path)
-    if path.suffix.lower() not in MESH_FORMATS:
-        raise InputError(f"unknown mesh extension {path.suffix or '(none)'!r}; expected one of "
-                         f"{', '.join(MESH_FORMATS)}", path)
-    if not path.is_file():
-        raise InputError("no such file", path)
-    legacy = open3d().io.read_triangle_mesh(str(path))
-    faces = np.asarray(legacy.triangles)
-    if len(faces) == 0:
-        raise InputError("no triangles could be read from the mesh", path)
-    vertices = np.asarray(legacy.vertices)
-    if not np.all(np.isfinite(vertices)):
-        raise InputError("mesh has non-finite vertex coordinates", path)
-    return TriMesh(vertices, faces)
 
 
 def run(args: argparse.Namespace) -> int:

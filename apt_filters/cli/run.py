@@ -41,7 +41,7 @@ def _run(args: argparse.Namespace) -> int:
     from apt_filters.pipeline.run import run_pipeline
 
     config = build_config(args)
-    report = run_pipeline(config, args.out, force=args.force, quiet=args.quiet)
+    report = run_pipeline(config, args.out, force=args.force, quiet=args.quiet, verbose=args.verbose)
     print(f"report: {Path(args.out) / 'report.html'}")
     for s in report["surfaces"]:
         print(f"  {s['label']}: {len(s['objects'])} objects, area {s['mesh']['area_nm2']:.1f} nm2")
@@ -71,5 +71,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
     loud = p.add_mutually_exclusive_group()
     loud.add_argument("--quiet", "-q", action="store_true", help="no step summaries")
-    loud.add_argument("--verbose", "-v", action="store_true", help="step summaries and progress bars (default)")
+    loud.add_argument("--verbose", "-v", action="store_true", help="also list every range-file finding")
     p.set_defaults(func=_run)

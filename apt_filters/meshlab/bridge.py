@@ -25,7 +25,7 @@ import numpy as np
 import pymeshlab
 
 from apt_filters.core.atomic import atomic_output
-from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.errors import AptFiltersError, InputError
 from apt_filters.core.mesh import TriMesh
 
 COLOR_KEYS = ("red", "green", "blue", "alpha")
@@ -174,3 +174,32 @@ def save_current_mesh(ms: pymeshlab.MeshSet, path: str | os.PathLike, overwrite:
         except pymeshlab.PyMeshLabException as exc:
             raise AptFiltersError(f"cannot write mesh: {exc}", path) from exc
     return Path(path)
+
+
+def load_mesh(path: str | os.PathLike) -> pymeshlab.MeshSet:
+    """A new MeshSet holding the mesh file ``path`` (any format pymeshlab reads)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("mesh file not found", path)
+    ms = pymeshlab.MeshSet()
+    try:
+        ms.load_new_mesh(str(path))
+    except pymeshlab.PyMeshLabException as exc:
+        raise InputError(f"cannot read mesh: {exc}", path) from None
+    ms.clear_filter_script()
+    return ms
+
+
+def read_mesh(path: str | os.PathLike) -> TriMesh:
+    """Read a triangle mesh file (PLY, OBJ, STL, OFF, anything MeshLab reads) as a :class:`TriMesh`.
+
+    Vertex quality comes back as the vertex scalar ``"value"`` and face quality as
+    ``"object_id"`` (see :func:`from_pymeshlab`); winding is kept as in the file.
+    """
+    ms = load_mesh(path)  # held here: a Mesh is a view into its MeshSet
+    mesh = from_pymeshlab(ms.current_mesh())
+    if mesh.n_faces == 0:
+        raise InputError("no triangles could be read from the mesh", path)
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise InputError("mesh has non-finite vertex coordinates", path)
+    return mesh

@@ -24,7 +24,7 @@ from pathlib import Path
 import pymeshlab
 
 from apt_filters.core.errors import AptFiltersError, InputError
-from apt_filters.meshlab.bridge import save_current_mesh
+from apt_filters.meshlab.bridge import load_mesh, save_current_mesh
 from apt_filters.meshlab.filters import MLX_NAMES
 
 MAX_SCRIPT_BYTES = 1 << 20
@@ -149,20 +149,6 @@ def replay_on_meshset(ms: pymeshlab.MeshSet, script: str | os.PathLike) -> list[
         except pymeshlab.PyMeshLabException as exc:
             raise AptFiltersError(f"MeshLab could not apply the script: {exc}", script) from exc
     return filters
-
-
-def load_mesh(path: str | os.PathLike) -> pymeshlab.MeshSet:
-    """A new MeshSet holding the mesh file ``path`` (any format pymeshlab reads)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("mesh file not found", path)
-    ms = pymeshlab.MeshSet()
-    try:
-        ms.load_new_mesh(str(path))
-    except pymeshlab.PyMeshLabException as exc:
-        raise InputError(f"cannot read mesh: {exc}", path) from None
-    ms.clear_filter_script()
-    return ms
 
 
 def replay_file(script: str | os.PathLike, mesh_in: str | os.PathLike, mesh_out: str | os.PathLike,

@@ -82,10 +82,12 @@ def _field(fields, surface: SurfaceConfig) -> np.ndarray:
 
 
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
-                 truth: dict | None = None) -> dict:
+                 verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
 
-    ``truth`` (a synthetic specimen's truth.json) adds a comparison with the ground truth.
+    Prints one line per step (time, peak memory, what it found) unless ``quiet``; ``verbose``
+    adds every range-file finding. ``truth`` (a synthetic specimen's truth.json) adds a
+    comparison with the ground truth.
     """
     from apt_filters.analysis.excess import interfacial_excess
     from apt_filters.analysis.objects import object_table
@@ -98,7 +100,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
     _check_config(config)
-    log = StepLog(quiet=quiet)
+    per_surface = 4 + (config.remesh.method == "cvt")
+    log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface))
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
     with staged_folder(out, force=force) as stage:
         (stage / "meshes").mkdir()
@@ -116,6 +119,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 result = audit_ranges(ions, ranges)
                 report["audit"] = [dataclasses.asdict(f) for f in result.flagged]
                 s.summary = f"{len(result.flagged)} range-file findings"
+                if verbose:
+                    s.summary += "".join(f"\n    {f['severity'].upper():7} {f['message']}" for f in report["audit"])
         with log.step("voxelize") as s:
             v = config.voxel
             basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
@@ -142,8 +147,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             if config.remesh.method == "cvt":
                 with log.step("remesh") as s:
                     edge = config.remesh.edge_length or fields.grid.voxel / 2
-                    mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
-                    s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                    try:
+                        mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
+                        s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                    except Exception as exc:  # noqa: BLE001 - a remesher failure must not cost the whole run
+                        warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
+                        report.setdefault("warnings", []).append(" ".join(warning.split()))
+                        s.summary = "WARNING " + report["warnings"][-1]
             # One object numbering for the object table, the proxigram and the excess.
             mesh.face_scalars["object_id"] = mesh.face_components()
             res = SurfaceResult(label, surface, mesh)

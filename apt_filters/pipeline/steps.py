@@ -46,15 +46,28 @@ class StepRecord:
 
 @dataclass
 class StepLog:
-    """Records steps; prints one line per step unless ``quiet``."""
+    """Records steps; prints one line per step unless ``quiet``, under a progress bar over
+    ``total`` steps when it is given (tqdm, on stderr)."""
 
     quiet: bool = False
+    total: int | None = None
     records: list[StepRecord] = field(default_factory=list)
+    _bar: object = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.total and not self.quiet:
+            from tqdm import tqdm
+
+            # disable=None: a bar only on a terminal, plain lines in logs and pipes
+            self._bar = tqdm(total=self.total, unit="step", file=sys.stderr, leave=False, dynamic_ncols=True,
+                             disable=None)
 
     @contextlib.contextmanager
     def step(self, name: str) -> Iterator[StepRecord]:
         """Time a step; the body may set ``record.summary`` to what it found."""
         _reset_peak()
+        if self._bar is not None:
+            self._bar.set_description(name)
         record = StepRecord(name, 0.0, 0)
         start = time.perf_counter()
         yield record
@@ -62,8 +75,14 @@ class StepLog:
         record.peak_bytes = _peak_bytes()
         self.records.append(record)
         if not self.quiet:
-            print(f"[{name:>10}] {record.seconds:7.2f} s  peak {record.peak_bytes / 2**20:8.0f} MiB  {record.summary}",
-                  file=sys.stderr, flush=True)
+            line = f"[{name:>10}] {record.seconds:7.2f} s  peak {record.peak_bytes / 2**20:8.0f} MiB  {record.summary}"
+            if self._bar is None or self._bar.disable:
+                print(line, file=sys.stderr, flush=True)
+            else:
+                self._bar.write(line, file=sys.stderr)
+                self._bar.update(1)
+                if self._bar.n >= self._bar.total:
+                    self._bar.close()
 
     def as_dicts(self) -> list[dict]:
         return [{"step": r.name, "seconds": round(r.seconds, 3), "peak_mib": round(r.peak_bytes / 2**20, 1),

@@ -78,9 +78,45 @@ def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)]) if new else faces
 
 
+def orient_coherently(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Make neighbouring faces agree (pymeshlab), keeping the orientation most faces had before.
+
+    A hole fill next to a vertex with two boundary fans can come out reversed; re-orienting
+    per component and then voting with the original faces fixes it without trusting either.
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertices, faces))
+    ms.meshing_re_orient_faces_coherently()
+    new = ms.current_mesh().face_matrix().astype(np.int64)
+    if new.shape != faces.shape:  # pymeshlab changed more than orientation: keep ours
+        return faces
+    same = np.zeros(len(faces), bool)
+    for shift in range(3):
+        same |= (np.roll(new, shift, axis=1) == faces).all(axis=1)
+    labels = connected_faces(new)
+    flip_component = np.bincount(labels, ~same) > np.bincount(labels, same)
+    return np.where(flip_component[labels][:, None], new[:, ::-1], new)
+
+
+def connected_faces(faces: np.ndarray) -> np.ndarray:
+    """(m,) component label of each face (faces sharing a vertex are connected)."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(faces)
+    n = int(faces.max()) + 1
+    graph = sparse.coo_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), faces.ravel())), shape=(m, n)).tocsr()
+    _, labels = connected_components(sparse.bmat([[None, graph], [graph.T, None]]), directed=False)
+    return labels[:m]
+
+
 def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """Duplicates, over-full edges, then holes; returns the new faces."""
     faces = drop_duplicates(faces)
     faces = trim_overfull_edges(vertices, faces)
     faces = close_holes(vertices, faces, on_boundary, pinned)
-    return drop_duplicates(faces)
+    # A hole fill can add a third face to an edge (two holes sharing a vertex pair).
+    faces = trim_overfull_edges(vertices, drop_duplicates(faces))
+    return orient_coherently(vertices, faces)
