@@ -72,10 +72,20 @@ def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.nda
     return np.where(use_b[:, None, None], split_b, split_a)
 
 
+def _self_intersecting(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces that cross another face (pymeshlab, imported on first use)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=pos, face_matrix=tris.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    return ms.current_mesh().face_selection_array().astype(bool)
+
+
 def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), mask=None,
                     gradient: Callable[[np.ndarray], np.ndarray] | None = None, *, close: bool = False,
                     field_gradient: str = "eno", cutoff: float = 0.1, max_rank: int = 3,
-                    max_fold_angle: float = 120.0) -> TriMesh:
+                    max_fold_angle: float = 120.0, repair_intersections: bool = True) -> TriMesh:
     """Iso-surface by manifold dual contouring: sharp edges and corners are kept.
 
     Parameters
@@ -96,6 +106,8 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         Degrees; adjacent triangles whose normals differ more count as folded. Vertices of
         folded triangles drop to the next lower QEF rank until no fold is left (rank 0, the
         mass point, is the last resort).
+    repair_intersections : bool
+        Treat vertices of self-intersecting faces (pymeshlab test) the same way.
 
     Returns
     -------
@@ -148,11 +160,13 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
-    for _ in range(4):
+    for _ in range(8):  # each round lowers offenders one rank; rank 0 cannot be lowered further
         pos = candidates[rank, np.arange(n_vertices)]
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
-        folded = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
-        lower = folded[rank[folded] > 0]
+        bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
+        if repair_intersections:
+            bad = np.union1d(bad, tris[_self_intersecting(field.to_world(pos), tris)])
+        lower = bad[rank[bad] > 0]
         if not len(lower):
             break
         rank[lower] -= 1
