@@ -11,7 +11,7 @@ from apt_filters.contour.components import label_components
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.tables import case_table
-from apt_filters.contour.topology import folded_pairs, unit_normals
+from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
 
 # Position of a cell around a grid edge, by the cube-edge sub-index k (e % 4): the four
@@ -70,16 +70,6 @@ def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.nda
     fold_a, fold_b = folds(split_a), folds(split_b)
     use_b = (fold_a & ~fold_b) | ((fold_a == fold_b) & (err_b < err_a))
     return np.where(use_b[:, None, None], split_b, split_a)
-
-
-def _self_intersecting(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """(m,) bool: faces that cross another face (pymeshlab, imported on first use)."""
-    import pymeshlab
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=pos, face_matrix=tris.astype(np.int32)))
-    ms.compute_selection_by_self_intersections_per_face()
-    return ms.current_mesh().face_selection_array().astype(bool)
 
 
 def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), mask=None,
@@ -165,7 +155,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
         bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
         if repair_intersections:
-            bad = np.union1d(bad, tris[_self_intersecting(field.to_world(pos), tris)])
+            bad = np.union1d(bad, tris[self_intersecting_faces(field.to_world(pos), tris)])
         lower = bad[rank[bad] > 0]
         if not len(lower):
             break

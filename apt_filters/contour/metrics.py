@@ -29,7 +29,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from apt_filters.contour.topology import folded_pairs, unit_normals
+from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
 
 EDGE_DOT = 0.2
@@ -122,13 +122,8 @@ def non_manifold_vertex_count(mesh: TriMesh) -> int:
 
 
 def self_intersection_count(mesh: TriMesh) -> int:
-    """Faces that intersect another face (pymeshlab)."""
-    import pymeshlab
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=mesh.vertices, face_matrix=mesh.faces.astype(np.int32)))
-    ms.compute_selection_by_self_intersections_per_face()
-    return int(ms.current_mesh().selected_face_number())
+    """Faces that intersect another face (pymeshlab ``compute_selection_by_self_intersections_per_face``)."""
+    return int(self_intersecting_faces(mesh.vertices, mesh.faces).sum())
 
 
 @dataclass

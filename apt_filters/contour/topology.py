@@ -34,3 +34,17 @@ def folded_pairs(vertices: np.ndarray, faces: np.ndarray, max_angle_deg: float =
     n = unit_normals(vertices, faces)
     dots = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
     return pairs[dots < np.cos(np.radians(max_angle_deg))]
+
+
+def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces that cross another face (pymeshlab, imported on first use).
+
+    pymeshlab's test has absolute tolerances: call it on world coordinates (nm), as the
+    metrics do.
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    return ms.current_mesh().face_selection_array().astype(bool)
