@@ -33,7 +33,7 @@ def report(name: str, method: str):
         mesh = dual_contouring(values, 0.0, spacing, origin, gradient=shape.field_gradient)
     else:
         mesh = dual_contouring(values, 0.0, spacing, origin, field_gradient=method.split("_")[1])
-    return evaluate(mesh, shape, spacing[0], density=12.0, edges=name == "rotated_box")
+    return evaluate(mesh, shape, spacing[0], density=12.0, edges=name == "rotated_box", intersections=method != "mc")
 
 
 def test_table_every_crossed_edge_in_exactly_one_sheet():
