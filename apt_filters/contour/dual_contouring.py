@@ -7,7 +7,6 @@ from typing import Callable
 import numpy as np
 
 from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, prepare_field, trilinear
-from apt_filters.contour.components import label_components
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.tables import case_table
@@ -168,7 +167,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
                    {"value": trilinear(field.values, pos), "rank": rank[used].astype(np.float64)})
     if field.edge is not None:
         mesh.face_scalars["at_edge"] = cap_cells(field, act)[cell_of_vertex][used][faces].any(axis=1)
-    mesh.face_scalars["component"] = label_components(mesh)
+    mesh.face_scalars["component"] = mesh.face_components()
     return mesh
 
 
