@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, prepare_field, strides, trilinear
-from apt_filters.contour.components import label_components
 from apt_filters.contour.tables import CENTRE, CORNERS, case_table
 from apt_filters.core.mesh import TriMesh
 
@@ -87,5 +86,5 @@ def marching_cubes(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0
     """
     field = prepare_field(values, iso, spacing, origin, mask, close)
     mesh = triangulate_cells(field, find_active_cells(field))
-    mesh.face_scalars["component"] = label_components(mesh)
+    mesh.face_scalars["component"] = mesh.face_components()
     return mesh
