@@ -1,0 +1,206 @@
+"""Voxelization speed and agreement: ours (square / sawtooth / gaussian) against np.bincount and APAV.
+
+Run: ``python -m benchmarks.bench_voxel [--quick | --full]``.
+
+Synthetic ions fill a 60 × 60 × 200 nm box (8 single-atom species, 1 nm voxels): 10 M by
+default, 1 M with ``--quick``; ``--full`` streams 100 M in chunks of 5 M (the streaming path,
+peak memory = fields + one chunk) and skips APAV, which needs every ion in memory.
+
+Rows (each timed as the best of ``--repeat`` runs, all side by side in one process):
+- ``numpy bincount square``: the plain numpy square kernel (nearest voxel, one bincount over
+  species × voxels), given the species index, as the peer for the scatter;
+- ``ours <kernel> scatter``: our block-sparse scatter given the same species index;
+- ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields);
+- ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
+  compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
+  by its reflecting edges.
+Peak memory is measured separately with tracemalloc (numpy allocations), excluding the input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import platform
+import time
+import tracemalloc
+import warnings
+
+import numpy as np
+
+from apt_filters.io import IonTable, Range, RangeTable
+from apt_filters.voxel import Grid, kernel_reach, voxelize
+from apt_filters.voxel.fields import decomposition
+from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
+
+BOX = np.array([60.0, 60.0, 200.0])
+ELEMENTS = ("Fe", "Cr", "Ni", "Al", "Ti", "Mo", "Si", "C")
+VOXEL, DELOC = 1.0, (3.0, 3.0, 1.5)
+
+
+def bench_ranges() -> RangeTable:
+    return RangeTable([Range(10.0 * k + 9.5, 10.0 * k + 10.5, ((el, 1),)) for k, el in enumerate(ELEMENTS)])
+
+
+def synthetic(n: int, seed: int) -> IonTable:
+    """Uniform ions strictly inside the box (a non-integer lower corner, see APAV's grid quirk)."""
+    rng = np.random.default_rng(seed)
+    pos = (rng.random((n, 3), dtype=np.float32) * (BOX - 0.5) + 0.25).astype(np.float32)
+    mz = (10.0 * rng.integers(1, len(ELEMENTS) + 1, n) + rng.uniform(-0.4, 0.4, n)).astype(np.float32)
+    return IonTable(pos, mz)
+
+
+def bincount_square(positions: np.ndarray, species: np.ndarray, grid: Grid, n_species: int) -> np.ndarray:
+    """The plain numpy square kernel: nearest voxel, one bincount over (species, voxel)."""
+    idx = np.rint((positions - np.asarray(grid.origin, np.float32)) / np.float32(grid.voxel)).astype(np.int64)
+    flat = (species * grid.shape[0] + idx[:, 0]) * grid.shape[1] + idx[:, 1]
+    flat = flat * grid.shape[2] + idx[:, 2]
+    return np.bincount(flat, minlength=n_species * grid.n_voxels).reshape((n_species,) + grid.shape)
+
+
+def best_time(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        gc.collect()
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def peak_bytes(fn) -> int:
+    gc.collect()
+    tracemalloc.start()
+    fn()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return peak
+
+
+def apav_run(ions: IonTable, rt: RangeTable):
+    import apav
+    from apav.analysis.spatial import RangedGrid
+
+    coll = apav.RangeCollection([apav.Range(r.ion, (r.lower, r.upper)) for r in rt.ranges])
+    roi = apav.Roi(ions.positions, ions.mz)  # float32 arrays: APAV converts per range
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        return RangedGrid(roi, coll, bin_width=VOXEL, delocalization=np.asarray(DELOC))
+
+
+def apav_agreement(ions: IonTable, rt: RangeTable, ref) -> float:
+    """Max relative difference of element counts over APAV's interior (beyond its edge effects)."""
+    reach = 1 + second_pass_radius(second_pass_sigma(VOXEL, DELOC))
+    x, y, z = ref.centers[0][:, 0, 0], ref.centers[1][0, :, 0], ref.centers[2][0, 0, :]
+    n = np.array([len(x), len(y), len(z)])
+    grid = Grid(tuple(np.array([x[0], y[0], z[0]]) - reach * VOXEL), VOXEL, tuple(n + 2 * reach + 1))
+    ours = voxelize(ions, rt, grid=grid, kernel="gaussian", delocalization=DELOC)
+    core = tuple(slice(r + 1, m - r - 1) for r, m in zip(reach, n))
+    shifted = tuple(slice(s.start + r, s.stop + r) for s, r in zip(core, reach))
+    worst = 0.0
+    for el, counts in ref._elem_counts.items():
+        a = counts[core]
+        b = ours.counts[el.symbol].dense()[shifted]
+        worst = max(worst, float(np.max(np.abs(b - a) / a)))
+    return worst
+
+
+def chunks_of(n: int, chunk: int, seed: int):
+    for k, start in enumerate(range(0, n, chunk)):
+        yield synthetic(min(chunk, n - start), seed + k)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    size = ap.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="1 M ions")
+    size.add_argument("--full", action="store_true", help="100 M ions streamed in chunks (no APAV)")
+    ap.add_argument("--repeat", type=int, default=3, help="timing repeats (best is reported)")
+    ap.add_argument("--no-apav", action="store_true", help="skip APAV")
+    args = ap.parse_args(argv)
+    rt = bench_ranges()
+    names, rows = decomposition(rt, "elements", keep_unranged=False)
+    grid = Grid.covering(np.zeros(3), BOX, VOXEL, kernel_reach("gaussian", VOXEL, DELOC))
+
+    # warm the JIT (cached on disk after the first run) outside every timing
+    warm = synthetic(1000, 1)
+    for kernel in ("square", "sawtooth", "gaussian"):
+        voxelize(warm, rt, grid=grid, kernel=kernel)
+
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+          "(shared with other jobs: compare ratios, not absolute times)")
+    results = []
+    if args.full:
+        n, chunk = 100_000_000, 5_000_000
+        print(f"{n / 1e6:.0f} M ions streamed in chunks of {chunk / 1e6:.0f} M, grid {grid.shape}, 8 species")
+
+        def run_bincount():
+            acc = np.zeros((len(ELEMENTS),) + grid.shape, dtype=np.int64)
+            for c in chunks_of(n, chunk, 100):
+                acc += bincount_square(c.positions, rt.ion_index(c.mz).astype(np.int64), grid, len(ELEMENTS))
+
+        def gen_only():
+            for _ in chunks_of(n, chunk, 100):
+                pass
+
+        t_gen = best_time(gen_only, 1)
+        results.append(("numpy bincount square (incl. ranging)", best_time(run_bincount, 1) - t_gen, None))
+        for kernel in ("square", "sawtooth", "gaussian"):
+            t = best_time(lambda: voxelize(chunks_of(n, chunk, 100), rt, grid=grid, kernel=kernel), 1) - t_gen
+            peak = peak_bytes(lambda: voxelize(chunks_of(n, chunk, 100), rt, grid=grid, kernel=kernel))
+            results.append((f"ours {kernel} voxelize (streamed)", t, peak))
+        print(f"(chunk generation, {t_gen:.1f} s, subtracted from each time)")
+    else:
+        n = 1_000_000 if args.quick else 10_000_000
+        ions = synthetic(n, 7)
+        print(f"{n / 1e6:.0f} M ions, box {BOX.tolist()} nm, grid {grid.shape}, 8 species")
+        species = rt.ion_index(ions.mz).astype(np.int64)
+        row = species + 1
+
+        def scatter(kernel):
+            acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)
+            acc.add(ions.positions, row)
+            return acc.result()
+
+        base = lambda: bincount_square(ions.positions, species, grid, len(ELEMENTS))  # noqa: E731
+        results.append(("numpy bincount square", best_time(base, args.repeat), peak_bytes(base)))
+        results.append(("ranging (RangeTable.ion_index)", best_time(lambda: rt.ion_index(ions.mz), args.repeat), None))
+        for kernel in ("square", "sawtooth", "gaussian"):
+            fn = lambda k=kernel: scatter(k)  # noqa: E731
+            results.append((f"ours {kernel} scatter", best_time(fn, args.repeat), peak_bytes(fn)))
+        for kernel in ("square", "sawtooth", "gaussian"):
+            fn = lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k)  # noqa: E731
+            results.append((f"ours {kernel} voxelize", best_time(fn, args.repeat), peak_bytes(fn)))
+        if not args.no_apav:
+            try:
+                import apav  # noqa: F401
+            except ImportError:
+                print("apav not installed: its row is skipped")
+            else:
+                holder = {}
+                t = best_time(lambda: holder.update(ref=apav_run(ions, rt)), 1)
+                peak = peak_bytes(lambda: apav_run(ions, rt))
+                results.append(("apav RangedGrid (gaussian)", t, peak))
+                print(f"agreement with APAV (max relative difference, interior voxels): "
+                      f"{apav_agreement(ions, rt, holder['ref']):.2e}")
+
+    t_base = results[0][1]
+    t_gauss = dict((r[0], r[1]) for r in results)
+    print()
+    print("| method | time (s) | M ions/s | speed vs bincount | peak memory (MB) |")
+    print("|---|---:|---:|---:|---:|")
+    for name, t, peak in results:
+        mem = f"{peak / 1e6:.0f}" if peak is not None else "-"
+        print(f"| {name} | {t:.3f} | {n / t / 1e6:.1f} | {t_base / t:.2f} | {mem} |")
+    if "apav RangedGrid (gaussian)" in t_gauss:
+        ratio = t_gauss["apav RangedGrid (gaussian)"] / t_gauss["ours gaussian voxelize"]
+        print(f"\nours gaussian voxelize is {ratio:.1f}x faster than APAV RangedGrid")
+    key = "voxelize (streamed)" if args.full else "voxelize"
+    g_over_s = t_gauss[f"ours gaussian {key}"] / t_gauss[f"ours sawtooth {key}"]
+    print(f"gaussian / sawtooth time: {g_over_s:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
