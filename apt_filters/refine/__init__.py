@@ -1,0 +1,26 @@
+"""Putting the surface where the interface is: refinement of iso-surfaces against the ions.
+
+After contouring (``apt_filters.contour``) on a delocalized concentration field, the surface of a
+small precipitate sits inside the true interface (delocalization and segregant dilution shrink
+it by 30-45% in volume). This step
+
+- removes specks by a stated rule (:func:`remove_specks`),
+- measures each object's own inside/outside plateaus and midpoint iso-value (:func:`object_levels`,
+  :func:`per_object_iso`),
+- moves every vertex along its normal to where the ions' local composition profile crosses the
+  midpoint of its object's plateaus, regularised and fold-free (:func:`refine_surface`),
+- and gives the interfacial excess per object over its own area (:func:`object_excess`).
+"""
+
+from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
+from apt_filters.refine.evaluate import SurfaceError, match_objects, split_components, surface_error
+from apt_filters.refine.excess import ObjectExcess, object_excess
+from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
+from apt_filters.refine.specks import Specks, remove_specks
+from apt_filters.refine.surface import RefineResult, guarded_move, refine_surface
+
+__all__ = [
+    "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError", "contrast_weights",
+    "guarded_move", "ion_atoms", "match_objects", "object_excess", "object_levels", "per_object_iso",
+    "refine_surface", "remove_specks", "split_components", "surface_error",
+]

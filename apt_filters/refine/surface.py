@@ -1,0 +1,257 @@
+"""Moving an iso-surface onto the interface the ions show: normal displacement to the profile's midpoint.
+
+Method
+------
+Each outer iteration:
+
+1. Every ion within reach is assigned to its nearest vertex and gets a signed distance ``d``
+   along that vertex's normal (:mod:`apt_filters.refine.band`).
+2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface) give the
+   score weights (:func:`~apt_filters.refine.composition.contrast_weights`) and the score's two
+   levels ``s_in`` and ``s_out``.
+3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
+   is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
+   midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
+   the offset is ``t = sum(u) * bin_width - half_width``. The rule uses every ion of the profile,
+   is unbiased for any symmetric blur, and is exact for a step; bins without ions take the step's
+   value on their side.
+4. The offsets are clamped to ``max_step``, smoothed ``smoothing`` times by the umbrella
+   Laplacian (the regularisation: noise cannot roughen the surface faster than neighbours
+   agree), and each vertex moves along its normal; a tangential relaxation then evens out the
+   triangles without changing the shape.
+
+Every move is guarded: a face whose normal would turn by more than 90° in one move, or an
+edge whose two faces would fold (normals more than 120° apart, :func:`folded_pairs`), halves the
+move of its vertices, up to ``GUARD_HALVINGS`` times, and then cancels it. The input having no
+folds, the output has none (``RefineResult.folded_pairs`` measures it).
+
+Peak memory: the ions' positions in the meshes' bounding box (float64), their atoms per basis
+element (float32), and two (vertices × bins) float64 arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import csr_matrix, diags
+
+from apt_filters.contour.topology import folded_pairs
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.refine.band import adjacency, binned, ion_band, pooling_matrix, vertex_components, vertex_normals
+from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
+from apt_filters.refine.levels import PLATEAU_WINDOW, ObjectLevels, plateaus
+from apt_filters.voxel import ConcentrationBasis
+
+GUARD_HALVINGS = 6
+FOLD_ANGLE = 120.0
+
+
+@dataclass
+class RefineResult:
+    """The refined surface and what the refinement did.
+
+    Attributes
+    ----------
+    mesh : TriMesh
+        Same faces as the input, vertices moved; ``vertex_scalars["displacement"]`` is each
+        vertex's total signed move along its normals (nm, positive outward).
+    levels : list of ObjectLevels
+        Each object's plateaus and midpoint iso-value, measured against the refined surface.
+    displacement : dict
+        ``mean``, ``rms``, ``max_abs`` of the total signed normal displacement (nm), and
+        ``last_step_max`` (nm), the largest move of the final iteration (convergence).
+    iterations : int
+    folded_pairs : int
+        Edge-adjacent face pairs folded (normals > 120° apart) in the output: 0 by construction.
+    guarded : int
+        Vertex moves the fold guard had to shorten or cancel, summed over iterations.
+    score : str
+    basis : str
+        ``ConcentrationBasis.describe()`` of the fractions.
+    """
+
+    mesh: TriMesh
+    levels: list[ObjectLevels]
+    displacement: dict
+    iterations: int
+    folded_pairs: int
+    guarded: int
+    score: str
+    basis: str
+    history: list[float] = field(default_factory=list)
+
+
+def umbrella(adj: csr_matrix) -> csr_matrix:
+    """Row-normalised adjacency: ``umbrella(adj) @ x`` is the mean of each vertex's neighbours."""
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    return diags(np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)) @ adj
+
+
+def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, int]:
+    """``vertices + step`` where that folds nothing; offending vertices' steps halved, then cancelled.
+
+    Returns the new vertices and how many vertices had their step shortened.
+    """
+    before = _face_normals(vertices, faces)
+    scale = np.ones(len(vertices))
+    touched = np.zeros(len(vertices), dtype=bool)
+    for attempt in range(GUARD_HALVINGS + 1):
+        moved = vertices + scale[:, None] * step
+        after = _face_normals(moved, faces)
+        bad = np.einsum("ij,ij->i", before, after) < 0.0
+        pairs = folded_pairs(moved, faces, FOLD_ANGLE)
+        bad[pairs.ravel()] = True
+        if not bad.any():
+            return moved, int(touched.sum())
+        verts = np.unique(faces[bad])
+        touched[verts] = True
+        scale[verts] = 0.0 if attempt == GUARD_HALVINGS - 1 else scale[verts] * 0.5
+    return vertices + scale[:, None] * step, int(touched.sum())
+
+
+def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    v = vertices[faces]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def equal_area_offset(score: np.ndarray, total: np.ndarray, s_in: np.ndarray, s_out: np.ndarray,
+                      half_width: float, bin_width: float) -> np.ndarray:
+    """(n,) offset (nm, along the normal) of the Gibbs equal-area position of each vertex's profile.
+
+    ``score`` and ``total`` are (n, bins) pooled sums; ``s_in``/``s_out`` (n,) the levels of
+    each vertex's object. Empty bins take the step's value on their side of the current surface.
+    """
+    n_bins = score.shape[1]
+    centres = -half_width + bin_width * (np.arange(n_bins) + 0.5)
+    step = np.broadcast_to((centres < 0).astype(np.float64), score.shape)
+    contrast = (s_in - s_out)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = (score / total - s_out[:, None]) / contrast
+    u = np.where((total > 0) & np.isfinite(u), u, step)
+    return u.sum(axis=1) * bin_width - half_width
+
+
+def refine_surface(
+    mesh: TriMesh,
+    ions: IonTable,
+    ranges: RangeTable,
+    species: str,
+    basis: ConcentrationBasis = ConcentrationBasis(),
+    *,
+    score: str = "contrast",
+    half_width: float = 1.5,
+    bin_width: float = 0.25,
+    pool_radius: float = 2.0,
+    smoothing: int = 3,
+    max_step: float = 0.5,
+    tangential: float = 0.3,
+    iterations: int = 6,
+    tolerance: float = 0.02,
+    plateau_window=PLATEAU_WINDOW,
+) -> RefineResult:
+    """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
+
+    See the module docstring for the method and its regularisation.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        Iso-surface, e.g. from :func:`apt_filters.contour.marching_cubes` (normals out of the
+        region above iso). Remove specks first (:func:`remove_specks`).
+    ions : IonTable
+    ranges : RangeTable
+    species : str
+        The iso-surface element (its plateaus give each object's midpoint iso-value).
+    basis : ConcentrationBasis
+        Which elements count in the fractions; leave segregants out (``exclude=("B",)``) so that
+        their shell does not dilute the profile at the interface.
+    score : {"contrast", "species"}
+        Profile of every element weighted by its contrast, or of ``species`` alone.
+    half_width, bin_width : float, nm
+        Profile range each side of the current surface and its bins.
+    pool_radius : float, nm
+        Vertices within this distance pool their profiles (Gaussian, sigma = radius / 2).
+    smoothing : int
+        Umbrella-Laplacian passes over each iteration's displacements.
+    max_step : float, nm
+        Largest move per iteration.
+    tangential : float
+        Weight of the tangential relaxation per iteration (0 = none).
+    iterations : int
+        At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
+    plateau_window : (inner, outer) nm
+        See :func:`~apt_filters.refine.levels.object_levels`.
+
+    Returns
+    -------
+    RefineResult
+    """
+    vertices = mesh.vertices.astype(np.float64).copy()
+    faces = mesh.faces
+    n = len(vertices)
+    components = vertex_components(faces, n)
+    n_comp = int(components.max()) + 1 if n else 0
+    atoms = ion_atoms(ions, ranges, basis)
+    total_atoms = atoms.total.astype(np.float64)
+    mean_of_neighbours = umbrella(adjacency(faces, n))
+    reach = max(plateau_window[1], half_width) + 1.0
+    # the ions that any iteration can reach, found once: later bands search only these
+    near = ion_band(ions.positions, vertices, vertex_normals(vertices, faces), reach + iterations * max_step).index
+    positions = np.asarray(ions.positions[near], dtype=np.float64)
+    atoms = IonAtoms(atoms.elements, atoms.atoms[near])
+    total_atoms = total_atoms[near]
+    moved_total = np.zeros(n)
+    guarded, history, levels = 0, [], []
+    it = 0
+    for it in range(1, iterations + 1):
+        normals = vertex_normals(vertices, faces)
+        band = ion_band(positions, vertices, normals, reach)
+        levels = plateaus(band, atoms, components, n_comp, species, plateau_window)
+        weights = [contrast_weights(lv.inside, lv.outside, atoms.elements, species, score)
+                   if np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside)) else None for lv in levels]
+        usable = np.array([w is not None for w in weights] + [False])  # last entry: unused vertices (-1)
+        wmat = np.array([w if w is not None else np.zeros(len(atoms.elements)) for w in weights] or
+                        np.zeros((0, len(atoms.elements))))
+        s_in = np.array([wmat[c] @ lv.inside if usable[c] else 0.0 for c, lv in enumerate(levels)])
+        s_out = np.array([wmat[c] @ lv.outside if usable[c] else 0.0 for c, lv in enumerate(levels)])
+        comp = components[band.vertex]
+        ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[comp])
+        pool = pooling_matrix(vertices, components, pool_radius)
+        s_sum = pool @ binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
+        t_sum = pool @ binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
+        ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
+        offset = np.zeros(n)
+        offset[ok] = equal_area_offset(s_sum[ok], t_sum[ok], s_in[components[ok]], s_out[components[ok]],
+                                       half_width, bin_width)
+        offset = np.clip(offset, -max_step, max_step)
+        for _ in range(smoothing):
+            offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
+        new, g = guarded_move(vertices, faces, offset[:, None] * normals)
+        step = np.einsum("ij,ij->i", new - vertices, normals)
+        moved_total += step
+        guarded += g
+        vertices = new
+        if tangential > 0:
+            normals = vertex_normals(vertices, faces)
+            lap = mean_of_neighbours @ vertices - vertices
+            lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
+            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0))
+            guarded += g
+        history.append(float(np.abs(step).max()) if n else 0.0)
+        if history[-1] < tolerance:
+            break
+    out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
+                  dict(mesh.face_scalars))
+    final_band = ion_band(positions, vertices, vertex_normals(vertices, faces), reach)
+    levels = plateaus(final_band, atoms, components, n_comp, species, plateau_window)
+    stats = {"mean": float(moved_total.mean()) if n else 0.0,
+             "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
+             "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
+             "last_step_max": history[-1] if history else 0.0}
+    return RefineResult(out, levels, stats, it, len(folded_pairs(vertices, faces, FOLD_ANGLE)), guarded, score,
+                        basis.describe(), history)
