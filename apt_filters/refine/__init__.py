@@ -16,11 +16,12 @@ from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
 from apt_filters.refine.evaluate import SurfaceError, match_objects, split_components, surface_error
 from apt_filters.refine.excess import ObjectExcess, object_excess
 from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
+from apt_filters.refine.recontour import merge, recontour
 from apt_filters.refine.specks import Specks, remove_specks
 from apt_filters.refine.surface import RefineResult, guarded_move, refine_surface
 
 __all__ = [
     "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError", "contrast_weights",
-    "guarded_move", "ion_atoms", "match_objects", "object_excess", "object_levels", "per_object_iso",
+    "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "surface_error",
 ]

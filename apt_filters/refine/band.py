@@ -50,17 +50,28 @@ def vertex_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return out
 
 
-def pooling_matrix(vertices: np.ndarray, components: np.ndarray, radius: float) -> csr_matrix:
-    """(n, n) Gaussian weights exp(-r²/2σ²), σ = radius/2, between vertices of one component within ``radius``."""
+def normal_weight(normals: np.ndarray, i: np.ndarray, j: np.ndarray, power: float) -> np.ndarray:
+    """``max(0, n_i . n_j) ** power``: how much vertex ``j`` may speak for vertex ``i``.
+
+    The bilateral factor that keeps sharp edges: across a 90° edge the two faces' vertices do
+    not pool (power 8: weight 0.46 at 25°, 0.06 at 45°, 0 at 90°).
+    """
+    return np.maximum(np.einsum("ij,ij->i", normals[i], normals[j]), 0.0) ** power
+
+
+def pooling_matrix(vertices: np.ndarray, normals: np.ndarray, components: np.ndarray, radius: float,
+                   normal_power: float) -> csr_matrix:
+    """(n, n) weights exp(-r²/2σ²) (σ = radius/2) × :func:`normal_weight` between vertices of one
+    component within ``radius`` (diagonal 1)."""
     if radius <= 0:
         return diags(np.ones(len(vertices))).tocsr()
     tree = cKDTree(vertices)
     d = tree.sparse_distance_matrix(tree, radius, output_type="coo_matrix")
     i, j, r = d.row, d.col, d.data
-    same = components[i] == components[j]
+    same = (components[i] == components[j]) & (i != j)
     i, j, r = i[same], j[same], r[same]
     sigma = radius / 2
-    w = np.exp(-0.5 * (r / sigma) ** 2)
+    w = np.exp(-0.5 * (r / sigma) ** 2) * normal_weight(normals, i, j, normal_power)
     diag = np.arange(len(vertices))
     w = coo_matrix((np.concatenate([w, np.ones(len(diag))]), (np.concatenate([i, diag]), np.concatenate([j, diag]))),
                    shape=(len(vertices),) * 2)

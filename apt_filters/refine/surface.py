@@ -40,7 +40,8 @@ from apt_filters.contour.topology import folded_pairs
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import adjacency, binned, ion_band, pooling_matrix, vertex_components, vertex_normals
+from apt_filters.refine.band import (adjacency, binned, ion_band, normal_weight, pooling_matrix, vertex_components,
+                                    vertex_normals)
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
 from apt_filters.refine.levels import PLATEAU_WINDOW, ObjectLevels, plateaus
 from apt_filters.voxel import ConcentrationBasis
@@ -84,8 +85,16 @@ class RefineResult:
     history: list[float] = field(default_factory=list)
 
 
-def umbrella(adj: csr_matrix) -> csr_matrix:
-    """Row-normalised adjacency: ``umbrella(adj) @ x`` is the mean of each vertex's neighbours."""
+def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: float = 0.0) -> csr_matrix:
+    """Row-normalised adjacency: ``umbrella(adj) @ x`` is the (normal-weighted) mean of each vertex's neighbours.
+
+    With ``normals``, neighbour ``j`` of ``i`` weighs :func:`normal_weight` (bilateral: smoothing
+    does not carry across sharp edges).
+    """
+    if normals is not None and normal_power > 0:
+        coo = adj.tocoo()
+        adj = csr_matrix((coo.data * normal_weight(normals, coo.row, coo.col, normal_power), (coo.row, coo.col)),
+                         shape=adj.shape)
     deg = np.asarray(adj.sum(axis=1)).ravel()
     return diags(np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)) @ adj
 
@@ -119,21 +128,51 @@ def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def equal_area_offset(score: np.ndarray, total: np.ndarray, s_in: np.ndarray, s_out: np.ndarray,
-                      half_width: float, bin_width: float) -> np.ndarray:
-    """(n,) offset (nm, along the normal) of the Gibbs equal-area position of each vertex's profile.
+def _centres(n_bins: int, half_width: float, bin_width: float) -> np.ndarray:
+    return -half_width + bin_width * (np.arange(n_bins) + 0.5)
 
-    ``score`` and ``total`` are (n, bins) pooled sums; ``s_in``/``s_out`` (n,) the levels of
-    each vertex's object. Empty bins take the step's value on their side of the current surface.
+
+def normalised_profile(score: np.ndarray, total: np.ndarray, s_in: np.ndarray, s_out: np.ndarray,
+                       half_width: float, bin_width: float) -> np.ndarray:
+    """(n, bins) ``u = (f - s_out) / (s_in - s_out)`` of pooled sums (1 inside, 0 outside).
+
+    Bins without ions take the step's value on their side of the current surface.
     """
-    n_bins = score.shape[1]
-    centres = -half_width + bin_width * (np.arange(n_bins) + 0.5)
-    step = np.broadcast_to((centres < 0).astype(np.float64), score.shape)
-    contrast = (s_in - s_out)[:, None]
+    step = np.broadcast_to((_centres(score.shape[1], half_width, bin_width) < 0).astype(np.float64), score.shape)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u = (score / total - s_out[:, None]) / contrast
-    u = np.where((total > 0) & np.isfinite(u), u, step)
+        u = (score / total - s_out[:, None]) / (s_in - s_out)[:, None]
+    return np.where((total > 0) & np.isfinite(u), u, step)
+
+
+def profile_width(u: np.ndarray, bin_width: float) -> float:
+    """Gaussian width s (nm) of a normalised step profile: ``sqrt(pi) * integral u (1 - u)`` (exact for an
+    error-function step; ``u`` clipped to [0, 1])."""
+    u = np.clip(u, 0.0, 1.0)
+    return float(np.sqrt(np.pi) * np.sum(u * (1 - u)) * bin_width)
+
+
+def equal_area_offset(u: np.ndarray, half_width: float, bin_width: float) -> np.ndarray:
+    """(n,) offset (nm, along the normal) of the Gibbs equal-area position of normalised profiles ``u``:
+    ``sum(u) * bin_width - half_width``. Unbiased for any symmetric blur; used while far off."""
     return u.sum(axis=1) * bin_width - half_width
+
+
+def matched_offset(u: np.ndarray, total: np.ndarray, width: np.ndarray, half_width: float,
+                   bin_width: float) -> np.ndarray:
+    """(n,) Gauss-Newton step of the offset of an error-function step of ``width`` (n,) nm fitted to ``u``.
+
+    Each bin weighs its ions times the model's slope there (the matched filter), the efficient
+    estimate near the interface: bins on the plateaus, which only add noise to the equal-area
+    rule, get no weight.
+    """
+    from scipy.special import erfc
+
+    d = _centres(u.shape[1], half_width, bin_width)[None, :]
+    s = width[:, None]
+    model = 0.5 * erfc(d / (np.sqrt(2) * s))
+    slope = np.exp(-0.5 * (d / s) ** 2) / (np.sqrt(2 * np.pi) * s)  # d model / d offset
+    den = np.sum(total * slope ** 2, axis=1)
+    return np.divide(np.sum(total * slope * (u - model), axis=1), den, out=np.zeros(len(u)), where=den > 0)
 
 
 def refine_surface(
@@ -147,10 +186,12 @@ def refine_surface(
     half_width: float = 1.5,
     bin_width: float = 0.25,
     pool_radius: float = 2.0,
+    normal_power: float = 8.0,
     smoothing: int = 3,
     max_step: float = 0.5,
     tangential: float = 0.3,
-    iterations: int = 6,
+    iterations: int = 12,
+    far_iterations: int = 2,
     tolerance: float = 0.02,
     plateau_window=PLATEAU_WINDOW,
 ) -> RefineResult:
@@ -176,12 +217,18 @@ def refine_surface(
         Profile range each side of the current surface and its bins.
     pool_radius : float, nm
         Vertices within this distance pool their profiles (Gaussian, sigma = radius / 2).
+    normal_power : float
+        Bilateral factor of pooling and smoothing, ``max(0, n_i . n_j) ** normal_power``
+        (:func:`~apt_filters.refine.band.normal_weight`); 0 pools across edges, which rounds them.
     smoothing : int
-        Umbrella-Laplacian passes over each iteration's displacements.
+        Umbrella-Laplacian passes (bilateral, same factor) over each iteration's displacements.
     max_step : float, nm
         Largest move per iteration.
     tangential : float
         Weight of the tangential relaxation per iteration (0 = none).
+    far_iterations : int
+        Iterations that use the equal-area rule (robust far from the interface); later ones use
+        the matched filter (:func:`matched_offset`) with each object's measured profile width.
     iterations : int
         At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
     plateau_window : (inner, outer) nm
@@ -198,7 +245,7 @@ def refine_surface(
     n_comp = int(components.max()) + 1 if n else 0
     atoms = ion_atoms(ions, ranges, basis)
     total_atoms = atoms.total.astype(np.float64)
-    mean_of_neighbours = umbrella(adjacency(faces, n))
+    adj = adjacency(faces, n)
     reach = max(plateau_window[1], half_width) + 1.0
     # the ions that any iteration can reach, found once: later bands search only these
     near = ion_band(ions.positions, vertices, vertex_normals(vertices, faces), reach + iterations * max_step).index
@@ -221,29 +268,41 @@ def refine_surface(
         s_out = np.array([wmat[c] @ lv.outside if usable[c] else 0.0 for c, lv in enumerate(levels)])
         comp = components[band.vertex]
         ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[comp])
-        pool = pooling_matrix(vertices, components, pool_radius)
-        s_sum = pool @ binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
-        t_sum = pool @ binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
+        pool = pooling_matrix(vertices, normals, components, pool_radius, normal_power)
+        mean_of_neighbours = umbrella(adj, normals, normal_power)
+        raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
+        raw_t = binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
+        s_sum, t_sum = pool @ raw_s, pool @ raw_t
         ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
+        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
+        widths = np.array([profile_width(normalised_profile(raw_s[components == c].sum(axis=0, keepdims=True),
+                                                            raw_t[components == c].sum(axis=0, keepdims=True),
+                                                            s_in[c:c + 1], s_out[c:c + 1], half_width, bin_width),
+                                         bin_width) if usable[c] else 1.0 for c in range(n_comp)])
         offset = np.zeros(n)
-        offset[ok] = equal_area_offset(s_sum[ok], t_sum[ok], s_in[components[ok]], s_out[components[ok]],
-                                       half_width, bin_width)
+        if it <= far_iterations:
+            offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
+        else:
+            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], bin_width),
+                                        half_width, bin_width)
         offset = np.clip(offset, -max_step, max_step)
         for _ in range(smoothing):
             offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
-        new, g = guarded_move(vertices, faces, offset[:, None] * normals)
+        # full steps while far off, then Robbins-Monro averaging of the noisy estimates
+        gain = min(1.0, (far_iterations + 1.0) / it)
+        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals)
         step = np.einsum("ij,ij->i", new - vertices, normals)
         moved_total += step
         guarded += g
         vertices = new
         if tangential > 0:
             normals = vertex_normals(vertices, faces)
-            lap = mean_of_neighbours @ vertices - vertices
+            lap = umbrella(adj) @ vertices - vertices
             lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
             vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0))
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
-        if history[-1] < tolerance:
+        if history[-1] < tolerance * gain:
             break
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
