@@ -8,7 +8,9 @@ Each outer iteration:
    along that vertex's normal (:mod:`apt_filters.refine.band`).
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface) give the
    score weights (:func:`~apt_filters.refine.composition.contrast_weights`) and the score's two
-   levels ``s_in`` and ``s_out``.
+   levels ``s_in`` and ``s_out``; they are measured again until the surface is near the
+   interface (``far_iterations + 1``), then kept, and the ions narrowed to those that later
+   profiles can reach.
 3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
    is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
    midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
@@ -36,14 +38,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from apt_filters.contour.topology import folded_pairs
+from apt_filters.contour.topology import face_pairs, folded_pairs
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import (adjacency, binned, ion_band, normal_weight, pooling_matrix, vertex_components,
+from apt_filters.refine.band import (Band, adjacency, binned, ion_band, normal_weight, pooling_matrix, vertex_components,
                                     vertex_normals)
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
+from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.levels import PLATEAU_WINDOW, ObjectLevels, plateaus
+from apt_filters.refine.levels import object_levels as object_levels_of
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -99,26 +103,39 @@ def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: f
     return diags(np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)) @ adj
 
 
-def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, int]:
+def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
+                 pairs: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """``vertices + step`` where that folds nothing; offending vertices' steps halved, then cancelled.
 
-    Returns the new vertices and how many vertices had their step shortened.
+    A face is offending when its normal would turn by more than 90° or it would form a folded
+    pair (:data:`FOLD_ANGLE`) that the input did not have. After :data:`GUARD_HALVINGS` halvings
+    the vertices of offending faces stop (step 0) until none is left: faces whose vertices all
+    stand still are unchanged, so the loop ends with no new fold. Returns the new vertices and
+    how many vertices had their step shortened. ``pairs``: :func:`face_pairs` of ``faces``, if known.
     """
+    pairs = face_pairs(faces) if pairs is None else pairs
+    limit = np.cos(np.radians(FOLD_ANGLE))
+
+    def folded(normals: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
+
     before = _face_normals(vertices, faces)
+    existing = folded(before)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
-    for attempt in range(GUARD_HALVINGS + 1):
+    attempt = 0
+    while True:
         moved = vertices + scale[:, None] * step
         after = _face_normals(moved, faces)
         bad = np.einsum("ij,ij->i", before, after) < 0.0
-        pairs = folded_pairs(moved, faces, FOLD_ANGLE)
-        bad[pairs.ravel()] = True
+        bad[pairs[folded(after) & ~existing].ravel()] = True
+        bad &= (scale[faces] > 0).any(axis=1)
         if not bad.any():
             return moved, int(touched.sum())
         verts = np.unique(faces[bad])
         touched[verts] = True
-        scale[verts] = 0.0 if attempt == GUARD_HALVINGS - 1 else scale[verts] * 0.5
-    return vertices + scale[:, None] * step, int(touched.sum())
+        scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+        attempt += 1
 
 
 def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -187,13 +204,14 @@ def refine_surface(
     bin_width: float = 0.25,
     pool_radius: float = 2.0,
     normal_power: float = 8.0,
-    smoothing: int = 3,
+    smoothing: int = 10,
     max_step: float = 0.5,
     tangential: float = 0.3,
     iterations: int = 12,
     far_iterations: int = 2,
     tolerance: float = 0.02,
     plateau_window=PLATEAU_WINDOW,
+    subdivisions: int = 1,
 ) -> RefineResult:
     """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
 
@@ -233,11 +251,16 @@ def refine_surface(
         At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
     plateau_window : (inner, outer) nm
         See :func:`~apt_filters.refine.levels.object_levels`.
+    subdivisions : int
+        Midpoint subdivisions of the input first (:func:`~apt_filters.refine.subdivide.subdivide`):
+        each one halves the edge length, so that edges and corners can form.
 
     Returns
     -------
     RefineResult
     """
+    for _ in range(subdivisions):
+        mesh = subdivide(mesh)
     vertices = mesh.vertices.astype(np.float64).copy()
     faces = mesh.faces
     n = len(vertices)
@@ -246,6 +269,7 @@ def refine_surface(
     atoms = ion_atoms(ions, ranges, basis)
     total_atoms = atoms.total.astype(np.float64)
     adj = adjacency(faces, n)
+    pairs = face_pairs(faces)
     reach = max(plateau_window[1], half_width) + 1.0
     # the ions that any iteration can reach, found once: later bands search only these
     near = ion_band(ions.positions, vertices, vertex_normals(vertices, faces), reach + iterations * max_step).index
@@ -258,7 +282,15 @@ def refine_surface(
     for it in range(1, iterations + 1):
         normals = vertex_normals(vertices, faces)
         band = ion_band(positions, vertices, normals, reach)
-        levels = plateaus(band, atoms, components, n_comp, species, plateau_window)
+        if it <= far_iterations + 1:
+            levels = plateaus(band, atoms, components, n_comp, species, plateau_window)
+        if it == far_iterations + 1:
+            # plateaus fixed from here on: keep only the ions that later profiles can reach
+            keep = np.abs(band.distance) <= half_width + (iterations - it + 1) * max_step
+            sub = band.index[keep]
+            positions, atoms, total_atoms = positions[sub], IonAtoms(atoms.elements, atoms.atoms[sub]), total_atoms[sub]
+            band = Band(np.arange(len(sub)), band.vertex[keep], band.distance[keep])
+            reach = half_width + 1.0
         weights = [contrast_weights(lv.inside, lv.outside, atoms.elements, species, score)
                    if np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside)) else None for lv in levels]
         usable = np.array([w is not None for w in weights] + [False])  # last entry: unused vertices (-1)
@@ -290,7 +322,7 @@ def refine_surface(
             offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
         # full steps while far off, then Robbins-Monro averaging of the noisy estimates
         gain = min(1.0, (far_iterations + 1.0) / it)
-        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals)
+        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
         step = np.einsum("ij,ij->i", new - vertices, normals)
         moved_total += step
         guarded += g
@@ -299,15 +331,14 @@ def refine_surface(
             normals = vertex_normals(vertices, faces)
             lap = umbrella(adj) @ vertices - vertices
             lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
-            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0))
+            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < tolerance * gain:
             break
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
-    final_band = ion_band(positions, vertices, vertex_normals(vertices, faces), reach)
-    levels = plateaus(final_band, atoms, components, n_comp, species, plateau_window)
+    levels = object_levels_of(out, ions, ranges, species, basis, plateau_window)
     stats = {"mean": float(moved_total.mean()) if n else 0.0,
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
