@@ -91,7 +91,7 @@ def evaluate(sp, mesh, seed: int) -> list[dict]:
     parts = split_components(clean)
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
     excess = object_excess(clean, sp.ions, sp.ranges, SOLUTE)
-    levels = object_levels(clean, sp.ions, sp.ranges, SPECIES)
+    levels = object_levels(clean, sp.ions, sp.ranges, SPECIES, prior=0.0)
     k = levels[0].elements.index(SPECIES) if levels else 0
     pos = sp.ions.positions.astype(np.float64)
     rows = []

@@ -46,7 +46,8 @@ from apt_filters.refine.band import (Band, adjacency, binned, ion_band, normal_w
                                     vertex_normals)
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
 from apt_filters.refine.subdivide import subdivide
-from apt_filters.refine.levels import PLATEAU_WINDOW, ObjectLevels, plateaus
+from apt_filters.refine.untangle import intersecting_faces, untangle
+from apt_filters.refine.levels import PLATEAU_PRIOR, PLATEAU_WINDOW, ObjectLevels, plateaus
 from apt_filters.refine.levels import object_levels as object_levels_of
 from apt_filters.voxel import ConcentrationBasis
 
@@ -71,8 +72,12 @@ class RefineResult:
     iterations : int
     folded_pairs : int
         Edge-adjacent face pairs folded (normals > 120° apart) in the output: 0 by construction.
+    self_intersections : int
+        Faces crossing another face in the output (0 unless :func:`untangle` gave up).
     guarded : int
         Vertex moves the fold guard had to shorten or cancel, summed over iterations.
+    untangle_rounds : int
+        Rounds :func:`~apt_filters.refine.untangle.untangle` needed (0: no intersection).
     score : str
     basis : str
         ``ConcentrationBasis.describe()`` of the fractions.
@@ -83,7 +88,9 @@ class RefineResult:
     displacement: dict
     iterations: int
     folded_pairs: int
+    self_intersections: int
     guarded: int
+    untangle_rounds: int
     score: str
     basis: str
     history: list[float] = field(default_factory=list)
@@ -211,6 +218,7 @@ def refine_surface(
     far_iterations: int = 2,
     tolerance: float = 0.02,
     plateau_window=PLATEAU_WINDOW,
+    plateau_prior: float = PLATEAU_PRIOR,
     subdivisions: int = 1,
 ) -> RefineResult:
     """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
@@ -250,6 +258,7 @@ def refine_surface(
     iterations : int
         At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
     plateau_window : (inner, outer) nm
+    plateau_prior : float, atoms
         See :func:`~apt_filters.refine.levels.object_levels`.
     subdivisions : int
         Midpoint subdivisions of the input first (:func:`~apt_filters.refine.subdivide.subdivide`):
@@ -276,14 +285,13 @@ def refine_surface(
     positions = np.asarray(ions.positions[near], dtype=np.float64)
     atoms = IonAtoms(atoms.elements, atoms.atoms[near])
     total_atoms = total_atoms[near]
-    moved_total = np.zeros(n)
     guarded, history, levels = 0, [], []
     it = 0
     for it in range(1, iterations + 1):
         normals = vertex_normals(vertices, faces)
         band = ion_band(positions, vertices, normals, reach)
         if it <= far_iterations + 1:
-            levels = plateaus(band, atoms, components, n_comp, species, plateau_window)
+            levels = plateaus(band, atoms, components, n_comp, species, plateau_window, plateau_prior)
         if it == far_iterations + 1:
             # plateaus fixed from here on: keep only the ions that later profiles can reach
             keep = np.abs(band.distance) <= half_width + (iterations - it + 1) * max_step
@@ -324,7 +332,6 @@ def refine_surface(
         gain = min(1.0, (far_iterations + 1.0) / it)
         new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
         step = np.einsum("ij,ij->i", new - vertices, normals)
-        moved_total += step
         guarded += g
         vertices = new
         if tangential > 0:
@@ -336,12 +343,17 @@ def refine_surface(
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < tolerance * gain:
             break
+    start = mesh.vertices.astype(np.float64)
+    vertices, untangled = untangle(vertices, faces, start, umbrella(adj),
+                                   lambda v, step: guarded_move(v, faces, step, pairs)[0])
+    moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
-    levels = object_levels_of(out, ions, ranges, species, basis, plateau_window)
+    levels = object_levels_of(out, ions, ranges, species, basis, plateau_window, plateau_prior)
     stats = {"mean": float(moved_total.mean()) if n else 0.0,
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
              "last_step_max": history[-1] if history else 0.0}
-    return RefineResult(out, levels, stats, it, len(folded_pairs(vertices, faces, FOLD_ANGLE)), guarded, score,
-                        basis.describe(), history)
+    return RefineResult(out, levels, stats, it, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
+                        int(intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
+                        history)
