@@ -130,7 +130,7 @@ def _activate(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, ta
 def _owns(layer, last_layer, owned, phase, task, n_tasks):
     """Whether this task scatters ions of block layer ``layer`` (memoised on the previous layer)."""
     if layer != last_layer:
-        owned = (layer & 1) == phase and (layer >> 1) % n_tasks == task
+        owned = n_tasks == 1 or ((layer & 1) == phase and (layer >> 1) % n_tasks == task)
     return owned
 
 
@@ -154,12 +154,13 @@ def _gauss3(f):
 # halved the scatter time of a dense test loop.
 #
 # The scatter loops are written out per kernel, with scalar locals, because the footprint size is
-# then a constant that the compiler unrolls (a generic loop ran 2-3x slower).
+# then a constant that the compiler unrolls (a generic loop ran 2-3x slower). They index the pool
+# flat (``chan`` values per channel, 512 per block): shifts instead of numba's 5-d stride arithmetic.
 
 
 @njit(parallel=True, cache=True)
-def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, n_tasks):
-    for phase in range(2):
+def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
+    for phase in range(2 if n_tasks > 1 else 1):
         for task in prange(n_tasks):
             last, owned = np.int64(-1), False
             for i in range(pos.shape[0]):
@@ -173,14 +174,14 @@ def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, po
                     continue
                 ix = np.int64(np.floor((np.float64(pos[i, 0]) - origin[0]) * inv_h + 0.5))
                 iy = np.int64(np.floor((np.float64(pos[i, 1]) - origin[1]) * inv_h + 0.5))
-                s = table[ix >> 3, iy >> 3, iz >> 3]
+                voxel = ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7) + (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9)
                 for p in range(p0, p1):
-                    pool[row_chan[p], s, iz & 7, iy & 7, ix & 7] += row_w[p]
+                    pool[row_chan[p] * chan + voxel] += row_w[p]
 
 
 @njit(parallel=True, cache=True)
-def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, n_tasks):
-    for phase in range(2):
+def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
+    for phase in range(2 if n_tasks > 1 else 1):
         for task in prange(n_tasks):
             last, owned = np.int64(-1), False
             for i in range(pos.shape[0]):
@@ -201,21 +202,32 @@ def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, 
                 wy = (1.0 - (fy - y0), fy - y0)
                 wz = (1.0 - (fz - z0), fz - z0)
                 ix, iy = np.int64(x0), np.int64(y0)
+                if (ix & 7) <= 6 and (iy & 7) <= 6 and (iz & 7) <= 6:  # all in one block: one lookup
+                    at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
+                    for p in range(p0, p1):
+                        c, m = row_chan[p], row_w[p]
+                        for a in range(2):
+                            for b in range(2):
+                                wab = m * wx[a] * wy[b]
+                                for d in range(2):
+                                    pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+                    continue
                 for p in range(p0, p1):
                     c, m = row_chan[p], row_w[p]
                     for a in range(2):
                         for b in range(2):
                             wab = m * wx[a] * wy[b]
-                            s = table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]
+                            column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
+                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
                             for d in range(2):
                                 if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                                    s = table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]
-                                pool[c, s, (iz + d) & 7, (iy + b) & 7, (ix + a) & 7] += wab * wz[d]
+                                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
+                                pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
 
 
 @njit(parallel=True, cache=True)
-def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, n_tasks):
-    for phase in range(2):
+def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
+    for phase in range(2 if n_tasks > 1 else 1):
         for task in prange(n_tasks):
             last, owned = np.int64(-1), False
             for i in range(pos.shape[0]):
@@ -223,23 +235,35 @@ def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, 
                 if p0 == p1:
                     continue
                 fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-                iz, wz = _gauss3(fz)
-                owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
-                last = iz >> 3
+                layer = (np.int64(np.floor(fz + 0.5)) - 1) >> 3  # as _gauss3 places it, without its exp
+                owned = _owns(layer, last, owned, phase, task, n_tasks)
+                last = layer
                 if not owned:
                     continue
+                iz, wz = _gauss3(fz)
                 ix, wx = _gauss3((np.float64(pos[i, 0]) - origin[0]) * inv_h)
                 iy, wy = _gauss3((np.float64(pos[i, 1]) - origin[1]) * inv_h)
+                if (ix & 7) <= 5 and (iy & 7) <= 5 and (iz & 7) <= 5:  # all in one block: one lookup
+                    at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
+                    for p in range(p0, p1):
+                        c, m = row_chan[p], row_w[p]
+                        for a in range(3):
+                            for b in range(3):
+                                wab = m * wx[a] * wy[b]
+                                for d in range(3):
+                                    pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+                    continue
                 for p in range(p0, p1):
                     c, m = row_chan[p], row_w[p]
                     for a in range(3):
                         for b in range(3):
                             wab = m * wx[a] * wy[b]
-                            s = table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]
+                            column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
+                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
                             for d in range(3):
                                 if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                                    s = table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]
-                                pool[c, s, (iz + d) & 7, (iy + b) & 7, (ix + a) & 7] += wab * wz[d]
+                                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
+                                pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
 
 
 _SCATTER = {"square": _scatter_square, "sawtooth": _scatter_sawtooth, "gaussian": _scatter_gaussian}
@@ -306,7 +330,8 @@ class BlockAccumulator:
                     f"margin=kernel_reach(...)) from the ions' bounds"
                 )
             self._grow()
-        _SCATTER[self.kernel](positions, rows, origin, inv_h, *self.rows, self.table, self.pool, get_num_threads())
+        _SCATTER[self.kernel](positions, rows, origin, inv_h, *self.rows, self.table, self.pool.reshape(-1),
+                              self.pool[0].size, get_num_threads())
 
     def _grow(self) -> None:
         cap = self.pool.shape[1]
