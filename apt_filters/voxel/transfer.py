@@ -76,54 +76,66 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
     return r + 0.5, n - 1.5 - r
 
 
-# Each chunk is scattered in two passes. ``_activate`` (serial) checks every ion against the
-# admissible range and creates the blocks its footprint touches; the scatter (parallel, numba
-# threads) then only reads the block table. Threads write disjoint blocks: an ion belongs to
-# the z layer of blocks holding the lowest z index of its footprint (which spans at most that
-# layer and the next), and in phase p the threads take the layers L with L % 2 == p, task
-# (L // 2) % n_tasks, so two layers scattered at once are >= 2 apart. Every thread reads the
-# whole chunk and skips the ions of other tasks (cheap next to the writes; in detection order
-# the layer changes rarely).
+# Each chunk is scattered in three passes. ``_mark`` (threads, each on a contiguous share of the
+# ions) checks every ion against the admissible range, counts the ions per row and flags the
+# absent blocks its footprint touches; ``_assign`` (serial, over the flags: one byte per block of
+# the box) gives them pool slots in block order; the scatter (threads) then only reads the block
+# table. Scatter threads write disjoint blocks: an ion belongs to the z layer of blocks holding
+# the lowest z index of its footprint (which spans at most that layer and the next), and in phase
+# p the threads take the layers L with L % 2 == p, task (L // 2) % n_tasks, so two layers
+# scattered at once are >= 2 apart. Every thread reads the whole chunk and skips the ions of
+# other tasks (cheap next to the writes; in detection order the layer changes rarely).
 #
 # Footprint along one axis: first grid index floor(f + shift) + offset, then ``width`` more.
 FOOTPRINT = {"square": (0.5, 0, 0), "sawtooth": (0.0, 0, 1), "gaussian": (0.5, -1, 2)}
 
 
-@njit(cache=True)
-def _activate(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table, coords, n_active, row_count,
-              start):
-    """Create the blocks of every ion's footprint and count the ions per row, from ion ``start``.
+@njit(parallel=True, cache=True)
+def _mark(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table, fresh, counts, first_bad):
+    """Flag (``fresh`` = 1) the absent blocks of every ion's footprint; count ions per row.
 
-    Returns (stop, n_active, status): status 0 = all ions done, 1 = the pool may run out of
-    blocks at ion ``stop`` (grow it and call again from ``stop``), 2 = ion ``stop`` lies outside
-    the admissible range (or is NaN). An ion is only started with room for 8 new blocks.
+    Task t takes ions [n t / T, n (t + 1) / T) with T = len(first_bad), adds to ``counts[t]``
+    and sets ``first_bad[t]`` to its first ion outside the admissible range (or NaN), else -1.
+    Tasks may flag one block together: they all store the same byte.
     """
-    for i in range(start, pos.shape[0]):
-        r = row[i]
-        if row_ptr[r] == row_ptr[r + 1]:
-            row_count[r] += 1
-            continue  # an ion that counts in no field
-        if n_active + 8 > coords.shape[0]:
-            return i, n_active, 1
-        fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
-        fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
-        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-        if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
-            return i, n_active, 2
-        x0 = np.int64(np.floor(fx + shift)) + offset
-        y0 = np.int64(np.floor(fy + shift)) + offset
-        z0 = np.int64(np.floor(fz + shift)) + offset
-        for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
-            for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
-                for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
-                    if table[bx, by, bz] < 0:
-                        table[bx, by, bz] = n_active
-                        coords[n_active, 0] = bx
-                        coords[n_active, 1] = by
-                        coords[n_active, 2] = bz
-                        n_active += 1
-        row_count[r] += 1
-    return pos.shape[0], n_active, 0
+    n, n_tasks = pos.shape[0], first_bad.shape[0]
+    for t in prange(n_tasks):
+        first_bad[t] = -1
+        for i in range(n * t // n_tasks, n * (t + 1) // n_tasks):
+            r = row[i]
+            counts[t, r] += 1
+            if row_ptr[r] == row_ptr[r + 1]:
+                continue  # an ion that counts in no field
+            fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
+            fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
+            fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
+            if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
+                first_bad[t] = i
+                break
+            x0 = np.int64(np.floor(fx + shift)) + offset
+            y0 = np.int64(np.floor(fy + shift)) + offset
+            z0 = np.int64(np.floor(fz + shift)) + offset
+            for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
+                for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
+                    for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
+                        if table[bx, by, bz] < 0:
+                            fresh[bx, by, bz] = 1
+
+
+@njit(cache=True)
+def _assign(fresh, table, coords, n_active):
+    """Give the flagged blocks the next pool slots (x, y, z block order), clear the flags; new n_active."""
+    for bx in range(fresh.shape[0]):
+        for by in range(fresh.shape[1]):
+            for bz in range(fresh.shape[2]):
+                if fresh[bx, by, bz]:
+                    fresh[bx, by, bz] = 0
+                    table[bx, by, bz] = n_active
+                    coords[n_active, 0] = bx
+                    coords[n_active, 1] = by
+                    coords[n_active, 2] = bz
+                    n_active += 1
+    return n_active
 
 
 @njit(inline="always")
@@ -273,8 +285,8 @@ class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
     Memory: ``n_channels * capacity * 512 * 8`` bytes of pool (capacity grows by doubling, so up
-    to twice the occupied blocks while scattering, capped at the box's blocks + 8) plus the
-    block table (4 bytes per block of the bounding box). The scatter runs on numba's threads
+    to twice the occupied blocks while scattering, capped at the box's blocks) plus the block
+    table and its flags (5 bytes per block of the bounding box). The scatter runs on numba's threads
     (``numba.set_num_threads``); they share the one pool.
 
     Parameters
@@ -302,6 +314,7 @@ class BlockAccumulator:
         self.rows = tuple(np.ascontiguousarray(a) for a in rows)
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
         self.table = np.full(grid.block_shape, -1, dtype=np.int32)
+        self.fresh = np.zeros(grid.block_shape, dtype=np.uint8)
         capacity = int(min(np.prod(grid.block_shape), 512))
         self.pool = np.zeros((n_channels, capacity, BLOCK, BLOCK, BLOCK))
         self.coords = np.zeros((capacity, 3), dtype=np.int32)
@@ -314,29 +327,31 @@ class BlockAccumulator:
         rows = np.ascontiguousarray(rows)
         origin = np.asarray(self.grid.origin)
         inv_h = 1.0 / self.grid.voxel
-        start = 0
-        while True:
-            start, self.n_active, status = _activate(
-                positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0],
-                self.table, self.coords, self.n_active, self.row_count, start,
+        n_tasks = get_num_threads()
+        counts = np.zeros((n_tasks, len(self.row_count)), dtype=np.int64)
+        first_bad = np.empty(n_tasks, dtype=np.int64)
+        _mark(positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0], self.table,
+              self.fresh, counts, first_bad)
+        if np.any(first_bad >= 0):
+            self.fresh[:] = 0
+            p = positions[first_bad[first_bad >= 0][0]]
+            raise AptFiltersError(
+                f"ion at ({p[0]:g}, {p[1]:g}, {p[2]:g}) nm lies outside the grid or within the {self.kernel} "
+                f"kernel's reach of its edge; build the grid with Grid.covering(lower, upper, voxel, "
+                f"margin=kernel_reach(...)) from the ions' bounds"
             )
-            if status == 0:
-                break
-            if status == 2:
-                p = positions[start]
-                raise AptFiltersError(
-                    f"ion at ({p[0]:g}, {p[1]:g}, {p[2]:g}) nm lies outside the grid or within the {self.kernel} "
-                    f"kernel's reach of its edge; build the grid with Grid.covering(lower, upper, voxel, "
-                    f"margin=kernel_reach(...)) from the ions' bounds"
-                )
-            self._grow()
+        self._grow(self.n_active + int(np.count_nonzero(self.fresh)))
+        self.n_active = _assign(self.fresh, self.table, self.coords, self.n_active)
+        self.row_count += counts.sum(axis=0)
         _SCATTER[self.kernel](positions, rows, origin, inv_h, *self.rows, self.table, self.pool.reshape(-1),
-                              self.pool[0].size, get_num_threads())
+                              self.pool[0].size, n_tasks)
 
-    def _grow(self) -> None:
+    def _grow(self, need: int) -> None:
+        """Make room for ``need`` blocks: double the pool (at least to ``need``, never beyond the box's blocks)."""
         cap = self.pool.shape[1]
-        # never beyond the box's blocks (+8: an ion starts only with room for 8 new blocks)
-        new_cap = int(min(2 * cap, np.prod(self.grid.block_shape) + 8))
+        if need <= cap:
+            return
+        new_cap = int(min(max(2 * cap, need), np.prod(self.grid.block_shape)))
         pool = np.zeros((self.pool.shape[0], new_cap, BLOCK, BLOCK, BLOCK))
         pool[:, :cap] = self.pool
         coords = np.zeros((new_cap, 3), dtype=np.int32)
