@@ -115,6 +115,10 @@ def _mark(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table,
             x0 = np.int64(np.floor(fx + shift)) + offset
             y0 = np.int64(np.floor(fy + shift)) + offset
             z0 = np.int64(np.floor(fz + shift)) + offset
+            if (x0 & 7) + width < 8 and (y0 & 7) + width < 8 and (z0 & 7) + width < 8:  # most ions: one block
+                if table[x0 >> 3, y0 >> 3, z0 >> 3] < 0:
+                    fresh[x0 >> 3, y0 >> 3, z0 >> 3] = 1
+                continue
             for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
                 for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
                     for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
@@ -315,9 +319,9 @@ class BlockAccumulator:
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
         self.table = np.full(grid.block_shape, -1, dtype=np.int32)
         self.fresh = np.zeros(grid.block_shape, dtype=np.uint8)
-        capacity = int(min(np.prod(grid.block_shape), 512))
-        self.pool = np.zeros((n_channels, capacity, BLOCK, BLOCK, BLOCK))
-        self.coords = np.zeros((capacity, 3), dtype=np.int32)
+        # empty until the first chunk says how many blocks it needs (no growth copy for one chunk)
+        self.pool = np.zeros((n_channels, 0, BLOCK, BLOCK, BLOCK))
+        self.coords = np.zeros((0, 3), dtype=np.int32)
         self.n_active = 0
         self.row_count = np.zeros(len(self.rows[0]) - 1, dtype=np.int64)
 
