@@ -1,7 +1,7 @@
 """Fast ranging for the scatter: m/z -> ion row through a uniform bin table, exact at range bounds.
 
 ``RangeTable.ion_index`` does a binary search per ion in numpy (several passes over the
-chunk); here one parallel pass looks the m/z up in a table of uniform bins that gives the
+chunk); here one pass looks the m/z up in a table of uniform bins that gives the
 sorted range at or below the bin's start, then steps forward with the same comparisons as
 ``searchsorted(lowers, mz, side="right")`` and ``mz <= upper``, so the result is identical to
 ``ion_index(mz) + 1`` for every value, bounds included.
@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from apt_filters.io.ranges import RangeTable
 
@@ -68,10 +68,10 @@ class MzLookup:
         return out
 
 
-@njit(parallel=True, cache=True)
+@njit(nogil=True, cache=True)
 def _rows_of(mz, lowers, uppers, rows, base, inv_width, first, out):
     n_ranges, n_bins = lowers.shape[0], first.shape[0]
-    for i in prange(mz.shape[0]):
+    for i in range(mz.shape[0]):
         m = np.float64(mz[i])
         out[i] = 0
         if not (n_ranges > 0 and m >= base):  # below every range, or NaN

@@ -14,8 +14,10 @@ sum of a field equals its count exactly (to rounding): mass is never reflected a
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit
 from scipy.ndimage import binary_dilation, gaussian_filter1d
 
 from apt_filters.core.errors import AptFiltersError
@@ -76,54 +78,52 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
     return r + 0.5, n - 1.5 - r
 
 
-# Each chunk is scattered in three passes. ``_mark`` (threads, each on a contiguous share of the
-# ions) checks every ion against the admissible range, counts the ions per row and flags the
-# absent blocks its footprint touches; ``_assign`` (serial, over the flags: one byte per block of
-# the box) gives them pool slots in block order; the scatter (threads) then only reads the block
-# table. Scatter threads write disjoint blocks: an ion belongs to the z layer of blocks holding
-# the lowest z index of its footprint (which spans at most that layer and the next), and in phase
-# p the threads take the layers L with L % 2 == p, task (L // 2) % n_tasks, so two layers
-# scattered at once are >= 2 apart. Every thread reads the whole chunk and skips the ions of
-# other tasks (cheap next to the writes; in detection order the layer changes rarely).
+# Each chunk is scattered in three passes, on numba.get_num_threads() Python threads running
+# nogil kernels (compiled like serial code: numba's parallel=True took 4x the first-call JIT
+# time). ``_mark`` (each thread on a contiguous share of the ions) checks every ion against the
+# admissible range, counts the ions per row and flags the absent blocks its footprint touches;
+# ``_assign`` (serial, over the flags: one byte per block of the box) gives them pool slots in
+# block order; the scatter (threads) then only reads the block table. Scatter threads write
+# disjoint blocks: an ion belongs to the z layer of blocks holding the lowest z index of its
+# footprint (which spans at most that layer and the next), and in phase p the threads take the
+# layers L with L % 2 == p, task (L // 2) % n_tasks, so two layers scattered at once are >= 2
+# apart. Every thread reads the whole chunk and skips the ions of other tasks (cheap next to the
+# writes; in detection order the layer changes rarely).
 #
 # Footprint along one axis: first grid index floor(f + shift) + offset, then ``width`` more.
 FOOTPRINT = {"square": (0.5, 0, 0), "sawtooth": (0.0, 0, 1), "gaussian": (0.5, -1, 2)}
 
 
-@njit(parallel=True, cache=True)
-def _mark(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table, fresh, counts, first_bad):
-    """Flag (``fresh`` = 1) the absent blocks of every ion's footprint; count ions per row.
+@njit(nogil=True, cache=True)
+def _mark(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table, fresh, counts, i0, i1):
+    """Flag (``fresh`` = 1) the absent blocks of the footprints of ions [i0, i1); count them per row.
 
-    Task t takes ions [n t / T, n (t + 1) / T) with T = len(first_bad), adds to ``counts[t]``
-    and sets ``first_bad[t]`` to its first ion outside the admissible range (or NaN), else -1.
-    Tasks may flag one block together: they all store the same byte.
+    Returns the first ion outside the admissible range (or NaN), else -1. Threads on other
+    shares may flag one block together: they all store the same byte.
     """
-    n, n_tasks = pos.shape[0], first_bad.shape[0]
-    for t in prange(n_tasks):
-        first_bad[t] = -1
-        for i in range(n * t // n_tasks, n * (t + 1) // n_tasks):
-            r = row[i]
-            counts[t, r] += 1
-            if row_ptr[r] == row_ptr[r + 1]:
-                continue  # an ion that counts in no field
-            fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
-            fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
-            fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-            if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
-                first_bad[t] = i
-                break
-            x0 = np.int64(np.floor(fx + shift)) + offset
-            y0 = np.int64(np.floor(fy + shift)) + offset
-            z0 = np.int64(np.floor(fz + shift)) + offset
-            if (x0 & 7) + width < 8 and (y0 & 7) + width < 8 and (z0 & 7) + width < 8:  # most ions: one block
-                if table[x0 >> 3, y0 >> 3, z0 >> 3] < 0:
-                    fresh[x0 >> 3, y0 >> 3, z0 >> 3] = 1
-                continue
-            for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
-                for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
-                    for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
-                        if table[bx, by, bz] < 0:
-                            fresh[bx, by, bz] = 1
+    for i in range(i0, i1):
+        r = row[i]
+        counts[r] += 1
+        if row_ptr[r] == row_ptr[r + 1]:
+            continue  # an ion that counts in no field
+        fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
+        fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
+        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
+        if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
+            return i
+        x0 = np.int64(np.floor(fx + shift)) + offset
+        y0 = np.int64(np.floor(fy + shift)) + offset
+        z0 = np.int64(np.floor(fz + shift)) + offset
+        if (x0 & 7) + width < 8 and (y0 & 7) + width < 8 and (z0 & 7) + width < 8:  # most ions: one block
+            if table[x0 >> 3, y0 >> 3, z0 >> 3] < 0:
+                fresh[x0 >> 3, y0 >> 3, z0 >> 3] = 1
+            continue
+        for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
+            for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
+                for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
+                    if table[bx, by, bz] < 0:
+                        fresh[bx, by, bz] = 1
+    return -1
 
 
 @njit(cache=True)
@@ -174,112 +174,119 @@ def _gauss3(f):
 # flat (``chan`` values per channel, 512 per block): shifts instead of numba's 5-d stride arithmetic.
 
 
-@njit(parallel=True, cache=True)
-def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
-    for phase in range(2 if n_tasks > 1 else 1):
-        for task in prange(n_tasks):
-            last, owned = np.int64(-1), False
-            for i in range(pos.shape[0]):
-                p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-                if p0 == p1:
-                    continue
-                iz = np.int64(np.floor((np.float64(pos[i, 2]) - origin[2]) * inv_h + 0.5))
-                owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
-                last = iz >> 3
-                if not owned:
-                    continue
-                ix = np.int64(np.floor((np.float64(pos[i, 0]) - origin[0]) * inv_h + 0.5))
-                iy = np.int64(np.floor((np.float64(pos[i, 1]) - origin[1]) * inv_h + 0.5))
-                voxel = ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7) + (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9)
-                for p in range(p0, p1):
-                    pool[row_chan[p] * chan + voxel] += row_w[p]
+@njit(nogil=True, cache=True)
+def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
+    last, owned = np.int64(-1), False
+    for i in range(pos.shape[0]):
+        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
+        if p0 == p1:
+            continue
+        iz = np.int64(np.floor((np.float64(pos[i, 2]) - origin[2]) * inv_h + 0.5))
+        owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
+        last = iz >> 3
+        if not owned:
+            continue
+        ix = np.int64(np.floor((np.float64(pos[i, 0]) - origin[0]) * inv_h + 0.5))
+        iy = np.int64(np.floor((np.float64(pos[i, 1]) - origin[1]) * inv_h + 0.5))
+        voxel = ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7) + (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9)
+        for p in range(p0, p1):
+            pool[row_chan[p] * chan + voxel] += row_w[p]
 
 
-@njit(parallel=True, cache=True)
-def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
-    for phase in range(2 if n_tasks > 1 else 1):
-        for task in prange(n_tasks):
-            last, owned = np.int64(-1), False
-            for i in range(pos.shape[0]):
-                p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-                if p0 == p1:
-                    continue
-                fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-                z0 = np.floor(fz)
-                iz = np.int64(z0)
-                owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
-                last = iz >> 3
-                if not owned:
-                    continue
-                fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
-                fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
-                x0, y0 = np.floor(fx), np.floor(fy)
-                wx = (1.0 - (fx - x0), fx - x0)  # lever rule
-                wy = (1.0 - (fy - y0), fy - y0)
-                wz = (1.0 - (fz - z0), fz - z0)
-                ix, iy = np.int64(x0), np.int64(y0)
-                if (ix & 7) <= 6 and (iy & 7) <= 6 and (iz & 7) <= 6:  # all in one block: one lookup
-                    at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
-                    for p in range(p0, p1):
-                        c, m = row_chan[p], row_w[p]
-                        for a in range(2):
-                            for b in range(2):
-                                wab = m * wx[a] * wy[b]
-                                for d in range(2):
-                                    pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
-                    continue
-                for p in range(p0, p1):
-                    c, m = row_chan[p], row_w[p]
-                    for a in range(2):
-                        for b in range(2):
-                            wab = m * wx[a] * wy[b]
-                            column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
-                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
-                            for d in range(2):
-                                if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
-                                pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+@njit(nogil=True, cache=True)
+def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
+    last, owned = np.int64(-1), False
+    for i in range(pos.shape[0]):
+        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
+        if p0 == p1:
+            continue
+        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
+        z0 = np.floor(fz)
+        iz = np.int64(z0)
+        owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
+        last = iz >> 3
+        if not owned:
+            continue
+        fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
+        fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
+        x0, y0 = np.floor(fx), np.floor(fy)
+        wx = (1.0 - (fx - x0), fx - x0)  # lever rule
+        wy = (1.0 - (fy - y0), fy - y0)
+        wz = (1.0 - (fz - z0), fz - z0)
+        ix, iy = np.int64(x0), np.int64(y0)
+        if (ix & 7) <= 6 and (iy & 7) <= 6 and (iz & 7) <= 6:  # all in one block: one lookup
+            at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
+            for p in range(p0, p1):
+                c, m = row_chan[p], row_w[p]
+                for a in range(2):
+                    for b in range(2):
+                        wab = m * wx[a] * wy[b]
+                        for d in range(2):
+                            pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+            continue
+        for p in range(p0, p1):
+            c, m = row_chan[p], row_w[p]
+            for a in range(2):
+                for b in range(2):
+                    wab = m * wx[a] * wy[b]
+                    column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
+                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
+                    for d in range(2):
+                        if d and (iz + d) & 7 == 0:  # the z column enters the next block
+                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
+                        pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
 
 
-@njit(parallel=True, cache=True)
-def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, n_tasks):
-    for phase in range(2 if n_tasks > 1 else 1):
-        for task in prange(n_tasks):
-            last, owned = np.int64(-1), False
-            for i in range(pos.shape[0]):
-                p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-                if p0 == p1:
-                    continue
-                fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-                layer = (np.int64(np.floor(fz + 0.5)) - 1) >> 3  # as _gauss3 places it, without its exp
-                owned = _owns(layer, last, owned, phase, task, n_tasks)
-                last = layer
-                if not owned:
-                    continue
-                iz, wz = _gauss3(fz)
-                ix, wx = _gauss3((np.float64(pos[i, 0]) - origin[0]) * inv_h)
-                iy, wy = _gauss3((np.float64(pos[i, 1]) - origin[1]) * inv_h)
-                if (ix & 7) <= 5 and (iy & 7) <= 5 and (iz & 7) <= 5:  # all in one block: one lookup
-                    at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
-                    for p in range(p0, p1):
-                        c, m = row_chan[p], row_w[p]
-                        for a in range(3):
-                            for b in range(3):
-                                wab = m * wx[a] * wy[b]
-                                for d in range(3):
-                                    pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
-                    continue
-                for p in range(p0, p1):
-                    c, m = row_chan[p], row_w[p]
-                    for a in range(3):
-                        for b in range(3):
-                            wab = m * wx[a] * wy[b]
-                            column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
-                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
-                            for d in range(3):
-                                if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
-                                pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+@njit(nogil=True, cache=True)
+def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
+    last, owned = np.int64(-1), False
+    for i in range(pos.shape[0]):
+        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
+        if p0 == p1:
+            continue
+        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
+        layer = (np.int64(np.floor(fz + 0.5)) - 1) >> 3  # as _gauss3 places it, without its exp
+        owned = _owns(layer, last, owned, phase, task, n_tasks)
+        last = layer
+        if not owned:
+            continue
+        iz, wz = _gauss3(fz)
+        ix, wx = _gauss3((np.float64(pos[i, 0]) - origin[0]) * inv_h)
+        iy, wy = _gauss3((np.float64(pos[i, 1]) - origin[1]) * inv_h)
+        if (ix & 7) <= 5 and (iy & 7) <= 5 and (iz & 7) <= 5:  # all in one block: one lookup
+            at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
+            for p in range(p0, p1):
+                c, m = row_chan[p], row_w[p]
+                for a in range(3):
+                    for b in range(3):
+                        wab = m * wx[a] * wy[b]
+                        for d in range(3):
+                            pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+            continue
+        for p in range(p0, p1):
+            c, m = row_chan[p], row_w[p]
+            for a in range(3):
+                for b in range(3):
+                    wab = m * wx[a] * wy[b]
+                    column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
+                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
+                    for d in range(3):
+                        if d and (iz + d) & 7 == 0:  # the z column enters the next block
+                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
+                        pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+
+
+_EXECUTORS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _on_threads(fn, calls: list[tuple]) -> list:
+    """Results of ``fn(*args)`` for each args in ``calls``, one thread each (the kernels release the GIL)."""
+    if len(calls) == 1:
+        return [fn(*calls[0])]
+    executor = _EXECUTORS.get(len(calls))
+    if executor is None:
+        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="voxel-scatter")
+    return list(executor.map(lambda args: fn(*args), calls))
 
 
 _SCATTER = {"square": _scatter_square, "sawtooth": _scatter_sawtooth, "gaussian": _scatter_gaussian}
@@ -333,12 +340,14 @@ class BlockAccumulator:
         inv_h = 1.0 / self.grid.voxel
         n_tasks = get_num_threads()
         counts = np.zeros((n_tasks, len(self.row_count)), dtype=np.int64)
-        first_bad = np.empty(n_tasks, dtype=np.int64)
-        _mark(positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0], self.table,
-              self.fresh, counts, first_bad)
-        if np.any(first_bad >= 0):
+        shares = np.linspace(0, len(positions), n_tasks + 1).astype(np.int64)
+        mark_args = (positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0],
+                     self.table, self.fresh)
+        bad = [i for i in _on_threads(_mark, [mark_args + (counts[t], shares[t], shares[t + 1])
+                                              for t in range(n_tasks)]) if i >= 0]
+        if bad:
             self.fresh[:] = 0
-            p = positions[first_bad[first_bad >= 0][0]]
+            p = positions[bad[0]]
             raise AptFiltersError(
                 f"ion at ({p[0]:g}, {p[1]:g}, {p[2]:g}) nm lies outside the grid or within the {self.kernel} "
                 f"kernel's reach of its edge; build the grid with Grid.covering(lower, upper, voxel, "
@@ -347,8 +356,10 @@ class BlockAccumulator:
         self._grow(self.n_active + int(np.count_nonzero(self.fresh)))
         self.n_active = _assign(self.fresh, self.table, self.coords, self.n_active)
         self.row_count += counts.sum(axis=0)
-        _SCATTER[self.kernel](positions, rows, origin, inv_h, *self.rows, self.table, self.pool.reshape(-1),
-                              self.pool[0].size, n_tasks)
+        scatter_args = (positions, rows, origin, inv_h, *self.rows, self.table, self.pool.reshape(-1),
+                        self.pool[0].size)
+        for phase in range(2 if n_tasks > 1 else 1):  # the layers of one phase are >= 2 apart
+            _on_threads(_SCATTER[self.kernel], [scatter_args + (phase, t, n_tasks) for t in range(n_tasks)])
 
     def _grow(self, need: int) -> None:
         """Make room for ``need`` blocks: double the pool (at least to ``need``, never beyond the box's blocks)."""
