@@ -9,7 +9,9 @@ peak memory = fields + one chunk) and skips APAV, which needs every ion in memor
 Rows (each timed as the best of ``--repeat`` runs, all side by side in one process):
 - ``numpy bincount square``: the plain numpy square kernel (nearest voxel, one bincount over
   species × voxels), given the species index, as the peer for the scatter;
-- ``ours <kernel> scatter``: our block-sparse scatter given the same species index;
+- ``ours ranging (MzLookup)``: our bin-table ranging (what ``voxelize`` uses) beside ``RangeTable.ion_index``;
+- ``ours <kernel> scatter``: our block-sparse scatter given the same species index, on numba's
+  threads (all cores by default) and, for the scaling, on 1 thread;
 - ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields);
 - ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
   compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
@@ -27,11 +29,13 @@ import time
 import tracemalloc
 import warnings
 
+import numba
 import numpy as np
 
 from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel.fields import decomposition
+from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
 
 BOX = np.array([60.0, 60.0, 200.0])
@@ -44,9 +48,13 @@ def bench_ranges() -> RangeTable:
 
 
 def synthetic(n: int, seed: int) -> IonTable:
-    """Uniform ions strictly inside the box (a non-integer lower corner, see APAV's grid quirk)."""
+    """Uniform ions strictly inside the box (a non-integer lower corner, see APAV's grid quirk).
+
+    In detection order, as reconstructions store them: z falls from the top of the box down.
+    """
     rng = np.random.default_rng(seed)
     pos = (rng.random((n, 3), dtype=np.float32) * (BOX - 0.5) + 0.25).astype(np.float32)
+    pos = pos[np.argsort(-pos[:, 2], kind="stable")]
     mz = (10.0 * rng.integers(1, len(ELEMENTS) + 1, n) + rng.uniform(-0.4, 0.4, n)).astype(np.float32)
     return IonTable(pos, mz)
 
@@ -59,14 +67,17 @@ def bincount_square(positions: np.ndarray, species: np.ndarray, grid: Grid, n_sp
     return np.bincount(flat, minlength=n_species * grid.n_voxels).reshape((n_species,) + grid.shape)
 
 
-def best_time(fn, repeat: int) -> float:
-    times = []
+def best_time(fn, repeat: int) -> tuple[float, float]:
+    """Best (wall, CPU) seconds of ``repeat`` runs; CPU time is less disturbed by other jobs
+    for our single-threaded loops, wall time is what counts for APAV's two OpenMP threads."""
+    wall, cpu = [], []
     for _ in range(repeat):
         gc.collect()
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return min(wall), min(cpu)
 
 
 def peak_bytes(fn) -> int:
@@ -128,7 +139,8 @@ def main(argv=None) -> int:
     for kernel in ("square", "sawtooth", "gaussian"):
         voxelize(warm, rt, grid=grid, kernel=kernel)
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"{numba.get_num_threads()} numba threads, load average {os.getloadavg()[0]:.1f} at the start "
           "(shared with other jobs: compare ratios, not absolute times)")
     results = []
     if args.full:
@@ -144,31 +156,41 @@ def main(argv=None) -> int:
             for _ in chunks_of(n, chunk, 100):
                 pass
 
-        t_gen = best_time(gen_only, 1)
-        results.append(("numpy bincount square (incl. ranging)", best_time(run_bincount, 1) - t_gen, None))
+        t_gen = np.array(best_time(gen_only, 1))
+        results.append(("numpy bincount square (incl. ranging)", np.array(best_time(run_bincount, 1)) - t_gen, None))
         for kernel in ("square", "sawtooth", "gaussian"):
-            t = best_time(lambda: voxelize(chunks_of(n, chunk, 100), rt, grid=grid, kernel=kernel), 1) - t_gen
+            t = np.array(best_time(lambda: voxelize(chunks_of(n, chunk, 100), rt, grid=grid, kernel=kernel), 1)) - t_gen
             peak = peak_bytes(lambda: voxelize(chunks_of(n, chunk, 100), rt, grid=grid, kernel=kernel))
             results.append((f"ours {kernel} voxelize (streamed)", t, peak))
-        print(f"(chunk generation, {t_gen:.1f} s, subtracted from each time)")
+        print(f"(chunk generation, {t_gen[0]:.1f} s, subtracted from each time)")
     else:
         n = 1_000_000 if args.quick else 10_000_000
         ions = synthetic(n, 7)
         print(f"{n / 1e6:.0f} M ions, box {BOX.tolist()} nm, grid {grid.shape}, 8 species")
         species = rt.ion_index(ions.mz).astype(np.int64)
-        row = species + 1
+        row = rt.ion_index(ions.mz) + 1  # int32, as voxelize passes it
 
-        def scatter(kernel):
-            acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)
-            acc.add(ions.positions, row)
-            return acc.result()
+        def scatter(kernel, threads=None):
+            default = numba.get_num_threads()
+            numba.set_num_threads(threads or default)
+            try:
+                acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)
+                acc.add(ions.positions, row)
+                return acc.result()
+            finally:
+                numba.set_num_threads(default)
 
         base = lambda: bincount_square(ions.positions, species, grid, len(ELEMENTS))  # noqa: E731
         results.append(("numpy bincount square", best_time(base, args.repeat), peak_bytes(base)))
         results.append(("ranging (RangeTable.ion_index)", best_time(lambda: rt.ion_index(ions.mz), args.repeat), None))
+        lookup = MzLookup.from_ranges(rt)
+        results.append(("ours ranging (MzLookup)", best_time(lambda: lookup.rows_of(ions.mz), args.repeat), None))
         for kernel in ("square", "sawtooth", "gaussian"):
             fn = lambda k=kernel: scatter(k)  # noqa: E731
             results.append((f"ours {kernel} scatter", best_time(fn, args.repeat), peak_bytes(fn)))
+            if numba.get_num_threads() > 1:
+                fn1 = lambda k=kernel: scatter(k, 1)  # noqa: E731
+                results.append((f"ours {kernel} scatter, 1 thread", best_time(fn1, args.repeat), None))
         for kernel in ("square", "sawtooth", "gaussian"):
             fn = lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k)  # noqa: E731
             results.append((f"ours {kernel} voxelize", best_time(fn, args.repeat), peak_bytes(fn)))
@@ -185,20 +207,23 @@ def main(argv=None) -> int:
                 print(f"agreement with APAV (max relative difference, interior voxels): "
                       f"{apav_agreement(ions, rt, holder['ref']):.2e}")
 
-    t_base = results[0][1]
-    t_gauss = dict((r[0], r[1]) for r in results)
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
+    base_wall, base_cpu = results[0][1]
+    times = {name: t for name, t, _ in results}
     print()
-    print("| method | time (s) | M ions/s | speed vs bincount | peak memory (MB) |")
-    print("|---|---:|---:|---:|---:|")
-    for name, t, peak in results:
+    print("| method | wall (s) | CPU (s) | M ions/s (wall) | speed vs bincount (wall) | (CPU) | peak memory (MB) |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name, (wall, cpu), peak in results:
         mem = f"{peak / 1e6:.0f}" if peak is not None else "-"
-        print(f"| {name} | {t:.3f} | {n / t / 1e6:.1f} | {t_base / t:.2f} | {mem} |")
-    if "apav RangedGrid (gaussian)" in t_gauss:
-        ratio = t_gauss["apav RangedGrid (gaussian)"] / t_gauss["ours gaussian voxelize"]
-        print(f"\nours gaussian voxelize is {ratio:.1f}x faster than APAV RangedGrid")
+        print(f"| {name} | {wall:.3f} | {cpu:.3f} | {n / wall / 1e6:.1f} | {base_wall / wall:.2f} | "
+              f"{base_cpu / cpu:.2f} | {mem} |")
+    if "apav RangedGrid (gaussian)" in times:
+        ratio = times["apav RangedGrid (gaussian)"][0] / times["ours gaussian voxelize"][0]
+        print(f"\nours gaussian voxelize is {ratio:.1f}x faster than APAV RangedGrid (wall)")
     key = "voxelize (streamed)" if args.full else "voxelize"
-    g_over_s = t_gauss[f"ours gaussian {key}"] / t_gauss[f"ours sawtooth {key}"]
-    print(f"gaussian / sawtooth time: {g_over_s:.2f}")
+    for col, label in ((0, "wall"), (1, "CPU")):
+        ratio = times[f"ours gaussian {key}"][col] / times[f"ours sawtooth {key}"][col]
+        print(f"gaussian / sawtooth time ({label}): {ratio:.2f}")
     return 0
 
 

@@ -98,3 +98,13 @@ def test_atomic_output_gives_ordinary_permissions(tmp_path):
     finally:
         os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o644
+
+
+def test_face_components_numbered_by_first_face():
+    a = unit_cube()
+    b = TriMesh(a.vertices + 10, a.faces)
+    both = TriMesh(np.vstack([b.vertices, a.vertices]), np.vstack([b.faces, a.faces + 8]))
+    labels = both.face_components()
+    assert labels.tolist() == [0] * 12 + [1] * 12
+    shuffled = TriMesh(both.vertices, both.faces[::-1])
+    assert shuffled.face_components().tolist() == [0] * 12 + [1] * 12

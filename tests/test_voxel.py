@@ -1,11 +1,13 @@
 """Voxelization: conservation, orientation, kernel values, sparse memory, streaming, bases."""
 
+import re
+
 import numpy as np
 import pytest
 
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.voxel import (
-    BLOCK, ConcentrationBasis, Grid, KERNELS, kernel_reach, second_pass_sigma, voxelize,
+    BLOCK, ConcentrationBasis, Grid, KERNELS, check_budget, kernel_reach, second_pass_sigma, voxelize,
 )
 from tests.voxel_helpers import MZ, ions, random_ions, ranges
 
@@ -146,9 +148,15 @@ def test_sparse_memory_grows_with_occupied_blocks_not_the_box():
 
 def test_memory_budget_refusal_says_what_fits():
     table = random_ions(100, [0, 0, 0], [200, 200, 800], seed=2)
-    with pytest.raises(AptFiltersError, match=r"over the memory budget.*would fit: voxel >= [0-9.]+ nm, or at most"):
-        voxelize(table, ranges(), kernel="square", voxel=0.5, memory_budget=5_000_000_000)
-    f = voxelize(table, ranges(), kernel="square", voxel=4.0, memory_budget=2_000_000_000)
+    budget = 9_000_000_000
+    with pytest.raises(AptFiltersError, match=r"over the memory budget.*would fit: voxel >= [0-9.]+ nm, or at most 1 "
+                       ) as err:
+        voxelize(table, ranges(), kernel="square", voxel=0.5, memory_budget=budget)
+    fit = float(re.search(r"voxel >= ([0-9.]+) nm", str(err.value)).group(1))
+    lower, upper = table.bounds()
+    check_budget(Grid.covering(lower, upper, fit, kernel_reach("square")), 4, budget)  # the hint holds
+    check_budget(Grid.covering(lower, upper, 0.5, kernel_reach("square")), 1, budget)
+    f = voxelize(table, ranges(), kernel="square", voxel=4.0, memory_budget=budget)
     assert f.counts["Cu"].n_blocks <= 100
 
 

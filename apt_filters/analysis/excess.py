@@ -17,9 +17,10 @@ extrapolating a noise slope to the interface only adds noise (on a 4 nm sphere i
 The excess is divided by the object's own surface area: Γ in detected ions (or decomposed atoms)
 per nm², and in atoms per nm² after dividing by the detection efficiency. The pooled figure
 divides the summed excess of all objects by their summed area (so it is the area-weighted mean
-of the per-object Γ). AP Suite's interfacial-excess extension divides the excess of its pooled
-proxigram by the *mean* object area instead, which gives a figure n_objects times larger when
-the pooled count is the sum over objects; ours is what a per-object average converges to.
+of the per-object Γ). AP Suite's interfacial-excess extension divides by the *mean* object area
+instead: applied to the excess count of a pooled (summed) proxigram that gives n_objects times
+our figure; applied to the mean count per object it gives mean excess / mean area, which equals
+ours. Ours states the summed area it used, so the two can always be told apart.
 """
 
 from __future__ import annotations
@@ -197,10 +198,14 @@ def excess_of_profile(s: np.ndarray, n: np.ndarray, total: np.ndarray, area: flo
 
 
 def interfacial_excess(proxigram: Proxigram, solute: str, efficiency: float, inner: float = 1.0,
-                       outer: float | None = None) -> list[Excess]:
-    """Excess of ``solute`` per object (own area) and pooled (summed area, last in the list).
+                       outer: float | None = None, skip_unmeasurable: bool = False) -> list[Excess]:
+    """Excess of ``solute`` per object (own area) and, when there are several objects, pooled
+    (summed counts over the summed area, last in the list, ``object_id`` = ``POOLED``).
 
-    ``outer`` defaults to the proxigram's range.
+    ``outer`` defaults to the proxigram's range. An object with no ions in a plateau window
+    (thinner than ``inner``, or cut away by the edge exclusion) has no measurable excess: an
+    error, or left out of the list with ``skip_unmeasurable`` (the pipeline does so and
+    reports which objects are missing).
     """
     if not 0 < efficiency <= 1:
         raise AptFiltersError(f"detection efficiency must be in (0, 1], got {efficiency}")
@@ -214,7 +219,12 @@ def interfacial_excess(proxigram: Proxigram, solute: str, efficiency: float, inn
         area = float(profiles.areas[k])
         if area <= 0:
             raise AptFiltersError(f"object {obj} has no area")
-        levels = excess_of_profile(profiles.centers, n[k], total[k], area, efficiency, inner, outer)
+        try:
+            levels = excess_of_profile(profiles.centers, n[k], total[k], area, efficiency, inner, outer)
+        except AptFiltersError:
+            if skip_unmeasurable:
+                continue
+            raise
         out.append(Excess(solute, int(obj), area, efficiency, *levels, (inner, outer)))
     return out
 

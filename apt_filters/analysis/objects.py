@@ -105,22 +105,6 @@ class SpecimenMask:
 
 # --- topology -----------------------------------------------------------------------------
 
-def _components(mesh: TriMesh) -> tuple[int, np.ndarray]:
-    """Number of components and the (m,) component of each face (ordered by first face)."""
-    f = mesh.faces
-    n = mesh.n_vertices
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
-    _, vertex_label = connected_components(graph, directed=False)
-    face_label = vertex_label[f[:, 0]]
-    _, first = np.unique(face_label, return_index=True)
-    order = np.argsort(first)  # renumber components by their first face
-    remap = np.empty(len(order), dtype=np.int64)
-    remap[np.unique(face_label)[order]] = np.arange(len(order))
-    return len(order), remap[np.searchsorted(np.unique(face_label), face_label)]
-
-
 def _boundary_half_edges(faces: np.ndarray) -> np.ndarray:
     """(k, 2) directed half-edges (a, b) of faces whose undirected edge is used once."""
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
@@ -328,7 +312,11 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         raise AptFiltersError("counting ions inside objects needs both the ions and the range table")
     if specimen is None and ions is not None and len(ions) >= 4:
         specimen = SpecimenHull.from_points(ions.positions)
-    n_obj, face_label = _components(mesh)
+    # The same numbering as the proxigram and excess: the face scalar if given, else components.
+    labels = (np.asarray(mesh.face_scalars["object_id"], dtype=np.int64) if "object_id" in mesh.face_scalars
+              else mesh.face_components())
+    ids, face_label = np.unique(labels, return_inverse=True)
+    n_obj = len(ids)
     order = np.argsort(face_label, kind="stable")
     starts = np.searchsorted(face_label[order], np.arange(n_obj + 1))
     is_cap = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces)), dtype=bool)
@@ -341,7 +329,7 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
             if is_cap[index].any() and not is_cap[index].all() else whole
         closed = cap_boundaries(whole)[0] if cap_open else whole
         status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
-        objects.append(_stats(k + 1, surface, closed, status))
+        objects.append(_stats(int(ids[k]), surface, closed, status))
         shapes.append((closed.vertices, closed.faces))
         if specimen is not None:
             objects[-1].edge_distance = float(specimen.distance(surface.vertices).min())

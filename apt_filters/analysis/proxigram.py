@@ -172,11 +172,10 @@ class Proxigram:
 
         pooled = self if len(self.object_ids) == 1 else self.pooled()
         fig, axes = plt.subplots(2, 1, figsize=(7, 8), sharex=True)
-        element_color = {comp: c for comp, c in zip(self.ions, (self.colors.get(i) for i in self.ions))}
         for ax, kind in zip(axes, ("ion", "element")):
             c, err = pooled.concentration(kind)
             for j, name in enumerate(pooled.species(kind)):
-                color = element_color.get(name)
+                color = self.colors.get(name)  # an element takes the colour of its single-atom ion
                 ax.errorbar(pooled.centers, 100 * c[0, :, j], yerr=100 * err[0, :, j], label=name, lw=1,
                             ms=2, marker="o", capsize=1.5, color=f"#{color}" if color else None)
             ax.axvline(0.0, color="k", ls="--", lw=0.8, label="iso-surface")

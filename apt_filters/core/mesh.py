@@ -96,6 +96,25 @@ class TriMesh:
         _, counts = np.unique(e, axis=0, return_counts=True)
         return int((counts > 2).sum())
 
+    def face_components(self) -> np.ndarray:
+        """(m,) int64 connected component of each face (shared vertices), numbered in order of
+        each component's first face, so the numbering is deterministic."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        if self.n_faces == 0:
+            return np.zeros(0, dtype=np.int64)
+        f = self.faces
+        rows = np.concatenate([f[:, 0], f[:, 1]])
+        cols = np.concatenate([f[:, 1], f[:, 2]])
+        graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(self.n_vertices,) * 2)
+        _, vertex_label = connected_components(graph, directed=False)
+        face_label = vertex_label[f[:, 0]]
+        uniq, first, inverse = np.unique(face_label, return_index=True, return_inverse=True)
+        rank = np.empty(len(uniq), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(uniq))
+        return rank[inverse.ravel()]
+
     def copy(self) -> "TriMesh":
         return TriMesh(self.vertices.copy(), self.faces.copy(),
                        {k: v.copy() for k, v in self.vertex_scalars.items()},

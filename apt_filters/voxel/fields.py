@@ -11,6 +11,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.voxel.grid import Grid, check_budget
+from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.sparse import SparseField
 from apt_filters.voxel.transfer import BlockAccumulator, check_kernel, kernel_reach
 
@@ -203,8 +204,9 @@ def voxelize(
     Notes
     -----
     Peak memory: the pool of occupied blocks (≤ 2× the occupied blocks × fields × 4 kB while
-    growing), one chunk with its ranging (≈ 30 bytes per ion), and for the gaussian second pass
-    two dense float64 copies of one field's bounding box.
+    growing, never more than the box's blocks), its copy into the fields at the end, one chunk
+    with its ranging (≈ 30 bytes per ion), and for the gaussian second pass two dense float64
+    copies of one field's bounding box; :func:`~apt_filters.voxel.grid.check_budget` bounds it.
     """
     check_kernel(kernel)
     if not (0 < efficiency <= 1):
@@ -217,13 +219,12 @@ def voxelize(
         if iter(chunks) is chunks:
             raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
-    check_budget(grid, len(names) + 1, memory_budget)
+    check_budget(grid, len(names), memory_budget)
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization)
-    matrix_counts = np.zeros(len(ranges.ions) + 1)
+    lookup = MzLookup.from_ranges(ranges)
     for chunk in chunks:
-        row = ranges.ion_index(chunk.mz).astype(np.int64) + 1
-        acc.add(chunk.positions, row)
-        matrix_counts += np.bincount(row, minlength=len(matrix_counts))
+        acc.add(chunk.positions, lookup.rows_of(chunk.mz))  # rows int32: 4 bytes per ion
+    matrix_counts = acc.row_count.astype(np.float64)
     coords, channels = acc.result()
     counts = {n: SparseField(grid, coords, d) for n, d in zip(names, channels)}
     total = _sum_fields(grid, [counts[n] for n in total_names]) if total_names else SparseField(

@@ -131,25 +131,39 @@ def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 
     """Refuse up front a request whose fields could exceed ``budget`` bytes; return the bound.
 
     The bound counts every block of the bounding box as occupied (what a dense grid would
-    need) plus one dense working field; block-sparse storage usually needs less, but the
-    check stays conservative so that a run never dies half-way.
+    need) for twice the ``n_fields`` species fields plus two working fields: the scatter pool
+    and the fields copied off it exist together for a moment, and the total or the gaussian
+    second pass's dense copies come on top. Block-sparse storage usually needs much less, but
+    the check stays conservative so that a run never dies half-way.
 
     Raises
     ------
     AptFiltersError
-        With the voxel size and the number of fields that would fit.
+        With the voxel size and the number of species that would fit.
     """
     budget = default_budget() if budget is None else int(budget)
-    need = field_bytes(grid, n_fields + 1, itemsize)
+    need = field_bytes(grid, 2 * n_fields + 2, itemsize)
     if need <= budget:
         return need
     per_field = field_bytes(grid, 1, itemsize)
-    fit_fields = budget // per_field - 1
-    fit_voxel = grid.voxel * (need / budget) ** (1 / 3)
+    fit_fields = (budget // per_field - 2) // 2
+    fit_voxel = np.ceil(_fitting_voxel(grid, 2 * n_fields + 2, budget, itemsize) * 100) / 100  # nm, rounded up
     fields_hint = f"at most {fit_fields} species" if fit_fields >= 1 else "no species at this voxel size"
     raise AptFiltersError(
-        f"voxelizing {n_fields} fields on {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} voxels of "
+        f"voxelizing {n_fields} species on {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} voxels of "
         f"{grid.voxel:g} nm may need {need / 1e9:.2f} GB, over the memory budget of {budget / 1e9:.2f} GB; "
-        f"would fit: voxel >= {fit_voxel:.3g} nm, or {fields_hint}, or a smaller region "
+        f"would fit: voxel >= {fit_voxel:g} nm, or {fields_hint}, or a smaller region "
         f"(sparse storage only helps when the ions fill a small part of the box)"
     )
+
+
+def _fitting_voxel(grid: Grid, n_fields: int, budget: int, itemsize: int) -> float:
+    """Smallest voxel (to 2%) at which a grid over the same extent (+2 points a side for the
+    re-aligned padding) holds ``n_fields`` fields within ``budget``."""
+    extent = np.asarray(grid.shape) * grid.voxel
+    voxel = grid.voxel * (field_bytes(grid, n_fields, itemsize) / budget) ** (1 / 3)
+    while True:
+        shape = tuple(int(n) for n in np.ceil(extent / voxel) + 4)
+        if field_bytes(Grid(grid.origin, voxel, shape), n_fields, itemsize) <= budget:
+            return voxel
+        voxel *= 1.02

@@ -1,0 +1,217 @@
+"""``apt-filters run``: every step from an ion file to a report, in one call.
+
+read -> range -> audit -> voxelize -> contour -> clean (MeshLab chain, saved as .mlx) ->
+remesh (CVT) -> objects -> proxigram and excess -> exports (PLY, ion cloud, MeshLab
+project) -> report.json / report.html / config.toml.
+
+Everything is written into a staging folder that replaces the output folder only when
+the run succeeds (:mod:`.staging`). Runs are deterministic: the same configuration gives
+the same numbers and meshes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from apt_filters.core.atomic import atomic_write_text
+from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io import IonTable, RangeTable, read_ions, read_ranges
+from apt_filters.pipeline import report as rep
+from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+from apt_filters.pipeline.picture import render_surfaces
+from apt_filters.pipeline.staging import staged_folder
+from apt_filters.pipeline.steps import StepLog
+
+MINORITY = 0.10
+"""Elements below this overall fraction are the default solutes of the excess."""
+
+
+def surface_label(surface: SurfaceConfig) -> str:
+    """File-name label of an iso-surface: ``Al15`` (15 at.% Al) or ``density40`` (atoms/nm³)."""
+    if surface.species:
+        return f"{surface.species}{surface.iso * 100:g}"
+    return f"density{surface.iso:g}"
+
+
+def composition(ions: IonTable, ranges: RangeTable) -> dict[str, float]:
+    """Element fractions of the ranged ions, molecular ions decomposed."""
+    index = ranges.ion_index(ions.mz)
+    per_ion = np.bincount(index[index >= 0], minlength=len(ranges.ions))
+    atoms = per_ion @ ranges.element_matrix()
+    total = atoms.sum()
+    return {el: float(n / total) if total else 0.0 for el, n in zip(ranges.elements, atoms)}
+
+
+@dataclass
+class SurfaceResult:
+    label: str
+    surface: SurfaceConfig
+    mesh: TriMesh
+    objects: list[dict] = field(default_factory=list)
+    excess: list[dict] = field(default_factory=list)
+    proxigram: object = None
+    stats: dict = field(default_factory=dict)
+
+
+def _check_config(config: PipelineConfig) -> None:
+    if not config.input.ions or not config.input.ranges:
+        raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
+    if not config.surface:
+        raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
+    for s in config.surface:
+        if s.species and not 0 < s.iso < 1:
+            raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
+        if not s.species and s.iso <= 0:
+            raise AptFiltersError(f"iso-density must be positive atoms/nm³, got {s.iso:g}")
+
+
+def _field(fields, surface: SurfaceConfig) -> np.ndarray:
+    field_ = fields.concentration(surface.species) if surface.species else fields.density()
+    values = field_.dense()
+    finite = values[np.isfinite(values)]
+    if not len(finite) or not finite.min() < surface.iso < finite.max():
+        lo, hi = (finite.min(), finite.max()) if len(finite) else (np.nan, np.nan)
+        what = f"{surface.species} concentration" if surface.species else "atomic density"
+        raise AptFiltersError(f"iso-value {surface.iso:g} is outside the {what} range {lo:.4g}..{hi:.4g}: no surface")
+    return values
+
+
+def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
+                 truth: dict | None = None) -> dict:
+    """Run every step and write the output folder ``out``; returns the report's content.
+
+    ``truth`` (a synthetic specimen's truth.json) adds a comparison with the ground truth.
+    """
+    from apt_filters.analysis.excess import interfacial_excess
+    from apt_filters.analysis.objects import object_table
+    from apt_filters.analysis.proxigram import compute_proxigram
+    from apt_filters.audit import audit_ranges
+    from apt_filters.contour import dual_contouring, marching_cubes
+    from apt_filters.meshlab.chains import apply_chain
+    from apt_filters.meshlab.exports import write_ion_cloud, write_ply, write_project
+    from apt_filters.remesh import remesh
+    from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+
+    _check_config(config)
+    log = StepLog(quiet=quiet)
+    report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
+    with staged_folder(out, force=force) as stage:
+        (stage / "meshes").mkdir()
+        with log.step("read") as s:
+            ions = read_ions(config.input.ions)
+            ranges = read_ranges(config.input.ranges)
+            ranged = float(np.mean(ranges.ion_index(ions.mz) >= 0)) if len(ions) else 0.0
+            report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
+            report["ions"] = {"count": len(ions), "ranged_fraction": ranged,
+                              "bounds_nm": [b.tolist() for b in ions.bounds()]}
+            report["composition"] = composition(ions, ranges)
+            s.summary = f"{len(ions):,} ions, {ranged:.1%} ranged, {len(ranges)} ranges"
+        if config.analysis.audit:
+            with log.step("audit") as s:
+                result = audit_ranges(ions, ranges)
+                report["audit"] = [dataclasses.asdict(f) for f in result.flagged]
+                s.summary = f"{len(result.flagged)} range-file findings"
+        with log.step("voxelize") as s:
+            v = config.voxel
+            basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
+            fields = voxelize(ions, ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size,
+                              basis=basis, efficiency=config.analysis.efficiency)
+            mask = inside_mask(fields).dense()
+            report["voxel"] = {"grid_shape": list(fields.grid.shape), "origin_nm": list(fields.grid.origin),
+                               "basis": basis.describe(), "inside_fraction": float(mask.mean())}
+            s.summary = f"grid {fields.grid.shape}, {fields.total.n_blocks} blocks, basis: {basis.describe()}"
+        results = []
+        for surface in config.surface:
+            label = surface_label(surface)
+            with log.step("contour") as s:
+                values = _field(fields, surface)
+                contour = dual_contouring if config.contour.method == "dc" else marching_cubes
+                mesh = contour(values, surface.iso, spacing=fields.grid.voxel, origin=fields.grid.origin,
+                               mask=mask, close=config.contour.close_at_edge)
+                if mesh.n_faces == 0:
+                    raise AptFiltersError(f"iso-surface {label} has no triangles inside the specimen")
+                s.summary = f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+            with log.step("clean") as s:
+                mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
+                s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
+            if config.remesh.method == "cvt":
+                with log.step("remesh") as s:
+                    edge = config.remesh.edge_length or fields.grid.voxel / 2
+                    mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
+                    s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+            # One object numbering for the object table, the proxigram and the excess.
+            mesh.face_scalars["object_id"] = mesh.face_components()
+            res = SurfaceResult(label, surface, mesh)
+            with log.step("objects") as s:
+                table = object_table(mesh, ions, ranges)
+                table.write_csv(stage / f"objects_{label}.csv")
+                table.write_json(stage / f"objects_{label}.json")
+                res.objects = table.rows()
+                s.summary = f"{label}: {len(res.objects)} objects"
+            with log.step("proxigram") as s:
+                prox = compute_proxigram(ions, ranges, mesh, bin_width=config.proxigram.bin,
+                                         max_distance=config.proxigram.extent,
+                                         keep_edge=not config.proxigram.exclude_edge,
+                                         iso_value=surface.iso if surface.species else None)
+                prox.write_csv(stage / f"proxigram_{label}.csv")
+                prox.plot(stage / f"proxigram_{label}.png", title=f"proxigram across {label}")
+                solutes = config.proxigram.solutes or [
+                    el for el, c in report["composition"].items() if c < MINORITY and el != surface.species]
+                for solute in solutes:
+                    res.excess += [dataclasses.asdict(e) for e in
+                                   interfacial_excess(prox, solute, config.analysis.efficiency, skip_unmeasurable=True)]
+                res.proxigram = prox
+                measured = {e["object_id"] for e in res.excess}
+                res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
+                s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
+                             f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
+            res.stats |= {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
+                         "boundary_edges": len(mesh.boundary_edges())}
+            results.append(res)
+        with log.step("export") as s:
+            paths = []
+            for res in results:
+                paths.append(write_ply(res.mesh, stage / "meshes" / f"{res.label}.ply"))
+            cloud = write_ion_cloud(ions, ranges, stage / "meshes" / "ions.ply")
+            paths.append(stage / "meshes" / "ions.ply")
+            write_project(stage / "project.mlp", paths)
+            sample = ions.positions[:: max(1, len(ions) // 20_000)]
+            render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
+            report["ion_cloud"] = dataclasses.asdict(cloud) if dataclasses.is_dataclass(cloud) else str(cloud)
+            s.summary = f"{len(paths)} PLY files and project.mlp"
+        report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,
+                               "mesh": r.stats, "objects": r.objects, "excess": r.excess} for r in results]
+        rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
+        if truth is not None:
+            from apt_filters.pipeline.truth import compare_with_truth
+
+            report["truth"] = compare_with_truth(results, truth)
+        report["steps"] = log.as_dicts()
+        atomic_write_text(stage / "config.toml", config.to_toml())
+        rep.write_json(stage / "report.json", report)
+        rep.write_html(stage / "report.html", "apt-filters report", _html_sections(report),
+                       [stage / "surfaces.png", *sorted(stage.glob("proxigram_*.png"))])
+    return report
+
+
+def _html_sections(report: dict) -> list:
+    sections: list = [
+        ("Input", [{"file": f["path"], "bytes": f["bytes"], "sha256": f["sha256"][:16] + "…"} for f in report["inputs"]]),
+        ("Composition (at.%)", [{"element": k, "at.%": 100 * v} for k, v in report["composition"].items()]),
+    ]
+    if "audit" in report:
+        sections.append(("Range-file audit", [{"severity": f["severity"], "message": f["message"]}
+                                              for f in report["audit"]]))
+    for s in report["surfaces"]:
+        sections.append((f"Objects of {s['label']}", s["objects"]))
+        sections.append((f"Interfacial excess at {s['label']}", s["excess"]))
+    if "truth" in report:
+        sections.append(("Against the ground truth", report["truth"]))
+    sections.append(("Steps", report["steps"]))
+    sections.append(("Versions", [report["apt-filters"]]))
+    return sections

@@ -1,0 +1,276 @@
+"""Lloyd iterations towards a feature-aware centroidal Voronoi tessellation of a surface.
+
+Generators are of three kinds: *corners* (pinned on input corners), *curve* generators (on a
+feature curve, moving only along it: 1D Lloyd on its arc length) and *patch* generators (free
+on one patch, projected back onto it after each centroid step). A sample of patch ``p`` may
+only belong to a generator of ``p`` or of a curve or corner bounding ``p``, so Voronoi cells
+never straddle a sharp edge and the dual mesh has edges along every feature curve.
+
+Peak memory: a few arrays of the number of samples (nearest-neighbour indices and distances).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from apt_filters.remesh._arrays import isin
+from apt_filters.core.deps import open3d
+from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh.features import Features
+from apt_filters.remesh.sampling import Samples
+
+CORNER, CURVE, PATCH = 0, 1, 2
+_AREA_PER_VERTEX = np.sqrt(3.0) / 2.0  # area per vertex of an equilateral mesh of edge 1
+
+
+@dataclass
+class Generators:
+    """Generator positions (n, 3) nm, their kind (CORNER/CURVE/PATCH) and owner (corner/curve/patch id)."""
+
+    positions: np.ndarray
+    kind: np.ndarray
+    owner: np.ndarray
+    arc: np.ndarray  # arc-length parameter of curve generators (nan otherwise)
+
+
+@dataclass
+class LloydResult:
+    generators: Generators
+    labels: np.ndarray  # (f,) generator of every sample
+    energy: list = field(default_factory=list)  # CVT energy per iteration (nm^4)
+
+
+class _Curve:
+    """A polyline feature curve resampled densely for 1D Lloyd steps."""
+
+    def __init__(self, points: np.ndarray, closed: bool, density, step: float):
+        seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.points, self.s, self.closed, self.length = points, s, closed, s[-1]
+        n = max(int(np.ceil(self.length / step)), 2)
+        self.t = np.linspace(0.0, self.length, n + 1)
+        rho = density(self.at(self.t))
+        size = 0.5 * (rho[1:] ** 0.25 + rho[:-1] ** 0.25) * np.diff(self.t)
+        self.size = np.concatenate([[0.0], np.cumsum(size)])  # edge-count measure, edges ∝ rho^-1/4
+        t, r = self.t, rho
+        if closed:  # three periods, so that a cell may reach past either end
+            t = np.concatenate([self.t[:-1] - self.length, self.t[:-1], self.t + self.length])
+            r = np.concatenate([rho[:-1], rho[:-1], rho])
+        mid = 0.5 * (r[1:] + r[:-1]) * np.diff(t)
+        self.table_t = t
+        self.m0 = np.concatenate([[0.0], np.cumsum(mid)])
+        self.m1 = np.concatenate([[0.0], np.cumsum(mid * 0.5 * (t[1:] + t[:-1]))])
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(t, self.s, self.points[:, k]) for k in range(3)], axis=1)
+
+    def initial(self, edge: float) -> np.ndarray:
+        """Arc positions of the free generators, evenly spaced in the density's edge measure."""
+        n = max(int(round(self.size[-1] / edge)), 3 if self.closed else 1)
+        u = np.linspace(0.0, self.size[-1], n + 1)
+        t = np.interp(u, self.size, self.t)
+        return t[:-1] if self.closed else t[1:-1]
+
+    def lloyd(self, arc: np.ndarray) -> np.ndarray:
+        """One 1D Lloyd step on sorted arc positions (open curve ends are fixed corners)."""
+        if len(arc) == 0:
+            return arc
+        if self.closed:
+            ext = np.concatenate([[arc[-1] - self.length], arc, [arc[0] + self.length]])
+        else:
+            ext = np.concatenate([[0.0], arc, [self.length]])
+        lo, hi = 0.5 * (ext[:-2] + ext[1:-1]), 0.5 * (ext[1:-1] + ext[2:])
+
+        def integral(table, x):
+            return np.interp(x, self.table_t, table)
+
+        mass = integral(self.m0, hi) - integral(self.m0, lo)
+        new = (integral(self.m1, hi) - integral(self.m1, lo)) / np.maximum(mass, 1e-300)
+        new = np.where(mass > 0, new, arc)
+        return np.mod(new, self.length) if self.closed else new
+
+
+def patch_scenes(mesh: TriMesh, features: Features) -> list:
+    o3d = open3d()
+    scenes = []
+    for p in range(features.n_patches):
+        faces = mesh.faces[features.patch == p]
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                            o3d.core.Tensor(faces.astype(np.uint32)))
+        scenes.append(scene)
+    return scenes
+
+
+def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``count`` evenly spread points among ``points``: voxel down-sampling, then a random subset."""
+    o3d = open3d()
+    if count <= 0:
+        return np.empty((0, 3))
+    rng = np.random.default_rng(seed)
+    area = weights.sum()
+    size = np.sqrt(area / count)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    for _ in range(6):
+        down = np.asarray(cloud.voxel_down_sample(size).points)
+        if len(down) >= count:
+            break
+        size *= 0.8 * np.sqrt(max(len(down), 1) / count)
+    if len(down) < count:  # a patch too small to hold them apart: take samples at random
+        down = points
+    return down[rng.choice(len(down), size=count, replace=False)]
+
+
+def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float, density: np.ndarray,
+               vertex_density, seed: int = 0) -> tuple[Generators, list]:
+    """Place generators: corners, evenly spaced curve generators, evenly spread patch generators.
+
+    ``density`` (f,) is the sample density ρ ≥ 1; edges scale as ρ^-1/4, so a patch gets
+    ∫ρ^1/2 dA / (√3/2 L²) vertices, less the strip that its curve generators' cells take.
+    """
+    pos, kind, owner, arc = [mesh.vertices[features.corners]], [np.full(len(features.corners), CORNER)], \
+        [np.arange(len(features.corners))], [np.full(len(features.corners), np.nan)]
+    curves = []
+    border = np.zeros(features.n_patches)
+    for i, c in enumerate(features.curves):
+        curve = _Curve(mesh.vertices[c], c[0] == c[-1] and len(c) > 2, vertex_density, edge / 8)
+        curves.append(curve)
+        t = curve.initial(edge)
+        pos.append(curve.at(t))
+        kind.append(np.full(len(t), CURVE))
+        owner.append(np.full(len(t), i))
+        arc.append(t)
+        border[features.curve_patches[i]] += curve.size[-1]
+    sample_patch = features.patch[samples.parent]
+    for p in range(features.n_patches):
+        sel = sample_patch == p
+        measure = (samples.weights[sel] * np.sqrt(density[sel])).sum()
+        free = (measure - 0.5 * _AREA_PER_VERTEX * edge * border[p]) / (_AREA_PER_VERTEX * edge**2)
+        count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
+        count = min(max(count, 0), int(sel.sum()))
+        pts = _initial_patch_points(samples.points[sel], samples.weights[sel], count, seed + p)
+        pos.append(pts)
+        kind.append(np.full(len(pts), PATCH))
+        owner.append(np.full(len(pts), p))
+        arc.append(np.full(len(pts), np.nan))
+    gens = Generators(np.vstack(pos), np.concatenate(kind), np.concatenate(owner), np.concatenate(arc))
+    return gens, curves
+
+
+def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
+    """Generators that each sample group may belong to.
+
+    Group ``p`` holds the samples of patch ``p``: its own generators and those of the curves
+    and corners around it. Group ``n_patches + p`` holds the samples of ``p`` that touch a
+    feature curve: only curve and corner generators, so that consecutive generators on a curve
+    always have adjacent cells and the curve becomes a chain of mesh edges.
+    """
+    n = features.n_patches
+    rim = [[] for _ in range(n)]
+    for g_kind, lists in ((CORNER, features.corner_patches), (CURVE, features.curve_patches)):
+        for i, patches in enumerate(lists):
+            ids = np.flatnonzero((gens.kind == g_kind) & (gens.owner == i))
+            for p in patches:
+                rim[p].append(ids)
+    rim = [np.concatenate(r) if r else np.empty(0, np.int64) for r in rim]
+    full = [np.concatenate([rim[p], np.flatnonzero((gens.kind == PATCH) & (gens.owner == p))]) for p in range(n)]
+    return full + [r if len(r) else f for r, f in zip(rim, full)]
+
+
+def sample_groups(samples: Samples, features: Features) -> np.ndarray:
+    """(f,) group of each sample for :func:`allowed`: its patch, plus ``n_patches`` beside a feature curve."""
+    patch = features.patch[samples.parent]
+    faces = samples.faces
+    n_v = len(samples.vertices)
+    lo = np.full(n_v, np.iinfo(np.int64).max)
+    hi = np.full(n_v, -1)
+    np.minimum.at(lo, faces.ravel(), np.repeat(patch, 3))
+    np.maximum.at(hi, faces.ravel(), np.repeat(patch, 3))
+    feature_vertex = lo != hi
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = half[:, 0] * n_v + half[:, 1]
+    lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
+    feature_vertex[half[lone].ravel()] = True
+    near = feature_vertex[faces].any(axis=1)
+    return patch + features.n_patches * near
+
+
+def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
+    """(q, k) indices of the k nearest reference points (open3d KD-tree, batched)."""
+    o3d = open3d()
+    nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(reference))
+    nns.knn_index()
+    idx, _ = nns.knn_search(o3d.core.Tensor(queries), k)
+    return idx.numpy().astype(np.int64).reshape(len(queries), k)
+
+
+def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list,
+           previous: np.ndarray | None = None, k: int = 10) -> np.ndarray:
+    """Nearest allowed generator of every sample point, per group.
+
+    Without ``previous`` every sample is searched in an open3d KD-tree of the group's
+    generators. With ``previous`` labels (generators have moved a little since), only the
+    ``k`` generators nearest to each sample's previous generator are candidates: the KD-tree
+    then runs on the generators alone and the samples need k distances each, several times
+    cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
+    """
+    labels = np.full(len(points), -1)
+    order = np.argsort(group, kind="stable")
+    bounds = np.searchsorted(group[order], np.arange(len(allowed) + 1))
+    lut = np.full(len(positions), -1)
+    for g, ids in enumerate(allowed):
+        sel = order[bounds[g]:bounds[g + 1]]
+        if len(sel) == 0 or len(ids) == 0:
+            continue
+        if previous is None:
+            labels[sel] = ids[_knn(positions[ids], points[sel], 1)[:, 0]]
+            continue
+        lut[ids] = np.arange(len(ids))
+        near = _knn(positions[ids], positions[ids], min(k, len(ids)))
+        for chunk in np.array_split(sel, max(1, len(sel) // 200_000)):
+            cand = near[lut[previous[chunk]]]
+            d2 = ((points[chunk, None, :] - positions[ids][cand]) ** 2).sum(axis=2)
+            labels[chunk] = ids[cand[np.arange(len(chunk)), d2.argmin(axis=1)]]
+    return labels
+
+
+def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
+          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4,
+          full_every: int = 5) -> LloydResult:
+    """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
+
+    Every ``full_every``-th assignment searches all generators; the others only the
+    neighbours of each sample's previous generator (see :func:`assign`).
+    """
+    scenes = patch_scenes(mesh, features)
+    permitted = allowed(features, gens)
+    w = samples.weights * density
+    o3d = open3d()
+    energy: list = []
+    patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
+    curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
+    labels = None
+    for it in range(max_iter + 1):
+        local = labels is not None and it % full_every != 0
+        labels = assign(samples.points, group, gens.positions, permitted, labels if local else None)
+        d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
+        energy.append(float((w * d2).sum()))
+        if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
+            break
+        mass = np.bincount(labels, w, minlength=len(gens.positions))
+        centroid = np.stack([np.bincount(labels, w * samples.points[:, k], minlength=len(mass)) for k in range(3)], 1)
+        has = mass > 0
+        centroid[has] /= mass[has, None]
+        for p, ids in enumerate(patch_ids):
+            ids = ids[has[ids]]
+            if len(ids):
+                out = scenes[p].compute_closest_points(o3d.core.Tensor(centroid[ids].astype(np.float32)))
+                gens.positions[ids] = out["points"].numpy()
+        for curve, ids in zip(curves, curve_ids):
+            if len(ids):
+                order = ids[np.argsort(gens.arc[ids])]
+                gens.arc[order] = curve.lloyd(gens.arc[order])
+                gens.positions[order] = curve.at(gens.arc[order])
+    return LloydResult(gens, labels, energy)

@@ -1,0 +1,86 @@
+"""Repair of the extracted triangulation: duplicates, over-full edges and holes.
+
+The labelled refined mesh can report one restricted Voronoi vertex twice (a duplicate
+triangle) or not at all (a cell touching a vertex twice), which leaves over-full edges or
+small holes. Duplicates are dropped, over-full edges lose their worst triangles, and every
+boundary loop that is not made only of boundary-curve generators is a hole and is closed
+with the fan triangulation that maximises the smallest angle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from apt_filters.remesh._arrays import isin, unique_rows
+from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh.extract import triangulate_polygon
+from apt_filters.remesh.quality import triangle_angles
+
+
+def drop_duplicates(faces: np.ndarray) -> np.ndarray:
+    """Keep the first of triangles with the same three vertices; drop triangles with repeated vertices."""
+    ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    faces = faces[ok]
+    first = unique_rows(np.sort(faces, axis=1))[1]
+    return faces[np.sort(first)]
+
+
+def trim_overfull_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Remove the worst-shaped triangles on edges used by more than two, until none is."""
+    for _ in range(10):
+        e = np.sort(TriMesh(vertices, faces).edges(), axis=1)
+        _, _, inverse, counts = unique_rows(e)
+        over = counts[inverse.ravel()].reshape(-1, 3).max(axis=1) > 2
+        if not over.any():
+            break
+        quality = triangle_angles(TriMesh(vertices, faces)).min(axis=1)
+        # on each over-full edge, drop the worst of its triangles
+        edge = inverse.ravel()
+        face = np.repeat(np.arange(len(faces)), 3)
+        sel = counts[edge] > 2
+        worst = np.full(len(counts), np.inf)
+        np.minimum.at(worst, edge[sel], quality[face[sel]])
+        drop = np.zeros(len(faces), bool)
+        drop[face[sel][quality[face[sel]] == worst[edge[sel]]]] = True
+        faces = faces[~drop]
+    return faces
+
+
+def boundary_loops(faces: np.ndarray) -> list[list[int]]:
+    """Boundary loops as vertex lists, following the boundary half-edges (a -> b) of the faces."""
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    n = int(faces.max()) + 1
+    key = half[:, 0] * n + half[:, 1]
+    lone = ~isin(half[:, 1] * n + half[:, 0], key)
+    nxt = {}
+    for a, b in half[lone].tolist():
+        nxt.setdefault(a, []).append(b)
+    loops, seen = [], set()
+    for a in list(nxt):
+        if a in seen:
+            continue
+        loop, v = [], a
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v][0]
+        loops.append(loop)
+    return loops
+
+
+def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """Close every boundary loop with a vertex not on a boundary curve (``on_boundary`` False)."""
+    new = []
+    for loop in boundary_loops(faces):
+        if len(loop) < 3 or on_boundary[loop].all():
+            continue
+        new.extend(triangulate_polygon(loop[::-1], vertices, pinned))
+    return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)]) if new else faces
+
+
+def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """Duplicates, over-full edges, then holes; returns the new faces."""
+    faces = drop_duplicates(faces)
+    faces = trim_overfull_edges(vertices, faces)
+    faces = close_holes(vertices, faces, on_boundary, pinned)
+    return drop_duplicates(faces)

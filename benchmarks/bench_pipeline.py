@@ -1,0 +1,74 @@
+"""End-to-end time and peak memory of ``apt-filters run`` (issue 8's targets).
+
+    python -m benchmarks.bench_pipeline [--quick] [--ions N]
+
+Cases, each ``apt-filters run`` in a fresh process (peak RSS of that process alone):
+
+- the real Si dataset (945,211 ions), Cr iso-surface at 30 at.%: target <= 20 s;
+- the default synthetic specimen resized to ``--ions`` ions (default 10M; ``--quick``: its
+  natural ~3.4M), Al at 15 at.%: target for 10M ions <= 2 min and <= 4 GB.
+  The specimen is generated first (timed apart, not counted).
+
+There is no peer that runs this whole chain; the figures are read against the targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from apt_filters.core.atomic import atomic_write_text
+
+ROOT = Path(__file__).resolve().parents[1]
+SI = ROOT.parent / "shared" / "data" / "real" / "apav-si"
+
+
+def timed(cmd: list[str]) -> tuple[float, float]:
+    """(wall seconds, peak RSS in MiB) of a command run in a child process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    start = time.perf_counter()
+    subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    # ru_maxrss of children is the largest of any child so far: run the cases smallest first.
+    return wall, max(peak, before) / 1024
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the default specimen at its own size (~3.4M ions)")
+    parser.add_argument("--ions", type=int, default=10_000_000, help="ions of the large synthetic case")
+    args = parser.parse_args(argv)
+    cli = [sys.executable, "-m", "apt_filters"]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        wall, peak = timed(cli + ["run", str(SI / "Si.pos"), "-r", str(SI / "Si.RRNG"), "-o", str(tmp / "si"),
+                                  "--species", "Cr", "--iso", "0.3", "-q"])
+        rows.append(("real Si (Cr 30 at.%)", 945_211, wall, peak, "<= 20 s"))
+        synth = cli + ["synth", str(tmp / "spec"), "--preset", "default"] + ([] if args.quick else ["--ions", str(args.ions)])
+        gen_wall, _ = timed(synth)
+        n_ions = (tmp / "spec" / "specimen.pos").stat().st_size // 16
+        wall, peak = timed(cli + ["run", str(tmp / "spec" / "specimen.pos"), "-r", str(tmp / "spec" / "specimen.rrng"),
+                                  "-o", str(tmp / "run"), "--species", "Al", "--iso", "0.15", "-q"])
+        rows.append((f"synthetic default (Al 15 at.%; generated in {gen_wall:.0f} s)", n_ions, wall, peak,
+                     "<= 120 s, <= 4 GB at 10M ions"))
+    lines = ["# bench_pipeline: apt-filters run end to end", "",
+             "Each case is one `apt-filters run` process (all steps, default settings: gaussian 3x3x1.5 nm, "
+             "dual contouring, clean chain, CVT remesh, objects, proxigram, excess, exports, report).", "",
+             "| case | ions | wall (s) | ions/s | peak RSS (MiB) | target |", "|---|---:|---:|---:|---:|---|"]
+    lines += [f"| {name} | {n:,} | {wall:.1f} | {n / wall:,.0f} | {peak:,.0f} | {target} |"
+              for name, n, wall, peak, target in rows]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    atomic_write_text(Path(__file__).with_name("results_pipeline.md"), text, overwrite=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

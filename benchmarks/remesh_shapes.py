@@ -1,0 +1,119 @@
+"""Test and benchmark inputs for the remesher: analytic shapes as sliver-rich triangle meshes.
+
+Smooth shapes come from marching cubes (scikit-image, used here only, never in
+``apt_filters``) on analytic signed-distance fields sampled at voxel size 1, so lengths are in
+voxels. Shapes with sharp features are built exactly (jittered triangulations of planes and
+a mesh boolean), because marching cubes would chamfer their edges; they stand in for the
+dual-contouring meshes of the pipeline.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from apt_filters.core.mesh import TriMesh
+
+
+def rotation(seed: int = 3) -> np.ndarray:
+    """A fixed, generic 3x3 rotation matrix."""
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def marching_cubes(field, half: float) -> TriMesh:
+    """Iso-surface 0 of ``field(x, y, z)`` (positive inside) on a voxel-1 grid over [-half, half]^3.
+
+    Arrays are x, y, z ordered; normals point out of the region where the field is positive.
+    """
+    from skimage.measure import marching_cubes as mc
+
+    axis = np.arange(-half, half + 1.0)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    verts, faces, _, _ = mc(field(x, y, z), 0.0)
+    mesh = TriMesh(verts + axis[0], faces)
+    if mesh.signed_volume() < 0:
+        mesh.faces = mesh.faces[:, ::-1].copy()
+    return mesh
+
+
+def sphere(radius: float = 10.0) -> TriMesh:
+    return marching_cubes(lambda x, y, z: radius - np.sqrt(x**2 + y**2 + z**2), radius + 3)
+
+
+def torus(major: float = 10.0, minor: float = 4.0) -> TriMesh:
+    return marching_cubes(lambda x, y, z: minor - np.hypot(np.hypot(x, y) - major, z), major + minor + 3)
+
+
+def capped_cylinder(radius: float = 8.0, half_height: float = 8.0) -> TriMesh:
+    """Marching-cubes cylinder (its rims come out chamfered, as marching cubes does)."""
+    r = rotation(5)
+
+    def field(x, y, z):
+        p = np.stack([x, y, z], -1) @ r
+        return np.minimum(radius - np.hypot(p[..., 0], p[..., 1]), half_height - np.abs(p[..., 2]))
+
+    return marching_cubes(field, max(radius, half_height) * 1.8 + 2)
+
+
+def open_sphere(radius: float = 10.0, cut: float = 4.0) -> TriMesh:
+    """The marching-cubes sphere without its faces above z = ``cut``: one jagged boundary loop."""
+    mesh = sphere(radius)
+    keep = mesh.vertices[mesh.faces].mean(axis=1)[:, 2] < cut
+    used, faces = np.unique(mesh.faces[keep], return_inverse=True)
+    return TriMesh(mesh.vertices[used], faces.reshape(-1, 3))
+
+
+def _jittered_box(half: np.ndarray, spacing: float, seed: int) -> TriMesh:
+    """Axis-aligned closed box, each face a jittered grid triangulation (many poor triangles)."""
+    import pymeshlab
+
+    rng = np.random.default_rng(seed)
+    verts, faces = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u, v = [a for a in range(3) if a != axis]
+            nu, nv = (np.ceil(2 * half[[u, v]] / spacing)).astype(int)
+            gu, gv = np.meshgrid(np.linspace(-half[u], half[u], nu + 1), np.linspace(-half[v], half[v], nv + 1),
+                                 indexing="ij")
+            inner = np.zeros_like(gu, bool)
+            inner[1:-1, 1:-1] = True
+            du, dv = 2 * half[u] / nu, 2 * half[v] / nv
+            gu = gu + inner * rng.uniform(-0.25, 0.25, gu.shape) * du
+            gv = gv + inner * rng.uniform(-0.25, 0.25, gv.shape) * dv
+            p = np.zeros((gu.size, 3))
+            p[:, axis], p[:, u], p[:, v] = sign * half[axis], gu.ravel(), gv.ravel()
+            i = np.arange(gu.size).reshape(gu.shape)
+            a, b, c, d = i[:-1, :-1].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel(), i[:-1, 1:].ravel()
+            quads = np.stack([np.stack([a, b, c], 1), np.stack([a, c, d], 1)], 1).reshape(-1, 3)
+            faces.append(quads + sum(len(x) for x in verts))
+            verts.append(p)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.vstack(verts), np.vstack(faces)))
+    ms.meshing_merge_close_vertices(threshold=pymeshlab.PureValue(spacing * 1e-3))
+    ms.meshing_re_orient_faces_coherently()
+    m = ms.current_mesh()
+    mesh = TriMesh(m.vertex_matrix(), m.face_matrix())
+    if mesh.signed_volume() < 0:
+        mesh.faces = mesh.faces[:, ::-1].copy()
+    return mesh
+
+
+def rotated_box(half=(9.0, 7.0, 5.0), spacing: float = 0.7, seed: int = 0) -> TriMesh:
+    """A generically rotated box with exact sharp edges and a jittered triangulation."""
+    mesh = _jittered_box(np.asarray(half, float), spacing, seed)
+    return TriMesh(mesh.vertices @ rotation().T, mesh.faces)
+
+
+def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.7) -> TriMesh:
+    """Rotated cube with a sphere centred on one corner carved out (boolean: sharp curves, slivers)."""
+    import pymeshlab
+
+    box = _jittered_box(np.full(3, half), spacing, 1)
+    ball = sphere(radius)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(box.vertices, box.faces))
+    ms.add_mesh(pymeshlab.Mesh(ball.vertices + half * np.array([1.0, 1.0, 0.2]), ball.faces))
+    ms.generate_boolean_difference(first_mesh=0, second_mesh=1)
+    m = ms.current_mesh()
+    return TriMesh(m.vertex_matrix() @ rotation().T, m.face_matrix())

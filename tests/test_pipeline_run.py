@@ -1,0 +1,111 @@
+"""``apt-filters run`` end to end: a small synthetic specimen against its truth, and the real Si data."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from apt_filters.cli.main import main
+from apt_filters.pipeline import config as cfg
+from apt_filters.pipeline.run import run_pipeline
+from apt_filters.synth import preset, write_specimen
+
+OUTPUTS = ["report.json", "report.html", "config.toml", "project.mlp", "excess.json", "clean_Al15.mlx",
+           "clean_Al15.json", "objects_Al15.csv", "objects_Al15.json", "proxigram_Al15.csv", "proxigram_Al15.png",
+           "meshes/Al15.ply", "meshes/ions.ply"]
+
+
+@pytest.fixture(scope="module")
+def specimen(tmp_path_factory):
+    out = tmp_path_factory.mktemp("specimen")
+    return out, write_specimen(out, preset("small"), seed=3, keep_ions=False).truth
+
+
+@pytest.fixture(scope="module")
+def small_run(specimen, tmp_path_factory):
+    folder, truth = specimen
+    config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
+    config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+    out = tmp_path_factory.mktemp("run") / "out"
+    return out, run_pipeline(config, out, quiet=True, truth=truth), truth
+
+
+def test_run_writes_every_output(small_run):
+    out, report, _ = small_run
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert json.loads((out / "report.json").read_text())["ions"]["count"] == report["ions"]["count"]
+    assert not list(out.parent.glob(".*tmp*")), "no staging folder left behind"
+
+
+def test_report_numbers_against_the_truth(small_run):
+    _, report, truth = small_run
+    assert report["ions"]["count"] == truth["ions"]["total"]
+    for element, fraction in truth["ions"]["composition"].items():
+        assert report["composition"][element] == pytest.approx(fraction, abs=0.005)
+    rows = {row["feature"]: row for row in report["truth"]}
+    assert set(rows) == {"cube 6 nm", "sphere 3 nm"}
+    for row in rows.values():
+        assert row["object_id"] is not None, f"no object found at {row['feature']}"
+        # The AP Suite-style definition (15 at.% of delocalised Al) shrinks small precipitates
+        # (issue 9): what this run must reach today, not the goal.
+        assert 0.45 < row["volume_ratio"] < 1.05
+        assert 0.6 < row["area_ratio"] < 1.1
+        # The count of excess B is right; dividing by the too-small area inflates Γ.
+        assert 0.7 < row["excess_B_ratio"] < 1.8
+    surface = report["surfaces"][0]
+    assert surface["mesh"]["boundary_edges"] == 0, "precipitates inside the box are closed"
+    assert {o["status"] for o in surface["objects"]} == {"closed"}
+
+
+def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
+    out, report, _ = small_run
+    again = tmp_path / "again"
+    assert main(["run", "--config", str(out / "config.toml"), "--out", str(again), "--quiet"]) == 0
+    second = json.loads((again / "report.json").read_text())
+    first = json.loads((out / "report.json").read_text())
+    for key in ("composition", "voxel", "surfaces", "inputs"):
+        assert second[key] == first[key], key
+    for name in ("meshes/Al15.ply", "meshes/ions.ply", "clean_Al15.mlx", "proxigram_Al15.csv"):
+        assert (again / name).read_bytes() == (out / name).read_bytes(), name
+
+
+def test_existing_output_needs_force(small_run, capsys):
+    out, _, _ = small_run
+    cfg_file = str(out / "config.toml")
+    assert main(["run", "--config", cfg_file, "--out", str(out), "--quiet"]) == 2
+    assert "not empty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["--species", "Xe", "--iso", "0.1"], "no field 'Xe'"),
+    (["--density", "1e6"], "outside the atomic density range"),
+    (["--species", "Al"], "--species and --iso go together"),
+    (["--voxel", "-1", "--species", "Al", "--iso", "0.15"], "voxel"),
+])
+def test_user_mistakes_are_one_line_and_exit_2(specimen, tmp_path, args, problem):
+    folder, _ = specimen
+    cmd = [sys.executable, "-m", "apt_filters", "run", str(folder / "specimen.pos"), "-r",
+           str(folder / "specimen.rrng"), "-o", str(tmp_path / "o"), "-q", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and problem in lines[0] and "Traceback" not in proc.stderr
+    assert not (tmp_path / "o").exists(), "a failed run leaves no output"
+
+
+def test_run_on_real_si(real_si, tmp_path):
+    out = tmp_path / "si"
+    assert main(["run", str(real_si / "Si.pos"), "-r", str(real_si / "Si.RRNG"), "-o", str(out),
+                 "--species", "Cr", "--iso", "0.3", "-q"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["ions"]["count"] == 945_211
+    assert any(f["severity"] == "error" and "57.819" in f["message"] and "Ni+" in f["message"]
+               for f in report["audit"]), "the audit's Cr2O/Ni+ finding reaches the report"
+    surface = report["surfaces"][0]
+    assert surface["mesh"]["boundary_edges"] > 0, "the cap/Si interface meets the specimen edge: open"
+    interface = max(surface["objects"], key=lambda o: o["area"])
+    assert interface["status"] == "open"
+    assert -19.0 < interface["centroid_z"] < -14.0, "flat interface near z = -16 nm"
+    assert interface["obb_short"] < 0.15 * interface["obb_long"], "it is flat"

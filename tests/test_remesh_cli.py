@@ -1,0 +1,33 @@
+"""``apt-filters remesh`` end to end on PLY files."""
+
+import numpy as np
+
+from apt_filters.cli.main import main
+from apt_filters.cli.remesh import read_mesh, write_mesh
+from benchmarks import remesh_shapes as shapes
+
+
+def test_remesh_cli_round_trip(tmp_path, capsys):
+    src = tmp_path / "in.ply"
+    mesh = shapes.sphere(6.0)
+    mesh.vertex_scalars["quality"] = mesh.vertices[:, 0].copy()
+    write_mesh(mesh, src, overwrite=False)
+    out = tmp_path / "out.ply"
+    assert main(["remesh", str(src), "-o", str(out), "--edge-length", "1.0"]) == 0
+    result = read_mesh(out)
+    assert result.n_faces > 100
+    assert np.allclose(result.vertex_scalars["quality"], result.vertices[:, 0], atol=1e-3)
+    assert main(["remesh", str(src), "-o", str(out)]) == 2  # exists, no --force
+    assert "exists already" in capsys.readouterr().err
+    assert main(["remesh", str(src), "-o", str(out), "--force", "--edge-length", "1.5"]) == 0
+    assert read_mesh(out).n_faces < result.n_faces
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "out.ply"]  # no temporary files left
+
+
+def test_remesh_cli_bad_input(tmp_path, capsys):
+    bad = tmp_path / "bad.ply"
+    bad.write_text("this is not a mesh\n")
+    assert main(["remesh", str(bad), "-o", str(tmp_path / "o.ply")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "bad.ply" in err and len(err.splitlines()) == 1
+    assert main(["remesh", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "o.ply")]) == 2
