@@ -1,0 +1,1 @@
+"""Benchmarks: ours vs peers side by side, printed as markdown tables."""

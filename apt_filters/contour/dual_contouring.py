@@ -11,7 +11,7 @@ from apt_filters.contour.components import label_components
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.tables import case_table
-from apt_filters.contour.topology import folded_pairs, unit_normals
+from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
 
 # Position of a cell around a grid edge, by the cube-edge sub-index k (e % 4): the four
@@ -75,7 +75,7 @@ def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.nda
 def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), mask=None,
                     gradient: Callable[[np.ndarray], np.ndarray] | None = None, *, close: bool = False,
                     field_gradient: str = "eno", cutoff: float = 0.1, max_rank: int = 3,
-                    max_fold_angle: float = 120.0) -> TriMesh:
+                    max_fold_angle: float = 120.0, repair_intersections: bool = True) -> TriMesh:
     """Iso-surface by manifold dual contouring: sharp edges and corners are kept.
 
     Parameters
@@ -96,6 +96,8 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         Degrees; adjacent triangles whose normals differ more count as folded. Vertices of
         folded triangles drop to the next lower QEF rank until no fold is left (rank 0, the
         mass point, is the last resort).
+    repair_intersections : bool
+        Treat vertices of self-intersecting faces (pymeshlab test) the same way.
 
     Returns
     -------
@@ -148,11 +150,13 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
-    for _ in range(4):
+    for _ in range(8):  # each round lowers offenders one rank; rank 0 cannot be lowered further
         pos = candidates[rank, np.arange(n_vertices)]
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
-        folded = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
-        lower = folded[rank[folded] > 0]
+        bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
+        if repair_intersections:
+            bad = np.union1d(bad, tris[self_intersecting_faces(field.to_world(pos), tris)])
+        lower = bad[rank[bad] > 0]
         if not len(lower):
             break
         rank[lower] -= 1

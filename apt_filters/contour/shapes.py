@@ -47,8 +47,10 @@ class Shape:
     def grid(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Field ``-sdf`` on an n³ grid spanning [-1, 1]³: (values, spacing, origin)."""
         axis = np.linspace(-1.0, 1.0, n)
-        pts = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
-        values = -self.sdf(pts).reshape(n, n, n)
+        values = np.empty((n, n, n))
+        for i, x in enumerate(axis):  # one x slab at a time keeps memory at O(n²)
+            pts = np.stack(np.meshgrid([x], axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+            values[i] = -self.sdf(pts).reshape(n, n)
         h = 2.0 / (n - 1)
         return values, np.full(3, h), np.full(3, -1.0)
 

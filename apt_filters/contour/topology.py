@@ -8,10 +8,10 @@ import numpy as np
 def face_pairs(faces: np.ndarray) -> np.ndarray:
     """(k, 2) pairs of faces that share an edge used by exactly two faces."""
     m = len(faces)
-    edges = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    a, b = faces.reshape(-1), np.roll(faces, -1, axis=1).reshape(-1)
+    key = np.minimum(a, b) * (int(faces.max()) + 1) + np.maximum(a, b)  # 1-D keys sort fast
     owner = np.repeat(np.arange(m), 3)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     two = counts[inverse] == 2
     order = np.argsort(inverse[two], kind="stable")
     return owner[two][order].reshape(-1, 2)
@@ -34,3 +34,17 @@ def folded_pairs(vertices: np.ndarray, faces: np.ndarray, max_angle_deg: float =
     n = unit_normals(vertices, faces)
     dots = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
     return pairs[dots < np.cos(np.radians(max_angle_deg))]
+
+
+def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces that cross another face (pymeshlab, imported on first use).
+
+    pymeshlab's test has absolute tolerances: call it on world coordinates (nm), as the
+    metrics do.
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    return ms.current_mesh().face_selection_array().astype(bool)
