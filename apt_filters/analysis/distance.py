@@ -16,7 +16,7 @@ rejects the rest with one table lookup per point, conservatively (no point withi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -234,8 +234,9 @@ class SurfaceDistance:
     batch : int
         Points per search call; memory about 100 bytes per point of a batch (plus 30 bytes per
         queried point for the results and the visiting order).
-    sort_cell : float
-        Edge (nm) of the cells whose order the queries follow.
+    sort_cell : float, optional
+        Edge (nm) of the cells whose order the queries follow (default: the grid cell; 2 nm for
+        open3d).
     method : {"grid", "open3d"}
         Closest-triangle search: our uniform grid (:class:`TriangleGrid`, numba, all cores,
         float64) or open3d's BVH (``RaycastingScene.compute_closest_points``, float32: exact to
@@ -245,18 +246,18 @@ class SurfaceDistance:
         Grid cell, nm (default: :meth:`TriangleGrid.build`).
     """
 
-    def __init__(self, mesh: TriMesh, batch: int = 1 << 20, sort_cell: float = 2.0, method: str = "grid",
-                 cell: float | None = None):
+    def __init__(self, mesh: TriMesh, batch: int = 1 << 20, sort_cell: float | None = None,
+                 method: str = "grid", cell: float | None = None):
         if method not in ("grid", "open3d"):
             raise ValueError(f"method must be 'grid' or 'open3d', not {method!r}")
         self.mesh = mesh
-        self.sort_cell = sort_cell
         self.topology = MeshTopology.of(mesh)
         self.batch = batch
         self.method = method
         self._vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.grid = TriangleGrid.build(self._vertices, self._faces, cell) if method == "grid" else None
+        self.sort_cell = sort_cell or (self.grid.cell if method == "grid" else 2.0)
 
     @cached_property
     def _tensor(self):
@@ -287,15 +288,16 @@ class SurfaceDistance:
                              np.empty(len(points), np.int8), np.empty(len(points), bool))
         if self.method == "grid":
             reach = np.inf if max_distance is None else float(max_distance)
-            offsets, bound, covered = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
+            offsets, bound, first, covered = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
             limit = reach * reach * (1 + 1e-12)
         for a in range(0, len(points), self.batch):
             idx = order[a:a + self.batch]
             if self.method == "grid":
                 g = self.grid
-                d2, face, uw = _closest_triangles(points, idx, self._vertices, self._faces, g.origin, g.cell,
+                d2, row, uw = _closest_triangles(points, idx, g.triangles, g.origin, g.cell,
                                                   g.shape, g.slot, g.start, g.tris, g.boxes, offsets, bound,
-                                                  covered, limit, 256)
+                                                  first, covered, limit, 256)
+                face = np.where(row >= 0, g.face_id[row], -1)
             else:
                 result = self._scene.compute_closest_points(self._tensor(points[idx].astype(np.float32)))
                 face = result["primitive_ids"].numpy().astype(np.int64)
@@ -350,7 +352,7 @@ class SurfaceDistance:
 # --- exact closest-triangle search on a uniform grid (numba) -----------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
     """Squared distance and parameter t in [0, 1] of the closest point a + t (b - a)."""
     ex, ey, ez = bx - ax, by - ay, bz - az
@@ -362,16 +364,17 @@ def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
     return dx * dx + dy * dy + dz * dz, t
 
 
-@njit(cache=True)
-def _closest_on_triangle(px, py, pz, v, f):
-    """Squared distance of p to triangle ``v[f]`` and the weights (u, w) of corners 1 and 2.
+@njit(cache=True, error_model="numpy")
+def _closest_on_triangle(px, py, pz, tri, t):
+    """Squared distance of p to triangle ``t`` of the packed table ``tri`` (corners a, b, c in
+    columns 0-8) and the weights (u, w) of b and c.
 
     Ericson, Real-Time Collision Detection (2005), 5.1.5: Voronoi regions of the corners, then
     of the edges, then the face. Degenerate (zero-area) triangles fall back to their edges.
     """
-    ax, ay, az = v[f[0], 0], v[f[0], 1], v[f[0], 2]
-    bx, by, bz = v[f[1], 0], v[f[1], 1], v[f[1], 2]
-    cx, cy, cz = v[f[2], 0], v[f[2], 1], v[f[2], 2]
+    ax, ay, az = tri[t, 0], tri[t, 1], tri[t, 2]
+    bx, by, bz = tri[t, 3], tri[t, 4], tri[t, 5]
+    cx, cy, cz = tri[t, 6], tri[t, 7], tri[t, 8]
     abx, aby, abz = bx - ax, by - ay, bz - az
     acx, acy, acz = cx - ax, cy - ay, cz - az
     apx, apy, apz = px - ax, py - ay, pz - az
@@ -387,7 +390,7 @@ def _closest_on_triangle(px, py, pz, v, f):
     if d3 >= 0.0 and d4 <= d3:
         return bpx * bpx + bpy * bpy + bpz * bpz, 1.0, 0.0
     vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 > d3:
         u = d1 / (d1 - d3)
     else:
         cpx, cpy, cpz = px - cx, py - cy, pz - cz
@@ -396,11 +399,11 @@ def _closest_on_triangle(px, py, pz, v, f):
         if d6 >= 0.0 and d5 <= d6:
             return cpx * cpx + cpy * cpy + cpz * cpz, 0.0, 1.0
         vb = d5 * d2 - d1 * d6
-        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 > d6:
             w = d2 / (d2 - d6)
         else:
             va = d3 * d6 - d5 * d4
-            if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+            if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and d4 - d3 + d5 - d6 > 0.0:
                 w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
                 u = 1.0 - w
             elif va + vb + vc > 0.0:
@@ -414,7 +417,7 @@ def _closest_on_triangle(px, py, pz, v, f):
     return qx * qx + qy * qy + qz * qz, u, w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Closest point on a zero-area triangle: the nearest of its three edges."""
     best, t = _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz)
@@ -428,8 +431,8 @@ def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     return best, u, w
 
 
-@njit(cache=True)
-def _bucket_triangles(v, f, origin, cell, shape):
+@njit(cache=True, error_model="numpy")
+def _bucket_triangles(tri, origin, cell, shape):
     """CSR lists of the triangles whose bounding box meets each grid cell, and per-cell boxes.
 
     Returns ``slot`` (cells,) int32 (-1 for an empty cell, else its row), ``start`` (rows + 1,)
@@ -437,14 +440,14 @@ def _bucket_triangles(v, f, origin, cell, shape):
     the cell covered by its triangles' bounding boxes (padded by 1e-7 nm against rounding), a
     lower bound for the distance to anything in the cell.
     """
-    m = f.shape[0]
+    m = tri.shape[0]
     n_cells = shape[0] * shape[1] * shape[2]
     span = np.empty((m, 6), np.int64)
     counts = np.zeros(n_cells, np.int64)
     for t in range(m):
         for k in range(3):
-            a = min(v[f[t, 0], k], v[f[t, 1], k], v[f[t, 2], k])
-            b = max(v[f[t, 0], k], v[f[t, 1], k], v[f[t, 2], k])
+            a = min(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+            b = max(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
             span[t, k] = min(max(int(np.floor((a - origin[k]) / cell)), 0), shape[k] - 1)
             span[t, 3 + k] = min(max(int(np.floor((b - origin[k]) / cell)), 0), shape[k] - 1)
         for ix in range(span[t, 0], span[t, 3] + 1):
@@ -476,8 +479,8 @@ def _bucket_triangles(v, f, origin, cell, shape):
                     fill[r] += 1
                     idx = (ix, iy, iz)
                     for k in range(3):
-                        a = min(v[f[t, 0], k], v[f[t, 1], k], v[f[t, 2], k])
-                        b = max(v[f[t, 0], k], v[f[t, 1], k], v[f[t, 2], k])
+                        a = min(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+                        b = max(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
                         lo = max(a, origin[k] + idx[k] * cell) - pad
                         hi = min(b, origin[k] + (idx[k] + 1) * cell) + pad
                         boxes[r, k] = min(boxes[r, k], lo)
@@ -485,10 +488,27 @@ def _bucket_triangles(v, f, origin, cell, shape):
     return slot, start, tris, boxes
 
 
-@njit(cache=True, parallel=True)
-def _closest_triangles(points, order, v, f, origin, cell, shape, slot, start, tris, boxes, offsets,
-                       offset_bound, covered, limit, block):
-    """Closest triangle of each point: squared distance, face (-1 beyond ``limit``), weights u, w.
+@njit(cache=True, error_model="numpy", parallel=True)
+def _first_occupied(shape, slot, offsets):
+    """(cells,) int32: index of the first of ``offsets`` that leads from each cell to a non-empty
+    cell (``len(offsets)`` if none); the search starts there, the offsets before lead to empty
+    cells only."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    first = np.full(nx * ny * nz, offsets.shape[0], np.int32)
+    for c in prange(nx * ny * nz):
+        cx, cy, cz = c // (ny * nz), (c // nz) % ny, c % nz
+        for k in range(offsets.shape[0]):
+            ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
+            if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz and slot[(ix * ny + iy) * nz + iz] >= 0:
+                first[c] = k
+                break
+    return first
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _closest_triangles(points, order, tri, origin, cell, shape, slot, start, tris, boxes, offsets,
+                       offset_bound, first, covered, limit, block):
+    """Closest triangle of each point: squared distance, triangle (-1 beyond ``limit``), weights.
 
     Points are visited in ``order`` in blocks (one thread each); within a block, the previous
     point's closest triangle seeds the search with an upper bound. Cells are visited by
@@ -496,7 +516,8 @@ def _closest_triangles(points, order, v, f, origin, cell, shape, slot, start, tr
     their box is no nearer than the best triangle so far; the search stops when no unvisited
     cell can hold anything nearer. ``covered``: squared distance within which the offsets reach
     every cell; a point whose nearest triangle is farther (and within ``limit``) is finished by
-    brute force.
+    brute force. ``tri`` (m, 16): the packed triangles (:attr:`TriangleGrid.triangles`);
+    ``first`` (cells,): the first offset that reaches a non-empty cell from each cell.
     """
     n = order.shape[0]
     d2 = np.empty(n)
@@ -510,14 +531,18 @@ def _closest_triangles(points, order, v, f, origin, cell, shape, slot, start, tr
             px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
             best, best_f, bu, bw = limit, -1, 0.0, 0.0
             if prev >= 0:
-                d, u, w = _closest_on_triangle(px, py, pz, v, f[prev])
+                d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
                 if d < best:
                     best, best_f, bu, bw = d, prev, u, w
+            root = np.sqrt(best)
             cx = int(np.floor((px - origin[0]) / cell))
             cy = int(np.floor((py - origin[1]) / cell))
             cz = int(np.floor((pz - origin[2]) / cell))
+            k0 = 0
+            if 0 <= cx < shape[0] and 0 <= cy < shape[1] and 0 <= cz < shape[2]:
+                k0 = first[(cx * shape[1] + cy) * shape[2] + cz]
             finished = False
-            for k in range(offsets.shape[0]):
+            for k in range(k0, offsets.shape[0]):
                 if offset_bound[k] >= best:
                     finished = True
                     break
@@ -534,12 +559,30 @@ def _closest_triangles(points, order, v, f, origin, cell, shape, slot, start, tr
                     continue
                 for s in range(start[r], start[r + 1]):
                     t = tris[s]
-                    d, u, w = _closest_on_triangle(px, py, pz, v, f[t])
+                    # Lower bounds from the triangle's disk (in its plane, about its centroid,
+                    # radius to the farthest corner): most triangles are rejected here.
+                    qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
+                    q2 = qx * qx + qy * qy + qz * qz
+                    rad = tri[t, 12]
+                    reach = root + rad
+                    if q2 >= reach * reach:
+                        continue
+                    h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
+                    h2 = h * h
+                    if h2 >= best:
+                        continue
+                    lateral2 = q2 - h2
+                    if lateral2 > rad * rad:
+                        lateral = np.sqrt(lateral2) - rad
+                        if h2 + lateral * lateral >= best:
+                            continue
+                    d, u, w = _closest_on_triangle(px, py, pz, tri, t)
                     if d < best:
                         best, best_f, bu, bw = d, t, u, w
+                        root = np.sqrt(best)
             if not finished and best > covered:
-                for t in range(f.shape[0]):
-                    d, u, w = _closest_on_triangle(px, py, pz, v, f[t])
+                for t in range(tri.shape[0]):
+                    d, u, w = _closest_on_triangle(px, py, pz, tri, t)
                     if d < best:
                         best, best_f, bu, bw = d, t, u, w
             d2[j], face[j], uw[j, 0], uw[j, 1] = best, best_f, bu, bw
@@ -561,7 +604,12 @@ class TriangleGrid:
     shape : (3,) int64
         Cells along x, y, z.
     slot, start, tris, boxes
-        Triangle lists of the non-empty cells (see ``_bucket_triangles``).
+        Triangle lists (rows of ``triangles``) of the non-empty cells (see ``_bucket_triangles``).
+    triangles : (m, 16) float64
+        Triangles in cell order: corners (9), then the disk holding the triangle: centroid (3),
+        radius (nm, to the farthest corner), unit normal (3, zero if degenerate).
+    face_id : (m,) int64
+        Mesh face of each row of ``triangles``.
 
     Notes
     -----
@@ -576,6 +624,9 @@ class TriangleGrid:
     start: np.ndarray
     tris: np.ndarray
     boxes: np.ndarray
+    triangles: np.ndarray
+    face_id: np.ndarray
+    _plans: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, vertices: np.ndarray, faces: np.ndarray, cell: float | None = None,
@@ -593,18 +644,39 @@ class TriangleGrid:
         while np.prod(np.floor((hi - lo) / cell) + 1) > max_cells:
             cell *= 1.25
         shape = (np.floor((hi - lo) / cell) + 1).astype(np.int64)
-        slot, start, tris, boxes = _bucket_triangles(vertices, faces, lo, cell, shape)
-        return cls(lo, cell, shape, slot, start, tris, boxes)
+        corners = vertices[faces]
+        centre = corners.mean(axis=1)
+        # triangles stored in cell order, so that those a query visits lie together in memory
+        c = np.floor((centre - lo) / cell).astype(np.int64)
+        face_id = np.argsort((c[:, 0] * shape[1] + c[:, 1]) * shape[2] + c[:, 2], kind="stable")
+        corners, centre = corners[face_id], centre[face_id]
+        radius = np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1)
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        # radius padded so that rounding never rejects the triangle holding the closest point
+        triangles = np.column_stack([corners.reshape(-1, 9), centre, radius * (1 + 1e-9) + 1e-9, normal])
+        slot, start, tris, boxes = _bucket_triangles(triangles, lo, cell, shape)
+        return cls(lo, cell, shape, slot, start, tris, boxes, triangles, face_id)
 
-    def offsets(self, reach: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """Cell offsets within ``reach`` nm, nearest first: offsets (k, 3), their squared lower
-        bounds (k,) nm² for any point of the centre cell, and the squared distance they cover."""
-        r = int(np.ceil(reach / self.cell)) + 1
-        axis = np.arange(-r, r + 1)
-        o = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
-        gap = np.maximum(np.abs(o) - 1, 0) * self.cell
-        bound = (gap ** 2).sum(axis=1)
-        covered = (r * self.cell) ** 2  # an offset outside the cube has a gap >= r cells
-        keep = bound < covered
-        key = np.lexsort(((o[keep] ** 2).sum(axis=1), bound[keep]))
-        return o[keep][key].astype(np.int64), bound[keep][key], covered
+    def offsets(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Search plan for distances up to ``reach`` nm (cached per reach).
+
+        Returns the cell offsets within reach, nearest first (k, 3), their squared lower bounds
+        (k,) nm² for any point of the centre cell, the first of them that leads from each cell
+        to a non-empty one (cells,) int32, and the squared distance they cover.
+        """
+        key = float(reach)
+        if key not in self._plans:
+            r = int(np.ceil(reach / self.cell)) + 1
+            axis = np.arange(-r, r + 1)
+            o = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+            gap = np.maximum(np.abs(o) - 1, 0) * self.cell
+            bound = (gap ** 2).sum(axis=1)
+            covered = (r * self.cell) ** 2  # an offset outside the cube has a gap >= r cells
+            keep = bound < covered
+            key_order = np.lexsort(((o[keep] ** 2).sum(axis=1), bound[keep]))
+            offsets = o[keep][key_order].astype(np.int64)
+            self._plans[key] = (offsets, bound[keep][key_order],
+                                _first_occupied(self.shape, self.slot, offsets), covered)
+        return self._plans[key]
