@@ -288,15 +288,14 @@ class SurfaceDistance:
                              np.empty(len(points), np.int8), np.empty(len(points), bool))
         if self.method == "grid":
             reach = np.inf if max_distance is None else float(max_distance)
-            offsets, bound, first, covered = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
+            plan = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
             limit = reach * reach * (1 + 1e-12)
         for a in range(0, len(points), self.batch):
             idx = order[a:a + self.batch]
             if self.method == "grid":
                 g = self.grid
                 d2, row, uw = _closest_triangles(points, idx, g.triangles, g.origin, g.cell,
-                                                  g.shape, g.slot, g.start, g.tris, g.boxes, offsets, bound,
-                                                  first, covered, limit, 256)
+                                                  g.shape, g.slot, g.start, g.tris, g.boxes, *plan, limit, 256)
                 face = np.where(row >= 0, g.face_id[row], -1)
             else:
                 result = self._scene.compute_closest_points(self._tensor(points[idx].astype(np.float32)))
@@ -507,7 +506,7 @@ def _first_occupied(shape, slot, offsets):
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def _closest_triangles(points, order, tri, origin, cell, shape, slot, start, tris, boxes, offsets,
-                       offset_bound, first, covered, limit, block):
+                       offset_bound, linear, radius, first, covered, limit, block):
     """Closest triangle of each point: squared distance, triangle (-1 beyond ``limit``), weights.
 
     Points are visited in ``order`` in blocks (one thread each); within a block, the previous
@@ -517,6 +516,7 @@ def _closest_triangles(points, order, tri, origin, cell, shape, slot, start, tri
     cell can hold anything nearer. ``covered``: squared distance within which the offsets reach
     every cell; a point whose nearest triangle is farther (and within ``limit``) is finished by
     brute force. ``tri`` (m, 16): the packed triangles (:attr:`TriangleGrid.triangles`);
+    ``linear`` (k,): the offsets as steps in the flat cell index, all within ``radius`` cells;
     ``first`` (cells,): the first offset that reaches a non-empty cell from each cell.
     """
     n = order.shape[0]
@@ -539,17 +539,24 @@ def _closest_triangles(points, order, tri, origin, cell, shape, slot, start, tri
             cy = int(np.floor((py - origin[1]) / cell))
             cz = int(np.floor((pz - origin[2]) / cell))
             k0 = 0
+            home = (cx * shape[1] + cy) * shape[2] + cz
             if 0 <= cx < shape[0] and 0 <= cy < shape[1] and 0 <= cz < shape[2]:
-                k0 = first[(cx * shape[1] + cy) * shape[2] + cz]
+                k0 = first[home]
+            # all offsets stay inside the grid: no bounds checks (most points)
+            interior = (radius <= cx < shape[0] - radius and radius <= cy < shape[1] - radius
+                        and radius <= cz < shape[2] - radius)
             finished = False
             for k in range(k0, offsets.shape[0]):
                 if offset_bound[k] >= best:
                     finished = True
                     break
-                ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
-                if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
-                    continue
-                r = slot[(ix * shape[1] + iy) * shape[2] + iz]
+                if interior:
+                    r = slot[home + linear[k]]
+                else:
+                    ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
+                    if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
+                        continue
+                    r = slot[(ix * shape[1] + iy) * shape[2] + iz]
                 if r < 0:
                     continue
                 gx = max(boxes[r, 0] - px, 0.0, px - boxes[r, 3])
@@ -659,12 +666,13 @@ class TriangleGrid:
         slot, start, tris, boxes = _bucket_triangles(triangles, lo, cell, shape)
         return cls(lo, cell, shape, slot, start, tris, boxes, triangles, face_id)
 
-    def offsets(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    def offsets(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, float]:
         """Search plan for distances up to ``reach`` nm (cached per reach).
 
         Returns the cell offsets within reach, nearest first (k, 3), their squared lower bounds
-        (k,) nm² for any point of the centre cell, the first of them that leads from each cell
-        to a non-empty one (cells,) int32, and the squared distance they cover.
+        (k,) nm² for any point of the centre cell, the offsets as steps of the flat cell index
+        (k,), the largest offset along an axis (cells), the first offset that leads from each
+        cell to a non-empty one (cells,) int32, and the squared distance they cover.
         """
         key = float(reach)
         if key not in self._plans:
@@ -677,6 +685,7 @@ class TriangleGrid:
             keep = bound < covered
             key_order = np.lexsort(((o[keep] ** 2).sum(axis=1), bound[keep]))
             offsets = o[keep][key_order].astype(np.int64)
-            self._plans[key] = (offsets, bound[keep][key_order],
+            linear = (offsets[:, 0] * self.shape[1] + offsets[:, 1]) * self.shape[2] + offsets[:, 2]
+            self._plans[key] = (offsets, bound[keep][key_order], linear, r,
                                 _first_occupied(self.shape, self.slot, offsets), covered)
         return self._plans[key]
