@@ -16,7 +16,6 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.spatial import cKDTree
 
-from apt_filters.contour.components import label_components
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -44,7 +43,7 @@ def vertex_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
 
     out = np.full(n_vertices, -1, dtype=np.int64)
     if len(faces):
-        labels = label_components(TriMesh(np.zeros((n_vertices, 3)), faces))
+        labels = TriMesh(np.zeros((n_vertices, 3)), faces).face_components()
         for k in range(3):
             out[faces[:, k]] = labels
     return out

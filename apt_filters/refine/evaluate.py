@@ -56,9 +56,8 @@ def surface_error(part: TriMesh, sdf: Callable[[np.ndarray], np.ndarray], true_m
 
 def split_components(mesh: TriMesh) -> list[TriMesh]:
     """One TriMesh per connected component (vertices shared with ``mesh``; unused ones kept)."""
-    from apt_filters.contour.components import label_components
-
-    labels = label_components(mesh)
+    
+    labels = mesh.face_components()
     return [TriMesh(mesh.vertices, mesh.faces[labels == c]) for c in range(int(labels.max()) + 1 if len(labels) else 0)]
 
 

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from apt_filters.contour.components import component_table, label_components
+from apt_filters.contour.components import component_table
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
@@ -66,7 +66,7 @@ def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str
     a = atoms.atoms[band.index]
     total, solute_atoms = a.sum(axis=1).astype(np.float64), a[:, k].astype(np.float64)
     areas = {c.id: c.area for c in component_table(TriMesh(mesh.vertices, mesh.faces,
-                                                           face_scalars={"component": label_components(mesh)}))}
+                                                           face_scalars={"component": mesh.face_components()}))}
     out = []
     for c, lv in enumerate(levels):
         mine = near & (comp == c)

@@ -27,7 +27,7 @@ class ObjectLevels:
     Attributes
     ----------
     component : int
-        Component id (``face_scalars["component"]`` numbering of :func:`label_components`).
+        Component id (``face_scalars["component"]`` numbering of :meth:`TriMesh.face_components`).
     elements : list of str
         Basis elements.
     inside, outside : (k,) float64

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from apt_filters.contour import marching_cubes
-from apt_filters.contour.components import label_components
 from apt_filters.core.mesh import TriMesh
 
 MARGIN = 3
@@ -23,7 +22,7 @@ def recontour(values: np.ndarray, isos: np.ndarray, mesh: TriMesh, spacing: floa
         One iso-value per component (:func:`~apt_filters.refine.levels.per_object_iso`); NaN keeps
         the component as it is.
     mesh : TriMesh
-        Components labelled as :func:`~apt_filters.contour.components.label_components` does.
+        Components labelled as :meth:`TriMesh.face_components` does.
     spacing : float, nm
     origin : (3,) nm
     mask : (nx, ny, nz) bool, optional
@@ -34,7 +33,7 @@ def recontour(values: np.ndarray, isos: np.ndarray, mesh: TriMesh, spacing: floa
         The largest component of each object's new contour (whatever else its box holds, such
         as a neighbour or a speck, is left out), or the old component where the new contour is empty.
     """
-    labels = label_components(mesh)
+    labels = mesh.face_components()
     origin = np.asarray(origin, dtype=np.float64)
     shape = np.array(values.shape)
     parts = []
@@ -71,5 +70,5 @@ def merge(parts: list[TriMesh]) -> TriMesh:
         offset += len(used)
     out = TriMesh(np.concatenate(vertices) if vertices else np.zeros((0, 3)),
                   np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64))
-    out.face_scalars["component"] = label_components(out)
+    out.face_scalars["component"] = out.face_components()
     return out

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apt_filters.contour.components import component_table, label_components
+from apt_filters.contour.components import component_table
 from apt_filters.core.mesh import TriMesh
 
 MIN_VOLUME = 10.0
@@ -38,7 +38,7 @@ def remove_specks(mesh: TriMesh, min_volume: float = MIN_VOLUME, min_area: float
     """``mesh`` without its specks (see the module rule), unused vertices dropped, components relabelled."""
     labels = mesh.face_scalars.get("component")
     if labels is None:
-        labels = label_components(mesh)
+        labels = mesh.face_components()
     small = [c for c in component_table(TriMesh(mesh.vertices, mesh.faces, face_scalars={"component": labels}))
              if (np.isfinite(c.volume) and abs(c.volume) < min_volume) or (not np.isfinite(c.volume) and c.area < min_area)]
     keep_face = ~np.isin(labels, [c.id for c in small])
@@ -49,5 +49,5 @@ def remove_specks(mesh: TriMesh, min_volume: float = MIN_VOLUME, min_area: float
     out = TriMesh(mesh.vertices[used], new_index[faces],
                   {k: v[used] for k, v in mesh.vertex_scalars.items()},
                   {k: v[keep_face] for k, v in mesh.face_scalars.items() if k != "component"})
-    out.face_scalars["component"] = label_components(out)
+    out.face_scalars["component"] = out.face_components()
     return out, Specks([c.id for c in small], [c.volume for c in small], [c.area for c in small])
