@@ -9,7 +9,9 @@ peak memory = fields + one chunk) and skips APAV, which needs every ion in memor
 Rows (each timed as the best of ``--repeat`` runs, all side by side in one process):
 - ``numpy bincount square``: the plain numpy square kernel (nearest voxel, one bincount over
   species × voxels), given the species index, as the peer for the scatter;
-- ``ours <kernel> scatter``: our block-sparse scatter given the same species index;
+- ``ours ranging (MzLookup)``: our bin-table ranging (what ``voxelize`` uses) beside ``RangeTable.ion_index``;
+- ``ours <kernel> scatter``: our block-sparse scatter given the same species index, on numba's
+  threads (all cores by default) and, for the scaling, on 1 thread;
 - ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields);
 - ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
   compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
@@ -27,11 +29,13 @@ import time
 import tracemalloc
 import warnings
 
+import numba
 import numpy as np
 
 from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel.fields import decomposition
+from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
 
 BOX = np.array([60.0, 60.0, 200.0])
@@ -135,7 +139,8 @@ def main(argv=None) -> int:
     for kernel in ("square", "sawtooth", "gaussian"):
         voxelize(warm, rt, grid=grid, kernel=kernel)
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"{numba.get_num_threads()} numba threads, load average {os.getloadavg()[0]:.1f} at the start "
           "(shared with other jobs: compare ratios, not absolute times)")
     results = []
     if args.full:
@@ -165,17 +170,27 @@ def main(argv=None) -> int:
         species = rt.ion_index(ions.mz).astype(np.int64)
         row = rt.ion_index(ions.mz) + 1  # int32, as voxelize passes it
 
-        def scatter(kernel):
-            acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)
-            acc.add(ions.positions, row)
-            return acc.result()
+        def scatter(kernel, threads=None):
+            default = numba.get_num_threads()
+            numba.set_num_threads(threads or default)
+            try:
+                acc = BlockAccumulator(grid, kernel, rows, len(names), DELOC)
+                acc.add(ions.positions, row)
+                return acc.result()
+            finally:
+                numba.set_num_threads(default)
 
         base = lambda: bincount_square(ions.positions, species, grid, len(ELEMENTS))  # noqa: E731
         results.append(("numpy bincount square", best_time(base, args.repeat), peak_bytes(base)))
         results.append(("ranging (RangeTable.ion_index)", best_time(lambda: rt.ion_index(ions.mz), args.repeat), None))
+        lookup = MzLookup.from_ranges(rt)
+        results.append(("ours ranging (MzLookup)", best_time(lambda: lookup.rows_of(ions.mz), args.repeat), None))
         for kernel in ("square", "sawtooth", "gaussian"):
             fn = lambda k=kernel: scatter(k)  # noqa: E731
             results.append((f"ours {kernel} scatter", best_time(fn, args.repeat), peak_bytes(fn)))
+            if numba.get_num_threads() > 1:
+                fn1 = lambda k=kernel: scatter(k, 1)  # noqa: E731
+                results.append((f"ours {kernel} scatter, 1 thread", best_time(fn1, args.repeat), None))
         for kernel in ("square", "sawtooth", "gaussian"):
             fn = lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k)  # noqa: E731
             results.append((f"ours {kernel} voxelize", best_time(fn, args.repeat), peak_bytes(fn)))
@@ -192,6 +207,7 @@ def main(argv=None) -> int:
                 print(f"agreement with APAV (max relative difference, interior voxels): "
                       f"{apav_agreement(ions, rt, holder['ref']):.2e}")
 
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
     base_wall, base_cpu = results[0][1]
     times = {name: t for name, t, _ in results}
     print()

@@ -96,3 +96,84 @@ def test_narrow_band_is_conservative_and_narrow(mesh, truth, max_distance, voxel
     assert not np.any(~inside & (np.abs(d) <= max_distance - 0.05))
     # and it is a band: nothing beyond the proven reach of max + sqrt(3) + 1/2 voxels (+ voxel slack)
     assert not np.any(inside & (np.abs(d) > max_distance + (np.sqrt(3) + 2) * voxel))
+
+
+
+def _reference(mesh, pts):
+    return SurfaceDistance(mesh, method="open3d").query(pts)
+
+
+def _segment_distance(p, a, b):
+    t = np.clip(np.einsum("ij,ij->i", p - a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0, 1)
+    return np.linalg.norm(p - a - t[:, None] * (b - a), axis=1)
+
+
+def _triangle_distance(p, tri):
+    """(N,) distance of points (N, 3) to triangles (N, 3, 3): projection if inside, else edges."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    h = np.einsum("ij,ij->i", p - a, n)
+    q = p - h[:, None] * n
+    inside = np.all([np.einsum("ij,ij->i", np.cross(y - x, q - x), n) >= 0 for x, y in ((a, b), (b, c), (c, a))], axis=0)
+    edges = np.min([_segment_distance(p, x, y) for x, y in ((a, b), (b, c), (c, a))], axis=0)
+    return np.where(inside, np.abs(h), edges)
+
+
+@pytest.mark.parametrize("name", ["cube", "plane", "tetrahedron"])
+def test_grid_search_matches_open3d(name):
+    """Our grid search against open3d's BVH: same distances, signs, features and rim flags."""
+    rng = np.random.default_rng(11)
+    if name == "cube":
+        mesh = cube(HALF, subdivisions=2, center=CENTER)
+        pts = np.concatenate([near_edges_and_corners(rng, 20000), rng.uniform(-7, 7, size=(20000, 3)) + CENTER])
+    elif name == "plane":  # open surface: points beyond the rim, near its corners and edges
+        mesh = plane(10.0, n=20)
+        pts = rng.uniform([-13, -13, -3], [13, 13, 3], size=(40000, 3))
+    else:
+        mesh = TriMesh(np.array([[0.0, 0, 0], [8, 0, 0], [0, 9, 0], [2.5, 2.5, 0.7]]),
+                       np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]))
+        pts = rng.uniform(-3, 11, size=(40000, 3))
+    pts = pts.astype(np.float32)
+    ours, ref = SurfaceDistance(mesh).query(pts), _reference(mesh, pts)
+    np.testing.assert_allclose(ours.distance, ref.distance, atol=1e-5)
+    clear = np.abs(ref.distance) > 1e-4
+    np.testing.assert_array_equal(ours.distance[clear] > 0, ref.distance[clear] > 0)
+    # the face returned realises the distance (checked by an independent point-triangle distance)
+    own = _triangle_distance(pts.astype(np.float64), mesh.vertices[mesh.faces[ours.face]])
+    np.testing.assert_allclose(own, np.abs(ours.distance), atol=1e-5)
+    # features and rim flags agree except for float32 rounding at ties (open3d is float32)
+    assert np.mean(ours.feature == ref.feature) > 0.999
+    assert np.mean(ours.on_boundary == ref.on_boundary) > 0.999
+    assert min(np.count_nonzero(ours.feature == k) for k in (FACE, EDGE, VERTEX)) > 50
+
+
+def test_grid_search_cut_off_at_max_distance():
+    rng = np.random.default_rng(12)
+    mesh = icosphere(3.0, subdivisions=3, center=CENTER)
+    pts = (rng.uniform(-8, 8, size=(30000, 3)) + CENTER).astype(np.float32)
+    full = SurfaceDistance(mesh).query(pts)
+    cut = SurfaceDistance(mesh).query(pts, max_distance=1.5)
+    near = np.abs(full.distance) < 1.5 - 1e-6
+    far = np.abs(full.distance) > 1.5 + 1e-6
+    np.testing.assert_array_equal(cut.distance[near], full.distance[near])
+    np.testing.assert_array_equal(cut.feature[near], full.feature[near])  # faces may differ at ties
+    assert np.all(np.isnan(cut.distance[far])) and np.all(cut.face[far] == -1)
+    assert near.sum() > 2000 and far.sum() > 20000
+
+
+def test_grid_search_far_points_and_degenerate_triangles():
+    """Points far outside the grid (brute-force fallback) and zero-area triangles (no NaN)."""
+    rng = np.random.default_rng(13)
+    box = cube(HALF, subdivisions=1, center=CENTER)
+    v = np.concatenate([box.vertices, [[20.0, 0, 0], [21.0, 0, 0], [22.0, 0, 0]]])
+    n = len(box.vertices)
+    faces = np.concatenate([box.faces, [[n, n + 1, n + 2], [n, n, n + 1]]])  # collinear, repeated corner
+    mesh = TriMesh(v, faces)
+    pts = np.concatenate([rng.normal(scale=60.0, size=(5000, 3)),
+                          rng.uniform([19, -1, -1], [23, 1, 1], size=(5000, 3))]).astype(np.float32)
+    ours, ref = SurfaceDistance(mesh, cell=0.5).query(pts), _reference(mesh, pts)
+    assert not np.isnan(ours.distance).any()
+    np.testing.assert_allclose(np.abs(ours.distance), np.abs(ref.distance), atol=1e-4, rtol=1e-6)
+    segment = _segment_distance(pts[5000:].astype(np.float64), np.array([[20.0, 0, 0]]), np.array([[22.0, 0, 0]]))
+    np.testing.assert_allclose(np.abs(ours.distance[5000:]), segment, atol=1e-5)

@@ -16,9 +16,11 @@ rejects the rest with one table lookup per point, conservatively (no point withi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+from numba import njit, prange
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -223,62 +225,105 @@ class SignedDistance:
 
 
 class SurfaceDistance:
-    """Signed-distance queries against one mesh (BVH and pseudo-normals built once).
+    """Signed-distance queries against one mesh (search structure and pseudo-normals built once).
 
     Parameters
     ----------
     mesh : TriMesh
         Oriented surface (normals out of the region above the iso-value); may be open.
     batch : int
-        Points per open3d call; memory about 60 bytes per point of a batch (plus 30 bytes per
+        Points per search call; memory about 100 bytes per point of a batch (plus 30 bytes per
         queried point for the results and the visiting order).
-    sort_cell : float
-        Edge (nm) of the cells whose order the queries follow.
-
-    Notes
-    -----
-    open3d works in float32: distances are exact to about 1e-7 of the coordinates' magnitude
-    (1e-5 nm at 100 nm).
+    sort_cell : float, optional
+        Edge (nm) of the cells whose order the queries follow (default: the grid cell; 2 nm for
+        open3d).
+    method : {"grid", "open3d"}
+        Closest-triangle search: our uniform grid (:class:`TriangleGrid`, numba, all cores,
+        float64) or open3d's BVH (``RaycastingScene.compute_closest_points``, float32: exact to
+        about 1e-7 of the coordinates' magnitude). Both are exact; the grid is several times
+        faster on iso-surfaces (``benchmarks/bench_proxigram.py``).
+    cell : float, optional
+        Grid cell, nm (default: :meth:`TriangleGrid.build`).
     """
 
-    def __init__(self, mesh: TriMesh, batch: int = 1 << 20, sort_cell: float = 2.0):
-        o3d = open3d()
+    def __init__(self, mesh: TriMesh, batch: int = 1 << 20, sort_cell: float | None = None,
+                 method: str = "grid", cell: float | None = None):
+        if method not in ("grid", "open3d"):
+            raise ValueError(f"method must be 'grid' or 'open3d', not {method!r}")
         self.mesh = mesh
-        self.sort_cell = sort_cell
         self.topology = MeshTopology.of(mesh)
         self.batch = batch
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                                  o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-        self._tensor = o3d.core.Tensor
+        self.method = method
+        self._vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.grid = TriangleGrid.build(self._vertices, self._faces, cell) if method == "grid" else None
+        self.sort_cell = sort_cell or (self.grid.cell if method == "grid" else 2.0)
 
-    def query(self, points: np.ndarray) -> SignedDistance:
+    @cached_property
+    def _tensor(self):
+        return open3d().core.Tensor
+
+    @cached_property
+    def _scene(self):
+        scene = open3d().t.geometry.RaycastingScene()
+        scene.add_triangles(self._tensor(self.mesh.vertices.astype(np.float32)),
+                            self._tensor(self.mesh.faces.astype(np.uint32)))
+        return scene
+
+    def query(self, points: np.ndarray, max_distance: float | None = None) -> SignedDistance:
         """Exact signed distance of every point (N, 3) nm to the surface, in batches.
 
         Points are visited in the order of coarse spatial cells (``sort_cell`` nm), so that
-        consecutive BVH traversals touch the same nodes: 1.5-2.5x faster than random order.
+        consecutive searches touch the same cells (BVH nodes): 1.5-2.5x faster than random order.
+        With ``max_distance`` (nm, grid only), points farther than that from the surface get a
+        NaN distance and face -1, and the search never looks farther.
         """
+        if max_distance is not None and self.method != "grid":
+            raise ValueError("max_distance needs method='grid'")
+        if points.dtype not in (np.float32, np.float64):
+            points = points.astype(np.float32)
+        points = np.ascontiguousarray(points)
         order = _cell_order(points, self.sort_cell)
         out = SignedDistance(np.empty(len(points), np.float32), np.empty(len(points), np.int64),
                              np.empty(len(points), np.int8), np.empty(len(points), bool))
+        if self.method == "grid":
+            reach = np.inf if max_distance is None else float(max_distance)
+            plan = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
+            limit = reach * reach * (1 + 1e-12)
         for a in range(0, len(points), self.batch):
             idx = order[a:a + self.batch]
-            part = self._query_batch(np.ascontiguousarray(points[idx], dtype=np.float32))
+            if self.method == "grid":
+                g = self.grid
+                d2, row, uw = _closest_triangles(points, idx, g.triangles, g.origin, g.cell,
+                                                  g.shape, g.slot, g.start, g.tris, g.boxes, *plan, limit, 256)
+                face = np.where(row >= 0, g.face_id[row], -1)
+            else:
+                result = self._scene.compute_closest_points(self._tensor(points[idx].astype(np.float32)))
+                face = result["primitive_ids"].numpy().astype(np.int64)
+                uw = result["primitive_uvs"].numpy().astype(np.float64)
+                d2 = None
+            part = self._signed(points[idx], face, uw, d2)
             out.distance[idx], out.face[idx], out.feature[idx], out.on_boundary[idx] = (
                 part.distance, part.face, part.feature, part.on_boundary)
         return out
 
-    def _query_batch(self, points: np.ndarray) -> SignedDistance:
-        result = self._scene.compute_closest_points(self._tensor(points))
-        closest = result["points"].numpy()
-        face = result["primitive_ids"].numpy().astype(np.int64)
-        uv = result["primitive_uvs"].numpy()
-        feature, normal, on_boundary = self._classify(face, uv)
-        offset = points - closest
+    def _signed(self, points: np.ndarray, face: np.ndarray, uw: np.ndarray,
+                d2: np.ndarray | None) -> SignedDistance:
+        """Signed distances from closest triangles (face -1: none in range) and corner weights."""
+        found = face >= 0
+        distance = np.full(len(face), np.nan, np.float32)
+        feature = np.zeros(len(face), np.int8)
+        on_boundary = np.zeros(len(face), bool)
+        f, w = face[found], uw[found]
+        tri = self._vertices[self._faces[f]]
+        closest = tri[:, 0] + w[:, :1] * (tri[:, 1] - tri[:, 0]) + w[:, 1:] * (tri[:, 2] - tri[:, 0])
+        offset = points[found] - closest
+        feature[found], normal, on_boundary[found] = self._classify(f, w)
         side = np.einsum("ij,ij->i", offset, normal)
+        length = np.sqrt(d2[found]) if d2 is not None else np.linalg.norm(offset, axis=1)
         # Normals point out of the above-iso region, so the inside has negative `side`.
-        distance = np.linalg.norm(offset, axis=1) * np.where(side > 0, -1, 1).astype(np.float32)
-        return SignedDistance(distance.astype(np.float32), face, feature, on_boundary)
+        distance[found] = length * np.where(side > 0, -1.0, 1.0)
+        return SignedDistance(distance, face, feature, on_boundary)
 
     def _classify(self, face: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Feature, pseudo-normal (N, 3) and boundary flag of closest points given by barycentrics."""
@@ -301,3 +346,346 @@ class SurfaceDistance:
         normal[at_vertex] = top.vertex_normals[vertex]
         on_boundary[at_vertex] = top.boundary_vertex[vertex]
         return feature, normal, on_boundary
+
+
+# --- exact closest-triangle search on a uniform grid (numba) -----------------------------------
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
+    """Squared distance and parameter t in [0, 1] of the closest point a + t (b - a)."""
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    ee = ex * ex + ey * ey + ez * ez
+    t = 0.0
+    if ee > 0.0:
+        t = min(1.0, max(0.0, ((px - ax) * ex + (py - ay) * ey + (pz - az) * ez) / ee))
+    dx, dy, dz = px - ax - t * ex, py - ay - t * ey, pz - az - t * ez
+    return dx * dx + dy * dy + dz * dz, t
+
+
+@njit(cache=True, error_model="numpy")
+def _closest_on_triangle(px, py, pz, tri, t):
+    """Squared distance of p to triangle ``t`` of the packed table ``tri`` (corners a, b, c in
+    columns 0-8) and the weights (u, w) of b and c.
+
+    Ericson, Real-Time Collision Detection (2005), 5.1.5: Voronoi regions of the corners, then
+    of the edges, then the face. Degenerate (zero-area) triangles fall back to their edges.
+    """
+    ax, ay, az = tri[t, 0], tri[t, 1], tri[t, 2]
+    bx, by, bz = tri[t, 3], tri[t, 4], tri[t, 5]
+    cx, cy, cz = tri[t, 6], tri[t, 7], tri[t, 8]
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    u = 0.0
+    w = 0.0
+    if d1 <= 0.0 and d2 <= 0.0:
+        return apx * apx + apy * apy + apz * apz, 0.0, 0.0
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return bpx * bpx + bpy * bpy + bpz * bpz, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 > d3:
+        u = d1 / (d1 - d3)
+    else:
+        cpx, cpy, cpz = px - cx, py - cy, pz - cz
+        d5 = abx * cpx + aby * cpy + abz * cpz
+        d6 = acx * cpx + acy * cpy + acz * cpz
+        if d6 >= 0.0 and d5 <= d6:
+            return cpx * cpx + cpy * cpy + cpz * cpz, 0.0, 1.0
+        vb = d5 * d2 - d1 * d6
+        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 > d6:
+            w = d2 / (d2 - d6)
+        else:
+            va = d3 * d6 - d5 * d4
+            if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and d4 - d3 + d5 - d6 > 0.0:
+                w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+                u = 1.0 - w
+            elif va + vb + vc > 0.0:
+                u = vb / (va + vb + vc)
+                w = vc / (va + vb + vc)
+            else:
+                return _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+    qx = ax + u * abx + w * acx - px
+    qy = ay + u * aby + w * acy - py
+    qz = az + u * abz + w * acz - pz
+    return qx * qx + qy * qy + qz * qz, u, w
+
+
+@njit(cache=True, error_model="numpy")
+def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point on a zero-area triangle: the nearest of its three edges."""
+    best, t = _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz)
+    u, w = t, 0.0
+    d, t = _closest_on_segment(px, py, pz, ax, ay, az, cx, cy, cz)
+    if d < best:
+        best, u, w = d, 0.0, t
+    d, t = _closest_on_segment(px, py, pz, bx, by, bz, cx, cy, cz)
+    if d < best:
+        best, u, w = d, 1.0 - t, t
+    return best, u, w
+
+
+@njit(cache=True, error_model="numpy")
+def _bucket_triangles(tri, origin, cell, shape):
+    """CSR lists of the triangles whose bounding box meets each grid cell, and per-cell boxes.
+
+    Returns ``slot`` (cells,) int32 (-1 for an empty cell, else its row), ``start`` (rows + 1,)
+    int64, ``tris`` int32 and ``boxes`` (rows, 6) float64: lower and upper corner of the part of
+    the cell covered by its triangles' bounding boxes (padded by 1e-7 nm against rounding), a
+    lower bound for the distance to anything in the cell.
+    """
+    m = tri.shape[0]
+    n_cells = shape[0] * shape[1] * shape[2]
+    span = np.empty((m, 6), np.int64)
+    counts = np.zeros(n_cells, np.int64)
+    for t in range(m):
+        for k in range(3):
+            a = min(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+            b = max(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+            span[t, k] = min(max(int(np.floor((a - origin[k]) / cell)), 0), shape[k] - 1)
+            span[t, 3 + k] = min(max(int(np.floor((b - origin[k]) / cell)), 0), shape[k] - 1)
+        for ix in range(span[t, 0], span[t, 3] + 1):
+            for iy in range(span[t, 1], span[t, 4] + 1):
+                for iz in range(span[t, 2], span[t, 5] + 1):
+                    counts[(ix * shape[1] + iy) * shape[2] + iz] += 1
+    slot = np.full(n_cells, -1, np.int32)
+    n_rows = 0
+    for c in range(n_cells):
+        if counts[c] > 0:
+            slot[c] = n_rows
+            n_rows += 1
+    start = np.zeros(n_rows + 1, np.int64)
+    for c in range(n_cells):
+        if counts[c] > 0:
+            start[slot[c] + 1] = start[slot[c]] + counts[c]
+    tris = np.empty(start[n_rows], np.int32)
+    fill = start[:n_rows].copy()
+    boxes = np.empty((n_rows, 6))
+    boxes[:, :3] = np.inf
+    boxes[:, 3:] = -np.inf
+    pad = 1e-7
+    for t in range(m):
+        for ix in range(span[t, 0], span[t, 3] + 1):
+            for iy in range(span[t, 1], span[t, 4] + 1):
+                for iz in range(span[t, 2], span[t, 5] + 1):
+                    r = slot[(ix * shape[1] + iy) * shape[2] + iz]
+                    tris[fill[r]] = t
+                    fill[r] += 1
+                    idx = (ix, iy, iz)
+                    for k in range(3):
+                        a = min(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+                        b = max(tri[t, k], tri[t, 3 + k], tri[t, 6 + k])
+                        lo = max(a, origin[k] + idx[k] * cell) - pad
+                        hi = min(b, origin[k] + (idx[k] + 1) * cell) + pad
+                        boxes[r, k] = min(boxes[r, k], lo)
+                        boxes[r, 3 + k] = max(boxes[r, 3 + k], hi)
+    return slot, start, tris, boxes
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _first_occupied(shape, slot, offsets):
+    """(cells,) int32: index of the first of ``offsets`` that leads from each cell to a non-empty
+    cell (``len(offsets)`` if none); the search starts there, the offsets before lead to empty
+    cells only."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    first = np.full(nx * ny * nz, offsets.shape[0], np.int32)
+    for c in prange(nx * ny * nz):
+        cx, cy, cz = c // (ny * nz), (c // nz) % ny, c % nz
+        for k in range(offsets.shape[0]):
+            ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
+            if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz and slot[(ix * ny + iy) * nz + iz] >= 0:
+                first[c] = k
+                break
+    return first
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _closest_triangles(points, order, tri, origin, cell, shape, slot, start, tris, boxes, offsets,
+                       offset_bound, linear, radius, first, covered, limit, block):
+    """Closest triangle of each point: squared distance, triangle (-1 beyond ``limit``), weights.
+
+    Points are visited in ``order`` in blocks (one thread each); within a block, the previous
+    point's closest triangle seeds the search with an upper bound. Cells are visited by
+    increasing lower bound (``offsets`` sorted by ``offset_bound``, squared nm) and skipped when
+    their box is no nearer than the best triangle so far; the search stops when no unvisited
+    cell can hold anything nearer. ``covered``: squared distance within which the offsets reach
+    every cell; a point whose nearest triangle is farther (and within ``limit``) is finished by
+    brute force. ``tri`` (m, 16): the packed triangles (:attr:`TriangleGrid.triangles`);
+    ``linear`` (k,): the offsets as steps in the flat cell index, all within ``radius`` cells;
+    ``first`` (cells,): the first offset that reaches a non-empty cell from each cell.
+    """
+    n = order.shape[0]
+    d2 = np.empty(n)
+    face = np.empty(n, np.int64)
+    uw = np.empty((n, 2))
+    n_blocks = (n + block - 1) // block
+    for b in prange(n_blocks):
+        prev = -1
+        for j in range(b * block, min(n, (b + 1) * block)):
+            i = order[j]
+            px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+            best, best_f, bu, bw = limit, -1, 0.0, 0.0
+            if prev >= 0:
+                d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
+                if d < best:
+                    best, best_f, bu, bw = d, prev, u, w
+            root = np.sqrt(best)
+            cx = int(np.floor((px - origin[0]) / cell))
+            cy = int(np.floor((py - origin[1]) / cell))
+            cz = int(np.floor((pz - origin[2]) / cell))
+            k0 = 0
+            home = (cx * shape[1] + cy) * shape[2] + cz
+            if 0 <= cx < shape[0] and 0 <= cy < shape[1] and 0 <= cz < shape[2]:
+                k0 = first[home]
+            # all offsets stay inside the grid: no bounds checks (most points)
+            interior = (radius <= cx < shape[0] - radius and radius <= cy < shape[1] - radius
+                        and radius <= cz < shape[2] - radius)
+            finished = False
+            for k in range(k0, offsets.shape[0]):
+                if offset_bound[k] >= best:
+                    finished = True
+                    break
+                if interior:
+                    r = slot[home + linear[k]]
+                else:
+                    ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
+                    if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
+                        continue
+                    r = slot[(ix * shape[1] + iy) * shape[2] + iz]
+                if r < 0:
+                    continue
+                gx = max(boxes[r, 0] - px, 0.0, px - boxes[r, 3])
+                gy = max(boxes[r, 1] - py, 0.0, py - boxes[r, 4])
+                gz = max(boxes[r, 2] - pz, 0.0, pz - boxes[r, 5])
+                if gx * gx + gy * gy + gz * gz >= best:
+                    continue
+                for s in range(start[r], start[r + 1]):
+                    t = tris[s]
+                    # Lower bounds from the triangle's disk (in its plane, about its centroid,
+                    # radius to the farthest corner): most triangles are rejected here.
+                    qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
+                    q2 = qx * qx + qy * qy + qz * qz
+                    rad = tri[t, 12]
+                    reach = root + rad
+                    if q2 >= reach * reach:
+                        continue
+                    h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
+                    h2 = h * h
+                    if h2 >= best:
+                        continue
+                    lateral2 = q2 - h2
+                    if lateral2 > rad * rad:
+                        lateral = np.sqrt(lateral2) - rad
+                        if h2 + lateral * lateral >= best:
+                            continue
+                    d, u, w = _closest_on_triangle(px, py, pz, tri, t)
+                    if d < best:
+                        best, best_f, bu, bw = d, t, u, w
+                        root = np.sqrt(best)
+            if not finished and best > covered:
+                for t in range(tri.shape[0]):
+                    d, u, w = _closest_on_triangle(px, py, pz, tri, t)
+                    if d < best:
+                        best, best_f, bu, bw = d, t, u, w
+            d2[j], face[j], uw[j, 0], uw[j, 1] = best, best_f, bu, bw
+            if best_f >= 0:
+                prev = best_f
+    return d2, face, uw
+
+
+@dataclass
+class TriangleGrid:
+    """Triangles bucketed in a uniform grid, for exact closest-triangle queries.
+
+    Attributes
+    ----------
+    origin : (3,) float64
+        Corner of cell (0, 0, 0), nm.
+    cell : float
+        Cell edge, nm.
+    shape : (3,) int64
+        Cells along x, y, z.
+    slot, start, tris, boxes
+        Triangle lists (rows of ``triangles``) of the non-empty cells (see ``_bucket_triangles``).
+    triangles : (m, 16) float64
+        Triangles in cell order: corners (9), then the disk holding the triangle: centroid (3),
+        radius (nm, to the farthest corner), unit normal (3, zero if degenerate).
+    face_id : (m,) int64
+        Mesh face of each row of ``triangles``.
+
+    Notes
+    -----
+    Memory: 4 bytes per cell of the mesh's bounding box, 56 bytes per non-empty cell and 4 bytes
+    per (triangle, cell) pair; about 20 MB for a 230k-triangle surface in a 63 nm box.
+    """
+
+    origin: np.ndarray
+    cell: float
+    shape: np.ndarray
+    slot: np.ndarray
+    start: np.ndarray
+    tris: np.ndarray
+    boxes: np.ndarray
+    triangles: np.ndarray
+    face_id: np.ndarray
+    _plans: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, vertices: np.ndarray, faces: np.ndarray, cell: float | None = None,
+              max_cells: int = 1 << 24) -> "TriangleGrid":
+        """Bucket triangles (m, 3) of ``vertices`` (n, 3) nm into cells of ``cell`` nm.
+
+        The default cell is twice the median edge (a few triangles per cell); it grows until the
+        bounding box holds at most ``max_cells`` cells.
+        """
+        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+        if cell is None:
+            edges = np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)
+            cell = 2.0 * float(np.median(edges))
+        cell = max(float(cell), 1e-6 * float(np.max(hi - lo)), 1e-9)
+        while np.prod(np.floor((hi - lo) / cell) + 1) > max_cells:
+            cell *= 1.25
+        shape = (np.floor((hi - lo) / cell) + 1).astype(np.int64)
+        corners = vertices[faces]
+        centre = corners.mean(axis=1)
+        # triangles stored in cell order, so that those a query visits lie together in memory
+        c = np.floor((centre - lo) / cell).astype(np.int64)
+        face_id = np.argsort((c[:, 0] * shape[1] + c[:, 1]) * shape[2] + c[:, 2], kind="stable")
+        corners, centre = corners[face_id], centre[face_id]
+        radius = np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1)
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        # radius padded so that rounding never rejects the triangle holding the closest point
+        triangles = np.column_stack([corners.reshape(-1, 9), centre, radius * (1 + 1e-9) + 1e-9, normal])
+        slot, start, tris, boxes = _bucket_triangles(triangles, lo, cell, shape)
+        return cls(lo, cell, shape, slot, start, tris, boxes, triangles, face_id)
+
+    def offsets(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, float]:
+        """Search plan for distances up to ``reach`` nm (cached per reach).
+
+        Returns the cell offsets within reach, nearest first (k, 3), their squared lower bounds
+        (k,) nm² for any point of the centre cell, the offsets as steps of the flat cell index
+        (k,), the largest offset along an axis (cells), the first offset that leads from each
+        cell to a non-empty one (cells,) int32, and the squared distance they cover.
+        """
+        key = float(reach)
+        if key not in self._plans:
+            r = int(np.ceil(reach / self.cell)) + 1
+            axis = np.arange(-r, r + 1)
+            o = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+            gap = np.maximum(np.abs(o) - 1, 0) * self.cell
+            bound = (gap ** 2).sum(axis=1)
+            covered = (r * self.cell) ** 2  # an offset outside the cube has a gap >= r cells
+            keep = bound < covered
+            key_order = np.lexsort(((o[keep] ** 2).sum(axis=1), bound[keep]))
+            offsets = o[keep][key_order].astype(np.int64)
+            linear = (offsets[:, 0] * self.shape[1] + offsets[:, 1]) * self.shape[2] + offsets[:, 2]
+            self._plans[key] = (offsets, bound[keep][key_order], linear, r,
+                                _first_occupied(self.shape, self.slot, offsets), covered)
+        return self._plans[key]

@@ -296,7 +296,7 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         points = np.asarray(part.positions, dtype=np.float32)
         n_ions += len(points)
         candidates = np.flatnonzero(band.contains(points))
-        sd = surface.query(points[candidates])
+        sd = surface.query(points[candidates], max_distance=max_distance)  # NaN beyond: not kept
         n_candidates += len(candidates)
         keep = (sd.distance >= -max_distance) & (sd.distance < max_distance)
         n_edge += int(np.count_nonzero(keep & sd.on_boundary))

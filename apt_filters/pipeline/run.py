@@ -25,6 +25,7 @@ from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
+from apt_filters.pipeline.surface import contour_surface
 from apt_filters.pipeline.steps import StepLog
 
 MINORITY = 0.10
@@ -70,17 +71,6 @@ def _check_config(config: PipelineConfig) -> None:
             raise AptFiltersError(f"iso-density must be positive atoms/nm³, got {s.iso:g}")
 
 
-def _field(fields, surface: SurfaceConfig) -> np.ndarray:
-    field_ = fields.concentration(surface.species) if surface.species else fields.density()
-    values = field_.dense()
-    finite = values[np.isfinite(values)]
-    if not len(finite) or not finite.min() < surface.iso < finite.max():
-        lo, hi = (finite.min(), finite.max()) if len(finite) else (np.nan, np.nan)
-        what = f"{surface.species} concentration" if surface.species else "atomic density"
-        raise AptFiltersError(f"iso-value {surface.iso:g} is outside the {what} range {lo:.4g}..{hi:.4g}: no surface")
-    return values
-
-
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
                  verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
@@ -93,7 +83,6 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     from apt_filters.analysis.objects import object_table
     from apt_filters.analysis.proxigram import compute_proxigram
     from apt_filters.audit import audit_ranges
-    from apt_filters.contour import dual_contouring, marching_cubes
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.meshlab.exports import write_ion_cloud, write_ply, write_project
     from apt_filters.remesh import remesh
@@ -134,12 +123,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         for surface in config.surface:
             label = surface_label(surface)
             with log.step("contour") as s:
-                values = _field(fields, surface)
-                contour = dual_contouring if config.contour.method == "dc" else marching_cubes
-                mesh = contour(values, surface.iso, spacing=fields.grid.voxel, origin=fields.grid.origin,
-                               mask=mask, close=config.contour.close_at_edge)
-                if mesh.n_faces == 0:
-                    raise AptFiltersError(f"iso-surface {label} has no triangles inside the specimen")
+                mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
+                                       config.contour.close_at_edge)
                 s.summary = f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
             with log.step("clean") as s:
                 mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
@@ -158,7 +143,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             mesh.face_scalars["object_id"] = mesh.face_components()
             res = SurfaceResult(label, surface, mesh)
             with log.step("objects") as s:
-                table = object_table(mesh, ions, ranges)
+                table = object_table(mesh, ions, ranges, cap_open=config.contour.close_at_edge)
                 table.write_csv(stage / f"objects_{label}.csv")
                 table.write_json(stage / f"objects_{label}.json")
                 res.objects = table.rows()

@@ -11,6 +11,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.voxel.grid import Grid, check_budget
+from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.sparse import SparseField
 from apt_filters.voxel.transfer import BlockAccumulator, check_kernel, kernel_reach
 
@@ -220,11 +221,10 @@ def voxelize(
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
     check_budget(grid, len(names), memory_budget)
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization)
-    matrix_counts = np.zeros(len(ranges.ions) + 1)
+    lookup = MzLookup.from_ranges(ranges)
     for chunk in chunks:
-        row = ranges.ion_index(chunk.mz) + 1  # int32: 4 bytes per ion
-        acc.add(chunk.positions, row)
-        matrix_counts += np.bincount(row, minlength=len(matrix_counts))
+        acc.add(chunk.positions, lookup.rows_of(chunk.mz))  # rows int32: 4 bytes per ion
+    matrix_counts = acc.row_count.astype(np.float64)
     coords, channels = acc.result()
     counts = {n: SparseField(grid, coords, d) for n, d in zip(names, channels)}
     total = _sum_fields(grid, [counts[n] for n in total_names]) if total_names else SparseField(

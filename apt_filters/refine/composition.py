@@ -1,0 +1,73 @@
+"""Ions -> atoms of each element in the concentration basis, and the contrast score of each ion."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from apt_filters.core.errors import AptFiltersError
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.voxel import ConcentrationBasis
+
+
+@dataclass(frozen=True)
+class IonAtoms:
+    """Atoms per ion in the basis elements, for the ions of one table.
+
+    Attributes
+    ----------
+    elements : list of str
+        The basis elements (columns), in the range table's element order.
+    atoms : (N, k) float32
+        Atoms each ion adds to each basis element (a CrO2 ion adds 1 Cr and 2 O); zero rows for
+        unranged ions and for ions made only of excluded species.
+    """
+
+    elements: list[str]
+    atoms: np.ndarray
+
+    @property
+    def total(self) -> np.ndarray:
+        """(N,) atoms of each ion counted in the denominator."""
+        return self.atoms.sum(axis=1)
+
+
+def ion_atoms(ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis = ConcentrationBasis()) -> IonAtoms:
+    """Decompose every ion into its basis elements.
+
+    Unranged ions are dropped here even when ``basis.include_unranged`` is set: they carry no
+    species, so they cannot move a composition profile's crossing, only dilute it evenly.
+    Memory: 4 bytes per ion and basis element.
+    """
+    elements = list(ranges.elements)
+    unknown = [s for s in basis.exclude if s not in elements]
+    if unknown:
+        raise AptFiltersError(f"concentration basis excludes unknown elements {', '.join(unknown)}")
+    keep = [k for k, e in enumerate(elements) if e not in basis.exclude]
+    matrix = np.vstack([np.zeros((1, len(keep))), ranges.element_matrix()[:, keep]]).astype(np.float32)
+    return IonAtoms([elements[k] for k in keep], matrix[ranges.ion_index(ions.mz).astype(np.int64) + 1])
+
+
+def contrast_weights(inside: np.ndarray, outside: np.ndarray, elements: list[str], species: str,
+                     mode: str) -> np.ndarray:
+    """(k,) weight of each basis element in the score whose profile is refined.
+
+    ``mode="species"`` scores only ``species`` (the iso-surface element). ``mode="contrast"``
+    scores every element by ``(c_in - c_out) / c_mean``, the linearised likelihood ratio of
+    inside against outside: all elements that change across the interface then inform its
+    position (Al and Cr in gamma/gamma-prime), which roughly halves the variance of the
+    position against Al alone. The sign is chosen so the score is higher inside.
+    """
+    if species not in elements:
+        raise AptFiltersError(f"iso species {species!r} is not in the concentration basis ({', '.join(elements)})")
+    if mode == "species":
+        w = np.zeros(len(elements))
+        w[elements.index(species)] = 1.0
+        return w
+    if mode != "contrast":
+        raise AptFiltersError(f"unknown score mode {mode!r}; choose 'species' or 'contrast'")
+    mean = 0.5 * (inside + outside)
+    w = np.divide(inside - outside, mean, out=np.zeros_like(mean), where=mean > 0)
+    return w / max(np.abs(w).max(), 1e-300)

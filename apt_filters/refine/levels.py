@@ -1,0 +1,128 @@
+"""Plateau compositions of each object, and the per-object iso-value (midpoint of its plateaus)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.refine.band import Band, ion_band, vertex_components, vertex_normals
+from apt_filters.refine.composition import IonAtoms, ion_atoms
+from apt_filters.voxel import ConcentrationBasis
+
+PLATEAU_WINDOW = (0.75, 3.0)
+"""Default distances (nm) from the surface between which the plateaus are measured, each side."""
+
+PLATEAU_PRIOR = 3000.0
+"""Default weight (atoms) of the pooled plateaus of all objects in each object's own (shrinkage)."""
+
+
+@dataclass
+class ObjectLevels:
+    """The two plateaus of one connected surface (one object), in the concentration basis.
+
+    Attributes
+    ----------
+    component : int
+        Component id (``face_scalars["component"]`` numbering of :meth:`TriMesh.face_components`).
+    elements : list of str
+        Basis elements.
+    inside, outside : (k,) float64
+        Fractions of each basis element between ``window`` nm inside / outside the surface
+        (shrunk toward the pooled levels of all objects by ``prior`` atoms).
+    n_inside, n_outside : float
+        Basis atoms of this object counted in each plateau window.
+    iso : float
+        Midpoint of the iso species' two plateaus: where this object's surface belongs.
+    """
+
+    component: int
+    elements: list[str]
+    inside: np.ndarray
+    outside: np.ndarray
+    n_inside: float
+    n_outside: float
+    iso: float
+
+    def as_dict(self) -> dict:
+        return {"component": self.component, "iso": self.iso, "n_inside": self.n_inside, "n_outside": self.n_outside,
+                "inside": dict(zip(self.elements, self.inside.tolist())),
+                "outside": dict(zip(self.elements, self.outside.tolist()))}
+
+
+def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int, species: str,
+             window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
+    """Plateaus of every component from ions already in a band (see :func:`object_levels`)."""
+    inner, outer = window
+    comp = components[band.vertex]
+    a = atoms.atoms[band.index].astype(np.float64)
+    k = atoms.elements.index(species)
+    sums = []
+    for c in range(n_components):
+        mine = comp == c
+        sums.append((a[mine & (band.distance <= -inner) & (band.distance >= -outer)].sum(axis=0),
+                     a[mine & (band.distance >= inner) & (band.distance <= outer)].sum(axis=0)))
+    out = []
+    pooled = [np.sum([s[side] for s in sums], axis=0) for side in (0, 1)] if sums else []
+    for c, (inside, outside) in enumerate(sums):
+        n_in, n_out = inside.sum(), outside.sum()
+        if prior > 0:
+            # shrink toward the pooled levels: a small object's own plateau is mostly noise
+            inside = inside + prior * pooled[0] / max(pooled[0].sum(), 1e-300)
+            outside = outside + prior * pooled[1] / max(pooled[1].sum(), 1e-300)
+        c_in = inside / inside.sum() if inside.sum() > 0 else np.full(len(inside), np.nan)
+        c_out = outside / outside.sum() if outside.sum() > 0 else np.full(len(outside), np.nan)
+        out.append(ObjectLevels(c, atoms.elements, c_in, c_out, float(n_in), float(n_out),
+                                float(0.5 * (c_in[k] + c_out[k]))))
+    return out
+
+
+def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
+                  basis: ConcentrationBasis = ConcentrationBasis(), window=PLATEAU_WINDOW,
+                  prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
+    """Inside and outside plateaus of every connected surface of ``mesh``, and its midpoint iso-value.
+
+    Ions are assigned to their nearest vertex and measured along its normal; the inside plateau
+    is every ion between ``window[0]`` and ``window[1]`` nm inside, the outside one likewise.
+    For a thin object (less than ``2 window[0]`` thick) the inside plateau is empty (NaN).
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        Iso-surface (normals out of the region above iso).
+    ions : IonTable
+    ranges : RangeTable
+    species : str
+        The iso-surface element.
+    basis : ConcentrationBasis
+        Denominator of the fractions (e.g. ``exclude=("B",)`` for a segregant).
+    window : (inner, outer) nm
+    prior : float
+        Atoms' worth of the pooled plateaus of all objects added to each object's own counts
+        (shrinkage, empirical-Bayes style). A 3 nm sphere has ~1000 atoms in its inside window:
+        its own plateau is uncertain by ~1.3 at.%, which moves its midpoint and its surface; a
+        large object (many more atoms than ``prior``) keeps its own plateau, so objects of
+        different phases stay apart once they are big enough to tell. 0: objects' own values.
+
+    Returns
+    -------
+    list of ObjectLevels, one per component.
+    """
+    components = vertex_components(mesh.faces, mesh.n_vertices)
+    band = ion_band(ions.positions, mesh.vertices, vertex_normals(mesh.vertices, mesh.faces), window[1] + 1.0)
+    return plateaus(band, ion_atoms(ions, ranges, basis), components, int(components.max()) + 1, species, window,
+                    prior)
+
+
+def per_object_iso(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
+                   basis: ConcentrationBasis = ConcentrationBasis(), window=PLATEAU_WINDOW,
+                   prior: float = PLATEAU_PRIOR) -> np.ndarray:
+    """(n_components,) iso-value of each object: the midpoint of its own inside and outside plateaus.
+
+    Contour each object again at its value (e.g. with :func:`apt_filters.refine.recontour`) so that
+    objects of different compositions are cut at the same relative height of their interfaces.
+    """
+    return np.array([lv.iso for lv in object_levels(mesh, ions, ranges, species, basis, window, prior)])

@@ -1,0 +1,359 @@
+"""Moving an iso-surface onto the interface the ions show: normal displacement to the profile's midpoint.
+
+Method
+------
+Each outer iteration:
+
+1. Every ion within reach is assigned to its nearest vertex and gets a signed distance ``d``
+   along that vertex's normal (:mod:`apt_filters.refine.band`).
+2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface) give the
+   score weights (:func:`~apt_filters.refine.composition.contrast_weights`) and the score's two
+   levels ``s_in`` and ``s_out``; they are measured again until the surface is near the
+   interface (``far_iterations + 1``), then kept, and the ions narrowed to those that later
+   profiles can reach.
+3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
+   is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
+   midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
+   the offset is ``t = sum(u) * bin_width - half_width``. The rule uses every ion of the profile,
+   is unbiased for any symmetric blur, and is exact for a step; bins without ions take the step's
+   value on their side.
+4. The offsets are clamped to ``max_step``, smoothed ``smoothing`` times by the umbrella
+   Laplacian (the regularisation: noise cannot roughen the surface faster than neighbours
+   agree), and each vertex moves along its normal; a tangential relaxation then evens out the
+   triangles without changing the shape.
+
+Every move is guarded: a face whose normal would turn by more than 90° in one move, or an
+edge whose two faces would fold (normals more than 120° apart, :func:`folded_pairs`), halves the
+move of its vertices, up to ``GUARD_HALVINGS`` times, and then cancels it. The input having no
+folds, the output has none (``RefineResult.folded_pairs`` measures it).
+
+Peak memory: the ions' positions in the meshes' bounding box (float64), their atoms per basis
+element (float32), and two (vertices × bins) float64 arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import csr_matrix, diags
+
+from apt_filters.contour.topology import face_pairs, folded_pairs
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.refine.band import (Band, adjacency, binned, ion_band, normal_weight, pooling_matrix, vertex_components,
+                                    vertex_normals)
+from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
+from apt_filters.refine.subdivide import subdivide
+from apt_filters.refine.untangle import intersecting_faces, untangle
+from apt_filters.refine.levels import PLATEAU_PRIOR, PLATEAU_WINDOW, ObjectLevels, plateaus
+from apt_filters.refine.levels import object_levels as object_levels_of
+from apt_filters.voxel import ConcentrationBasis
+
+GUARD_HALVINGS = 6
+FOLD_ANGLE = 120.0
+
+
+@dataclass
+class RefineResult:
+    """The refined surface and what the refinement did.
+
+    Attributes
+    ----------
+    mesh : TriMesh
+        Same faces as the input, vertices moved; ``vertex_scalars["displacement"]`` is each
+        vertex's total signed move along its normals (nm, positive outward).
+    levels : list of ObjectLevels
+        Each object's plateaus and midpoint iso-value, measured against the refined surface.
+    displacement : dict
+        ``mean``, ``rms``, ``max_abs`` of the total signed normal displacement (nm), and
+        ``last_step_max`` (nm), the largest move of the final iteration (convergence).
+    iterations : int
+    folded_pairs : int
+        Edge-adjacent face pairs folded (normals > 120° apart) in the output: 0 by construction.
+    self_intersections : int
+        Faces crossing another face in the output (0 unless :func:`untangle` gave up).
+    guarded : int
+        Vertex moves the fold guard had to shorten or cancel, summed over iterations.
+    untangle_rounds : int
+        Rounds :func:`~apt_filters.refine.untangle.untangle` needed (0: no intersection).
+    score : str
+    basis : str
+        ``ConcentrationBasis.describe()`` of the fractions.
+    """
+
+    mesh: TriMesh
+    levels: list[ObjectLevels]
+    displacement: dict
+    iterations: int
+    folded_pairs: int
+    self_intersections: int
+    guarded: int
+    untangle_rounds: int
+    score: str
+    basis: str
+    history: list[float] = field(default_factory=list)
+
+
+def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: float = 0.0) -> csr_matrix:
+    """Row-normalised adjacency: ``umbrella(adj) @ x`` is the (normal-weighted) mean of each vertex's neighbours.
+
+    With ``normals``, neighbour ``j`` of ``i`` weighs :func:`normal_weight` (bilateral: smoothing
+    does not carry across sharp edges).
+    """
+    if normals is not None and normal_power > 0:
+        coo = adj.tocoo()
+        adj = csr_matrix((coo.data * normal_weight(normals, coo.row, coo.col, normal_power), (coo.row, coo.col)),
+                         shape=adj.shape)
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    return diags(np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)) @ adj
+
+
+def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
+                 pairs: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """``vertices + step`` where that folds nothing; offending vertices' steps halved, then cancelled.
+
+    A face is offending when its normal would turn by more than 90° or it would form a folded
+    pair (:data:`FOLD_ANGLE`) that the input did not have. After :data:`GUARD_HALVINGS` halvings
+    the vertices of offending faces stop (step 0) until none is left: faces whose vertices all
+    stand still are unchanged, so the loop ends with no new fold. Returns the new vertices and
+    how many vertices had their step shortened. ``pairs``: :func:`face_pairs` of ``faces``, if known.
+    """
+    pairs = face_pairs(faces) if pairs is None else pairs
+    limit = np.cos(np.radians(FOLD_ANGLE))
+
+    def folded(normals: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
+
+    before = _face_normals(vertices, faces)
+    existing = folded(before)
+    scale = np.ones(len(vertices))
+    touched = np.zeros(len(vertices), dtype=bool)
+    attempt = 0
+    while True:
+        moved = vertices + scale[:, None] * step
+        after = _face_normals(moved, faces)
+        bad = np.einsum("ij,ij->i", before, after) < 0.0
+        bad[pairs[folded(after) & ~existing].ravel()] = True
+        bad &= (scale[faces] > 0).any(axis=1)
+        if not bad.any():
+            return moved, int(touched.sum())
+        verts = np.unique(faces[bad])
+        touched[verts] = True
+        scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+        attempt += 1
+
+
+def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    v = vertices[faces]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def _centres(n_bins: int, half_width: float, bin_width: float) -> np.ndarray:
+    return -half_width + bin_width * (np.arange(n_bins) + 0.5)
+
+
+def normalised_profile(score: np.ndarray, total: np.ndarray, s_in: np.ndarray, s_out: np.ndarray,
+                       half_width: float, bin_width: float) -> np.ndarray:
+    """(n, bins) ``u = (f - s_out) / (s_in - s_out)`` of pooled sums (1 inside, 0 outside).
+
+    Bins without ions take the step's value on their side of the current surface.
+    """
+    step = np.broadcast_to((_centres(score.shape[1], half_width, bin_width) < 0).astype(np.float64), score.shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = (score / total - s_out[:, None]) / (s_in - s_out)[:, None]
+    return np.where((total > 0) & np.isfinite(u), u, step)
+
+
+def profile_width(u: np.ndarray, bin_width: float) -> float:
+    """Gaussian width s (nm) of a normalised step profile: ``sqrt(pi) * integral u (1 - u)`` (exact for an
+    error-function step; ``u`` clipped to [0, 1])."""
+    u = np.clip(u, 0.0, 1.0)
+    return float(np.sqrt(np.pi) * np.sum(u * (1 - u)) * bin_width)
+
+
+def equal_area_offset(u: np.ndarray, half_width: float, bin_width: float) -> np.ndarray:
+    """(n,) offset (nm, along the normal) of the Gibbs equal-area position of normalised profiles ``u``:
+    ``sum(u) * bin_width - half_width``. Unbiased for any symmetric blur; used while far off."""
+    return u.sum(axis=1) * bin_width - half_width
+
+
+def matched_offset(u: np.ndarray, total: np.ndarray, width: np.ndarray, half_width: float,
+                   bin_width: float) -> np.ndarray:
+    """(n,) Gauss-Newton step of the offset of an error-function step of ``width`` (n,) nm fitted to ``u``.
+
+    Each bin weighs its ions times the model's slope there (the matched filter), the efficient
+    estimate near the interface: bins on the plateaus, which only add noise to the equal-area
+    rule, get no weight.
+    """
+    from scipy.special import erfc
+
+    d = _centres(u.shape[1], half_width, bin_width)[None, :]
+    s = width[:, None]
+    model = 0.5 * erfc(d / (np.sqrt(2) * s))
+    slope = np.exp(-0.5 * (d / s) ** 2) / (np.sqrt(2 * np.pi) * s)  # d model / d offset
+    den = np.sum(total * slope ** 2, axis=1)
+    return np.divide(np.sum(total * slope * (u - model), axis=1), den, out=np.zeros(len(u)), where=den > 0)
+
+
+def refine_surface(
+    mesh: TriMesh,
+    ions: IonTable,
+    ranges: RangeTable,
+    species: str,
+    basis: ConcentrationBasis = ConcentrationBasis(),
+    *,
+    score: str = "contrast",
+    half_width: float = 1.5,
+    bin_width: float = 0.25,
+    pool_radius: float = 2.0,
+    normal_power: float = 8.0,
+    smoothing: int = 10,
+    max_step: float = 0.5,
+    tangential: float = 0.3,
+    iterations: int = 12,
+    far_iterations: int = 2,
+    tolerance: float = 0.02,
+    plateau_window=PLATEAU_WINDOW,
+    plateau_prior: float = PLATEAU_PRIOR,
+    subdivisions: int = 1,
+) -> RefineResult:
+    """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
+
+    See the module docstring for the method and its regularisation.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        Iso-surface, e.g. from :func:`apt_filters.contour.marching_cubes` (normals out of the
+        region above iso). Remove specks first (:func:`remove_specks`).
+    ions : IonTable
+    ranges : RangeTable
+    species : str
+        The iso-surface element (its plateaus give each object's midpoint iso-value).
+    basis : ConcentrationBasis
+        Which elements count in the fractions; leave segregants out (``exclude=("B",)``) so that
+        their shell does not dilute the profile at the interface.
+    score : {"contrast", "species"}
+        Profile of every element weighted by its contrast, or of ``species`` alone.
+    half_width, bin_width : float, nm
+        Profile range each side of the current surface and its bins.
+    pool_radius : float, nm
+        Vertices within this distance pool their profiles (Gaussian, sigma = radius / 2).
+    normal_power : float
+        Bilateral factor of pooling and smoothing, ``max(0, n_i . n_j) ** normal_power``
+        (:func:`~apt_filters.refine.band.normal_weight`); 0 pools across edges, which rounds them.
+    smoothing : int
+        Umbrella-Laplacian passes (bilateral, same factor) over each iteration's displacements.
+    max_step : float, nm
+        Largest move per iteration.
+    tangential : float
+        Weight of the tangential relaxation per iteration (0 = none).
+    far_iterations : int
+        Iterations that use the equal-area rule (robust far from the interface); later ones use
+        the matched filter (:func:`matched_offset`) with each object's measured profile width.
+    iterations : int
+        At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
+    plateau_window : (inner, outer) nm
+    plateau_prior : float, atoms
+        See :func:`~apt_filters.refine.levels.object_levels`.
+    subdivisions : int
+        Midpoint subdivisions of the input first (:func:`~apt_filters.refine.subdivide.subdivide`):
+        each one halves the edge length, so that edges and corners can form.
+
+    Returns
+    -------
+    RefineResult
+    """
+    for _ in range(subdivisions):
+        mesh = subdivide(mesh)
+    vertices = mesh.vertices.astype(np.float64).copy()
+    faces = mesh.faces
+    n = len(vertices)
+    components = vertex_components(faces, n)
+    n_comp = int(components.max()) + 1 if n else 0
+    atoms = ion_atoms(ions, ranges, basis)
+    total_atoms = atoms.total.astype(np.float64)
+    adj = adjacency(faces, n)
+    pairs = face_pairs(faces)
+    reach = max(plateau_window[1], half_width) + 1.0
+    # the ions that any iteration can reach, found once: later bands search only these
+    near = ion_band(ions.positions, vertices, vertex_normals(vertices, faces), reach + iterations * max_step).index
+    positions = np.asarray(ions.positions[near], dtype=np.float64)
+    atoms = IonAtoms(atoms.elements, atoms.atoms[near])
+    total_atoms = total_atoms[near]
+    guarded, history, levels = 0, [], []
+    it = 0
+    for it in range(1, iterations + 1):
+        normals = vertex_normals(vertices, faces)
+        band = ion_band(positions, vertices, normals, reach)
+        if it <= far_iterations + 1:
+            levels = plateaus(band, atoms, components, n_comp, species, plateau_window, plateau_prior)
+        if it == far_iterations + 1:
+            # plateaus fixed from here on: keep only the ions that later profiles can reach
+            keep = np.abs(band.distance) <= half_width + (iterations - it + 1) * max_step
+            sub = band.index[keep]
+            positions, atoms, total_atoms = positions[sub], IonAtoms(atoms.elements, atoms.atoms[sub]), total_atoms[sub]
+            band = Band(np.arange(len(sub)), band.vertex[keep], band.distance[keep])
+            reach = half_width + 1.0
+        weights = [contrast_weights(lv.inside, lv.outside, atoms.elements, species, score)
+                   if np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside)) else None for lv in levels]
+        usable = np.array([w is not None for w in weights] + [False])  # last entry: unused vertices (-1)
+        wmat = np.array([w if w is not None else np.zeros(len(atoms.elements)) for w in weights] or
+                        np.zeros((0, len(atoms.elements))))
+        s_in = np.array([wmat[c] @ lv.inside if usable[c] else 0.0 for c, lv in enumerate(levels)])
+        s_out = np.array([wmat[c] @ lv.outside if usable[c] else 0.0 for c, lv in enumerate(levels)])
+        comp = components[band.vertex]
+        ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[comp])
+        pool = pooling_matrix(vertices, normals, components, pool_radius, normal_power)
+        mean_of_neighbours = umbrella(adj, normals, normal_power)
+        raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
+        raw_t = binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
+        s_sum, t_sum = pool @ raw_s, pool @ raw_t
+        ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
+        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
+        widths = np.array([profile_width(normalised_profile(raw_s[components == c].sum(axis=0, keepdims=True),
+                                                            raw_t[components == c].sum(axis=0, keepdims=True),
+                                                            s_in[c:c + 1], s_out[c:c + 1], half_width, bin_width),
+                                         bin_width) if usable[c] else 1.0 for c in range(n_comp)])
+        offset = np.zeros(n)
+        if it <= far_iterations:
+            offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
+        else:
+            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], bin_width),
+                                        half_width, bin_width)
+        offset = np.clip(offset, -max_step, max_step)
+        for _ in range(smoothing):
+            offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
+        # full steps while far off, then Robbins-Monro averaging of the noisy estimates
+        gain = min(1.0, (far_iterations + 1.0) / it)
+        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
+        step = np.einsum("ij,ij->i", new - vertices, normals)
+        guarded += g
+        vertices = new
+        if tangential > 0:
+            normals = vertex_normals(vertices, faces)
+            lap = umbrella(adj) @ vertices - vertices
+            lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
+            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
+            guarded += g
+        history.append(float(np.abs(step).max()) if n else 0.0)
+        if history[-1] < tolerance * gain:
+            break
+    start = mesh.vertices.astype(np.float64)
+    vertices, untangled = untangle(vertices, faces, start, umbrella(adj),
+                                   lambda v, step: guarded_move(v, faces, step, pairs)[0])
+    moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
+    out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
+                  dict(mesh.face_scalars))
+    levels = object_levels_of(out, ions, ranges, species, basis, plateau_window, plateau_prior)
+    stats = {"mean": float(moved_total.mean()) if n else 0.0,
+             "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
+             "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
+             "last_step_max": history[-1] if history else 0.0}
+    return RefineResult(out, levels, stats, it, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
+                        int(intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
+                        history)

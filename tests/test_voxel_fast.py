@@ -1,0 +1,97 @@
+"""The fast paths of the scatter: bin-table ranging and the multi-threaded, block-layer-partitioned scatter."""
+
+import numba
+import numpy as np
+import pytest
+
+from apt_filters.io import IonTable, Range, RangeTable
+from apt_filters.voxel import Grid, kernel_reach, voxelize
+from apt_filters.voxel.ranging import MzLookup
+from tests.voxel_helpers import ions, random_ions, ranges
+
+
+def touching_ranges() -> RangeTable:
+    """Ranges that touch (upper == next lower), a narrow one, bounds not exact in float32, one repeated ion."""
+    return RangeTable([
+        Range(10.0, 10.7, (("B", 1),)),
+        Range(10.7, 11.3, (("C", 1),)),
+        Range(27.0, 27.001, (("Al", 1),)),
+        Range(0.1, 0.3, (("H", 1),)),
+        Range(55.93, 56.17, (("Fe", 1),)),
+        Range(199.9, 200.3, (("B", 1),)),
+    ])
+
+
+@pytest.mark.parametrize("table", [touching_ranges(), ranges()], ids=["touching", "helpers"])
+def test_lookup_ranging_equals_ion_index_everywhere(table):
+    rng = np.random.default_rng(3)
+    bounds = np.array([b for r in table.ranges for b in (r.lower, r.upper)])
+    at_bounds = np.concatenate([
+        bounds.astype(np.float32),
+        np.nextafter(bounds.astype(np.float32), np.float32(np.inf)),
+        np.nextafter(bounds.astype(np.float32), np.float32(-np.inf)),
+    ])
+    special = np.array([np.nan, np.inf, -np.inf, -5.0, 0.0, 1e30, 3e38], dtype=np.float32)
+    mz = np.concatenate([rng.uniform(-1, 260, 200_000).astype(np.float32), at_bounds, special])
+    want = table.ion_index(mz) + 1
+    np.testing.assert_array_equal(MzLookup.from_ranges(table).rows_of(mz), want)
+
+
+def dense_square(pos, grid):
+    f = grid.fractional_index(pos)
+    idx = np.floor(f + 0.5).astype(np.int64)
+    out = np.zeros(grid.shape)
+    np.add.at(out, tuple(idx.T), 1.0)
+    return out
+
+
+def dense_sawtooth(pos, grid):
+    f = grid.fractional_index(pos)
+    i0 = np.floor(f).astype(np.int64)
+    t = f - i0
+    out = np.zeros(grid.shape)
+    for a in (0, 1):
+        for b in (0, 1):
+            for c in (0, 1):
+                w = np.where(a, t[:, 0], 1 - t[:, 0]) * np.where(b, t[:, 1], 1 - t[:, 1])
+                w = w * np.where(c, t[:, 2], 1 - t[:, 2])
+                np.add.at(out, (i0[:, 0] + a, i0[:, 1] + b, i0[:, 2] + c), w)
+    return out
+
+
+@pytest.mark.parametrize("kernel, reference", [("square", dense_square), ("sawtooth", dense_sawtooth)])
+@pytest.mark.parametrize("order", ["detection", "shuffled"])
+def test_threaded_scatter_equals_numpy_reference(kernel, reference, order):
+    """Many block layers (z spans 12 of them), ions on layer boundaries, every thread count."""
+    table = random_ions(30_000, [0.0, 0.0, 0.0], [9.0, 13.0, 95.0], seed=5, names=("Cu",))
+    pos = table.positions.copy()
+    pos[:200, 2] = np.float32(8 * np.arange(200) % 96)  # exactly on block-layer boundaries
+    pos = pos[np.argsort(-pos[:, 2])] if order == "detection" else pos
+    grid = Grid.covering(np.zeros(3), [9.0, 13.0, 95.0], 1.0, kernel_reach(kernel))
+    want = reference(pos.astype(np.float64), grid)
+    default = numba.get_num_threads()
+    try:
+        for n_threads in sorted({1, 2, default}):
+            numba.set_num_threads(n_threads)
+            got = voxelize(ions(pos, ["Cu"] * len(pos)), ranges(), grid=grid, kernel=kernel).counts["Cu"].dense()
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"{n_threads} threads")
+    finally:
+        numba.set_num_threads(default)
+
+
+def test_threaded_gaussian_is_independent_of_thread_count_and_order():
+    table = random_ions(20_000, [0.0, 0.0, 0.0], [7.0, 9.0, 70.0], seed=6)
+    grid = Grid.covering(np.zeros(3), [7.0, 9.0, 70.0], 1.0, kernel_reach("gaussian"))
+    perm = np.argsort(-table.positions[:, 2])
+    results = []
+    default = numba.get_num_threads()
+    try:
+        for n_threads, idx in ((1, perm), (default, perm), (default, np.arange(len(perm)))):
+            numba.set_num_threads(n_threads)
+            t = IonTable(table.positions[idx], table.mz[idx])
+            results.append(voxelize(t, ranges(), grid=grid, kernel="gaussian"))
+    finally:
+        numba.set_num_threads(default)
+    for f in results[1:]:
+        for name in f.names:
+            np.testing.assert_allclose(f.counts[name].dense(), results[0].counts[name].dense(), rtol=0, atol=1e-9)
