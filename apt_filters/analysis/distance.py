@@ -32,7 +32,7 @@ from scipy.sparse.csgraph import connected_components
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 
-_MAX_RING = 48
+_MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
 
 FACE, EDGE, VERTEX = 0, 1, 2
@@ -268,8 +268,8 @@ class SurfaceDistance:
     method : {"grid", "open3d"}
         Closest-triangle search: our uniform grid (:class:`TriangleGrid`, numba, all cores,
         float64) or open3d's BVH (``RaycastingScene.compute_closest_points``, float32: exact to
-        about 1e-7 of the coordinates' magnitude). Both are exact; the grid is several times
-        faster on iso-surfaces (``benchmarks/bench_proxigram.py``).
+        about 1e-7 of the coordinates' magnitude). Both are exact; the grid was 1.3-2.2x
+        faster on a 230k-triangle iso-surface (``benchmarks/results_proxigram.md``).
     cell : float, optional
         Grid cell, nm (default: :meth:`TriangleGrid.build`).
     """
