@@ -48,12 +48,13 @@ def test_report_numbers_against_the_truth(small_run):
     assert set(rows) == {"cube 6 nm", "sphere 3 nm"}
     for row in rows.values():
         assert row["object_id"] is not None, f"no object found at {row['feature']}"
-        # The AP Suite-style definition (15 at.% of delocalised Al) shrinks small precipitates
-        # (issue 9): what this run must reach today, not the goal.
-        assert 0.45 < row["volume_ratio"] < 1.05
-        assert 0.6 < row["area_ratio"] < 1.1
-        # The count of excess B is right; dividing by the too-small area inflates Γ.
-        assert 0.7 < row["excess_B_ratio"] < 1.8
+        # Guards of what the default pipeline (with refinement) reaches today on this seed:
+        # volume 0.88-1.03, area 0.85-1.12, excess 0.88-1.20 of the truth. Issue 9's targets
+        # (±5%) are not reached yet; before refinement volumes were 0.6-0.8 (tighter than the
+        # 0.45-1.05 this test used to accept).
+        assert abs(row["volume_ratio"] - 1) < 0.15, row
+        assert abs(row["area_ratio"] - 1) < 0.18, row
+        assert abs(row["excess_B_ratio"] - 1) < 0.25, row
     surface = report["surfaces"][0]
     assert surface["mesh"]["boundary_edges"] == 0, "precipitates inside the box are closed"
     assert {o["status"] for o in surface["objects"]} == {"closed"}
@@ -125,3 +126,17 @@ def test_a_remesher_failure_keeps_the_cleaned_mesh_and_warns(specimen, tmp_path,
     report = run_pipeline(config, tmp_path / "out", quiet=True)
     assert report["warnings"] == ["remeshing Al15 failed (RuntimeError: synthetic failure); the cleaned mesh is used"]
     assert report["surfaces"][0]["mesh"]["faces"] > 0
+
+
+def test_closed_components_counts_watertight_parts():
+    import numpy as np
+
+    from apt_filters.core.mesh import TriMesh
+    from apt_filters.pipeline.run import closed_components
+    from tests.test_core import unit_cube
+
+    cube = unit_cube()
+    two = TriMesh(np.vstack([cube.vertices, cube.vertices + 10]), np.vstack([cube.faces, cube.faces + 8]))
+    assert closed_components(two) == 2
+    holed = TriMesh(two.vertices, two.faces[1:])
+    assert closed_components(holed) == 1

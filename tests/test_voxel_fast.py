@@ -1,9 +1,9 @@
 """The fast paths of the scatter: bin-table ranging and the multi-threaded, block-layer-partitioned scatter."""
 
-import numba
 import numpy as np
 import pytest
 
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel.ranging import MzLookup
@@ -69,14 +69,9 @@ def test_threaded_scatter_equals_numpy_reference(kernel, reference, order):
     pos = pos[np.argsort(-pos[:, 2])] if order == "detection" else pos
     grid = Grid.covering(np.zeros(3), [9.0, 13.0, 95.0], 1.0, kernel_reach(kernel))
     want = reference(pos.astype(np.float64), grid)
-    default = numba.get_num_threads()
-    try:
-        for n_threads in sorted({1, 2, default}):
-            numba.set_num_threads(n_threads)
-            got = voxelize(ions(pos, ["Cu"] * len(pos)), ranges(), grid=grid, kernel=kernel).counts["Cu"].dense()
-            np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"{n_threads} threads")
-    finally:
-        numba.set_num_threads(default)
+    for threads in (1, 2, 3):
+        got = voxelize(ions(pos, ["Cu"] * len(pos)), ranges(), grid=grid, kernel=kernel, threads=threads)
+        np.testing.assert_allclose(got.counts["Cu"].dense(), want, rtol=0, atol=1e-9, err_msg=f"{threads} threads")
 
 
 def test_threaded_gaussian_is_independent_of_thread_count_and_order():
@@ -84,14 +79,14 @@ def test_threaded_gaussian_is_independent_of_thread_count_and_order():
     grid = Grid.covering(np.zeros(3), [7.0, 9.0, 70.0], 1.0, kernel_reach("gaussian"))
     perm = np.argsort(-table.positions[:, 2])
     results = []
-    default = numba.get_num_threads()
-    try:
-        for n_threads, idx in ((1, perm), (default, perm), (default, np.arange(len(perm)))):
-            numba.set_num_threads(n_threads)
-            t = IonTable(table.positions[idx], table.mz[idx])
-            results.append(voxelize(t, ranges(), grid=grid, kernel="gaussian"))
-    finally:
-        numba.set_num_threads(default)
+    for threads, idx in ((1, perm), (2, perm), (3, np.arange(len(perm)))):
+        t = IonTable(table.positions[idx], table.mz[idx])
+        results.append(voxelize(t, ranges(), grid=grid, kernel="gaussian", threads=threads))
     for f in results[1:]:
         for name in f.names:
             np.testing.assert_allclose(f.counts[name].dense(), results[0].counts[name].dense(), rtol=0, atol=1e-9)
+
+
+def test_thread_count_below_one_is_refused():
+    with pytest.raises(AptFiltersError, match="threads must be at least 1"):
+        voxelize(ions([[1.0, 1.0, 1.0]], ["Cu"]), ranges(), kernel="square", threads=0)

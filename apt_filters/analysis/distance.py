@@ -1,8 +1,11 @@
 """Exact signed distance of points to an oriented triangle mesh, in a narrow band.
 
-The closest point on the surface comes from open3d's BVH (``RaycastingScene.compute_closest_points``);
-the sign from the angle-weighted pseudo-normal of the feature (face, edge or vertex) on which the
-closest point lies (Bærentzen & Aanæs 2005). That sign is provably right for any point of a closed
+The closest point on the surface comes from our own exact search (:class:`TriangleGrid`: triangles
+bucketed in a uniform grid, cells visited nearest first and pruned by box and disk lower bounds,
+Ericson's closest point on a triangle, numba on all cores, float64), or on request from open3d's
+BVH (``RaycastingScene.compute_closest_points``, float32); the sign from the angle-weighted
+pseudo-normal of the feature (face, edge or vertex) on which the closest point lies (Bærentzen &
+Aanæs 2005). That sign is provably right for any point of a closed
 manifold, including at sharp edges and corners, and stays meaningful on open surfaces, unlike
 open3d's own ``compute_signed_distance`` (ray parity; assumes a watertight mesh).
 
@@ -11,7 +14,8 @@ positive inside that region (the precipitate side), as AP Suite plots proxigrams
 
 Only points that may lie within ``max_distance`` of the surface are queried: a coarse voxel
 mask (:class:`NarrowBand`, a Euclidean distance transform of the voxels the surface touches)
-rejects the rest with one table lookup per point, conservatively (no point within range is lost).
+rejects the rest with one table lookup per point, conservatively (no point within range is lost);
+the grid search then looks no farther than ``max_distance`` (points beyond get NaN).
 """
 
 from __future__ import annotations
@@ -27,6 +31,9 @@ from scipy.sparse.csgraph import connected_components
 
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
+
+_MAX_RING = 16
+"""Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
 
 FACE, EDGE, VERTEX = 0, 1, 2
 """Feature of the closest point (``SignedDistance.feature``)."""
@@ -175,12 +182,33 @@ class NarrowBand:
 
 
 def _cell_order(points: np.ndarray, cell: float) -> np.ndarray:
-    """Indices that visit ``points`` cell by cell (cells of ``cell`` nm, x-major)."""
+    """Indices that visit ``points`` cell by cell (cells of ``cell`` nm, x-major).
+
+    A counting sort (linear time) when there are not many more cells than points.
+    """
     if len(points) == 0:
         return np.empty(0, np.int64)
     c = np.floor((points - points.min(axis=0)) / np.float32(cell)).astype(np.int64)
     n = c.max(axis=0) + 1
-    return np.argsort((c[:, 0] * n[1] + c[:, 1]) * n[2] + c[:, 2], kind="stable")
+    key = (c[:, 0] * n[1] + c[:, 1]) * n[2] + c[:, 2]
+    if np.prod(n.astype(np.float64)) <= 4 * len(points) + (1 << 20):
+        return _counting_order(key, int(np.prod(n)))
+    return np.argsort(key, kind="stable")
+
+
+@njit(cache=True)
+def _counting_order(key, n_keys):
+    """Stable order of integer ``key`` (N,) in [0, n_keys), by counting."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for k in key:
+        start[k + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        order[start[key[i]]] = i
+        start[key[i]] += 1
+    return order
 
 
 def surface_samples(mesh: TriMesh, spacing: float) -> np.ndarray:
@@ -240,8 +268,8 @@ class SurfaceDistance:
     method : {"grid", "open3d"}
         Closest-triangle search: our uniform grid (:class:`TriangleGrid`, numba, all cores,
         float64) or open3d's BVH (``RaycastingScene.compute_closest_points``, float32: exact to
-        about 1e-7 of the coordinates' magnitude). Both are exact; the grid is several times
-        faster on iso-surfaces (``benchmarks/bench_proxigram.py``).
+        about 1e-7 of the coordinates' magnitude). Both are exact; the grid was 1.3-2.2x
+        faster on a 230k-triangle iso-surface (``benchmarks/results_proxigram.md``).
     cell : float, optional
         Grid cell, nm (default: :meth:`TriangleGrid.build`).
     """
@@ -276,7 +304,9 @@ class SurfaceDistance:
         Points are visited in the order of coarse spatial cells (``sort_cell`` nm), so that
         consecutive searches touch the same cells (BVH nodes): 1.5-2.5x faster than random order.
         With ``max_distance`` (nm, grid only), points farther than that from the surface get a
-        NaN distance and face -1, and the search never looks farther.
+        NaN distance and face -1, and the search never looks farther. Without it, a point more
+        than ``_MAX_RING`` grid cells away from every triangle is finished by brute force
+        (exact, but slow on large meshes).
         """
         if max_distance is not None and self.method != "grid":
             raise ValueError("max_distance needs method='grid'")
@@ -288,7 +318,7 @@ class SurfaceDistance:
                              np.empty(len(points), np.int8), np.empty(len(points), bool))
         if self.method == "grid":
             reach = np.inf if max_distance is None else float(max_distance)
-            plan = self.grid.offsets(min(reach, float(self.grid.cell * self.grid.shape.max())))
+            plan = self.grid.offsets(min(reach, self.grid.cell * float(min(self.grid.shape.max(), _MAX_RING))))
             limit = reach * reach * (1 + 1e-12)
         for a in range(0, len(points), self.batch):
             idx = order[a:a + self.batch]
@@ -488,13 +518,15 @@ def _bucket_triangles(tri, origin, cell, shape):
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _first_occupied(shape, slot, offsets):
+def _first_occupied(shape, slot, offsets, far):
     """(cells,) int32: index of the first of ``offsets`` that leads from each cell to a non-empty
-    cell (``len(offsets)`` if none); the search starts there, the offsets before lead to empty
-    cells only."""
+    cell (``len(offsets)`` if none, or if ``far`` says so); the search starts there, the offsets
+    before lead to empty cells only."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     first = np.full(nx * ny * nz, offsets.shape[0], np.int32)
     for c in prange(nx * ny * nz):
+        if far[c]:
+            continue
         cx, cy, cz = c // (ny * nz), (c // nz) % ny, c % nz
         for k in range(offsets.shape[0]):
             ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
@@ -620,8 +652,10 @@ class TriangleGrid:
 
     Notes
     -----
-    Memory: 4 bytes per cell of the mesh's bounding box, 56 bytes per non-empty cell and 4 bytes
-    per (triangle, cell) pair; about 20 MB for a 230k-triangle surface in a 63 nm box.
+    Memory: 136 bytes per triangle, 4 bytes per (triangle, cell) pair, 56 bytes per non-empty
+    cell and 4 bytes per cell of the mesh's bounding box, plus 4 bytes per cell for each search
+    plan (:meth:`offsets`; 8 more while it is built): 38 MB (+2 MB per plan) for 230k triangles
+    in a 58 nm box with 0.76 nm cells.
     """
 
     origin: np.ndarray
@@ -637,7 +671,7 @@ class TriangleGrid:
 
     @classmethod
     def build(cls, vertices: np.ndarray, faces: np.ndarray, cell: float | None = None,
-              max_cells: int = 1 << 24) -> "TriangleGrid":
+              max_cells: int = 1 << 23) -> "TriangleGrid":
         """Bucket triangles (m, 3) of ``vertices`` (n, 3) nm into cells of ``cell`` nm.
 
         The default cell is twice the median edge (a few triangles per cell); it grows until the
@@ -686,6 +720,10 @@ class TriangleGrid:
             key_order = np.lexsort(((o[keep] ** 2).sum(axis=1), bound[keep]))
             offsets = o[keep][key_order].astype(np.int64)
             linear = (offsets[:, 0] * self.shape[1] + offsets[:, 1]) * self.shape[2] + offsets[:, 2]
+            # A listed offset o has |o| < r + sqrt(3) cells; cells farther than that from any
+            # non-empty cell (Euclidean distance transform) need no scan: all their offsets are empty.
+            gap = ndimage.distance_transform_edt(self.slot.reshape(tuple(self.shape)) < 0)
+            far = (gap >= r + np.sqrt(3.0)).ravel()
             self._plans[key] = (offsets, bound[keep][key_order], linear, r,
-                                _first_occupied(self.shape, self.slot, offsets), covered)
+                                _first_occupied(self.shape, self.slot, offsets, far), covered)
         return self._plans[key]

@@ -45,6 +45,7 @@ def demo_config(specimen: Path):
     from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 
     config = PipelineConfig(surface=[SurfaceConfig("Al", DEMO_ISO)])
+    config.voxel.exclude = ["B"]  # the segregant would dilute Al at the interfaces
     config.input.ions = str(specimen / "specimen.pos")
     config.input.ranges = str(specimen / "specimen.rrng")
     return config
@@ -76,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "demo", help="run apt-filters on the built-in synthetic specimen",
         description="Generate the built-in synthetic specimen (a conical tip with rotated cubes, spheres, a rod, "
                     "a plate and a flat interface, B segregated at every interface; ~3.4M ions) into OUT/specimen, "
-                    "run the whole pipeline on it (Al iso-surface at 15 at.%) into OUT/run, and print the objects' "
+                    "run the whole pipeline on it (Al iso-surface at 15 at.%, B left out of the concentration) into OUT/run, and print the objects' "
                     "volumes, areas and B excess over their true values.")
     p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT})")
     p.add_argument("--seed", type=int, default=0, help="random seed of the ions (default 0)")

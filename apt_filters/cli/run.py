@@ -52,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run", help="ion file -> iso-surfaces, objects, proxigrams, excess and a report",
         description="Read, range, audit the range file, voxelize (1 nm voxels, 3x3x1.5 nm Gaussian delocalization), "
-                    "contour (dual contouring), clean with a MeshLab chain (saved as .mlx), remesh (feature-preserving "
+                    "contour (marching cubes), refine the surface against the ions, clean with a MeshLab chain (saved as .mlx), remesh (feature-preserving "
                     "CVT), measure objects, compute proxigrams (0.1 nm bins, edge polygons excluded) and interfacial "
                     "excess, and write meshes, a MeshLab project and report.json/report.html into OUT.")
     p.add_argument("input", nargs="?", help="ion file (POS, EPOS, APT, CSV); optional with --config")
@@ -63,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--iso", type=float, help="iso-concentration as a fraction, e.g. 0.15 for 15 at.%%")
     p.add_argument("--density", type=float, help="iso-density in atoms/nm3 instead of a concentration")
     p.add_argument("--exclude", nargs="+", help="elements left out of the concentration's denominator")
-    p.add_argument("--method", choices=["dc", "mc"], help="dual contouring (default) or marching cubes")
+    p.add_argument("--method", choices=["dc", "mc"], help="marching cubes (default) or dual contouring")
     p.add_argument("--kernel", choices=["gaussian", "sawtooth", "square"], help="transfer function (default gaussian)")
     p.add_argument("--voxel", type=float, help="voxel edge in nm (default 1.0)")
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")

@@ -48,6 +48,15 @@ def composition(ions: IonTable, ranges: RangeTable) -> dict[str, float]:
     return {el: float(n / total) if total else 0.0 for el, n in zip(ranges.elements, atoms)}
 
 
+def closed_components(mesh: TriMesh) -> int:
+    """Number of connected components without boundary edges."""
+    labels = mesh.face_components()
+    edges = np.sort(mesh.edges(), axis=1)
+    uniq, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    open_faces = (counts[inverse.ravel()] == 1).reshape(-1, 3).any(axis=1)
+    return int(len(np.unique(labels)) - len(np.unique(labels[open_faces])))
+
+
 @dataclass
 class SurfaceResult:
     label: str
@@ -85,12 +94,14 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     from apt_filters.audit import audit_ranges
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.meshlab.exports import write_ion_cloud, write_ply, write_project
+    from apt_filters.refine import refine_surface, remove_specks
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
     _check_config(config)
     per_surface = 4 + (config.remesh.method == "cvt")
-    log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface))
+    n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
+    log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
     with staged_folder(out, force=force) as stage:
         (stage / "meshes").mkdir()
@@ -126,6 +137,20 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
                                        config.contour.close_at_edge)
                 s.summary = f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+            raw_area = mesh.area()
+            if config.refine.enabled and surface.species:
+                with log.step("refine") as s:
+                    mesh, specks = remove_specks(mesh, config.refine.min_volume, config.refine.min_area)
+                    refined = refine_surface(mesh, ions, ranges, surface.species, basis,
+                                             iterations=config.refine.iterations)
+                    mesh = refined.mesh
+                    refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
+                                    "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
+                                    "self_intersections": refined.self_intersections}
+                    s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
+                                 f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+            else:
+                refine_stats = None
             with log.step("clean") as s:
                 mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
                 s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
@@ -133,7 +158,11 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 with log.step("remesh") as s:
                     edge = config.remesh.edge_length or fields.grid.voxel / 2
                     try:
-                        mesh = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
+                        remeshed = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
+                        lost = closed_components(mesh) - closed_components(remeshed)
+                        if lost > 0:
+                            raise AptFiltersError(f"{lost} closed objects came out with holes")
+                        mesh = remeshed
                         s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
                     except Exception as exc:  # noqa: BLE001 - a remesher failure must not cost the whole run
                         warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
@@ -165,7 +194,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
                 s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
                              f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
-            res.stats |= {"faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
+            res.stats |= {"raw_area_nm2": raw_area, "refine": refine_stats, "faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:

@@ -68,6 +68,9 @@ def boundary_loops(faces: np.ndarray) -> list[list[int]]:
     return loops
 
 
+MAX_FILL_ROUNDS = 4
+
+
 def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """Close every boundary loop with a vertex not on a boundary curve (``on_boundary`` False)."""
     new = []
@@ -116,7 +119,11 @@ def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pin
     """Duplicates, over-full edges, then holes; returns the new faces."""
     faces = drop_duplicates(faces)
     faces = trim_overfull_edges(vertices, faces)
-    faces = close_holes(vertices, faces, on_boundary, pinned)
-    # A hole fill can add a third face to an edge (two holes sharing a vertex pair).
-    faces = trim_overfull_edges(vertices, drop_duplicates(faces))
+    # A hole fill can add a third face to an edge (two holes sharing a vertex pair); trimming
+    # it opens a smaller hole, so fill and trim until nothing changes.
+    for _ in range(MAX_FILL_ROUNDS):
+        filled = trim_overfull_edges(vertices, drop_duplicates(close_holes(vertices, faces, on_boundary, pinned)))
+        if filled.shape == faces.shape and np.array_equal(filled, faces):
+            break
+        faces = filled
     return orient_coherently(vertices, faces)

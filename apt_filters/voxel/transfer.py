@@ -17,7 +17,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from numba import get_num_threads, njit
+from numba import njit
 from scipy.ndimage import binary_dilation, gaussian_filter1d
 
 from apt_filters.core.errors import AptFiltersError
@@ -78,7 +78,7 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
     return r + 0.5, n - 1.5 - r
 
 
-# Each chunk is scattered in three passes, on numba.get_num_threads() Python threads running
+# Each chunk is scattered in three passes, on ``threads`` Python threads running
 # nogil kernels (compiled like serial code: numba's parallel=True took 4x the first-call JIT
 # time). ``_mark`` (each thread on a contiguous share of the ions) checks every ion against the
 # admissible range, counts the ions per row and flags the absent blocks its footprint touches;
@@ -297,8 +297,8 @@ class BlockAccumulator:
 
     Memory: ``n_channels * capacity * 512 * 8`` bytes of pool (capacity grows by doubling, so up
     to twice the occupied blocks while scattering, capped at the box's blocks) plus the block
-    table and its flags (5 bytes per block of the bounding box). The scatter runs on numba's threads
-    (``numba.set_num_threads``); they share the one pool.
+    table and its flags (5 bytes per block of the bounding box). With ``threads`` > 1 the
+    threads share the one pool (they write disjoint blocks) and add ``threads × n_rows`` counters.
 
     Parameters
     ----------
@@ -310,6 +310,8 @@ class BlockAccumulator:
     n_channels : int
     delocalization : (3,) nm
         Gaussian only.
+    threads : int
+        Threads that scatter each chunk (1 by default: see :func:`~apt_filters.voxel.fields.voxelize`).
 
     Attributes
     ----------
@@ -317,8 +319,12 @@ class BlockAccumulator:
         Ions scattered so far per row.
     """
 
-    def __init__(self, grid: Grid, kernel: str, rows, n_channels: int, delocalization=(3.0, 3.0, 1.5)):
+    def __init__(self, grid: Grid, kernel: str, rows, n_channels: int, delocalization=(3.0, 3.0, 1.5),
+                 threads: int = 1):
         check_kernel(kernel)
+        if int(threads) < 1:
+            raise AptFiltersError(f"scatter threads must be at least 1, got {threads!r}")
+        self.threads = int(threads)
         self.grid = grid
         self.kernel = kernel
         self.delocalization = delocalization
@@ -338,7 +344,7 @@ class BlockAccumulator:
         rows = np.ascontiguousarray(rows)
         origin = np.asarray(self.grid.origin)
         inv_h = 1.0 / self.grid.voxel
-        n_tasks = get_num_threads()
+        n_tasks = self.threads
         counts = np.zeros((n_tasks, len(self.row_count)), dtype=np.int64)
         shares = np.linspace(0, len(positions), n_tasks + 1).astype(np.int64)
         mark_args = (positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0],
