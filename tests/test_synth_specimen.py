@@ -375,3 +375,13 @@ def test_species_are_drawn_from_the_local_composition(small):
     counts = np.bincount(species[atoms][near], minlength=prob.shape[1])
     expected, var = prob[near].sum(axis=0), (prob[near] * (1 - prob[near])).sum(axis=0)
     assert (np.abs(counts - expected) < SIGMAS * np.sqrt(var)).all(), (counts, expected)
+
+
+def test_many_preset_holds_about_fifty_precipitates_that_pass_the_layout_check():
+    from apt_filters.synth.presets import many
+    from apt_filters.synth.specimen import check_layout
+
+    spec = many()
+    check_layout(spec)
+    assert 45 <= len(spec.features) <= 55
+    assert 7e6 < spec.expected_ions() < 1.1e7

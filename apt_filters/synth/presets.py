@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
+import numpy as np
+
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.shapes import Capsule, Cuboid, Cylinder, HalfSpace, Sphere
@@ -67,7 +69,26 @@ def small() -> SpecimenSpec:
     return SpecimenSpec(Box((16.0, 14.0, 28.0)), GAMMA, features, name="small")
 
 
-PRESETS: dict[str, Callable[[], SpecimenSpec]] = {"default": default, "gamma-prime": gamma_prime, "small": small}
+def many() -> SpecimenSpec:
+    """~8.4M ions with 47 precipitates (issue 8's scale case; ``--ions`` lengthens the shank): tip
+    130 nm long (apex 14 nm, 8 deg); layers every 8.5 nm, each of 3-5 precipitates (rotated 5 nm cubes and 2.5 nm spheres) around
+    the axis, alternate layers turned so that no two sit on top of each other."""
+    tip = Tip(14.0, 8.0, 130.0)
+    features = []
+    for layer, z in enumerate(np.arange(-12.0, -125.0, -8.5)):
+        radius = float(tip.radius_at(np.array([z]))[0])
+        count = 3 if radius < 24 else (4 if radius < 30 else 5)
+        offset = 0.45 * radius
+        for k in range(count):
+            angle = 2 * np.pi * (k + 0.5 * (layer % 2)) / count
+            centre = (offset * np.cos(angle), offset * np.sin(angle), float(z))
+            shape = Cuboid(centre, 5.0, rotation=100 + len(features)) if (layer + k) % 2 else Sphere(centre, 2.5)
+            features.append(_precipitate(shape, name=f"{'cube 5' if (layer + k) % 2 else 'sphere 2.5'} nm #{len(features)}"))
+    return SpecimenSpec(tip, GAMMA, tuple(features), name="many")
+
+
+PRESETS: dict[str, Callable[[], SpecimenSpec]] = {"default": default, "gamma-prime": gamma_prime, "small": small,
+                                                  "many": many}
 
 
 def preset(name: str, ions: int | None = None) -> SpecimenSpec:
