@@ -21,7 +21,7 @@ def test_config_round_trips_through_toml(tmp_path):
     ("[voxel]\nsize = 'big'\n", "size = 'big' should be float"),
     ("[voxel]\nkernel = 'cubic'\n", "kernel must be one of gaussian, sawtooth, square"),
     ("[voxle]\nsize = 1\n", "unknown section(s): voxle"),
-    ("[clean]\nmin_component_faces = 2.5\n", "should be int"),
+    ("[refine]\niterations = 2.5\n", "should be int"),
     ("[proxigram]\nbins = 0.1\n", "unknown key(s) in [proxigram]: bins"),
     ("[voxel\n", "not valid TOML"),
 ])

@@ -70,12 +70,6 @@ class RefineConfig:
 
 
 @dataclass
-class CleanConfig:
-    min_component_faces: int = 20
-    """Connected components with fewer faces are noise specks and removed."""
-
-
-@dataclass
 class RemeshConfig:
     method: str = "cvt"
     """cvt (feature-preserving centroidal Voronoi) or none."""
@@ -112,7 +106,6 @@ class PipelineConfig:
     surface: list[SurfaceConfig] = field(default_factory=list)
     contour: ContourConfig = field(default_factory=ContourConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
-    clean: CleanConfig = field(default_factory=CleanConfig)
     remesh: RemeshConfig = field(default_factory=RemeshConfig)
     proxigram: ProxigramConfig = field(default_factory=ProxigramConfig)
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
