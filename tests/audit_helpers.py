@@ -7,12 +7,11 @@ readers are written in parallel; the audit itself only takes arrays and RangeTab
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from apt_filters.audit.isotopes import isotope_pattern
-from apt_filters.io.ranges import Range, RangeTable
+from apt_filters.io.ranges import Range
 
 
 @dataclass

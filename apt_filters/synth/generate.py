@@ -15,7 +15,6 @@ plus 17 bytes per ion kept in memory (positions, m/z, species) when ``keep_ions`
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
