@@ -193,6 +193,34 @@ def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, po
             pool[row_chan[p] * chan + voxel] += row_w[p]
 
 
+@njit(nogil=True, cache=True, inline="always")
+def _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, taps, p0, p1, row_chan, row_w):
+    """Add the taps x taps x taps weights wx[a] wy[b] wz[d] at grid point (ix, iy, iz) + (a, b, d)
+    for every channel of one ion's row, in the pool's z-first block layout."""
+    last = 8 - taps
+    if (ix & 7) <= last and (iy & 7) <= last and (iz & 7) <= last:  # all in one block: one lookup
+        at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
+        for p in range(p0, p1):
+            c, m = row_chan[p], row_w[p]
+            for a in range(taps):
+                for b in range(taps):
+                    wab = m * wx[a] * wy[b]
+                    for d in range(taps):
+                        pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+        return
+    for p in range(p0, p1):
+        c, m = row_chan[p], row_w[p]
+        for a in range(taps):
+            for b in range(taps):
+                wab = m * wx[a] * wy[b]
+                column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
+                at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
+                for d in range(taps):
+                    if d and (iz + d) & 7 == 0:  # the z column enters the next block
+                        at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
+                    pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+
+
 @njit(nogil=True, cache=True)
 def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
     last, owned = np.int64(-1), False
@@ -214,27 +242,7 @@ def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, 
         wy = (1.0 - (fy - y0), fy - y0)
         wz = (1.0 - (fz - z0), fz - z0)
         ix, iy = np.int64(x0), np.int64(y0)
-        if (ix & 7) <= 6 and (iy & 7) <= 6 and (iz & 7) <= 6:  # all in one block: one lookup
-            at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
-            for p in range(p0, p1):
-                c, m = row_chan[p], row_w[p]
-                for a in range(2):
-                    for b in range(2):
-                        wab = m * wx[a] * wy[b]
-                        for d in range(2):
-                            pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
-            continue
-        for p in range(p0, p1):
-            c, m = row_chan[p], row_w[p]
-            for a in range(2):
-                for b in range(2):
-                    wab = m * wx[a] * wy[b]
-                    column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
-                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
-                    for d in range(2):
-                        if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
-                        pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+        _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, 2, p0, p1, row_chan, row_w)
 
 
 @njit(nogil=True, cache=True)
@@ -253,27 +261,7 @@ def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, 
         iz, wz = _gauss3(fz)
         ix, wx = _gauss3((np.float64(pos[i, 0]) - origin[0]) * inv_h)
         iy, wy = _gauss3((np.float64(pos[i, 1]) - origin[1]) * inv_h)
-        if (ix & 7) <= 5 and (iy & 7) <= 5 and (iz & 7) <= 5:  # all in one block: one lookup
-            at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
-            for p in range(p0, p1):
-                c, m = row_chan[p], row_w[p]
-                for a in range(3):
-                    for b in range(3):
-                        wab = m * wx[a] * wy[b]
-                        for d in range(3):
-                            pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
-            continue
-        for p in range(p0, p1):
-            c, m = row_chan[p], row_w[p]
-            for a in range(3):
-                for b in range(3):
-                    wab = m * wx[a] * wy[b]
-                    column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
-                    at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
-                    for d in range(3):
-                        if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                            at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
-                        pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+        _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, 3, p0, p1, row_chan, row_w)
 
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
