@@ -28,7 +28,7 @@ def machine() -> str:
 
     mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     return (f"{platform.machine()}, {os.cpu_count()} cores, {mem:.0f} GiB RAM, Python {platform.python_version()}, "
-            f"numpy {numpy.__version__}; run {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+            f"numpy {numpy.__version__}; gathered {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
 
 
 def gather() -> str:
