@@ -1,8 +1,8 @@
 """``apt-filters run``: every step from an ion file to a report, in one call.
 
-read -> range -> audit -> voxelize -> contour -> clean (MeshLab chain, saved as .mlx) ->
-remesh (CVT) -> objects -> proxigram and excess -> exports (PLY, ion cloud, MeshLab
-project) -> report.json / report.html / config.toml.
+read -> range -> audit -> voxelize -> contour -> specks and refinement against the ions ->
+clean (MeshLab chain, saved as .mlx) -> remesh (CVT) -> objects -> proxigram and excess ->
+exports (PLY, ion cloud, MeshLab project) -> report.json / report.html / config.toml.
 
 Everything is written into a staging folder that replaces the output folder only when
 the run succeeds (:mod:`.staging`). Runs are deterministic: the same configuration gives
@@ -20,7 +20,7 @@ import numpy as np
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.io import IonTable, RangeTable, read_ions, read_ranges
+from apt_filters.io import RangeTable, read_ions, read_ranges
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 from apt_filters.pipeline.picture import render_surfaces
@@ -39,9 +39,8 @@ def surface_label(surface: SurfaceConfig) -> str:
     return f"density{surface.iso:g}"
 
 
-def composition(ions: IonTable, ranges: RangeTable) -> dict[str, float]:
-    """Element fractions of the ranged ions, molecular ions decomposed."""
-    index = ranges.ion_index(ions.mz)
+def composition(index: np.ndarray, ranges: RangeTable) -> dict[str, float]:
+    """Element fractions of the ranged ions (``index`` from ``ranges.ion_index``), molecular ions decomposed."""
     per_ion = np.bincount(index[index >= 0], minlength=len(ranges.ions))
     atoms = per_ion @ ranges.element_matrix()
     total = atoms.sum()
@@ -52,7 +51,7 @@ def closed_components(mesh: TriMesh) -> int:
     """Number of connected components without boundary edges."""
     labels = mesh.face_components()
     edges = np.sort(mesh.edges(), axis=1)
-    uniq, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
     open_faces = (counts[inverse.ravel()] == 1).reshape(-1, 3).any(axis=1)
     return int(len(np.unique(labels)) - len(np.unique(labels[open_faces])))
 
@@ -108,11 +107,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         with log.step("read") as s:
             ions = read_ions(config.input.ions)
             ranges = read_ranges(config.input.ranges)
-            ranged = float(np.mean(ranges.ion_index(ions.mz) >= 0)) if len(ions) else 0.0
+            index = ranges.ion_index(ions.mz)
+            ranged = float(np.mean(index >= 0)) if len(ions) else 0.0
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
             report["ions"] = {"count": len(ions), "ranged_fraction": ranged,
                               "bounds_nm": [b.tolist() for b in ions.bounds()]}
-            report["composition"] = composition(ions, ranges)
+            report["composition"] = composition(index, ranges)
+            del index
             s.summary = f"{len(ions):,} ions, {ranged:.1%} ranged, {len(ranges)} ranges"
         if config.analysis.audit:
             with log.step("audit") as s:
