@@ -16,6 +16,15 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.spatial import cKDTree
 
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.refine.composition import IonAtoms, ion_atoms
+from apt_filters.refine.nearest import CellGrid, band_indices, descend
+from apt_filters.voxel import ConcentrationBasis
+
+EXACT = 2.5
+"""nm from the surface within which an ion's nearest vertex is searched exactly (beyond the 1-ring walk):
+the profiles' reach (1.5 nm) and the inner plateau bins; farther ions only count in a plateau."""
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -84,7 +93,7 @@ class Band:
     Attributes
     ----------
     index : (b,) int64
-        Rows of the ions in the band (into the ion table).
+        Rows of the ions in the band (into the :class:`NearIons` it came from).
     vertex : (b,) int64
         Nearest mesh vertex.
     distance : (b,) float64
@@ -96,20 +105,75 @@ class Band:
     distance: np.ndarray
 
 
-def ion_band(positions: np.ndarray, vertices: np.ndarray, normals: np.ndarray, reach: float) -> Band:
-    """The ions whose nearest vertex lies within ``reach`` nm, with their signed distances.
+@dataclass
+class NearIons:
+    """The ions within ``radius`` nm of a mesh, their atoms and their nearest vertices, kept up to date.
 
-    Memory: the ions' positions in float64 inside the mesh's bounding box grown by ``reach``
-    (the box prefilter keeps the KD-tree query to the ions near the surface).
+    Select them once (:meth:`select`, chunked over the ion table), then ask for a :class:`Band`
+    after every move of the vertices (:meth:`band`): each ion's nearest vertex is found again by
+    walking from its previous one (:func:`~apt_filters.refine.nearest.descend`), no KD-tree.
+    The selection stays complete for any ``reach`` while no vertex has moved more than
+    ``radius - reach`` from ``anchor`` (:meth:`moved`); select again beyond that.
+
+    Attributes
+    ----------
+    positions : (b, 3) float64
+    atoms : IonAtoms
+        Basis atoms of these ions.
+    vertex : (b,) int64
+        Nearest vertex of each ion (as of the last :meth:`band`).
+    anchor : (n, 3) float64
+        The vertices when these ions were selected.
+    radius : float, nm
     """
-    lo, hi = vertices.min(axis=0) - reach, vertices.max(axis=0) + reach
-    box = np.flatnonzero(np.all((positions >= lo) & (positions <= hi), axis=1))
-    pts = np.asarray(positions[box], dtype=np.float64)
-    dist, vert = cKDTree(vertices).query(pts, distance_upper_bound=reach)
-    ok = np.isfinite(dist)
-    vert = vert[ok]
-    signed = np.einsum("ij,ij->i", pts[ok] - vertices[vert], normals[vert])
-    return Band(box[ok], vert.astype(np.int64), signed)
+
+    positions: np.ndarray
+    atoms: IonAtoms
+    vertex: np.ndarray
+    anchor: np.ndarray
+    radius: float
+    indptr: np.ndarray
+    indices: np.ndarray
+
+    @classmethod
+    def select(cls, ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray,
+               faces: np.ndarray, radius: float) -> "NearIons":
+        """The ions whose nearest vertex lies within ``radius`` nm.
+
+        Memory: one chunk of the positions at a time (``ions.positions`` may be memory-mapped),
+        then 24 + 8 + 4 k bytes per selected ion (k basis elements).
+        """
+        adj = adjacency(faces, len(vertices))
+        used = np.unique(faces)  # vertices no face uses have no neighbours to walk to
+        rows, positions, vertex = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        if len(used):
+            grid = CellGrid.around(vertices[used], radius)
+            rows = band_indices(ions.positions, grid, radius)
+            positions = np.asarray(ions.positions[rows], dtype=np.float64)
+            start = used[grid.seed.reshape(-1)[grid.cells(positions)]]
+            vertex, d2 = descend(positions, vertices, adj.indptr, adj.indices, start, EXACT)
+            keep = d2 <= radius * radius
+            rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
+        atoms = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, basis)
+        return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices)
+
+    def moved(self, vertices: np.ndarray) -> float:
+        """Largest move (nm) of a vertex since the selection."""
+        return float(np.sqrt(np.max(np.sum((vertices - self.anchor) ** 2, axis=1)))) if len(vertices) else 0.0
+
+    def within(self, vertices: np.ndarray, radius: float) -> "NearIons":
+        """The subset of these ions within ``radius`` nm of ``vertices`` (anchored there)."""
+        self.vertex, d2 = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+        keep = d2 <= radius * radius
+        return NearIons(self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]), self.vertex[keep],
+                        vertices.copy(), radius, self.indptr, self.indices)
+
+    def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float) -> Band:
+        """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances."""
+        self.vertex, d2 = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+        keep = np.flatnonzero(d2 <= reach * reach)
+        vert = self.vertex[keep]
+        return Band(keep, vert, np.einsum("ij,ij->i", self.positions[keep] - vertices[vert], normals[vert]))
 
 
 def binned(vertex: np.ndarray, distance: np.ndarray, weights: np.ndarray, n_vertices: int,

@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from apt_filters.contour.components import component_table
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import ion_band, vertex_components, vertex_normals
-from apt_filters.refine.composition import ion_atoms
+from apt_filters.refine.band import NearIons, vertex_components, vertex_normals
 from apt_filters.refine.levels import PLATEAU_WINDOW, plateaus
 from apt_filters.voxel import ConcentrationBasis
 
@@ -56,10 +56,14 @@ def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str
     """
     components = vertex_components(mesh.faces, mesh.n_vertices)
     n_comp = int(components.max()) + 1 if mesh.n_vertices else 0
-    atoms = ion_atoms(ions, ranges, ConcentrationBasis())
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    reach = max(window[1], half_width) + 1.0
+    ions_near = NearIons.select(ions, ranges, ConcentrationBasis(), vertices, mesh.faces, reach)
+    atoms = ions_near.atoms
+    if solute not in atoms.elements:
+        raise AptFiltersError(f"solute {solute!r} is not a ranged element ({', '.join(atoms.elements)})")
     k = atoms.elements.index(solute)
-    band = ion_band(ions.positions, mesh.vertices, vertex_normals(mesh.vertices, mesh.faces),
-                    max(window[1], half_width) + 1.0)
+    band = ions_near.band(vertices, vertex_normals(vertices, mesh.faces), reach)
     levels = plateaus(band, atoms, components, n_comp, solute, window)
     near = np.abs(band.distance) <= half_width
     comp = components[band.vertex]

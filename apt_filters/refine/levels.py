@@ -9,8 +9,8 @@ import numpy as np
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import Band, ion_band, vertex_components, vertex_normals
-from apt_filters.refine.composition import IonAtoms, ion_atoms
+from apt_filters.refine.band import Band, NearIons, vertex_components, vertex_normals
+from apt_filters.refine.composition import IonAtoms
 from apt_filters.voxel import ConcentrationBasis
 
 PLATEAU_WINDOW = (0.75, 3.0)
@@ -60,11 +60,14 @@ def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: 
     comp = components[band.vertex]
     a = atoms.atoms[band.index].astype(np.float64)
     k = atoms.elements.index(species)
-    sums = []
-    for c in range(n_components):
-        mine = comp == c
-        sums.append((a[mine & (band.distance <= -inner) & (band.distance >= -outer)].sum(axis=0),
-                     a[mine & (band.distance >= inner) & (band.distance <= outer)].sum(axis=0)))
+    window_of = np.full(len(comp), -1)  # 0: inside plateau window, 1: outside
+    window_of[(band.distance <= -inner) & (band.distance >= -outer)] = 0
+    window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
+    use = (window_of >= 0) & (comp >= 0)
+    key = 2 * comp[use] + window_of[use]
+    per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
+                   axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
+    sums = [(per[2 * c], per[2 * c + 1]) for c in range(n_components)]
     out = []
     pooled = [np.sum([s[side] for s in sums], axis=0) for side in (0, 1)] if sums else []
     for c, (inside, outside) in enumerate(sums):
@@ -112,9 +115,10 @@ def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: st
     list of ObjectLevels, one per component.
     """
     components = vertex_components(mesh.faces, mesh.n_vertices)
-    band = ion_band(ions.positions, mesh.vertices, vertex_normals(mesh.vertices, mesh.faces), window[1] + 1.0)
-    return plateaus(band, ion_atoms(ions, ranges, basis), components, int(components.max()) + 1, species, window,
-                    prior)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    near = NearIons.select(ions, ranges, basis, vertices, mesh.faces, window[1] + 1.0)
+    band = near.band(vertices, vertex_normals(vertices, mesh.faces), window[1] + 1.0)
+    return plateaus(band, near.atoms, components, int(components.max()) + 1, species, window, prior)
 
 
 def per_object_iso(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,

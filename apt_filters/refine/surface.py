@@ -42,16 +42,17 @@ from apt_filters.contour.topology import face_pairs, folded_pairs
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import (Band, adjacency, binned, ion_band, normal_weight, pooling_matrix, vertex_components,
+from apt_filters.refine.band import (NearIons, adjacency, binned, normal_weight, pooling_matrix, vertex_components,
                                     vertex_normals)
-from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
+from apt_filters.refine.composition import contrast_weights
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import intersecting_faces, untangle
 from apt_filters.refine.levels import PLATEAU_PRIOR, PLATEAU_WINDOW, ObjectLevels, plateaus
-from apt_filters.refine.levels import object_levels as object_levels_of
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
+RESELECT = 1.5
+"""nm a vertex may move before the ions near the surface are selected again."""
 FOLD_ANGLE = 120.0
 
 
@@ -275,30 +276,33 @@ def refine_surface(
     n = len(vertices)
     components = vertex_components(faces, n)
     n_comp = int(components.max()) + 1 if n else 0
-    atoms = ion_atoms(ions, ranges, basis)
-    total_atoms = atoms.total.astype(np.float64)
     adj = adjacency(faces, n)
     pairs = face_pairs(faces)
     reach = max(plateau_window[1], half_width) + 1.0
-    # the ions that any iteration can reach, found once: later bands search only these
-    near = ion_band(ions.positions, vertices, vertex_normals(vertices, faces), reach + iterations * max_step).index
-    positions = np.asarray(ions.positions[near], dtype=np.float64)
-    atoms = IonAtoms(atoms.elements, atoms.atoms[near])
-    total_atoms = total_atoms[near]
+    profile_reach = half_width + 1.0
+    # ions within reach of the surface, selected once (chunked) and again only if it moves far
+    wide = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+    narrow = None
     guarded, history, levels = 0, [], []
     it = 0
     for it in range(1, iterations + 1):
         normals = vertex_normals(vertices, faces)
-        band = ion_band(positions, vertices, normals, reach)
         if it <= far_iterations + 1:
-            levels = plateaus(band, atoms, components, n_comp, species, plateau_window, plateau_prior)
-        if it == far_iterations + 1:
-            # plateaus fixed from here on: keep only the ions that later profiles can reach
-            keep = np.abs(band.distance) <= half_width + (iterations - it + 1) * max_step
-            sub = band.index[keep]
-            positions, atoms, total_atoms = positions[sub], IonAtoms(atoms.elements, atoms.atoms[sub]), total_atoms[sub]
-            band = Band(np.arange(len(sub)), band.vertex[keep], band.distance[keep])
-            reach = half_width + 1.0
+            if wide.moved(vertices) > RESELECT:
+                wide = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+            near = wide
+            band = wide.band(vertices, normals, reach)
+            levels = plateaus(band, wide.atoms, components, n_comp, species, plateau_window, plateau_prior)
+        else:
+            # plateaus fixed from here on: the profiles need only the ions within their reach
+            if narrow is None or narrow.moved(vertices) > RESELECT:
+                if wide.moved(vertices) > RESELECT:
+                    wide = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+                narrow = wide.within(vertices, profile_reach + RESELECT)
+            near = narrow
+            band = narrow.band(vertices, normals, profile_reach)
+        atoms = near.atoms
+        total_atoms = atoms.total.astype(np.float64)
         weights = [contrast_weights(lv.inside, lv.outside, atoms.elements, species, score)
                    if np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside)) else None for lv in levels]
         usable = np.array([w is not None for w in weights] + [False])  # last entry: unused vertices (-1)
@@ -315,10 +319,13 @@ def refine_surface(
         s_sum, t_sum = pool @ raw_s, pool @ raw_t
         ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
         u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
-        widths = np.array([profile_width(normalised_profile(raw_s[components == c].sum(axis=0, keepdims=True),
-                                                            raw_t[components == c].sum(axis=0, keepdims=True),
-                                                            s_in[c:c + 1], s_out[c:c + 1], half_width, bin_width),
-                                         bin_width) if usable[c] else 1.0 for c in range(n_comp)])
+        used = components >= 0
+        obj_s, obj_t = (np.zeros((n_comp, raw_s.shape[1])) for _ in range(2))
+        np.add.at(obj_s, components[used], raw_s[used])
+        np.add.at(obj_t, components[used], raw_t[used])
+        widths = np.array([profile_width(normalised_profile(obj_s[c:c + 1], obj_t[c:c + 1], s_in[c:c + 1],
+                                                            s_out[c:c + 1], half_width, bin_width), bin_width)
+                           if usable[c] else 1.0 for c in range(n_comp)])
         offset = np.zeros(n)
         if it <= far_iterations:
             offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
@@ -349,7 +356,10 @@ def refine_surface(
     moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
-    levels = object_levels_of(out, ions, ranges, species, basis, plateau_window, plateau_prior)
+    if wide.moved(vertices) > RESELECT:
+        wide = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+    levels = plateaus(wide.band(vertices, vertex_normals(vertices, faces), plateau_window[1] + 1.0), wide.atoms,
+                      components, n_comp, species, plateau_window, plateau_prior)
     stats = {"mean": float(moved_total.mean()) if n else 0.0,
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
