@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, diags
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from apt_filters.io.ions import IonTable
@@ -21,6 +22,9 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import IonAtoms, ion_atoms
 from apt_filters.refine.nearest import CellGrid, band_indices, descend
 from apt_filters.voxel import ConcentrationBasis
+
+REASSIGN = 0.15
+"""nm a vertex may move before the ions' nearest vertices are found again."""
 
 EXACT = 2.5
 """nm from the surface within which an ion's nearest vertex is searched exactly (beyond the 1-ring walk):
@@ -67,23 +71,59 @@ def normal_weight(normals: np.ndarray, i: np.ndarray, j: np.ndarray, power: floa
     return np.maximum(np.einsum("ij,ij->i", normals[i], normals[j]), 0.0) ** power
 
 
-def pooling_matrix(vertices: np.ndarray, normals: np.ndarray, components: np.ndarray, radius: float,
-                   normal_power: float) -> csr_matrix:
-    """(n, n) weights exp(-r²/2σ²) (σ = radius/2) × :func:`normal_weight` between vertices of one
-    component within ``radius`` (diagonal 1)."""
-    if radius <= 0:
-        return diags(np.ones(len(vertices))).tocsr()
-    tree = cKDTree(vertices)
-    d = tree.sparse_distance_matrix(tree, radius, output_type="coo_matrix")
-    i, j, r = d.row, d.col, d.data
-    same = (components[i] == components[j]) & (i != j)
-    i, j, r = i[same], j[same], r[same]
-    sigma = radius / 2
-    w = np.exp(-0.5 * (r / sigma) ** 2) * normal_weight(normals, i, j, normal_power)
-    diag = np.arange(len(vertices))
-    w = coo_matrix((np.concatenate([w, np.ones(len(diag))]), (np.concatenate([i, diag]), np.concatenate([j, diag]))),
-                   shape=(len(vertices),) * 2)
-    return w.tocsr()
+@dataclass
+class Pairs:
+    """Neighbours of each vertex in its own component within ``radius`` nm (CSR), kept while the mesh moves little.
+
+    Found by a KD-tree at ``radius + slack`` and found again (:meth:`update`) only when a vertex
+    has moved more than ``slack / 2`` since: no pair within ``radius`` is missed.
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    anchor: np.ndarray
+    radius: float
+    slack: float
+
+    @classmethod
+    def find(cls, vertices: np.ndarray, components: np.ndarray, radius: float, slack: float = 0.6) -> "Pairs":
+        ij = cKDTree(vertices).query_pairs(radius + slack, output_type="ndarray")
+        ij = ij[components[ij[:, 0]] == components[ij[:, 1]]]
+        m = csr_matrix((np.ones(2 * len(ij)), (np.concatenate([ij[:, 0], ij[:, 1]]), np.concatenate([ij[:, 1], ij[:, 0]]))),
+                       shape=(len(vertices),) * 2)
+        return cls(m.indptr.astype(np.int64), m.indices.astype(np.int64), vertices.copy(), radius, slack)
+
+    def update(self, vertices: np.ndarray, components: np.ndarray) -> "Pairs":
+        """These pairs, or the pairs found again if a vertex has moved more than ``slack / 2``."""
+        if _largest_move(vertices, self.anchor) <= self.slack / 2:
+            return self
+        return Pairs.find(vertices, components, self.radius, self.slack)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _pool(vertices, normals, indptr, indices, radius, power, profiles, out):
+    inv = 2.0 / (radius * radius)  # exp(-r² / 2 sigma²) with sigma = radius / 2
+    for i in prange(vertices.shape[0]):
+        out[i] = profiles[i]
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            r2 = ((vertices[i, 0] - vertices[j, 0]) ** 2 + (vertices[i, 1] - vertices[j, 1]) ** 2
+                  + (vertices[i, 2] - vertices[j, 2]) ** 2)
+            c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+            if r2 <= radius * radius:
+                out[i] += np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power) * profiles[j]
+
+
+def pooled(profiles: np.ndarray, vertices: np.ndarray, normals: np.ndarray, pairs: Pairs,
+           normal_power: float) -> np.ndarray:
+    """(n, k) each vertex's row of ``profiles`` (n, k) plus its neighbours' (``pairs`` within
+    ``pairs.radius``) weighted by exp(-r²/2σ²) (σ = radius/2) × :func:`normal_weight`."""
+    if pairs.radius <= 0:
+        return profiles.copy()
+    out = np.empty_like(profiles, dtype=np.float64)
+    _pool(vertices, normals, pairs.indptr, pairs.indices, float(pairs.radius), float(normal_power),
+          np.ascontiguousarray(profiles, dtype=np.float64), out)
+    return out
 
 
 @dataclass
@@ -134,6 +174,7 @@ class NearIons:
     radius: float
     indptr: np.ndarray
     indices: np.ndarray
+    assigned: np.ndarray | None = None
 
     @classmethod
     def select(cls, ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray,
@@ -155,25 +196,47 @@ class NearIons:
             keep = d2 <= radius * radius
             rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
         atoms = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, basis)
-        return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices)
+        return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices, vertices.copy())
 
     def moved(self, vertices: np.ndarray) -> float:
         """Largest move (nm) of a vertex since the selection."""
-        return float(np.sqrt(np.max(np.sum((vertices - self.anchor) ** 2, axis=1)))) if len(vertices) else 0.0
+        return _largest_move(vertices, self.anchor)
 
     def within(self, vertices: np.ndarray, radius: float) -> "NearIons":
         """The subset of these ions within ``radius`` nm of ``vertices`` (anchored there)."""
         self.vertex, d2 = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+        self.assigned = vertices.copy()
         keep = d2 <= radius * radius
         return NearIons(self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]), self.vertex[keep],
-                        vertices.copy(), radius, self.indptr, self.indices)
+                        vertices.copy(), radius, self.indptr, self.indices, vertices.copy())
 
     def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float) -> Band:
-        """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances."""
-        self.vertex, d2 = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+        """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances.
+
+        Nearest vertices are found again only once some vertex has moved more than
+        :data:`REASSIGN` nm since they were last found (late iterations move by hundredths of a
+        nm: the Voronoi patches of the vertices, ~0.4 nm across, barely change).
+        """
+        if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
+            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+            self.assigned = vertices.copy()
+        d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
+        _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         keep = np.flatnonzero(d2 <= reach * reach)
-        vert = self.vertex[keep]
-        return Band(keep, vert, np.einsum("ij,ij->i", self.positions[keep] - vertices[vert], normals[vert]))
+        return Band(keep, self.vertex[keep], signed[keep])
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _offsets(points, vertex, vertices, normals, d2, signed):
+    for i in prange(points.shape[0]):
+        v = vertex[i]
+        dx, dy, dz = points[i, 0] - vertices[v, 0], points[i, 1] - vertices[v, 1], points[i, 2] - vertices[v, 2]
+        d2[i] = dx * dx + dy * dy + dz * dz
+        signed[i] = dx * normals[v, 0] + dy * normals[v, 1] + dz * normals[v, 2]
+
+
+def _largest_move(vertices: np.ndarray, before: np.ndarray) -> float:
+    return float(np.sqrt(np.max(np.sum((vertices - before) ** 2, axis=1)))) if len(vertices) else 0.0
 
 
 def binned(vertex: np.ndarray, distance: np.ndarray, weights: np.ndarray, n_vertices: int,

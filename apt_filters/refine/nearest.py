@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy import ndimage
 
 CHUNK = 1 << 21
@@ -106,9 +106,9 @@ def _closer(x, y, z, vertices, indptr, indices, v, best):
     return found, found_d
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _descend(points, vertices, indptr, indices, start, exact2, out, out_d2):
-    for i in range(points.shape[0]):
+    for i in prange(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         v = start[i]
         best = (vertices[v, 0] - x) ** 2 + (vertices[v, 1] - y) ** 2 + (vertices[v, 2] - z) ** 2

@@ -42,7 +42,7 @@ from apt_filters.contour.topology import face_pairs, folded_pairs
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import (NearIons, adjacency, binned, normal_weight, pooling_matrix, vertex_components,
+from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
 from apt_filters.refine.composition import contrast_weights
 from apt_filters.refine.subdivide import subdivide
@@ -283,6 +283,7 @@ def refine_surface(
     # ions within reach of the surface, selected once (chunked) and again only if it moves far
     wide = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
     narrow = None
+    pairs_near = Pairs.find(vertices, components, pool_radius)
     guarded, history, levels = 0, [], []
     it = 0
     for it in range(1, iterations + 1):
@@ -312,11 +313,11 @@ def refine_surface(
         s_out = np.array([wmat[c] @ lv.outside if usable[c] else 0.0 for c, lv in enumerate(levels)])
         comp = components[band.vertex]
         ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[comp])
-        pool = pooling_matrix(vertices, normals, components, pool_radius, normal_power)
+        pairs_near = pairs_near.update(vertices, components)
         mean_of_neighbours = umbrella(adj, normals, normal_power)
         raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
         raw_t = binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
-        s_sum, t_sum = pool @ raw_s, pool @ raw_t
+        s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, normal_power), 2)
         ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
         u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
         used = components >= 0
