@@ -46,7 +46,7 @@ from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_
                                     vertex_normals)
 from apt_filters.refine.composition import contrast_weights
 from apt_filters.refine.subdivide import subdivide
-from apt_filters.refine.untangle import intersecting_faces, untangle
+from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
 from apt_filters.refine.levels import PLATEAU_PRIOR, PLATEAU_WINDOW, ObjectLevels, plateaus
 from apt_filters.voxel import ConcentrationBasis
 
@@ -278,6 +278,9 @@ def refine_surface(
     n_comp = int(components.max()) + 1 if n else 0
     adj = adjacency(faces, n)
     pairs = face_pairs(faces)
+    # the fold guard keeps the folds it is given: none may be left in the start
+    vertices, _ = unfold(vertices, faces, umbrella(adj))
+    unfolded = vertices.copy()
     reach = max(plateau_window[1], half_width) + 1.0
     profile_reach = half_width + 1.0
     # ions within reach of the surface, selected once (chunked) and again only if it moves far
@@ -351,9 +354,8 @@ def refine_surface(
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < tolerance * gain:
             break
+    vertices, untangled = untangle(vertices, faces, unfolded, umbrella(adj))
     start = mesh.vertices.astype(np.float64)
-    vertices, untangled = untangle(vertices, faces, start, umbrella(adj),
-                                   lambda v, step: guarded_move(v, faces, step, pairs)[0])
     moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
