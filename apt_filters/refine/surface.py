@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from apt_filters.contour.topology import face_pairs, folded_pairs
+from apt_filters.contour.topology import face_pairs, folded_pairs, unit_normals
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
@@ -127,14 +127,14 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
     def folded(normals: np.ndarray) -> np.ndarray:
         return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
 
-    before = _face_normals(vertices, faces)
+    before = unit_normals(vertices, faces)
     existing = folded(before)
+    moved = vertices + step
+    after = unit_normals(moved, faces)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
     attempt = 0
     while True:
-        moved = vertices + scale[:, None] * step
-        after = _face_normals(moved, faces)
         bad = np.einsum("ij,ij->i", before, after) < 0.0
         bad[pairs[folded(after) & ~existing].ravel()] = True
         bad &= (scale[faces] > 0).any(axis=1)
@@ -143,14 +143,13 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
         verts = np.unique(faces[bad])
         touched[verts] = True
         scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+        moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
+        # only the faces around the shortened steps change
+        changed = np.zeros(len(vertices), dtype=bool)
+        changed[verts] = True
+        around = np.flatnonzero(changed[faces].any(axis=1))
+        after[around] = unit_normals(moved, faces[around])
         attempt += 1
-
-
-def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    v = vertices[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def _centres(n_bins: int, half_width: float, bin_width: float) -> np.ndarray:
