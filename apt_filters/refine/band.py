@@ -6,6 +6,11 @@ Binned against that distance, each vertex owns a short 1D composition profile ac
 interface made of the ions of its Voronoi patch; pooling the profiles of nearby vertices gives
 enough ions per bin while each ion keeps the distance to its own local surface, so pooling
 adds no curvature bias.
+
+:class:`NearIons` holds the ions near a mesh (selected chunk by chunk through a cell grid, so
+10^8-10^9 memory-mapped ions are read once in bounded memory) and keeps their nearest vertices
+up to date as the mesh moves; :class:`Pairs` and :func:`pooled` pool the profiles of vertices
+within a radius (numba).
 """
 
 from __future__ import annotations
@@ -165,6 +170,10 @@ class NearIons:
     anchor : (n, 3) float64
         The vertices when these ions were selected.
     radius : float, nm
+    indptr, indices : int arrays
+        CSR vertex adjacency of the mesh (the walk's edges).
+    assigned : (n, 3) float64
+        The vertices when ``vertex`` was last found.
     """
 
     positions: np.ndarray

@@ -1,0 +1,93 @@
+"""Ions near a mesh without a KD-tree (apt_filters.refine.nearest, NearIons) and fold removal, against brute force."""
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from apt_filters.contour import marching_cubes
+from apt_filters.contour.topology import folded_pairs
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import Range, RangeTable
+from apt_filters.refine import subdivide, unfold
+from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled, vertex_components, vertex_normals
+from apt_filters.refine.nearest import CellGrid, band_indices, descend
+from apt_filters.refine.surface import umbrella
+from apt_filters.voxel import ConcentrationBasis
+
+
+def _blob():
+    """A lumpy, asymmetric closed marching-cubes surface (sliver triangles included), subdivided once."""
+    x, y, z = np.meshgrid(*(np.arange(-6.0, 6.5, 0.5),) * 3, indexing="ij")
+    f = np.sqrt((x / 1.3) ** 2 + (y / 1.0) ** 2 + (z / 0.8) ** 2) + 0.3 * np.sin(1.7 * x) * np.cos(1.3 * y)
+    return subdivide(marching_cubes(-f, -3.0, spacing=(0.5, 0.5, 0.5), origin=(-6.0, -6.0, -6.0)))
+
+
+def test_cell_grid_band_keeps_every_point_within_reach():
+    mesh = _blob()
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-9, 9, size=(60_000, 3)).astype(np.float32)
+    reach = 1.7
+    nearest = cKDTree(mesh.vertices).query(points)[0]
+    rows = band_indices(points, CellGrid.around(mesh.vertices, reach), reach, chunk=7_001)
+    assert set(np.flatnonzero(nearest <= reach)) <= set(rows.tolist())
+    assert len(rows) < len(points) / 2  # and it does filter
+
+
+def test_descend_finds_the_nearest_vertex_near_the_surface():
+    mesh = _blob()
+    adj = adjacency(mesh.faces, mesh.n_vertices)
+    rng = np.random.default_rng(2)
+    points = mesh.vertices[rng.integers(0, mesh.n_vertices, 20_000)] + rng.normal(0, 0.8, size=(20_000, 3))
+    grid = CellGrid.around(mesh.vertices, 3.0)
+    start = grid.seed.reshape(-1)[grid.cells(points)]  # as NearIons.select starts
+    vertex, d2 = descend(points, mesh.vertices, adj.indptr, adj.indices, start, exact=2.5)
+    true_d, true_v = cKDTree(mesh.vertices).query(points)
+    near = true_d < 1.5
+    found = np.sqrt(d2)
+    assert np.allclose(found, np.linalg.norm(points - mesh.vertices[vertex], axis=1))
+    assert np.mean(vertex[near] == true_v[near]) > 0.99
+    excess = found[near] - true_d[near]  # a near miss lands on a vertex barely farther than the nearest
+    assert excess.mean() < 0.005 and excess.max() < 1.0
+
+
+def test_near_ions_follow_a_moved_mesh():
+    mesh = _blob()
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-8, 8, size=(80_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),)), Range(57.5, 58.5, (("Ni", 1),))])
+    ions = IonTable(positions, rng.choice(np.array([27.0, 58.0, 99.0], dtype=np.float32), len(positions)))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    assert near.atoms.atoms.shape == (len(near.positions), 2)
+    moved = mesh.vertices * 1.05  # every vertex moves by < 0.3 nm
+    band = near.band(moved, vertex_normals(moved, mesh.faces), 2.0)
+    d, v = cKDTree(moved).query(near.positions[band.index])
+    assert np.mean(band.vertex == v) > 0.98
+    assert np.all(d <= 2.0 + 1e-9)
+    signed = np.einsum("ij,ij->i", near.positions[band.index] - moved[band.vertex],
+                       vertex_normals(moved, mesh.faces)[band.vertex])
+    assert np.allclose(band.distance, signed)
+
+
+def test_pooled_profiles_match_the_dense_weights():
+    mesh = _blob()
+    n = mesh.n_vertices
+    normals = vertex_normals(mesh.vertices, mesh.faces)
+    comps = vertex_components(mesh.faces, n)
+    profiles = np.random.default_rng(4).random((n, 5))
+    pairs = Pairs.find(mesh.vertices, comps, 1.2)
+    got = pooled(profiles, mesh.vertices, normals, pairs, 8.0)
+    r = np.linalg.norm(mesh.vertices[:, None] - mesh.vertices[None], axis=2)
+    w = np.exp(-0.5 * (r / 0.6) ** 2) * np.maximum(normals @ normals.T, 0) ** 8 * (r <= 1.2)
+    np.fill_diagonal(w, 1.0)
+    assert np.allclose(got, w @ profiles)
+
+
+def test_unfold_removes_the_folds_of_a_mesh():
+    mesh = _blob()
+    v = mesh.vertices.copy()
+    j = adjacency(mesh.faces, mesh.n_vertices)[100].indices[0]
+    v[100] = v[j] + 1.5 * (v[j] - v[100])  # dragged across a neighbour: its triangles flip
+    assert len(folded_pairs(v, mesh.faces)) > 0
+    out, rounds = unfold(v, mesh.faces, umbrella(adjacency(mesh.faces, mesh.n_vertices)))
+    assert len(folded_pairs(out, mesh.faces)) == 0 and rounds >= 1
+    far = np.linalg.norm(mesh.vertices - mesh.vertices[100], axis=1) > 2.0
+    assert np.array_equal(out[far], v[far])  # a local repair
