@@ -12,13 +12,14 @@ from dataclasses import dataclass, field
 from typing import Iterable
 
 import numpy as np
+from numba import njit
 
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.io.readers import iter_ion_chunks
 
 CHUNK = 1 << 22
-"""Ions per chunk (4M: 64 MB of POS records, 16 MB of ranging)."""
+"""Ions per chunk (4M: 64 MB of POS records)."""
 
 
 @dataclass
@@ -75,27 +76,66 @@ def summarize(source: str | os.PathLike | IonTable, ranges: RangeTable | None = 
     chunk_size : int
         Ions per chunk.
 
-    Peak memory: one chunk of ``chunk_size`` ions (16 B/ion from a file) plus its ranging
-    (4 B/ion).
+    Peak memory: one chunk of ``chunk_size`` ions (16 B/ion from a file; nothing for ions
+    already read in native byte order). One compiled pass per chunk finds the bounds, the m/z
+    span and the ions per range (a binary search over the sorted range bounds, giving the
+    same ranging as :meth:`RangeTable.ion_index`, bounds included).
     """
     chunks: Iterable[IonTable] = (
         (IonTable(source.positions[i:i + chunk_size], source.mz[i:i + chunk_size])
          for i in range(0, len(source), chunk_size))
         if isinstance(source, IonTable) else iter_ion_chunks(source, chunk_size))
     s = IonSummary()
-    per_ion = np.zeros(len(ranges.ions) + 1 if ranges else 1, dtype=np.int64)  # slot 0: unranged
+    edges, range_of_bin = _range_edges(ranges) if ranges else (np.zeros(0), np.zeros(1, dtype=np.int64))
+    bins = np.zeros(len(edges) + 1, dtype=np.int64)
+    span = np.array([np.inf, -np.inf])
     for chunk in chunks:
-        if not len(chunk):
-            continue
         s.ions += len(chunk)
-        s.lower = np.minimum(s.lower, chunk.positions.min(axis=0))
-        s.upper = np.maximum(s.upper, chunk.positions.max(axis=0))
-        s.mz_min = min(s.mz_min, float(chunk.mz.min()))
-        s.mz_max = max(s.mz_max, float(chunk.mz.max()))
-        if ranges:
-            per_ion += np.bincount(ranges.ion_index(chunk.mz) + 1, minlength=len(per_ion))
+        _scan(_native(chunk.positions), _native(chunk.mz), edges, s.lower, s.upper, span, bins)
+    s.mz_min, s.mz_max = float(span[0]), float(span[1])
     if ranges:
-        s.ion_counts = dict(zip(ranges.ions, per_ion[1:].tolist()))
-        atoms = per_ion[1:] @ ranges.element_matrix()
+        per_ion = np.bincount(range_of_bin, weights=bins, minlength=len(ranges.ions) + 1).astype(np.int64)[1:]
+        s.ion_counts = dict(zip(ranges.ions, per_ion.tolist()))
+        atoms = per_ion @ ranges.element_matrix()
         s.atoms = dict(zip(ranges.elements, atoms.tolist()))
     return s
+
+
+def _native(a: np.ndarray) -> np.ndarray:
+    """Native byte order (POS/EPOS memory maps are big-endian), converted only if needed."""
+    return np.asarray(a, dtype=a.dtype.newbyteorder("="))
+
+
+def _range_edges(ranges: RangeTable) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted bin edges ``lower_0, upper_0+, lower_1, upper_1+, ...`` of the ranges and, for each
+    bin of ``searchsorted(edges, mz, side="right")``, its ion species + 1 (0: unranged).
+
+    ``upper+`` is the next float64 above the upper bound (ranges include both bounds, as
+    :meth:`RangeTable.range_index`), or the next range's lower bound where the two touch.
+    """
+    order = np.argsort([r.lower for r in ranges.ranges], kind="stable")
+    lower = np.array([ranges.ranges[k].lower for k in order], dtype=np.float64)
+    upper = np.array([ranges.ranges[k].upper for k in order], dtype=np.float64)
+    edges = np.column_stack([lower, np.minimum(np.nextafter(upper, np.inf), np.r_[lower[1:], np.inf])]).ravel()
+    species = [ranges.ions.index(ranges.ranges[k].ion) + 1 for k in order]
+    range_of_bin = np.zeros(len(edges) + 1, dtype=np.int64)
+    range_of_bin[1::2] = species  # odd bins lie inside a range
+    return edges, range_of_bin
+
+
+@njit(cache=True, nogil=True)
+def _scan(positions, mz, edges, lower, upper, span, bins):  # pragma: no cover - compiled
+    """One pass over a chunk: bounds, m/z span, and counts per bin of ``edges``."""
+    for i in range(mz.shape[0]):
+        for a in range(3):
+            v = positions[i, a]
+            if v < lower[a]:
+                lower[a] = v
+            if v > upper[a]:
+                upper[a] = v
+        m = mz[i]
+        if m < span[0]:
+            span[0] = m
+        if m > span[1]:
+            span[1] = m
+        bins[np.searchsorted(edges, m, side="right")] += 1
