@@ -36,6 +36,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
+from apt_filters.io.summary import range_edges
 
 CAP = "cap"
 """Face scalar flagging faces that close a hole (non-zero), as the meshlab ``close`` chain sets it:
@@ -475,9 +476,11 @@ def _mark_boxes(lower, upper, inv, margin, crossed):  # pragma: no cover - compi
 
 
 @njit(cache=True, nogil=True)
-def _label_pass(points, species, labels, origin, inv, counts, found, codes):  # pragma: no cover - compiled
-    """Counts the ions of voxels wholly inside one object; returns how many ions it left in
-    ``found`` (their index) and ``codes`` (their voxel's label) for the exact test."""
+def _label_pass(points, mz, edges, column_of_bin, labels, origin, inv, counts, found, codes,
+                species):  # pragma: no cover - compiled
+    """Counts the ions of voxels wholly inside one object by species column (``column_of_bin``
+    of the ion's m/z bin in ``edges``); returns how many ions it left in ``found`` (their
+    index), ``codes`` (their voxel's label) and ``species`` for the exact test."""
     nx, ny, nz = labels.shape
     n = 0
     for i in range(points.shape[0]):
@@ -487,11 +490,15 @@ def _label_pass(points, species, labels, origin, inv, counts, found, codes):  # 
         if fx < 0 or fy < 0 or fz < 0 or fx >= nx or fy >= ny or fz >= nz:
             continue
         label = labels[int(fx), int(fy), int(fz)]
+        if label == 0:
+            continue
+        column = column_of_bin[np.searchsorted(edges, mz[i], side="right")]
         if label > 0:
-            counts[label - 1, species[i]] += 1
-        elif label < 0:
+            counts[label - 1, column] += 1
+        else:
             found[n] = i
             codes[n] = label
+            species[n] = column
             n += 1
     return n
 
@@ -504,7 +511,8 @@ def _count_ions(ions: IonTable, ranges: RangeTable, shapes: list[tuple[np.ndarra
     wholly inside one object is counted at once; only ions in voxels that a surface crosses
     (or that several objects share) are tested by ray parity, all together at the end.
     An ion inside nested objects counts for each. Memory: the grid (int32, at most
-    :data:`MAX_LABEL_VOXELS`), a chunk's work arrays, and 20 bytes per ion left to test.
+    :data:`MAX_LABEL_VOXELS`), a chunk's work arrays (20 bytes per ion), and 36 bytes per ion left
+    to test.
     """
     n_species = len(ranges.ions)
     counts = np.zeros((len(shapes), n_species + 1), dtype=np.int64)
@@ -512,15 +520,17 @@ def _count_ions(ions: IonTable, ranges: RangeTable, shapes: list[tuple[np.ndarra
         return counts
     scenes = [_Shape(v, f) for v, f in shapes]
     grid = _LabelGrid.build(scenes)
+    edges, species_of_bin = range_edges(ranges)
+    column_of_bin = np.where(species_of_bin > 0, species_of_bin - 1, n_species)  # unranged: last column
     left: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for start in range(0, len(ions), chunk):
         points = _native(ions.positions[start:start + chunk])
-        species = ranges.ion_index(ions.mz[start:start + chunk])
-        species[species < 0] = n_species
         found = np.empty(len(points), dtype=np.int64)
         codes = np.empty(len(points), dtype=np.int32)
-        n = _label_pass(points, species, grid.labels, grid.origin, 1.0 / grid.voxel, counts, found, codes)
-        left.append((np.asarray(points[found[:n]], dtype=np.float64), species[found[:n]], codes[:n]))
+        species = np.empty(len(points), dtype=np.int64)
+        n = _label_pass(points, _native(ions.mz[start:start + chunk]), edges, column_of_bin, grid.labels, grid.origin,
+                        1.0 / grid.voxel, counts, found, codes, species)
+        left.append((np.asarray(points[found[:n]], dtype=np.float64), species[:n], codes[:n]))
     points = np.vstack([p for p, _, _ in left])
     species = np.concatenate([s for _, s, _ in left])
     codes = np.concatenate([c for _, _, c in left])

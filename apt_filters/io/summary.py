@@ -86,7 +86,7 @@ def summarize(source: str | os.PathLike | IonTable, ranges: RangeTable | None = 
          for i in range(0, len(source), chunk_size))
         if isinstance(source, IonTable) else iter_ion_chunks(source, chunk_size))
     s = IonSummary()
-    edges, range_of_bin = _range_edges(ranges) if ranges else (np.zeros(0), np.zeros(1, dtype=np.int64))
+    edges, range_of_bin = range_edges(ranges) if ranges else (np.zeros(0), np.zeros(1, dtype=np.int64))
     bins = np.zeros(len(edges) + 1, dtype=np.int64)
     span = np.array([np.inf, -np.inf])
     for chunk in chunks:
@@ -106,7 +106,7 @@ def _native(a: np.ndarray) -> np.ndarray:
     return np.asarray(a, dtype=a.dtype.newbyteorder("="))
 
 
-def _range_edges(ranges: RangeTable) -> tuple[np.ndarray, np.ndarray]:
+def range_edges(ranges: RangeTable) -> tuple[np.ndarray, np.ndarray]:
     """Sorted bin edges ``lower_0, upper_0+, lower_1, upper_1+, ...`` of the ranges and, for each
     bin of ``searchsorted(edges, mz, side="right")``, its ion species + 1 (0: unranged).
 
