@@ -43,8 +43,8 @@ CAP = "cap"
 components with such faces are proxies and their area leaves those faces out."""
 
 ION_CHUNK = 4_000_000
-"""Ions per chunk of a pass over the ions; peak extra memory about 24 bytes per ion of a chunk
-(~100 MB: its float32 positions if they must be converted, and its species)."""
+"""Ions per chunk of a pass over the ions; peak extra memory about 32 bytes per ion of a chunk
+(~130 MB: its float32 positions if they must be converted, and the counting pass's work arrays)."""
 
 COUNT_VOXEL = 0.5
 """Edge (nm) of the label grid that sorts ions into objects; only ions in voxels that a
