@@ -10,13 +10,17 @@ Cases, each ``apt-filters run`` in a fresh process (peak RSS of that process alo
   out of the basis: target for 10M ions <= 2 min and <= 4 GB, for 100M <= 15 min and <= 12 GB.
   The specimen is generated first (timed apart, not counted).
 
-There is no peer that runs this whole chain; the figures are read against the targets.
+There is no peer that runs this whole chain; the figures are read against the targets. A second
+table gives each step's time and peak memory (from the run's report.json: resident high-water
+mark during the step), and the load average before and after is printed, as the 2 cores are
+shared with other jobs.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -48,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     cli = [sys.executable, "-m", "apt_filters"]
     rows = []
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         wall, peak = timed(cli + ["run", str(SI / "Si.pos"), "-r", str(SI / "Si.RRNG"), "-o", str(tmp / "si"),
@@ -59,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         n_ions = (tmp / "spec" / "specimen.pos").stat().st_size // 16
         wall, peak = timed(cli + ["run", str(tmp / "spec" / "specimen.pos"), "-r", str(tmp / "spec" / "specimen.rrng"),
                                   "-o", str(tmp / "run"), "--species", "Al", "--iso", "0.15", "--exclude", "B", "-q"])
-        objects = len(json.loads((tmp / "run" / "report.json").read_text())["surfaces"][0]["objects"])
+        report = json.loads((tmp / "run" / "report.json").read_text())
+        objects = len(report["surfaces"][0]["objects"])
+        steps = report["steps"]
         rows.append((f"synthetic {preset[1]} (Al 15 at.%, {objects} objects; generated in {gen_wall:.0f} s)", n_ions,
                      wall, peak, "<= 120 s and 4 GB at 10M ions; <= 15 min and 12 GB at 100M"))
     lines = ["# bench_pipeline: apt-filters run end to end", "",
@@ -68,6 +75,12 @@ def main(argv: list[str] | None = None) -> int:
              "| case | ions | wall (s) | ions/s | peak RSS (MiB) | target |", "|---|---:|---:|---:|---:|---|"]
     lines += [f"| {name} | {n:,} | {wall:.1f} | {n / wall:,.0f} | {peak:,.0f} | {target} |"
               for name, n, wall, peak, target in rows]
+    lines += ["", f"Steps of the synthetic case ({n_ions:,} ions; peak = resident high-water mark during the step):", "",
+              "| step | time (s) | peak (MiB) | summary |", "|---|---:|---:|---|"]
+    lines += [f"| {st['step']} | {st['seconds']:.1f} | {st['peak_mib']:,.0f} | {st['summary']} |" for st in steps]
+    lines += [f"| (sum of steps) | {sum(st['seconds'] for st in steps):.1f} | | |", "",
+              "Load average (1, 5, 15 min) before: {:.1f} {:.1f} {:.1f}; after: {:.1f} {:.1f} {:.1f}.".format(
+                  *load_before, *os.getloadavg())]
     text = "\n".join(lines) + "\n"
     print(text)
     atomic_write_text(Path(__file__).with_name("results_pipeline.md"), text, overwrite=True)

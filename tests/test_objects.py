@@ -8,8 +8,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
 
 from apt_filters.analysis.objects import SpecimenHull, SpecimenMask, cap_boundaries, object_table
+from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
@@ -166,3 +168,45 @@ def test_hull_built_in_chunks_equals_the_hull_of_all_points():
     assert chunked.volume == pytest.approx(whole.volume, rel=1e-12)
     probe = rng.normal(size=(100, 3))
     np.testing.assert_allclose(chunked.distance(probe), whole.distance(probe), atol=1e-9)
+
+
+def test_hull_equals_qhull_of_every_point_for_float32_ions():
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-1, 1, (60_000, 3)) * [20.0, 15.0, 40.0]
+    p = p[np.hypot(p[:, 0] / 20.0, p[:, 1] / 15.0) < 1.0 - 0.4 * (p[:, 2] + 40.0) / 80.0].astype(np.float32)  # a cone
+    hull = SpecimenHull.from_points(p, chunk=7_000)
+    reference = ConvexHull(p.astype(np.float64))
+    assert hull.volume == pytest.approx(reference.volume, rel=1e-12)
+    probe = rng.uniform(-25, 25, (200, 3))
+    expected = -(probe @ reference.equations[:, :3].T + reference.equations[:, 3]).max(axis=1)
+    np.testing.assert_allclose(hull.distance(probe), expected, atol=1e-9)
+
+
+def test_ion_counts_equal_ray_parity_of_every_ion_also_near_surfaces_and_in_nested_objects():
+    """The label grid decides most ions without a ray: compare with the parity of every ion,
+    with ions crowded within 0.02 nm of the surfaces and a cavity inside a ball (its ions
+    count for both the ball and the cavity's inverted surface)."""
+    outer, cavity = sphere(6.0, (20.0, 15.0, 30.0), subdiv=3), sphere(2.5, (21.0, 15.0, 30.0), subdiv=2)
+    scene = merge(outer, TriMesh(cavity.vertices, cavity.faces[:, ::-1]), box((4, 6, 3), (8.0, 8.0, 50.0)))
+    rng = np.random.default_rng(9)
+    on_surface = scene.vertices[rng.integers(0, scene.n_vertices, 40_000)] + rng.normal(0, 0.02, (40_000, 3))
+    p = np.vstack([rng.uniform(0, SPECIMEN, (150_000, 3)), on_surface]).astype(np.float32)
+    names = rng.choice(["O", "Fe", "CrO2"], len(p))
+    ions = IonTable(p, np.array([MZ[n] for n in names], dtype=np.float32))
+    table = object_table(scene, ions, RANGES)
+    scene_components = scene.face_components()
+    for o in table.objects:
+        part = scene.faces[scene_components == o.object_id]
+        inside = _ray_parity(p, scene.vertices, part)
+        expected = {n: int(np.sum(inside & (names == n))) for n in ("O", "Fe", "CrO2")}
+        assert o.ion_counts == {**expected, "unranged": 0}
+    assert table.objects[1].ion_counts["O"] > 0 and table.objects[0].n_ions > table.objects[1].n_ions
+
+
+def _ray_parity(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Every point tested by open3d's ray parity (majority of 3 rays), as the table's exact test."""
+    o3d = open3d()
+    ref = vertices[np.unique(faces)].mean(axis=0)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor((vertices - ref).astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    return scene.compute_occupancy(o3d.core.Tensor((points - ref).astype(np.float32)), nsamples=3).numpy().astype(bool)

@@ -24,10 +24,11 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.deps import open3d
@@ -35,13 +36,30 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
+from apt_filters.io.summary import range_edges
 
 CAP = "cap"
 """Face scalar flagging faces that close a hole (non-zero), as the meshlab ``close`` chain sets it:
 components with such faces are proxies and their area leaves those faces out."""
 
 ION_CHUNK = 4_000_000
-"""Ions tested per chunk; peak extra memory about 60 bytes per ion of a chunk (~240 MB)."""
+"""Ions per chunk of a pass over the ions; peak extra memory about 32 bytes per ion of a chunk
+(~130 MB: its float32 positions if they must be converted, and the counting pass's work arrays)."""
+
+COUNT_VOXEL = 0.5
+"""Edge (nm) of the label grid that sorts ions into objects; only ions in voxels that a
+triangle's bounding box touches are tested against the surface itself."""
+
+MAX_LABEL_VOXELS = 50_000_000
+"""Largest label grid (int32: 200 MB); a larger union of object boxes coarsens the voxels."""
+
+
+def _native(points: np.ndarray) -> np.ndarray:
+    """Contiguous native float32/float64 (a no-copy view when already so), else float32: what
+    the compiled kernels read (a big-endian memory map is converted chunk by chunk)."""
+    dtype = points.dtype
+    native = dtype.kind == "f" and dtype.itemsize in (4, 8) and dtype.isnative
+    return np.ascontiguousarray(points, dtype=dtype if native else np.float32)
 
 
 # --- the specimen ---------------------------------------------------------------------------
@@ -64,18 +82,125 @@ class SpecimenHull:
 
     @classmethod
     def from_points(cls, points: np.ndarray, chunk: int = ION_CHUNK) -> "SpecimenHull":
-        """Hull of (N, 3) points (nm), built chunk by chunk: the hull of the chunks' hull
-        vertices is the hull of all points. Memory: one chunk as float64 (24 bytes/point)."""
-        corners = np.empty((0, 3))
+        """Hull of (N, 3) points (nm) in two streamed passes over chunks of ``chunk`` points.
+
+        Pass 1 finds the extreme points along :data:`_DIRECTIONS` among every
+        :data:`HULL_SAMPLE`-th point; their hull lies inside the specimen's, so pass 2 keeps
+        only the points on or outside it (a few per cent; points in grid cells wholly inside
+        it are skipped without a test), and Qhull runs on those: the hull is exactly that of
+        all points. Memory: one chunk
+        converted to float32 (12 bytes/point) plus the kept points.
+        """
+        directions = _DIRECTIONS
+        best = np.full(len(directions), -np.inf)
+        arg = np.zeros(len(directions), dtype=np.int64)
+        for start in range(0, len(points), chunk):  # a sample is enough: any points' hull lies inside
+            _extremes(_native(points[start:start + chunk:HULL_SAMPLE]), directions, best, arg, start, HULL_SAMPLE)
+        extremes = np.asarray(points[np.unique(arg)], dtype=np.float64)
+        try:
+            inner = ConvexHull(extremes).equations
+        except QhullError:  # the extremes are flat or too few: every point is a candidate
+            inner = np.array([[0.0, 0.0, 0.0, 1.0]])
+        deep = _DeepCells.build(inner, extremes.min(axis=0), extremes.max(axis=0), len(points))
+        kept = [extremes]
         for start in range(0, len(points), chunk):
-            block = np.vstack([corners, np.asarray(points[start:start + chunk], dtype=np.float64)])
-            corners = block[ConvexHull(block).vertices]
-        hull = ConvexHull(corners)
+            block = _native(points[start:start + chunk])
+            keep = np.zeros(len(block), dtype=bool)
+            _beyond(block, inner, HULL_TOLERANCE, deep.cells, deep.origin, 1.0 / deep.size, keep)
+            kept.append(np.asarray(block[keep], dtype=np.float64))
+        hull = ConvexHull(np.vstack(kept))
         return cls(hull.equations, float(hull.volume))
 
     def distance(self, points: np.ndarray) -> np.ndarray:
-        p = np.asarray(points, dtype=np.float64)
-        return -(p @ self.equations[:, :3].T + self.equations[:, 3]).max(axis=1)
+        out = np.empty(len(points))
+        _hull_distance(np.asarray(points, dtype=np.float64), self.equations, out)
+        return out
+
+
+HULL_SAMPLE = 8
+"""Stride of the sample whose extremes give the inner hull of :meth:`SpecimenHull.from_points`."""
+
+HULL_TOLERANCE = 1e-6
+"""nm: points this close inside the inner hull of pass 1 are kept too (rounding of float32 input)."""
+
+
+def _fibonacci_directions(n: int) -> np.ndarray:
+    """(2n, 3) unit vectors spread over the sphere (Fibonacci lattice), each with its opposite."""
+    z = 1.0 - (2.0 * np.arange(n) + 1.0) / n
+    phi = np.arange(n) * math.pi * (3.0 - math.sqrt(5.0))
+    d = np.column_stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z])
+    return np.vstack([d, -d, np.eye(3), -np.eye(3)])
+
+
+_DIRECTIONS = _fibonacci_directions(48)
+
+
+@njit(cache=True, nogil=True)
+def _extremes(points, directions, best, arg, offset, stride):  # pragma: no cover - compiled
+    for i in range(points.shape[0]):
+        x, y, z = float(points[i, 0]), float(points[i, 1]), float(points[i, 2])
+        for k in range(directions.shape[0]):
+            d = directions[k, 0] * x + directions[k, 1] * y + directions[k, 2] * z
+            if d > best[k]:
+                best[k] = d
+                arg[k] = offset + i * stride
+
+
+@dataclass(frozen=True)
+class _DeepCells:
+    """Cells of a coarse grid over the points' box that lie wholly inside a convex polytope
+    (all 8 corners inside it): the points in them need no test against its facets."""
+
+    cells: np.ndarray
+    origin: np.ndarray
+    size: float
+
+    @classmethod
+    def build(cls, equations: np.ndarray, lower: np.ndarray, upper: np.ndarray, n_points: int) -> "_DeepCells":
+        n_cells = min(max(n_points // 16, 1), 1 << 22)  # ~16 points a cell, at most 4M cells
+        size = max(float(np.prod(upper - lower) / n_cells) ** (1 / 3), 1e-9)
+        shape = np.floor((upper - lower) / size).astype(int) + 1
+        corners = np.stack(np.meshgrid(*[np.arange(n + 1) for n in shape], indexing="ij"), axis=-1)
+        outside = np.zeros(corners.shape[:3], dtype=bool)
+        no_cells = np.zeros((1, 1, 1), dtype=bool)
+        _beyond(lower + corners.reshape(-1, 3) * size, equations, HULL_TOLERANCE, no_cells, lower, 0.0,
+                outside.reshape(-1))
+        inside = ~outside
+        cells = np.ones(tuple(shape), dtype=bool)
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    cells &= inside[dx:dx + shape[0], dy:dy + shape[1], dz:dz + shape[2]]
+        return cls(cells, lower, size)
+
+
+@njit(cache=True, nogil=True)
+def _beyond(points, equations, tol, deep, origin, inv, keep):  # pragma: no cover - compiled
+    """Sets ``keep`` for points not deeper than ``tol`` inside the half-spaces ``equations``
+    (f, 4), skipping points in ``deep`` cells (``inv`` = 1 / cell size; 0: no cells)."""
+    nx, ny, nz = deep.shape
+    for i in range(points.shape[0]):
+        x, y, z = float(points[i, 0]), float(points[i, 1]), float(points[i, 2])
+        cx = int(math.floor((x - origin[0]) * inv))
+        cy = int(math.floor((y - origin[1]) * inv))
+        cz = int(math.floor((z - origin[2]) * inv))
+        if 0 <= cx < nx and 0 <= cy < ny and 0 <= cz < nz and deep[cx, cy, cz]:
+            continue
+        for f in range(equations.shape[0]):
+            if equations[f, 0] * x + equations[f, 1] * y + equations[f, 2] * z + equations[f, 3] > -tol:
+                keep[i] = True
+                break
+
+
+@njit(cache=True, nogil=True)
+def _hull_distance(points, equations, out):  # pragma: no cover - compiled
+    for i in range(points.shape[0]):
+        worst = -np.inf
+        for f in range(equations.shape[0]):
+            v = equations[f, 0] * points[i, 0] + equations[f, 1] * points[i, 1] + equations[f, 2] * points[i, 2] \
+                + equations[f, 3]
+            worst = max(worst, v)
+        out[i] = -worst
 
 
 @dataclass(frozen=True)
@@ -253,38 +378,172 @@ def _obb(part: TriMesh, areas: np.ndarray) -> np.ndarray:
     return np.sort(np.ptp(proj, axis=0))[::-1]
 
 
-def _inside(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(n,) bool: points inside the closed mesh (ray parity, majority of 3 rays)."""
-    o3d = open3d()
-    ref = vertices.mean(axis=0)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((vertices - ref).astype(np.float32)),
-                        o3d.core.Tensor(faces.astype(np.uint32)))
-    occ = scene.compute_occupancy(o3d.core.Tensor((points - ref).astype(np.float32)), nsamples=3)
-    return occ.numpy().astype(bool)
+class _Shape:
+    """One closed object for the point-in-object test: a ray-casting scene (open3d) and its box."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        o3d = open3d()
+        corners = vertices[faces].reshape(-1, 3)
+        self.lower, self.upper = corners.min(axis=0), corners.max(axis=0)
+        self.triangles = vertices[faces]
+        self.ref = vertices.mean(axis=0)  # float32 coordinates near the object, not near 0
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor((vertices - self.ref).astype(np.float32)),
+                                 o3d.core.Tensor(faces.astype(np.uint32)))
+
+    def inside(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points inside (ray parity, majority of 3 rays)."""
+        if not len(points):
+            return np.zeros(0, dtype=bool)
+        o3d = open3d()
+        occ = self.scene.compute_occupancy(o3d.core.Tensor((points - self.ref).astype(np.float32)), nsamples=3)
+        return occ.numpy().astype(bool)
+
+
+MULTI = np.iinfo(np.int32).min
+"""Label of voxels that belong to, or are crossed by, more than one object."""
+
+
+@dataclass
+class _LabelGrid:
+    """Voxels over the union of the objects' boxes: ``k + 1`` wholly inside object ``k`` only,
+    ``-(k + 1)`` crossed by object ``k``'s surface only, :data:`MULTI` more than one object,
+    0 outside every object. Voxel ``(i, j, k)`` covers ``origin + [i, i + 1) * voxel`` (x, y, z)."""
+
+    labels: np.ndarray
+    origin: np.ndarray
+    voxel: float
+
+    @classmethod
+    def build(cls, shapes: list[_Shape], voxel: float = COUNT_VOXEL) -> "_LabelGrid":
+        lower = np.min([s.lower for s in shapes], axis=0) - voxel
+        upper = np.max([s.upper for s in shapes], axis=0) + voxel
+        voxel = max(voxel, float(np.prod(upper - lower) / MAX_LABEL_VOXELS) ** (1 / 3))
+        labels = np.zeros(tuple(np.floor((upper - lower) / voxel).astype(int) + 1), dtype=np.int32)
+        grid = cls(labels, lower, voxel)
+        for k, shape in enumerate(shapes):
+            grid._add(k, shape)
+        return grid
+
+    def _add(self, k: int, shape: _Shape) -> None:
+        lo = self._cell(shape.lower - LABEL_MARGIN)
+        hi = self._cell(shape.upper + LABEL_MARGIN) + 1
+        region = self.labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+        crossed = np.zeros(region.shape, dtype=bool)
+        corner = self.origin + lo * self.voxel
+        _mark_boxes(shape.triangles.min(axis=1) - corner, shape.triangles.max(axis=1) - corner,
+                    1.0 / self.voxel, LABEL_MARGIN, crossed)
+        inside = np.zeros(region.shape, dtype=bool)
+        step = max(1, CENTRE_BATCH // (region.shape[1] * region.shape[2]))  # bounded memory for large boxes
+        for i in range(0, region.shape[0], step):
+            slab = inside[i:i + step]
+            centres = np.stack(np.meshgrid(*[np.arange(n) + 0.5 for n in slab.shape], indexing="ij"), axis=-1)
+            centres[..., 0] += i
+            slab[...] = shape.inside(corner + centres.reshape(-1, 3) * self.voxel).reshape(slab.shape)
+        inside &= ~crossed
+        free = region == 0
+        region[crossed & free] = -(k + 1)
+        region[inside & free] = k + 1
+        region[(crossed | inside) & ~free] = MULTI
+
+    def _cell(self, points: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((points - self.origin) / self.voxel).astype(int), 0, np.array(self.labels.shape) - 1)
+
+
+CENTRE_BATCH = 1 << 20
+"""Voxel centres tested per batch when labelling an object's box (24 MB of float64)."""
+
+LABEL_MARGIN = 1e-3
+"""nm added around each triangle's box when marking crossed voxels: covers the rounding of
+float32 ion coordinates (about 1e-4 nm at 1000 nm), so a voxel not marked holds no ion that
+could lie on the other side of the surface."""
+
+
+@njit(cache=True, nogil=True)
+def _mark_boxes(lower, upper, inv, margin, crossed):  # pragma: no cover - compiled
+    nx, ny, nz = crossed.shape
+    for t in range(lower.shape[0]):
+        i0 = max(int(np.floor((lower[t, 0] - margin) * inv)), 0)
+        j0 = max(int(np.floor((lower[t, 1] - margin) * inv)), 0)
+        k0 = max(int(np.floor((lower[t, 2] - margin) * inv)), 0)
+        i1 = min(int(np.floor((upper[t, 0] + margin) * inv)), nx - 1)
+        j1 = min(int(np.floor((upper[t, 1] + margin) * inv)), ny - 1)
+        k1 = min(int(np.floor((upper[t, 2] + margin) * inv)), nz - 1)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for k in range(k0, k1 + 1):
+                    crossed[i, j, k] = True
+
+
+@njit(cache=True, nogil=True)
+def _label_pass(points, mz, edges, column_of_bin, labels, origin, inv, counts, found, codes,
+                species):  # pragma: no cover - compiled
+    """Counts the ions of voxels wholly inside one object by species column (``column_of_bin``
+    of the ion's m/z bin in ``edges``); returns how many ions it left in ``found`` (their
+    index), ``codes`` (their voxel's label) and ``species`` for the exact test."""
+    nx, ny, nz = labels.shape
+    n = 0
+    for i in range(points.shape[0]):
+        fx = (points[i, 0] - origin[0]) * inv
+        fy = (points[i, 1] - origin[1]) * inv
+        fz = (points[i, 2] - origin[2]) * inv
+        if fx < 0 or fy < 0 or fz < 0 or fx >= nx or fy >= ny or fz >= nz:
+            continue
+        label = labels[int(fx), int(fy), int(fz)]
+        if label == 0:
+            continue
+        column = column_of_bin[np.searchsorted(edges, mz[i], side="right")]
+        if label > 0:
+            counts[label - 1, column] += 1
+        else:
+            found[n] = i
+            codes[n] = label
+            species[n] = column
+            n += 1
+    return n
 
 
 def _count_ions(ions: IonTable, ranges: RangeTable, shapes: list[tuple[np.ndarray, np.ndarray]],
                 chunk: int = ION_CHUNK) -> np.ndarray:
     """(n_shapes, n_species + 1) ions inside each closed shape; last column unranged.
 
-    Ions go in chunks sorted by x; each shape tests only the ions in its bounding box.
+    One streamed pass over chunks of ions through a :class:`_LabelGrid`: an ion in a voxel
+    wholly inside one object is counted at once; only ions in voxels that a surface crosses
+    (or that several objects share) are tested by ray parity, all together at the end.
+    An ion inside nested objects counts for each. Memory: the grid (int32, at most
+    :data:`MAX_LABEL_VOXELS`), a chunk's work arrays (20 bytes per ion), and 36 bytes per ion left
+    to test.
     """
     n_species = len(ranges.ions)
     counts = np.zeros((len(shapes), n_species + 1), dtype=np.int64)
-    boxes = [(v[f].reshape(-1, 3).min(axis=0), v[f].reshape(-1, 3).max(axis=0)) for v, f in shapes]
+    if not shapes or not len(ions):
+        return counts
+    scenes = [_Shape(v, f) for v, f in shapes]
+    grid = _LabelGrid.build(scenes)
+    edges, species_of_bin = range_edges(ranges)
+    column_of_bin = np.where(species_of_bin > 0, species_of_bin - 1, n_species)  # unranged: last column
+    left: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for start in range(0, len(ions), chunk):
-        pos = np.asarray(ions.positions[start:start + chunk], dtype=np.float64)
-        species = ranges.ion_index(ions.mz[start:start + chunk])
-        order = np.argsort(pos[:, 0], kind="stable")
-        xs = pos[order, 0]
-        for i, ((lo, hi), (v, f)) in enumerate(zip(boxes, shapes)):
-            idx = order[np.searchsorted(xs, lo[0], "left"):np.searchsorted(xs, hi[0], "right")]
-            p = pos[idx]
-            idx = idx[np.all((p[:, 1:] >= lo[1:]) & (p[:, 1:] <= hi[1:]), axis=1)]
-            if len(idx):
-                s = species[idx[_inside(pos[idx], v, f)]]
-                counts[i] += np.bincount(np.where(s < 0, n_species, s), minlength=n_species + 1)
+        points = _native(ions.positions[start:start + chunk])
+        found = np.empty(len(points), dtype=np.int64)
+        codes = np.empty(len(points), dtype=np.int32)
+        species = np.empty(len(points), dtype=np.int64)
+        n = _label_pass(points, _native(ions.mz[start:start + chunk]), edges, column_of_bin, grid.labels, grid.origin,
+                        1.0 / grid.voxel, counts, found, codes, species)
+        left.append((np.asarray(points[found[:n]], dtype=np.float64), species[:n], codes[:n]))
+    points = np.vstack([p for p, _, _ in left])
+    species = np.concatenate([s for _, s, _ in left])
+    codes = np.concatenate([c for _, _, c in left])
+    del left
+    order = np.argsort(codes, kind="stable")
+    bounds = np.searchsorted(codes[order], np.arange(-len(shapes), 1))  # code -(k + 1) at slot n - 1 - k
+    multi = order[:np.searchsorted(codes[order], MULTI + 1)]
+    for k, shape in enumerate(scenes):
+        slot = len(shapes) - 1 - k
+        mine = order[bounds[slot]:bounds[slot + 1]]
+        near = multi[np.all((points[multi] >= shape.lower) & (points[multi] <= shape.upper), axis=1)]
+        test = np.concatenate([mine, near])
+        counts[k] += np.bincount(species[test[shape.inside(points[test])]], minlength=n_species + 1)
     return counts
 
 
@@ -306,7 +565,9 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         volume; otherwise they stay ``open`` without volume. Objects closed by faces flagged
         in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too.
 
-    Memory: a few copies of the face array, plus :data:`ION_CHUNK`-sized ion work arrays.
+    Memory: a few copies of the face array, the label grid of :func:`_count_ions` and
+    :data:`ION_CHUNK`-sized work arrays; the ions are read chunk by chunk (a memory-mapped
+    table is never copied whole). Two streamed passes build the hull, one counts the ions.
     """
     if (ions is None) != (ranges is None):
         raise AptFiltersError("counting ions inside objects needs both the ions and the range table")
@@ -320,19 +581,22 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
     order = np.argsort(face_label, kind="stable")
     starts = np.searchsorted(face_label[order], np.arange(n_obj + 1))
     is_cap = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces)), dtype=bool)
+    # every vertex's distance once (numba, no (n, facets) temporary); an object's is its smallest
+    edge = specimen.distance(mesh.vertices) if specimen is not None else None
     objects: list[ObjectStats] = []
     shapes: list[tuple[np.ndarray, np.ndarray]] = []
     for k in range(n_obj):
         index = order[starts[k]:starts[k + 1]]
+        capped = is_cap[index]
+        own = index[~capped] if capped.any() and not capped.all() else index  # the iso-surface's faces
         whole = _submesh(mesh.vertices, mesh.faces[index])
-        surface = _submesh(mesh.vertices, mesh.faces[index[~is_cap[index]]]) \
-            if is_cap[index].any() and not is_cap[index].all() else whole
+        surface = whole if own is index else _submesh(mesh.vertices, mesh.faces[own])
         closed = cap_boundaries(whole)[0] if cap_open else whole
         status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
         objects.append(_stats(int(ids[k]), surface, closed, status))
         shapes.append((closed.vertices, closed.faces))
-        if specimen is not None:
-            objects[-1].edge_distance = float(specimen.distance(surface.vertices).min())
+        if edge is not None:
+            objects[-1].edge_distance = float(edge[mesh.faces[own]].min())
     n_dropped = 0
     if ions is not None:
         countable = [i for i, o in enumerate(objects) if o.status != "open"]

@@ -20,7 +20,8 @@ import numpy as np
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.io import RangeTable, read_ions, read_ranges
+from apt_filters.io import read_ions, read_ranges
+from apt_filters.io.summary import summarize
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 from apt_filters.pipeline.picture import render_surfaces
@@ -37,14 +38,6 @@ def surface_label(surface: SurfaceConfig) -> str:
     if surface.species:
         return f"{surface.species}{surface.iso * 100:g}"
     return f"density{surface.iso:g}"
-
-
-def composition(index: np.ndarray, ranges: RangeTable) -> dict[str, float]:
-    """Element fractions of the ranged ions (``index`` from ``ranges.ion_index``), molecular ions decomposed."""
-    per_ion = np.bincount(index[index >= 0], minlength=len(ranges.ions))
-    atoms = per_ion @ ranges.element_matrix()
-    total = atoms.sum()
-    return {el: float(n / total) if total else 0.0 for el, n in zip(ranges.elements, atoms)}
 
 
 def closed_components(mesh: TriMesh) -> int:
@@ -107,14 +100,12 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         with log.step("read") as s:
             ions = read_ions(config.input.ions)
             ranges = read_ranges(config.input.ranges)
-            index = ranges.ion_index(ions.mz)
-            ranged = float(np.mean(index >= 0)) if len(ions) else 0.0
+            summary = summarize(ions, ranges)  # chunk by chunk: no (N,) ranging array kept
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
-            report["ions"] = {"count": len(ions), "ranged_fraction": ranged,
-                              "bounds_nm": [b.tolist() for b in ions.bounds()]}
-            report["composition"] = composition(index, ranges)
-            del index
-            s.summary = f"{len(ions):,} ions, {ranged:.1%} ranged, {len(ranges)} ranges"
+            report["ions"] = {"count": summary.ions, "ranged_fraction": summary.ranged_fraction,
+                              "bounds_nm": [summary.lower.tolist(), summary.upper.tolist()]}
+            report["composition"] = summary.composition()
+            s.summary = f"{len(ions):,} ions, {summary.ranged_fraction:.1%} ranged, {len(ranges)} ranges"
         if config.analysis.audit:
             with log.step("audit") as s:
                 result = audit_ranges(ions, ranges)
