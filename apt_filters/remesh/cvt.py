@@ -276,3 +276,44 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
                 gens.arc[order] = curve.lloyd(gens.arc[order])
                 gens.positions[order] = curve.at(gens.arc[order])
     return LloydResult(gens, labels, energy)
+
+
+def connect_cells(adjacency: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
+                  gens: Generators, n_patches: int, cells: np.ndarray) -> np.ndarray:
+    """Labels with every restricted Voronoi cell connected on the refined mesh.
+
+    A cell can reach across a fold or a thin neck of a bumpy surface in Euclidean distance and
+    come out in pieces; its dual would then be a vertex with several fans. Each of the ``cells``
+    ((n,) bool over generators) keeps its heaviest piece; the other pieces of patch cells join the neighbouring cells they touch, ring by ring, as
+    long as :func:`allowed` lets them (same patch; beside a curve, only curve and corner cells).
+    Curve and corner cells are left alone: the rim groups split them on purpose.
+
+    ``adjacency`` (k, 2) holds the pairs of refined faces sharing an edge, ``labels`` (f,) the
+    generator of each face, ``weights`` (f,) their areas, ``group`` (f,) their sample groups.
+    """
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(labels)
+    a, b = adjacency.T
+    same = labels[a] == labels[b]
+    _, piece = connected_components(sparse.coo_matrix((np.ones(same.sum()), (a[same], b[same])), shape=(n, n)),
+                                    directed=False)
+    piece_label = np.empty(piece.max() + 1, np.int64)
+    piece_label[piece] = labels
+    heaviest = np.lexsort((-np.bincount(piece, weights), piece_label))
+    first = np.r_[True, piece_label[heaviest][1:] != piece_label[heaviest][:-1]]
+    orphan = ~isin(piece, heaviest[first]) & cells[labels]
+    if not orphan.any():
+        return labels
+    labels = labels.copy()
+    touch = orphan[a] | orphan[b]
+    x, y = np.r_[a[touch], b[touch]], np.r_[b[touch], a[touch]]
+    while orphan.any():
+        take = orphan[x] & ~orphan[y] & (group[x] % n_patches == group[y] % n_patches) \
+            & ((group[x] < n_patches) | (gens.kind[labels[y]] != PATCH))
+        if not take.any():
+            break
+        labels[x[take]] = labels[y[take]]
+        orphan[x[take]] = False
+    return labels
