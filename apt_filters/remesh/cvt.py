@@ -278,42 +278,51 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     return LloydResult(gens, labels, energy)
 
 
-def connect_cells(adjacency: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
+def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
                   gens: Generators, n_patches: int, cells: np.ndarray) -> np.ndarray:
-    """Labels with every restricted Voronoi cell connected on the refined mesh.
+    """Labels with the restricted Voronoi cells ``cells`` ((n,) bool over generators) made connected.
 
     A cell can reach across a fold or a thin neck of a bumpy surface in Euclidean distance and
-    come out in pieces; its dual would then be a vertex with several fans. Each of the ``cells``
-    ((n,) bool over generators) keeps its heaviest piece; the other pieces of patch cells join the neighbouring cells they touch, ring by ring, as
-    long as :func:`allowed` lets them (same patch; beside a curve, only curve and corner cells).
-    Curve and corner cells are left alone: the rim groups split them on purpose.
+    come out in pieces; its dual is then a vertex with several fans, or a hole. Each of those
+    cells keeps its heaviest piece; the other pieces join the neighbouring cells they touch,
+    ring by ring, as long as :func:`allowed` lets them (same patch; beside a curve, only curve
+    and corner cells).
 
-    ``adjacency`` (k, 2) holds the pairs of refined faces sharing an edge, ``labels`` (f,) the
-    generator of each face, ``weights`` (f,) their areas, ``group`` (f,) their sample groups.
+    ``faces`` (f, 3) is the refined mesh, ``labels`` (f,) the generator of each refined face,
+    ``weights`` (f,) their areas, ``group`` (f,) their sample groups. Only the faces of
+    ``cells`` and their neighbours are looked at.
     """
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-    n = len(labels)
-    a, b = adjacency.T
-    same = labels[a] == labels[b]
+    from apt_filters.remesh.features import edge_faces, face_pairs
+
+    near = np.zeros(int(faces.max()) + 1, bool)
+    near[faces[cells[labels]]] = True
+    sub = np.flatnonzero(near[faces].any(axis=1))
+    edges, half_face, half_edge = edge_faces(faces[sub])
+    counts, pair = face_pairs(half_face, half_edge, len(edges))
+    a, b = pair[counts == 2].T  # local ids: faces sub[a], sub[b] share an edge
+    local = labels[sub]
+    n = len(sub)
+    same = local[a] == local[b]
     _, piece = connected_components(sparse.coo_matrix((np.ones(same.sum()), (a[same], b[same])), shape=(n, n)),
                                     directed=False)
     piece_label = np.empty(piece.max() + 1, np.int64)
-    piece_label[piece] = labels
-    heaviest = np.lexsort((-np.bincount(piece, weights), piece_label))
+    piece_label[piece] = local
+    heaviest = np.lexsort((-np.bincount(piece, weights[sub]), piece_label))
     first = np.r_[True, piece_label[heaviest][1:] != piece_label[heaviest][:-1]]
-    orphan = ~isin(piece, heaviest[first]) & cells[labels]
-    if not orphan.any():
-        return labels
-    labels = labels.copy()
+    orphan = ~isin(piece, heaviest[first]) & cells[local]
     touch = orphan[a] | orphan[b]
     x, y = np.r_[a[touch], b[touch]], np.r_[b[touch], a[touch]]
+    g = group[sub]
     while orphan.any():
-        take = orphan[x] & ~orphan[y] & (group[x] % n_patches == group[y] % n_patches) \
-            & ((group[x] < n_patches) | (gens.kind[labels[y]] != PATCH))
+        take = orphan[x] & ~orphan[y] & (g[x] % n_patches == g[y] % n_patches) \
+            & ((g[x] < n_patches) | (gens.kind[local[y]] != PATCH))
         if not take.any():
             break
-        labels[x[take]] = labels[y[take]]
+        local[x[take]] = local[y[take]]
         orphan[x[take]] = False
+    labels = labels.copy()
+    labels[sub] = local
     return labels

@@ -78,15 +78,13 @@ def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -
     maximises the smallest angle is used.
     """
     k = len(poly)
-    best, best_score = None, -1.0
+    fans = [[(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
+            for apex in range(k)]
+    angles = face_quality(TriMesh(positions, np.array(fans).reshape(-1, 3)))[0]
+    score = angles.min(axis=1).reshape(k, k - 2).min(axis=1)  # degrees
     for apex in range(k):
-        tris = [(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
-        diagonals = [(poly[apex], poly[(apex + j) % k]) for j in range(2, k - 1)]
-        score = face_quality(TriMesh(positions, np.array(tris)))[0].min()  # degrees
-        score += sum(180.0 for a, b in diagonals if pinned[a] and pinned[b])
-        if score > best_score:
-            best, best_score = tris, score
-    return best
+        score[apex] += sum(180.0 for j in range(2, k - 1) if pinned[poly[apex]] and pinned[poly[(apex + j) % k]])
+    return fans[int(np.argmax(score))]
 
 
 def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,

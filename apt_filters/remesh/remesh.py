@@ -122,8 +122,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     bad = repair.defects(gens.positions, faces, on_boundary)
     if bad.any():  # cells in pieces (bumps, folds): keep each one's main piece, then extract again
-        labels = cvt.connect_cells(_face_adjacency(samples.faces), labels, samples.weights, group, gens,
-                                   features.n_patches, bad)
+        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     faces = repair.repair(gens.positions, faces, on_boundary, pinned)
     used, faces = np.unique(faces, return_inverse=True)
@@ -135,13 +134,6 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     timings["extract"] = time.perf_counter() - t0 - timings["prepare"] - timings["lloyd"]
     return RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, len(features.corners),
                         len(features.curves), timings)
-
-
-def _face_adjacency(faces: np.ndarray) -> np.ndarray:
-    """(k, 2) pairs of faces sharing an edge."""
-    edges, half_face, half_edge = feat.edge_faces(faces)
-    counts, pair = feat.face_pairs(half_face, half_edge, len(edges))
-    return pair[counts == 2]
 
 
 def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
