@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from apt_filters.remesh._arrays import isin
 from apt_filters.core.deps import open3d
@@ -206,6 +207,23 @@ def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
     return idx.numpy().astype(np.int64).reshape(len(queries), k)
 
 
+@njit(nogil=True, cache=True)
+def _nearest_candidate(points, sel, local, near, previous):
+    """For each sample ``sel[i]``: the nearest of the generators ``near[previous[i]]`` (local ids)."""
+    out = np.empty(len(sel), np.int64)
+    for i in range(len(sel)):
+        p = sel[i]
+        best, arg = np.inf, 0
+        for j in range(near.shape[1]):
+            c = near[previous[i], j]
+            d = (points[p, 0] - local[c, 0]) ** 2 + (points[p, 1] - local[c, 1]) ** 2 \
+                + (points[p, 2] - local[c, 2]) ** 2
+            if d < best:
+                best, arg = d, c
+        out[i] = arg
+    return out
+
+
 def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list,
            previous: np.ndarray | None = None, k: int = 10) -> np.ndarray:
     """Nearest allowed generator of every sample point, per group.
@@ -213,8 +231,8 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
     Without ``previous`` every sample is searched in an open3d KD-tree of the group's
     generators. With ``previous`` labels (generators have moved a little since), only the
     ``k`` generators nearest to each sample's previous generator are candidates: the KD-tree
-    then runs on the generators alone and the samples need k distances each, several times
-    cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
+    then runs on the generators alone and the samples need k distances each (a compiled
+    loop, no (samples, k, 3) temporaries), several times cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
     """
     labels = np.full(len(points), -1)
     order = np.argsort(group, kind="stable")
@@ -229,12 +247,7 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
             continue
         lut[ids] = np.arange(len(ids))
         near = _knn(positions[ids], positions[ids], min(k, len(ids)))
-        local = positions[ids].astype(np.float32)  # float32 halves the traffic of this hot loop
-        for chunk in np.array_split(sel, max(1, len(sel) // 200_000)):
-            cand = near[lut[previous[chunk]]]
-            diff = points[chunk, None, :].astype(np.float32) - local[cand]
-            d2 = np.einsum("ijk,ijk->ij", diff, diff)
-            labels[chunk] = ids[cand[np.arange(len(chunk)), d2.argmin(axis=1)]]
+        labels[sel] = ids[_nearest_candidate(points, sel, positions[ids], near, lut[previous[sel]])]
     return labels
 
 
