@@ -190,10 +190,11 @@ def sample_groups(samples: Samples, features: Features) -> np.ndarray:
     np.minimum.at(lo, faces.ravel(), np.repeat(patch, 3))
     np.maximum.at(hi, faces.ravel(), np.repeat(patch, 3))
     feature_vertex = lo != hi
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = half[:, 0] * n_v + half[:, 1]
-    lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
-    feature_vertex[half[lone].ravel()] = True
+    if features.boundary_curve.any():  # open input: refined boundary vertices too
+        half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+        key = half[:, 0] * n_v + half[:, 1]
+        lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
+        feature_vertex[half[lone].ravel()] = True
     near = feature_vertex[faces].any(axis=1)
     return patch + features.n_patches * near
 
