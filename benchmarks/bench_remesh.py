@@ -82,6 +82,13 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a 30k-triangle torus instead of 200k")
     args = parser.parse_args(argv)
+    # imports first, so that no method's time holds a library's import (open3d alone takes seconds)
+    import pyacvd  # noqa: F401
+    import pymeshlab  # noqa: F401
+
+    from apt_filters.core.deps import open3d
+
+    open3d()
     torus = shapes.torus(26.0, 10.0) if args.quick else shapes.torus(66.0, 27.0)
     lines = bench("marching-cubes torus", torus, 1.0, sharp=False)
     lines += bench("box minus sphere (exact sharp edges, boolean slivers)", shapes.box_minus_sphere(), 1.0, sharp=True)

@@ -117,3 +117,15 @@ def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.
     ms.generate_boolean_difference(first_mesh=0, second_mesh=1)
     m = ms.current_mesh()
     return TriMesh(m.vertex_matrix() @ rotation().T, m.face_matrix())
+
+
+def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
+    """``mesh`` with every vertex moved along its normal by Gaussian noise of sd ``amplitude``
+    (nm), then every face split in four: a stand-in for a small object after the pipeline's
+    refinement against the ions (bumps of a few tenths of a nm) and clean chain (edges halved)."""
+    from apt_filters.remesh.extract import vertex_normals
+    from apt_filters.remesh.sampling import split4
+
+    rng = np.random.default_rng(seed)
+    normals = vertex_normals(mesh.vertices, mesh.faces)
+    return TriMesh(*split4(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces))

@@ -89,8 +89,8 @@ def edge_metrics(pred: tuple[np.ndarray, np.ndarray], true: tuple[np.ndarray, np
             "edge_recall": recall, "edge_f1": f1}
 
 
-def triangle_quality(mesh: TriMesh) -> dict:
-    """Minimum angle (degrees) and Q = 6/√3 · A/(p · h_max): min and mean over faces."""
+def face_quality(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Per face: (m, 3) interior angles in degrees (at corners 0, 1, 2) and (m,) Q = 6/√3 · A/(p · h_max)."""
     v = mesh.vertices[mesh.faces]
     sides = np.linalg.norm(v[:, [1, 2, 0]] - v, axis=2)  # (m, 3): |v1-v0|, |v2-v1|, |v0-v2|
     area = mesh.face_areas()
@@ -99,13 +99,23 @@ def triangle_quality(mesh: TriMesh) -> dict:
     a, b, c = sides[:, 0], sides[:, 1], sides[:, 2]
     cosines = np.stack([(a**2 + c**2 - b**2) / (2 * a * c), (a**2 + b**2 - c**2) / (2 * a * b),
                         (b**2 + c**2 - a**2) / (2 * b * c)], 1)
-    angles = np.degrees(np.arccos(np.clip(np.nan_to_num(cosines, nan=1.0), -1, 1)))
+    return np.degrees(np.arccos(np.clip(np.nan_to_num(cosines, nan=1.0), -1, 1))), q
+
+
+def triangle_quality(mesh: TriMesh) -> dict:
+    """Minimum angle (degrees) and Q = 6/√3 · A/(p · h_max): min and mean over faces."""
+    angles, q = face_quality(mesh)
     return {"min_angle": float(angles.min()), "mean_min_angle": float(angles.min(axis=1).mean()),
             "q_min": float(q.min()), "q_mean": float(q.mean())}
 
 
 def non_manifold_vertex_count(mesh: TriMesh) -> int:
     """Vertices whose incident faces form more than one fan (their link is disconnected)."""
+    return int(non_manifold_vertices(mesh).sum())
+
+
+def non_manifold_vertices(mesh: TriMesh) -> np.ndarray:
+    """(n,) bool: vertices whose incident faces form more than one fan (their link is disconnected)."""
     f = mesh.faces
     centre = f.reshape(-1)
     a = np.roll(f, -1, axis=1).reshape(-1)
@@ -118,7 +128,7 @@ def non_manifold_vertex_count(mesh: TriMesh) -> int:
     _, label = connected_components(graph, directed=False)
     owner = uniq // mesh.n_vertices
     fans = np.unique(np.stack([owner, label], 1), axis=0)[:, 0]
-    return int((np.bincount(fans, minlength=mesh.n_vertices) > 1).sum())
+    return np.bincount(fans, minlength=mesh.n_vertices) > 1
 
 
 def self_intersection_count(mesh: TriMesh) -> int:

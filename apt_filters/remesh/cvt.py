@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from apt_filters.remesh._arrays import isin
 from apt_filters.core.deps import open3d
@@ -189,10 +190,11 @@ def sample_groups(samples: Samples, features: Features) -> np.ndarray:
     np.minimum.at(lo, faces.ravel(), np.repeat(patch, 3))
     np.maximum.at(hi, faces.ravel(), np.repeat(patch, 3))
     feature_vertex = lo != hi
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = half[:, 0] * n_v + half[:, 1]
-    lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
-    feature_vertex[half[lone].ravel()] = True
+    if features.boundary_curve.any():  # open input: refined boundary vertices too
+        half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+        key = half[:, 0] * n_v + half[:, 1]
+        lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
+        feature_vertex[half[lone].ravel()] = True
     near = feature_vertex[faces].any(axis=1)
     return patch + features.n_patches * near
 
@@ -206,6 +208,23 @@ def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
     return idx.numpy().astype(np.int64).reshape(len(queries), k)
 
 
+@njit(nogil=True, cache=True)
+def _nearest_candidate(points, sel, local, near, previous):
+    """For each sample ``sel[i]``: the nearest of the generators ``near[previous[i]]`` (local ids)."""
+    out = np.empty(len(sel), np.int64)
+    for i in range(len(sel)):
+        p = sel[i]
+        best, arg = np.inf, 0
+        for j in range(near.shape[1]):
+            c = near[previous[i], j]
+            d = (points[p, 0] - local[c, 0]) ** 2 + (points[p, 1] - local[c, 1]) ** 2 \
+                + (points[p, 2] - local[c, 2]) ** 2
+            if d < best:
+                best, arg = d, c
+        out[i] = arg
+    return out
+
+
 def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list,
            previous: np.ndarray | None = None, k: int = 10) -> np.ndarray:
     """Nearest allowed generator of every sample point, per group.
@@ -213,8 +232,8 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
     Without ``previous`` every sample is searched in an open3d KD-tree of the group's
     generators. With ``previous`` labels (generators have moved a little since), only the
     ``k`` generators nearest to each sample's previous generator are candidates: the KD-tree
-    then runs on the generators alone and the samples need k distances each, several times
-    cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
+    then runs on the generators alone and the samples need k distances each (a compiled
+    loop, no (samples, k, 3) temporaries), several times cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
     """
     labels = np.full(len(points), -1)
     order = np.argsort(group, kind="stable")
@@ -229,12 +248,7 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
             continue
         lut[ids] = np.arange(len(ids))
         near = _knn(positions[ids], positions[ids], min(k, len(ids)))
-        local = positions[ids].astype(np.float32)  # float32 halves the traffic of this hot loop
-        for chunk in np.array_split(sel, max(1, len(sel) // 200_000)):
-            cand = near[lut[previous[chunk]]]
-            diff = points[chunk, None, :].astype(np.float32) - local[cand]
-            d2 = np.einsum("ijk,ijk->ij", diff, diff)
-            labels[chunk] = ids[cand[np.arange(len(chunk)), d2.argmin(axis=1)]]
+        labels[sel] = ids[_nearest_candidate(points, sel, positions[ids], near, lut[previous[sel]])]
     return labels
 
 
@@ -276,3 +290,53 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
                 gens.arc[order] = curve.lloyd(gens.arc[order])
                 gens.positions[order] = curve.at(gens.arc[order])
     return LloydResult(gens, labels, energy)
+
+
+def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
+                  gens: Generators, n_patches: int, cells: np.ndarray) -> np.ndarray:
+    """Labels with the restricted Voronoi cells ``cells`` ((n,) bool over generators) made connected.
+
+    A cell can reach across a fold or a thin neck of a bumpy surface in Euclidean distance and
+    come out in pieces; its dual is then a vertex with several fans, or a hole. Each of those
+    cells keeps its heaviest piece; the other pieces join the neighbouring cells they touch,
+    ring by ring, as long as :func:`allowed` lets them (same patch; beside a curve, only curve
+    and corner cells).
+
+    ``faces`` (f, 3) is the refined mesh, ``labels`` (f,) the generator of each refined face,
+    ``weights`` (f,) their areas, ``group`` (f,) their sample groups. Only the faces of
+    ``cells`` and their neighbours are looked at.
+    """
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    from apt_filters.remesh.features import edge_faces, face_pairs
+
+    near = np.zeros(int(faces.max()) + 1, bool)
+    near[faces[cells[labels]]] = True
+    sub = np.flatnonzero(near[faces].any(axis=1))
+    edges, half_face, half_edge = edge_faces(faces[sub])
+    counts, pair = face_pairs(half_face, half_edge, len(edges))
+    a, b = pair[counts == 2].T  # local ids: faces sub[a], sub[b] share an edge
+    local = labels[sub]
+    n = len(sub)
+    same = local[a] == local[b]
+    _, piece = connected_components(sparse.coo_matrix((np.ones(same.sum()), (a[same], b[same])), shape=(n, n)),
+                                    directed=False)
+    piece_label = np.empty(piece.max() + 1, np.int64)
+    piece_label[piece] = local
+    heaviest = np.lexsort((-np.bincount(piece, weights[sub]), piece_label))
+    first = np.r_[True, piece_label[heaviest][1:] != piece_label[heaviest][:-1]]
+    orphan = ~isin(piece, heaviest[first]) & cells[local]
+    touch = orphan[a] | orphan[b]
+    x, y = np.r_[a[touch], b[touch]], np.r_[b[touch], a[touch]]
+    g = group[sub]
+    while orphan.any():
+        take = orphan[x] & ~orphan[y] & (g[x] % n_patches == g[y] % n_patches) \
+            & ((g[x] < n_patches) | (gens.kind[local[y]] != PATCH))
+        if not take.any():
+            break
+        local[x[take]] = local[y[take]]
+        orphan[x[take]] = False
+    labels = labels.copy()
+    labels[sub] = local
+    return labels

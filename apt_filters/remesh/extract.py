@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from apt_filters.contour.metrics import face_quality
+from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh._arrays import unique
 from apt_filters.remesh.sampling import Samples
 
@@ -68,16 +70,6 @@ def fan_order(faces: np.ndarray, n_vertices: int, wanted: np.ndarray | None = No
     return v[ranked], face[ranked]
 
 
-def _min_angle(p: np.ndarray) -> float:
-    """Smallest interior angle (radians) of the triangle with corners p (3, 3)."""
-    angles = []
-    for i in range(3):
-        a, b = p[(i + 1) % 3] - p[i], p[(i + 2) % 3] - p[i]
-        denom = np.linalg.norm(a) * np.linalg.norm(b)
-        angles.append(np.arccos(np.clip(a @ b / denom, -1, 1)) if denom > 0 else 0.0)
-    return min(angles)
-
-
 def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -> list:
     """Triangulate a small convex-ish polygon of generator ids (counter-clockwise).
 
@@ -86,15 +78,13 @@ def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -
     maximises the smallest angle is used.
     """
     k = len(poly)
-    best, best_score = None, -1.0
+    fans = [[(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
+            for apex in range(k)]
+    angles = face_quality(TriMesh(positions, np.array(fans).reshape(-1, 3)))[0]
+    score = angles.min(axis=1).reshape(k, k - 2).min(axis=1)  # degrees
     for apex in range(k):
-        tris = [(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
-        diagonals = [(poly[apex], poly[(apex + j) % k]) for j in range(2, k - 1)]
-        score = min(_min_angle(positions[list(t)]) for t in tris)
-        score += sum(10.0 for a, b in diagonals if pinned[a] and pinned[b])
-        if score > best_score:
-            best, best_score = tris, score
-    return best
+        score[apex] += sum(180.0 for j in range(2, k - 1) if pinned[poly[apex]] and pinned[poly[(apex + j) % k]])
+    return fans[int(np.argmax(score))]
 
 
 def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,

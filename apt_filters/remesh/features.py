@@ -67,7 +67,7 @@ def edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return edges, np.repeat(np.arange(len(faces)), 3), half_edge.ravel()
 
 
-def _face_pairs(half_face: np.ndarray, half_edge: np.ndarray, n_edges: int) -> tuple[np.ndarray, np.ndarray]:
+def face_pairs(half_face: np.ndarray, half_edge: np.ndarray, n_edges: int) -> tuple[np.ndarray, np.ndarray]:
     """(e,) counts of faces per edge and (e, 2) the first two faces (-1 where missing)."""
     order = np.argsort(half_edge, kind="stable")
     counts = np.bincount(half_edge, minlength=n_edges)
@@ -163,7 +163,7 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0) -> Feature
     """
     faces = mesh.faces
     edges, half_face, half_edge = edge_faces(faces)
-    counts, pair = _face_pairs(half_face, half_edge, len(edges))
+    counts, pair = face_pairs(half_face, half_edge, len(edges))
     normals = mesh.face_normals()
     manifold = counts == 2
     cos = np.ones(len(edges))

@@ -1,6 +1,8 @@
 """Mesh quality and fidelity measures used to judge a remesh.
 
-All functions take :class:`~apt_filters.core.mesh.TriMesh` objects; lengths are in the
+Triangle shape, sampling and point-to-mesh distances come from :mod:`apt_filters.contour.metrics`;
+this module adds what judging a remesh against its input (not an analytic shape) needs. All
+functions take :class:`~apt_filters.core.mesh.TriMesh` objects; lengths are in the
 mesh's units (nm). Peak memory is a few arrays of the mesh's size (plus pymeshlab's copy
 for the topological measures).
 """
@@ -11,61 +13,17 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from apt_filters.remesh._arrays import isin, unique_rows
+from apt_filters.contour.metrics import face_quality, point_to_mesh_distance, sample_mesh
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
-
-
-def triangle_angles(mesh: TriMesh) -> np.ndarray:
-    """(m, 3) interior angles in degrees, the angle at each face corner."""
-    v = mesh.vertices[mesh.faces]
-    out = np.empty((len(mesh.faces), 3))
-    for i in range(3):
-        a = v[:, (i + 1) % 3] - v[:, i]
-        b = v[:, (i + 2) % 3] - v[:, i]
-        cos = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
-        out[:, i] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    return out
-
-
-def radius_ratio(mesh: TriMesh) -> np.ndarray:
-    """(m,) quality Q = 6/sqrt(3) * A / (s * h_max): 1 for equilateral, 0 for degenerate.
-
-    A is the area, s the semi-perimeter and h_max the longest edge.
-    """
-    v = mesh.vertices[mesh.faces]
-    lengths = np.linalg.norm(v - np.roll(v, -1, axis=1), axis=2)
-    s = lengths.sum(axis=1) / 2
-    denom = np.maximum(s * lengths.max(axis=1), 1e-300)
-    return 6.0 / np.sqrt(3.0) * mesh.face_areas() / denom
-
-
-def sample_surface(mesh: TriMesh, n: int, seed: int = 0) -> np.ndarray:
-    """(n, 3) points drawn uniformly by area on the mesh surface."""
-    rng = np.random.default_rng(seed)
-    areas = mesh.face_areas()
-    face = rng.choice(len(areas), size=n, p=areas / areas.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    flip = r1 + r2 > 1
-    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
-    v = mesh.vertices[mesh.faces[face]]
-    return v[:, 0] + r1[:, None] * (v[:, 1] - v[:, 0]) + r2[:, None] * (v[:, 2] - v[:, 0])
-
-
-def distance_to(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
-    """(k,) unsigned distance from each point to the mesh surface (open3d RaycastingScene)."""
-    o3d = open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy().astype(np.float64)
+from apt_filters.remesh._arrays import isin, unique_rows
 
 
 def hausdorff(a: TriMesh, b: TriMesh, n_samples: int = 200_000) -> float:
-    """Two-sided Hausdorff distance, estimated from vertices plus area samples of each mesh."""
-    pa = np.vstack([a.vertices, sample_surface(a, n_samples, 1)])
-    pb = np.vstack([b.vertices, sample_surface(b, n_samples, 2)])
-    return float(max(distance_to(b, pa).max(), distance_to(a, pb).max()))
+    """Two-sided Hausdorff distance, estimated from vertices plus about ``n_samples`` area samples of each mesh."""
+    pa = np.vstack([a.vertices, sample_mesh(a, n_samples / a.area(), np.random.default_rng(1))[0]])
+    pb = np.vstack([b.vertices, sample_mesh(b, n_samples / b.area(), np.random.default_rng(2))[0]])
+    return float(max(point_to_mesh_distance(b, pa).max(), point_to_mesh_distance(a, pb).max()))
 
 
 def feature_edges(mesh: TriMesh, angle: float = 40.0) -> np.ndarray:
@@ -168,9 +126,9 @@ class Quality:
 
 def assess(mesh: TriMesh, reference: TriMesh, n_samples: int = 200_000) -> Quality:
     """All the measures at once: angles, Q, Hausdorff to ``reference``, manifoldness, topology."""
-    angles = triangle_angles(mesh).min(axis=1)
+    angles, q = face_quality(mesh)
+    angles = angles.min(axis=1)
     topo = topology(mesh)
-    return Quality(len(mesh.faces), float(angles.min()), float(np.mean(angles >= 30.0)),
-                   float(radius_ratio(mesh).mean()), hausdorff(mesh, reference, n_samples),
+    return Quality(len(mesh.faces), float(angles.min()), float(np.mean(angles >= 30.0)), float(q.mean()), hausdorff(mesh, reference, n_samples),
                    topo.non_manifold_edges, topo.non_manifold_vertices, self_intersections(mesh),
                    orientation_conflicts(mesh), topo.components, topo.boundary_loops, topo.genus)

@@ -118,12 +118,12 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     labels = cvt.assign(samples.points, group, gens.positions, cvt.allowed(features, gens))
     timings["lloyd"] = time.perf_counter() - t0 - timings["prepare"]
     pinned = gens.kind != cvt.PATCH
+    on_boundary = _on_boundary(features, gens)
     faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
-    boundary_curves = np.flatnonzero(features.boundary_curve)
-    on_boundary = (gens.kind == cvt.CURVE) & isin(gens.owner, boundary_curves)
-    corner_ids = features.corners[gens.owner[gens.kind == cvt.CORNER]]
-    on_boundary[gens.kind == cvt.CORNER] = isin(corner_ids, np.concatenate(
-        [features.curves[i] for i in boundary_curves] or [np.empty(0, np.int64)]))
+    bad = repair.defects(gens.positions, faces, on_boundary)
+    if bad.any():  # cells in pieces (bumps, folds): keep each one's main piece, then extract again
+        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad)
+        faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     faces = repair.repair(gens.positions, faces, on_boundary, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
@@ -134,6 +134,16 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     timings["extract"] = time.perf_counter() - t0 - timings["prepare"] - timings["lloyd"]
     return RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, len(features.corners),
                         len(features.curves), timings)
+
+
+def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
+    """(n,) bool: generators on a boundary curve of the input (its open boundary)."""
+    boundary_curves = np.flatnonzero(features.boundary_curve)
+    on_boundary = (gens.kind == cvt.CURVE) & isin(gens.owner, boundary_curves)
+    corner_ids = features.corners[gens.owner[gens.kind == cvt.CORNER]]
+    on_boundary[gens.kind == cvt.CORNER] = isin(corner_ids, np.concatenate(
+        [features.curves[i] for i in boundary_curves] or [np.empty(0, np.int64)]))
+    return on_boundary
 
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,

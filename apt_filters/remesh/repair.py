@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from apt_filters.remesh._arrays import isin, unique_rows
+from apt_filters.contour.metrics import face_quality, non_manifold_vertices
 from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh._arrays import isin, unique_rows
 from apt_filters.remesh.extract import triangulate_polygon
-from apt_filters.remesh.quality import triangle_angles
 
 
 def drop_duplicates(faces: np.ndarray) -> np.ndarray:
@@ -33,7 +33,7 @@ def trim_overfull_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         over = counts[inverse.ravel()].reshape(-1, 3).max(axis=1) > 2
         if not over.any():
             break
-        quality = triangle_angles(TriMesh(vertices, faces)).min(axis=1)
+        quality = face_quality(TriMesh(vertices, faces))[0].min(axis=1)
         # on each over-full edge, drop the worst of its triangles
         edge = inverse.ravel()
         face = np.repeat(np.arange(len(faces)), 3)
@@ -98,21 +98,29 @@ def orient_coherently(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     same = np.zeros(len(faces), bool)
     for shift in range(3):
         same |= (np.roll(new, shift, axis=1) == faces).all(axis=1)
-    labels = connected_faces(new)
+    labels = TriMesh(vertices, new).face_components()
     flip_component = np.bincount(labels, ~same) > np.bincount(labels, same)
     return np.where(flip_component[labels][:, None], new[:, ::-1], new)
 
 
-def connected_faces(faces: np.ndarray) -> np.ndarray:
-    """(m,) component label of each face (faces sharing a vertex are connected)."""
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
+def defects(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray) -> np.ndarray:
+    """(n,) bool: generators where the extracted triangulation is not a closed, oriented 2-manifold.
 
-    m = len(faces)
-    n = int(faces.max()) + 1
-    graph = sparse.coo_matrix((np.ones(3 * m), (np.repeat(np.arange(m), 3), faces.ravel())), shape=(m, n)).tocsr()
-    _, labels = connected_components(sparse.bmat([[None, graph], [graph.T, None]]), directed=False)
-    return labels[:m]
+    These are the ends of edges with more than two faces, of half-edges used twice (opposite
+    orientations) and of boundary edges not on a boundary curve, and vertices with several
+    fans: the marks of restricted Voronoi cells that are not topological disks.
+    """
+    faces = drop_duplicates(faces)
+    bad = np.zeros(len(vertices), bool)
+    if len(faces) == 0:
+        return bad
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    undirected, _, _, counts = unique_rows(np.sort(half, axis=1))
+    opened = (counts == 1) & ~on_boundary[undirected].all(axis=1)
+    bad[undirected[(counts > 2) | opened].ravel()] = True
+    directed, _, _, repeats = unique_rows(half)
+    bad[directed[repeats > 1].ravel()] = True
+    return bad | non_manifold_vertices(TriMesh(vertices, faces))
 
 
 def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
