@@ -127,8 +127,7 @@ def test_eno_normals_beat_central_differences():
 def test_sharp_edges_rotated_box():
     assert report("rotated_box", "mc").edge_f1 <= 0.3
     assert report("rotated_box", "dc_eno").edge_f1 >= 0.7
-    # Issue target is 0.9; reached 0.86 (see benchmarks/results_contour.md).
-    assert report("rotated_box", "dc_exact").edge_f1 >= 0.85
+    assert report("rotated_box", "dc_exact").edge_f1 >= 0.9
     assert report("rotated_box", "dc_eno").edge_f1 > report("rotated_box", "dc_central").edge_f1
 
 
@@ -138,10 +137,7 @@ def test_dual_contouring_quality_on_every_shape(name):
     assert (r.boundary_edges, r.non_manifold_edges, r.non_manifold_vertices) == (0, 0, 0)
     assert r.self_intersections == 0 and r.folded_pairs == 0
     assert r.normal_consistency > 0.98
-    # Issue target 0.5 voxel: met on sphere, box, cylinder, box minus sphere; the rotated
-    # box and the thin plate reach 0.67-0.81 (corners whose QEF point lies outside its cell).
-    limit = 1.0 if name in ("rotated_box", "thin_plate") else 0.5
-    assert r.hausdorff <= limit
+    assert r.hausdorff <= 0.5
     mc = report(name, "mc")
     assert (mc.boundary_edges, mc.non_manifold_edges, mc.non_manifold_vertices) == (0, 0, 0)
     assert r.chamfer <= mc.chamfer
@@ -212,3 +208,26 @@ def test_metric_definitions_on_known_meshes():
     assert self_intersection_count(TriMesh(pts, tet)) == 0
     crossing = TriMesh(np.vstack([pts, pts + [0.2, 0.2, 0.2]]), np.vstack([tet, tet + 4]))
     assert self_intersection_count(crossing) > 0
+
+
+def test_box_constrained_qef_matches_bounded_least_squares():
+    from scipy.optimize import lsq_linear
+
+    from apt_filters.contour.qef import solve_qef_in_box
+
+    rng = np.random.default_rng(3)
+    n = 200
+    normals = rng.normal(size=(n, 4, 3))
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    normals[: n // 2, 3] = normals[: n // 2, 2]  # rank-deficient systems too (two distinct planes)
+    points = rng.uniform(-0.5, 2.5, size=(n, 4, 3))  # planes whose sharp point is often outside
+    b = np.einsum("nkj,nkj->nk", normals, points)
+    lo = np.floor(rng.uniform(0, 2, size=(n, 3)))
+    mass = lo + rng.uniform(0.2, 0.8, size=(n, 3))
+    ata = np.einsum("nki,nkj->nij", normals, normals)
+    atb = np.einsum("nki,nk->ni", normals, b)
+    x = solve_qef_in_box(ata, atb, mass, lo, lo + 1, cutoff=1e-6)
+    assert np.all((x >= lo - 1e-9) & (x <= lo + 1 + 1e-9))
+    ours = np.sum((np.einsum("nkj,nj->nk", normals, x) - b) ** 2, axis=1)
+    best = np.array([lsq_linear(normals[i], b[i], bounds=(lo[i], lo[i] + 1)).cost * 2 for i in range(n)])
+    assert np.allclose(ours, best, atol=1e-7)

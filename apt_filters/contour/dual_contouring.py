@@ -9,6 +9,7 @@ import numpy as np
 from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, prepare_field, trilinear
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
+from apt_filters.contour.qef import solve_qef, solve_qef_in_box
 from apt_filters.contour.tables import case_table
 from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
@@ -29,24 +30,10 @@ def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradien
     return np.divide(g, length, out=np.zeros_like(g), where=length > 0)
 
 
-def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, cutoff: float) -> np.ndarray:
-    """Minimisers of ``|A x - b|²`` by rank: (4, n, 3) for ranks 0 (mass point) .. 3.
-
-    Solved about the mass point with a truncated pseudo-inverse: eigen-directions whose
-    singular value is below ``cutoff`` times the largest are dropped, and rank ``r`` keeps
-    at most the ``r`` strongest ones.
-    """
-    w, u = np.linalg.eigh(ata)  # ascending eigenvalues = squared singular values of A
-    sigma = np.sqrt(np.clip(w, 0, None))
-    keep = sigma > cutoff * sigma[:, -1:]
-    rhs = atb - np.einsum("nij,nj->ni", ata, mass)
-    coef = np.einsum("nji,nj->ni", u, rhs) / np.where(keep, w, 1.0)
-    coef = np.where(keep, coef, 0.0)
-    out = np.empty((4,) + mass.shape)
-    out[0] = mass
-    for r in range(1, 4):
-        out[r] = out[r - 1] + u[:, :, 3 - r] * coef[:, 3 - r, None]
-    return out
+def _next_rank(allowed: np.ndarray, rank: np.ndarray) -> np.ndarray:
+    """(n,) highest rank below ``rank`` whose candidate is ``allowed`` ((4, n) bool, rank 0 always)."""
+    below = allowed & (np.arange(4)[:, None] < rank[None])
+    return 3 - np.argmax(below[::-1], axis=0)
 
 
 def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.ndarray, max_fold: float) -> np.ndarray:
@@ -139,9 +126,13 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
     lo = np.stack(np.unravel_index(act.cell[cell_of_vertex], shape), axis=1)
     in_cell = np.all((candidates >= lo - 1e-9) & (candidates <= lo + 1 + 1e-9), axis=2)  # (4, n)
+    out = ~in_cell[3] & (max_rank == 3)
+    if out.any():  # sharp points beyond the cell: the best point in the cell instead
+        candidates[3, out] = solve_qef_in_box(ata[out], atb[out], mass[out], lo[out], lo[out] + 1.0, cutoff)
+        in_cell[3] = True
     in_cell[0] = True
     in_cell[max_rank + 1:] = False
-    rank = 3 - np.argmax(in_cell[::-1], axis=0)
+    rank = _next_rank(in_cell, np.full(n_vertices, max_rank + 1))
 
     quads = np.full((len(points), 4), -1, dtype=np.int64)
     quads[crossing, _QUAD_SLOT[edges % 4]] = vertex
@@ -149,7 +140,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
-    for _ in range(8):  # each round lowers offenders one rank; rank 0 cannot be lowered further
+    for _ in range(8):  # each round lowers offenders to the next rank in the cell; rank 0 cannot be lowered further
         pos = candidates[rank, np.arange(n_vertices)]
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
         bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
@@ -158,7 +149,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         lower = bad[rank[bad] > 0]
         if not len(lower):
             break
-        rank[lower] -= 1
+        rank[lower] = _next_rank(in_cell[:, lower], rank[lower])
 
     used, faces = np.unique(tris, return_inverse=True)
     faces = faces.reshape(-1, 3)
