@@ -200,6 +200,20 @@ def find_active_cells(field: Field) -> ActiveCells:
     return ActiveCells(cell, key, edge_crossing, start, axis, t)
 
 
+def dilate_cells(cells: np.ndarray, shape: tuple[int, int, int], reach: int) -> np.ndarray:
+    """Sorted flat indices of every cell within Chebyshev distance ``reach`` of ``cells``.
+
+    Separable (one axis at a time) on the flat indices, so cost follows the number of
+    cells, not the box. Offsets that wrap across a row add a few cells on the far side of
+    the box: a superset, which callers that look for neighbours tolerate.
+    """
+    out = np.unique(cells)
+    steps = np.arange(-reach, reach + 1)
+    for stride in strides(shape):
+        out = np.unique((out[:, None] + stride * steps).reshape(-1))
+    return out
+
+
 def trilinear(values: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Trilinear interpolation of ``values`` at (n, 3) index-space points (clamped to the box)."""
     shape = np.array(values.shape)

@@ -6,10 +6,10 @@ from typing import Callable
 
 import numpy as np
 
-from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, prepare_field, trilinear
+from apt_filters.contour.cells import ActiveCells, Field, dilate_cells, find_active_cells, prepare_field, trilinear
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
-from apt_filters.contour.qef import solve_qef, solve_qef_in_box
+from apt_filters.contour.qef import solve_qef
 from apt_filters.contour.tables import case_table
 from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
@@ -17,6 +17,10 @@ from apt_filters.core.mesh import TriMesh
 # Position of a cell around a grid edge, by the cube-edge sub-index k (e % 4): the four
 # cells, in this order, run counter-clockwise about the edge's axis.
 _QUAD_SLOT = np.array([0, 1, 3, 2])
+
+# Vertices farther than this (voxels) from their mass point are the ones a rank fallback
+# can move appreciably; the self-intersection test looks only near them.
+_MOVED = 0.1
 
 
 def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradient, method: str) -> np.ndarray:
@@ -30,10 +34,25 @@ def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradien
     return np.divide(g, length, out=np.zeros_like(g), where=length > 0)
 
 
-def _next_rank(allowed: np.ndarray, rank: np.ndarray) -> np.ndarray:
-    """(n,) highest rank below ``rank`` whose candidate is ``allowed`` ((4, n) bool, rank 0 always)."""
-    below = allowed & (np.arange(4)[:, None] < rank[None])
-    return 3 - np.argmax(below[::-1], axis=0)
+def _intersecting_near_moved(field: Field, pos: np.ndarray, mass: np.ndarray, tris: np.ndarray,
+                             vertex_cell: np.ndarray) -> np.ndarray:
+    """(k,) vertex ids of faces that self-intersect near vertices moved off their mass point.
+
+    A triangle lies in the 2×2 block of cells around its dual grid edge, so a face that
+    crosses a face of a moved vertex's cell has its vertices within 3 cells of that cell:
+    the pymeshlab test runs on those faces only (a small part of a large surface).
+    Intersections far from every moved vertex are those of surface nets, which no rank
+    fallback removes.
+    """
+    moved = np.linalg.norm(pos - mass, axis=1) > _MOVED
+    if not moved.any():
+        return np.zeros(0, dtype=np.int64)
+    near = dilate_cells(vertex_cell[moved], field.values.shape, 3)
+    where = np.minimum(np.searchsorted(near, vertex_cell), len(near) - 1)
+    check = np.flatnonzero((near[where] == vertex_cell)[tris].any(axis=1))
+    used, local = np.unique(tris[check], return_inverse=True)
+    hit = self_intersecting_faces(field.to_world(pos[used]), local.reshape(-1, 3))
+    return tris[check[hit]].reshape(-1)
 
 
 def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.ndarray, max_fold: float) -> np.ndarray:
@@ -83,7 +102,9 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         folded triangles drop to the next lower QEF rank until no fold is left (rank 0, the
         mass point, is the last resort).
     repair_intersections : bool
-        Treat vertices of self-intersecting faces (pymeshlab test) the same way.
+        Treat vertices of self-intersecting faces the same way (pymeshlab test, run on the
+        faces within 3 cells of vertices more than 0.1 voxel from their mass point: the
+        only places a lower rank changes anything).
 
     Returns
     -------
@@ -121,18 +142,11 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     ata = np.stack([np.stack([total(n[:, a] * n[:, b]) for b in range(3)], -1) for a in range(3)], -2)
     atb = np.stack([total(n[:, a] * d) for a in range(3)], -1)
     mass = np.stack([total(p[:, a]) for a in range(3)], -1) / total(np.ones(len(vertex)))[:, None]
-    candidates = solve_qef(ata, atb, mass, cutoff)
-
     cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
-    lo = np.stack(np.unravel_index(act.cell[cell_of_vertex], shape), axis=1)
-    in_cell = np.all((candidates >= lo - 1e-9) & (candidates <= lo + 1 + 1e-9), axis=2)  # (4, n)
-    out = ~in_cell[3] & (max_rank == 3)
-    if out.any():  # sharp points beyond the cell: the best point in the cell instead
-        candidates[3, out] = solve_qef_in_box(ata[out], atb[out], mass[out], lo[out], lo[out] + 1.0, cutoff)
-        in_cell[3] = True
-    in_cell[0] = True
-    in_cell[max_rank + 1:] = False
-    rank = _next_rank(in_cell, np.full(n_vertices, max_rank + 1))
+    vertex_cell = act.cell[cell_of_vertex]
+    lo = np.stack(np.unravel_index(vertex_cell, shape), axis=1).astype(np.float64)
+    candidates = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
+    rank = np.full(n_vertices, max_rank)
 
     quads = np.full((len(points), 4), -1, dtype=np.int64)
     quads[crossing, _QUAD_SLOT[edges % 4]] = vertex
@@ -140,16 +154,16 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
-    for _ in range(8):  # each round lowers offenders to the next rank in the cell; rank 0 cannot be lowered further
+    for _ in range(8):  # each round lowers offenders one rank; rank 0 cannot be lowered further
         pos = candidates[rank, np.arange(n_vertices)]
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
         bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
         if repair_intersections:
-            bad = np.union1d(bad, tris[self_intersecting_faces(field.to_world(pos), tris)])
+            bad = np.union1d(bad, _intersecting_near_moved(field, pos, candidates[0], tris, vertex_cell))
         lower = bad[rank[bad] > 0]
         if not len(lower):
             break
-        rank[lower] = _next_rank(in_cell[:, lower], rank[lower])
+        rank[lower] -= 1
 
     used, faces = np.unique(tris, return_inverse=True)
     faces = faces.reshape(-1, 3)
