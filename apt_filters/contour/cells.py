@@ -236,10 +236,11 @@ def trilinear(values: np.ndarray, points: np.ndarray) -> np.ndarray:
     p = np.clip(points, 0, shape - 1)
     base = np.minimum(np.floor(p).astype(np.int64), shape - 2)
     w = p - base
+    factors = (1 - w, w)  # factors[c][:, axis]: weight of corner coordinate c along axis
     flat = values.reshape(-1)
-    st = strides(values.shape)
+    first = base @ strides(values.shape)
     out = np.zeros(len(p))
-    for c in CORNERS:
-        weight = np.prod(np.where(c == 1, w, 1 - w), axis=1)
-        out += weight * flat[(base + c) @ st]
+    for c, offset in zip(CORNERS, CORNERS @ strides(values.shape)):
+        weight = factors[c[0]][:, 0] * factors[c[1]][:, 1] * factors[c[2]][:, 2]
+        out += weight * flat[first + offset]
     return out
