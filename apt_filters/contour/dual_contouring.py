@@ -36,7 +36,7 @@ def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradien
 
 def _intersecting_near_moved(field: Field, pos: np.ndarray, mass: np.ndarray, tris: np.ndarray,
                              vertex_cell: np.ndarray) -> np.ndarray:
-    """(k,) vertex ids of faces that self-intersect near vertices moved off their mass point.
+    """(k, 3) vertex ids of faces that self-intersect near vertices moved off their mass point.
 
     A triangle lies in the 2×2 block of cells around its dual grid edge, so a face that
     crosses a face of a moved vertex's cell has its vertices within 3 cells of that cell:
@@ -46,13 +46,25 @@ def _intersecting_near_moved(field: Field, pos: np.ndarray, mass: np.ndarray, tr
     """
     moved = np.linalg.norm(pos - mass, axis=1) > _MOVED
     if not moved.any():
-        return np.zeros(0, dtype=np.int64)
+        return np.zeros((0, 3), dtype=np.int64)
     near = dilate_cells(vertex_cell[moved], field.values.shape, 3)
     where = np.minimum(np.searchsorted(near, vertex_cell), len(near) - 1)
     check = np.flatnonzero((near[where] == vertex_cell)[tris].any(axis=1))
     used, local = np.unique(tris[check], return_inverse=True)
     hit = self_intersecting_faces(field.to_world(pos[used]), local.reshape(-1, 3))
-    return tris[check[hit]].reshape(-1)
+    return tris[check[hit]]
+
+
+def _culprits(groups: np.ndarray, rank: np.ndarray, clamped: np.ndarray) -> np.ndarray:
+    """Vertex ids to lower for each offending group of vertices ((k, g) ids).
+
+    A vertex whose QEF point was clamped to its cell is a compromise, and at a corner
+    such neighbours fold against the vertex that holds the true corner; so where a group
+    has clamped vertices only they are lowered, otherwise every vertex above rank 0.
+    """
+    can = rank[groups] > 0
+    suspect = can & clamped[groups]
+    return groups[np.where(suspect.any(axis=1)[:, None], suspect, can)]
 
 
 def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.ndarray, max_fold: float) -> np.ndarray:
@@ -98,21 +110,24 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     max_rank : int
         Highest QEF rank used (0 gives surface nets: vertices at the mass point).
     max_fold_angle : float
-        Degrees; adjacent triangles whose normals differ more count as folded. Vertices of
-        folded triangles drop to the next lower QEF rank until no fold is left (rank 0, the
-        mass point, is the last resort).
+        Degrees; adjacent triangles whose normals differ more count as folded. Their
+        vertices step half a QEF rank down per round (the point moves half-way toward the
+        next lower rank's minimiser) until no fold is left (rank 0, the mass point, is the
+        floor); where a folded pair holds vertices whose QEF point was clamped to the cell,
+        only those move (they are the compromises next to a corner).
     repair_intersections : bool
-        Treat vertices of self-intersecting faces the same way (pymeshlab test, run on the
-        faces within 3 cells of vertices more than 0.1 voxel from their mass point: the
-        only places a lower rank changes anything).
+        Treat vertices of self-intersecting faces the same way (pymeshlab test confirmed
+        exactly, run on the faces within 3 cells of vertices more than 0.1 voxel from
+        their mass point: the only places a lower rank changes anything).
 
     Returns
     -------
     TriMesh
-        One vertex per surface sheet in each active cell, always inside its cell (the
-        highest-rank QEF minimiser that stays in the cell), one quad per crossed edge split
-        into two triangles; normals point toward lower values. ``vertex_scalars["value"]``
-        is the trilinear field at the vertices, ``vertex_scalars["rank"]`` the QEF rank used.
+        One vertex per surface sheet in each active cell, always inside its cell (the QEF
+        minimiser constrained to the cell), one quad per crossed edge split into two
+        triangles; normals point toward lower values. ``vertex_scalars["value"]`` is the
+        trilinear field at the vertices, ``vertex_scalars["rank"]`` the QEF rank used
+        (x.5: half-way between ranks x and x + 1).
 
     Notes
     -----
@@ -145,8 +160,9 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
     vertex_cell = act.cell[cell_of_vertex]
     lo = np.stack(np.unravel_index(vertex_cell, shape), axis=1).astype(np.float64)
-    candidates = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
-    rank = np.full(n_vertices, max_rank)
+    candidates, clamped = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
+    rank = np.full(n_vertices, float(max_rank))
+    ids = np.arange(n_vertices)
 
     quads = np.full((len(points), 4), -1, dtype=np.int64)
     quads[crossing, _QUAD_SLOT[edges % 4]] = vertex
@@ -154,22 +170,24 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
-    for _ in range(8):  # each round lowers offenders one rank; rank 0 cannot be lowered further
-        pos = candidates[rank, np.arange(n_vertices)]
+    for _ in range(4 * max_rank + 2):  # each round lowers offenders half a rank; rank 0 is the floor
+        below, t = np.floor(rank).astype(np.int64), rank % 1.0
+        pos = (1 - t[:, None]) * candidates[below, ids] + t[:, None] * candidates[np.ceil(rank).astype(np.int64), ids]
         tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
-        bad = np.unique(tris[folded_pairs(pos, tris, max_fold_angle)])
+        groups = [tris[folded_pairs(pos, tris, max_fold_angle)].reshape(-1, 6)]
         if repair_intersections:
-            bad = np.union1d(bad, _intersecting_near_moved(field, pos, candidates[0], tris, vertex_cell))
-        lower = bad[rank[bad] > 0]
+            groups.append(_intersecting_near_moved(field, pos, candidates[0], tris, vertex_cell))
+        suspect = clamped[np.ceil(rank).astype(np.int64), ids]
+        lower = np.unique(np.concatenate([_culprits(g, rank, suspect) for g in groups]))
         if not len(lower):
             break
-        rank[lower] -= 1
+        rank[lower] -= 0.5
 
     used, faces = np.unique(tris, return_inverse=True)
     faces = faces.reshape(-1, 3)
     pos = pos[used]
     mesh = TriMesh(field.to_world(pos), faces,
-                   {"value": trilinear(field.values, pos), "rank": rank[used].astype(np.float64)})
+                   {"value": trilinear(field.values, pos), "rank": rank[used]})
     if field.edge is not None:
         mesh.face_scalars["at_edge"] = cap_cells(field, act)[cell_of_vertex][used][faces].any(axis=1)
     mesh.face_scalars["component"] = mesh.face_components()

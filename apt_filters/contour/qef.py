@@ -18,7 +18,7 @@ _ACTIVE_SETS = np.array(list(itertools.product(range(3), repeat=3)))
 
 
 def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-              cutoff: float, max_rank: int = 3) -> np.ndarray:
+              cutoff: float, max_rank: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Minimisers of ``|A x - b|²`` in the boxes ``lo <= x <= hi``, by rank: (max_rank + 1, n, 3).
 
     Rank ``r`` keeps the ``r`` strongest eigen-directions of ``AᵀA`` whose singular value
@@ -34,6 +34,12 @@ def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray
         Normal equations of each vertex's planes (index space).
     mass, lo, hi : (n, 3)
         Mass points and box corners.
+
+    Returns
+    -------
+    points : (max_rank + 1, n, 3)
+    clamped : (max_rank + 1, n) bool
+        Where the box constrained the minimiser (the unconstrained one lay outside).
     """
     w, u = np.linalg.eigh(ata)  # ascending eigenvalues = squared singular values of A
     keep = np.sqrt(np.clip(w, 0, None)) > cutoff * np.sqrt(np.clip(w[:, -1:], 0, None))
@@ -43,15 +49,17 @@ def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray
     coef = np.where(keep, proj / np.where(keep, w, 1.0), 0.0)
     out = np.empty((max_rank + 1,) + mass.shape)
     out[0] = mass
+    clamped = np.zeros((max_rank + 1, len(mass)), dtype=bool)
     for r in range(1, max_rank + 1):
         out[r] = out[r - 1] + u[:, :, 3 - r] * coef[:, 3 - r, None]
         outside = np.flatnonzero(np.any((out[r] < lo - 1e-9) | (out[r] > hi + 1e-9), axis=1))
+        clamped[r, outside] = True
         if len(outside):
             top = u[outside, :, 3 - r:]  # (k, 3, r) the r strongest directions
             a_r = np.einsum("nik,nk,njk->nij", top, w[outside, 3 - r:], top)
             r_r = np.einsum("nik,nk->ni", top, proj[outside, 3 - r:] * keep[outside, 3 - r:])
             out[r, outside] = minimise_in_box(a_r, r_r, mass[outside], lo[outside], hi[outside], cutoff**2)
-    return out
+    return out, clamped
 
 
 def minimise_in_box(a: np.ndarray, r: np.ndarray, mass: np.ndarray, lo: np.ndarray, hi: np.ndarray,
