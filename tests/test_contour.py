@@ -178,6 +178,12 @@ def test_two_objects_are_two_closed_components():
     assert volumes == pytest.approx([4 / 3 * np.pi * 4**3, 4 / 3 * np.pi * 6**3], rel=0.02)
 
 
+@pytest.mark.parametrize("method", [marching_cubes, dual_contouring, surface_nets])
+def test_field_without_surface_gives_empty_mesh(method):
+    mesh = method(np.full((10, 11, 12), -1.0), 0.0)
+    assert (mesh.n_vertices, mesh.n_faces) == (0, 0)
+
+
 def test_dense_view_objects_and_bad_input():
     values, spacing, origin = grid("sphere")
 

@@ -216,18 +216,24 @@ def find_active_cells(field: Field) -> ActiveCells:
     return ActiveCells(cell, key, edge_crossing, start, axis, t)
 
 
-def dilate_cells(cells: np.ndarray, shape: tuple[int, int, int], reach: int) -> np.ndarray:
-    """Sorted flat indices of every cell within Chebyshev distance ``reach`` of ``cells``.
+def near_cells(cells: np.ndarray, seeds: np.ndarray, shape: tuple[int, int, int], reach: int) -> np.ndarray:
+    """(n,) bool: which of the flat cell indices ``cells`` lie within ``reach`` cells of a seed.
 
-    Separable (one axis at a time) on the flat indices, so cost follows the number of
-    cells, not the box. Offsets that wrap across a row add a few cells on the far side of
-    the box: a superset, which callers that look for neighbours tolerate.
+    Chebyshev distance, answered on blocks of ``reach``³ cells: a cell within reach of a
+    seed lies in the seed's block or a neighbouring one, so the answer is a superset
+    (cells up to ``3 * reach - 1`` away may be included). Cost follows the number of
+    cells and seeds, not the box.
     """
-    out = np.unique(cells)
-    steps = np.arange(-reach, reach + 1)
-    for stride in strides(shape):
-        out = np.unique((out[:, None] + stride * steps).reshape(-1))
-    return out
+    def blocks(flat):
+        return np.stack(np.unravel_index(flat, shape), axis=1) // reach + 1  # +1: no negative neighbours
+
+    dims = np.array(shape) // reach + 3
+    offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    seed_blocks = np.unique(blocks(seeds) @ strides(tuple(dims)))
+    near = np.unique((seed_blocks[:, None] + (offsets @ strides(tuple(dims)))[None]).reshape(-1))
+    key = blocks(cells) @ strides(tuple(dims))
+    where = np.minimum(np.searchsorted(near, key), len(near) - 1)
+    return near[where] == key
 
 
 def trilinear(values: np.ndarray, points: np.ndarray) -> np.ndarray:

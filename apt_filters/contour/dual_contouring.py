@@ -6,7 +6,7 @@ from typing import Callable
 
 import numpy as np
 
-from apt_filters.contour.cells import ActiveCells, Field, dilate_cells, find_active_cells, prepare_field, trilinear
+from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, near_cells, prepare_field, trilinear
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.qef import solve_qef
@@ -34,22 +34,17 @@ def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradien
     return np.divide(g, length, out=np.zeros_like(g), where=length > 0)
 
 
-def _intersecting_near_moved(field: Field, pos: np.ndarray, mass: np.ndarray, tris: np.ndarray,
-                             vertex_cell: np.ndarray) -> np.ndarray:
-    """(k, 3) vertex ids of faces that self-intersect near vertices moved off their mass point.
+def _intersecting_near(field: Field, pos: np.ndarray, seeds: np.ndarray, tris: np.ndarray,
+                       vertex_cell: np.ndarray) -> np.ndarray:
+    """(k, 3) vertex ids of faces that self-intersect near the ``seeds`` (bool per vertex).
 
     A triangle lies in the 2×2 block of cells around its dual grid edge, so a face that
-    crosses a face of a moved vertex's cell has its vertices within 3 cells of that cell:
-    the pymeshlab test runs on those faces only (a small part of a large surface).
-    Intersections far from every moved vertex are those of surface nets, which no rank
-    fallback removes.
+    crosses a face of a seed has its vertices within 3 cells of the seed's cell: the
+    pymeshlab test (confirmed exactly) runs on those faces only.
     """
-    moved = np.linalg.norm(pos - mass, axis=1) > _MOVED
-    if not moved.any():
+    if not seeds.any():
         return np.zeros((0, 3), dtype=np.int64)
-    near = dilate_cells(vertex_cell[moved], field.values.shape, 3)
-    where = np.minimum(np.searchsorted(near, vertex_cell), len(near) - 1)
-    check = np.flatnonzero((near[where] == vertex_cell)[tris].any(axis=1))
+    check = np.flatnonzero(near_cells(vertex_cell, vertex_cell[seeds], field.values.shape, 3)[tris].any(axis=1))
     used, local = np.unique(tris[check], return_inverse=True)
     hit = self_intersecting_faces(field.to_world(pos[used]), local.reshape(-1, 3))
     return tris[check[hit]]
@@ -163,6 +158,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     candidates, clamped = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
     rank = np.full(n_vertices, float(max_rank))
     ids = np.arange(n_vertices)
+    seeds = np.linalg.norm(candidates[max_rank] - mass, axis=1) > _MOVED
 
     quads = np.full((len(points), 4), -1, dtype=np.int64)
     quads[crossing, _QUAD_SLOT[edges % 4]] = vertex
@@ -170,18 +166,31 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     keep = np.all(quads >= 0, axis=1)
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
+    split = np.empty((len(quads), 2, 3), dtype=np.int64)
+    changed = np.ones(n_vertices, dtype=bool)  # vertices moved since the last round
     for _ in range(4 * max_rank + 2):  # each round lowers offenders half a rank; rank 0 is the floor
         below, t = np.floor(rank).astype(np.int64), rank % 1.0
         pos = (1 - t[:, None]) * candidates[below, ids] + t[:, None] * candidates[np.ceil(rank).astype(np.int64), ids]
-        tris = _choose_split(field.values, field.iso, pos, quads, max_fold_angle).reshape(-1, 3)
-        groups = [tris[folded_pairs(pos, tris, max_fold_angle)].reshape(-1, 6)]
+        redo = changed[quads].any(axis=1)
+        split[redo] = _choose_split(field.values, field.iso, pos, quads[redo], max_fold_angle)
+        tris = split.reshape(-1, 3)
+        # Only faces of moved vertices and the faces next to them can have changed folds.
+        ring = np.zeros(n_vertices, dtype=bool)
+        ring[tris[changed[tris].any(axis=1)]] = True
+        local = tris[ring[tris].any(axis=1)]
+        groups = [local[folded_pairs(pos, local, max_fold_angle)].reshape(-1, 6)]
         if repair_intersections:
-            groups.append(_intersecting_near_moved(field, pos, candidates[0], tris, vertex_cell))
+            # First round: near every vertex off its mass point (elsewhere a lower rank moves
+            # nothing); later rounds: near the vertices the last round moved.
+            groups.append(_intersecting_near(field, pos, seeds, tris, vertex_cell))
         suspect = clamped[np.ceil(rank).astype(np.int64), ids]
         lower = np.unique(np.concatenate([_culprits(g, rank, suspect) for g in groups]))
         if not len(lower):
             break
         rank[lower] -= 0.5
+        changed = np.zeros(n_vertices, dtype=bool)
+        changed[lower] = True
+        seeds = changed
 
     used, faces = np.unique(tris, return_inverse=True)
     faces = faces.reshape(-1, 3)

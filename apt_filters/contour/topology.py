@@ -8,6 +8,8 @@ import numpy as np
 def face_pairs(faces: np.ndarray) -> np.ndarray:
     """(k, 2) pairs of faces that share an edge used by exactly two faces."""
     m = len(faces)
+    if m == 0:
+        return np.zeros((0, 2), dtype=np.int64)
     a, b = faces.reshape(-1), np.roll(faces, -1, axis=1).reshape(-1)
     key = np.minimum(a, b) * (int(faces.max()) + 1) + np.maximum(a, b)  # 1-D keys sort fast
     owner = np.repeat(np.arange(m), 3)
