@@ -1,9 +1,9 @@
 """Active cells and edge crossings shared by marching cubes and dual contouring.
 
-Work is proportional to the number of *active* cells (cells whose corners straddle the
-iso-value): one cheap pass thresholds the field and reduces it to 8³ blocks, and only
-blocks that hold both sides are expanded to cells. Peak memory beyond the input is one
-bool per voxel plus O(active blocks × 512) index arrays.
+Work beyond one cheap pass over the box is proportional to the number of *active* cells
+(cells whose corners straddle the iso-value): the field is thresholded and a compiled scan
+lists the active cells with their cases (a few ns per cell). Peak memory beyond the input
+is one byte per voxel plus O(active cells) index arrays.
 
 All geometry here is in *index space* (voxel units, point ``(i, j, k)`` at ``(i, j, k)``);
 the public functions map to world coordinates at the end.
