@@ -1,9 +1,9 @@
 """Active cells and edge crossings shared by marching cubes and dual contouring.
 
-Work is proportional to the number of *active* cells (cells whose corners straddle the
-iso-value): one cheap pass thresholds the field and reduces it to 8³ blocks, and only
-blocks that hold both sides are expanded to cells. Peak memory beyond the input is one
-bool per voxel plus O(active blocks × 512) index arrays.
+Work beyond one cheap pass over the box is proportional to the number of *active* cells
+(cells whose corners straddle the iso-value): the field is thresholded and a compiled scan
+lists the active cells with their cases (a few ns per cell). Peak memory beyond the input
+is one byte per voxel plus O(active cells) index arrays.
 
 All geometry here is in *index space* (voxel units, point ``(i, j, k)`` at ``(i, j, k)``);
 the public functions map to world coordinates at the end.
@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from apt_filters.contour.tables import CORNERS, EDGE_AXIS, EDGE_START, FACE_CORNERS, case_table
 from apt_filters.core.errors import AptFiltersError
@@ -133,27 +134,44 @@ def strides(shape: tuple[int, int, int]) -> np.ndarray:
     return np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
 
 
-def _candidate_cells(inside: np.ndarray) -> np.ndarray:
-    """Flat corner-0 indices of every cell in an 8³ block that holds both sides."""
-    shape = inside.shape
-    nb = [-(-(s - 1) // BLOCK) for s in shape]  # cell blocks per axis
-    padded = np.pad(inside, [(0, (n + 1) * BLOCK - s) for n, s in zip(nb, shape)], mode="edge")
-    blocks = padded.reshape(nb[0] + 1, BLOCK, nb[1] + 1, BLOCK, nb[2] + 1, BLOCK)
-    has_in = blocks.any(axis=(1, 3, 5))
-    has_out = ~blocks.all(axis=(1, 3, 5))
-    # A cell block also reads the first point plane of its +1 neighbours.
-    act = np.zeros(nb, dtype=bool)
-    hi = np.zeros(nb, dtype=bool)
-    for dx, dy, dz in CORNERS:
-        sl = (slice(dx, dx + nb[0]), slice(dy, dy + nb[1]), slice(dz, dz + nb[2]))
-        act |= has_out[sl]
-        hi |= has_in[sl]
-    act &= hi
-    origins = np.argwhere(act) * BLOCK  # (K, 3)
-    offsets = np.stack(np.meshgrid(*[np.arange(BLOCK)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    cells = (origins[:, None, :] + offsets[None]).reshape(-1, 3)
-    cells = cells[np.all(cells < np.array(shape) - 1, axis=1)]
-    return cells @ strides(shape)
+@njit(nogil=True, cache=True)
+def _scan_cells(inside: np.ndarray, shape: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat corner-0 indices and cases of the sign-changing cells, block by block.
+
+    ``inside`` is the flat (uint8) threshold of the field. A cell's case is the 4 bits of
+    its lower x-y face (corners 0-3 of :data:`CORNERS`) and the 4 of its upper one, so
+    each face is read once per z run. Cells are listed in ``block``³ blocks (blocks in x, y, z order,
+    cells within a block likewise): the order marching cubes' faces follow. One pass over
+    the box, a few ns per cell; the output grows by doubling.
+    """
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    sx, sy = ny * nz, nz
+    cells = np.empty(1 << 16, dtype=np.int64)
+    cases = np.empty(1 << 16, dtype=np.int64)
+    n = 0
+    for bx in range(0, nx - 1, block):
+        for by in range(0, ny - 1, block):
+            for bz in range(0, nz - 1, block):
+                for i in range(bx, min(bx + block, nx - 1)):
+                    for j in range(by, min(by + block, ny - 1)):
+                        row = (i * ny + j) * nz
+                        p = row + bz
+                        below = (inside[p] | inside[p + sx] << 1 | inside[p + sy] << 2 | inside[p + sx + sy] << 3)
+                        for k in range(bz, min(bz + block, nz - 1)):
+                            p = row + k + 1
+                            above = (inside[p] | inside[p + sx] << 1 | inside[p + sy] << 2 | inside[p + sx + sy] << 3)
+                            case = np.int64(below | above << 4)
+                            below = above
+                            if case == 0 or case == 255:
+                                continue
+                            p -= 1
+                            if n == len(cells):
+                                cells = np.concatenate((cells, np.empty_like(cells)))
+                                cases = np.concatenate((cases, np.empty_like(cases)))
+                            cells[n] = p
+                            cases[n] = case
+                            n += 1
+    return cells[:n].copy(), cases[:n].copy()
 
 
 def _face_bits(corner_values: np.ndarray, case: np.ndarray) -> np.ndarray:
@@ -174,15 +192,13 @@ def find_active_cells(field: Field) -> ActiveCells:
     f = field.values
     shape = f.shape
     flat = f.reshape(-1)
-    inside = f > field.iso
-    cand = _candidate_cells(inside)
-    corner_off = CORNERS @ strides(shape)
-    idx = cand[:, None] + corner_off[None, :]  # (C, 8)
-    case = (inside.reshape(-1)[idx] << np.arange(8)).sum(axis=1)
-    keep = (case != 0) & (case != 255)
+    offsets = CORNERS @ strides(shape)
+    inside = (flat > field.iso).view(np.uint8)
+    cell, case = _scan_cells(inside, np.array(shape, dtype=np.int64), BLOCK)
+    idx = cell[:, None] + offsets[None, :]  # (A, 8)
     if field.mask is not None:
-        keep &= field.mask.reshape(-1)[idx].all(axis=1)
-    cell, case, idx = cand[keep], case[keep], idx[keep]
+        keep = field.mask.reshape(-1)[idx].all(axis=1)
+        cell, case, idx = cell[keep], case[keep], idx[keep]
     corner_values = flat[idx].astype(np.float64) - field.iso
     key = case * 64 + _face_bits(corner_values, case)
     table = case_table()
@@ -200,16 +216,37 @@ def find_active_cells(field: Field) -> ActiveCells:
     return ActiveCells(cell, key, edge_crossing, start, axis, t)
 
 
+def near_cells(cells: np.ndarray, seeds: np.ndarray, shape: tuple[int, int, int], reach: int) -> np.ndarray:
+    """(n,) bool: which of the flat cell indices ``cells`` lie within ``reach`` cells of a seed.
+
+    Chebyshev distance, answered on blocks of ``reach``³ cells: a cell within reach of a
+    seed lies in the seed's block or a neighbouring one, so the answer is a superset
+    (cells up to ``3 * reach - 1`` away may be included). Cost follows the number of
+    cells and seeds, not the box.
+    """
+    def blocks(flat):
+        return np.stack(np.unravel_index(flat, shape), axis=1) // reach + 1  # +1: no negative neighbours
+
+    dims = np.array(shape) // reach + 3
+    offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    seed_blocks = np.unique(blocks(seeds) @ strides(tuple(dims)))
+    near = np.unique((seed_blocks[:, None] + (offsets @ strides(tuple(dims)))[None]).reshape(-1))
+    key = blocks(cells) @ strides(tuple(dims))
+    where = np.minimum(np.searchsorted(near, key), len(near) - 1)
+    return near[where] == key
+
+
 def trilinear(values: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Trilinear interpolation of ``values`` at (n, 3) index-space points (clamped to the box)."""
     shape = np.array(values.shape)
     p = np.clip(points, 0, shape - 1)
     base = np.minimum(np.floor(p).astype(np.int64), shape - 2)
     w = p - base
+    factors = (1 - w, w)  # factors[c][:, axis]: weight of corner coordinate c along axis
     flat = values.reshape(-1)
-    st = strides(values.shape)
+    first = base @ strides(values.shape)
     out = np.zeros(len(p))
-    for c in CORNERS:
-        weight = np.prod(np.where(c == 1, w, 1 - w), axis=1)
-        out += weight * flat[(base + c) @ st]
+    for c, offset in zip(CORNERS, CORNERS @ strides(values.shape)):
+        weight = factors[c[0]][:, 0] * factors[c[1]][:, 1] * factors[c[2]][:, 2]
+        out += weight * flat[first + offset]
     return out
