@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import numba
 import numpy as np
 from numba import njit, prange
 from scipy import ndimage
@@ -234,7 +235,7 @@ class SurfaceDistance:
             out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles, g.face_id,
                              g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes, offsets, bound, first,
                              covered, reach * reach * (1 + 1e-12), *signs, out.distance, out.face, out.feature,
-                             out.on_boundary).sum())
+                             out.on_boundary, numba.get_num_threads()).sum())
             return out
         lo = points.min(axis=0).astype(np.float64)
         dims = np.floor((points.max(axis=0) - lo) / self.sort_cell).astype(np.int64) + 1
@@ -530,11 +531,18 @@ def _blocks(keys, order, size):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw):
-    """Closest of row ``r``'s triangles to p if nearer than ``best`` (squared nm)."""
+def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, mark):
+    """Closest of row ``r``'s triangles to p if nearer than ``best`` (squared nm).
+
+    A triangle lies in every row its box meets (2.5 rows on average): ``seen[t] == mark`` says
+    it was tried for this point already (mailboxing), and is set for those tried now.
+    """
     root = np.sqrt(best)
     for s in range(start[r], start[r + 1]):
         t = tris[s]
+        if seen[t] == mark:
+            continue
+        seen[t] = mark
         # Lower bounds from the triangle's disk (in its plane, about its centroid, radius to the
         # farthest corner): most triangles are rejected here.
         qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
@@ -562,12 +570,14 @@ def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw):
 @njit(cache=True, error_model="numpy", parallel=True)
 def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
                      tris, boxes, offsets, offset_bound, first, covered, limit, vertices, faces, face_normals, face_edge,
-                     edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face, feature, rim):
+                     edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face, feature, rim,
+                     n_workers):
     """Exact signed distances of points visited home by home (``order``; homes are blocks of
     m x m x m grid cells, ``keys`` from :func:`_cell_keys` over the homes ``low`` + [0, ``dims``)),
     written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm).
 
-    Each block of ``blocks`` is one thread's work. For each home, once: the non-empty grid rows
+    ``n_workers`` workers (one per thread) take every ``n_workers``-th block of ``blocks``, each
+    with its own mailbox (8 bytes per triangle). For each home, once: the non-empty grid rows
     reachable within ``limit`` (``offsets`` from the home's first cell, sorted by their lower
     bound ``offset_bound``), sorted by the distance from the home's box to the row's box; ``first``
     (homes tiling the grid) skips the offsets that lead to empty cells only. For each point: the previous point's
@@ -582,84 +592,89 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
     """
     outside = dims[0] * dims[1] * dims[2]
     searched = np.zeros(blocks.shape[0] - 1, np.int64)
+
     n_off = offsets.shape[0]
     n_tri = tri.shape[0]
-    for b in prange(blocks.shape[0] - 1):
+    for worker in prange(n_workers):
+        tried = np.full(n_tri, -1, np.int64)  # mailbox: point that last tried each triangle
         gap = np.empty(n_off)
         rows = np.empty(n_off, np.int32)
-        row_gap = np.empty(0)
-        row_list = np.empty(0, np.int32)
-        key_now = -1
-        prev = -1
-        for j in range(blocks[b], blocks[b + 1]):
-            i = order[j]
-            key = keys[i]
-            px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
-            best, best_t, bu, bw = limit, -1, 0.0, 0.0
-            finished = False
-            if key != outside:
-                if key != key_now:
-                    key_now = key
-                    hz = key % dims[2] + low[2]
-                    hy = (key // dims[2]) % dims[1] + low[1]
-                    hx = key // (dims[1] * dims[2]) + low[0]
-                    cx, cy, cz = m * hx, m * hy, m * hz
-                    lx, ly, lz = origin[0] + cx * cell, origin[1] + cy * cell, origin[2] + cz * cell
-                    size = m * cell
-                    k0 = 0
-                    fx, fy, fz = (shape[0] + m - 1) // m, (shape[1] + m - 1) // m, (shape[2] + m - 1) // m
-                    if 0 <= hx < fx and 0 <= hy < fy and 0 <= hz < fz:
-                        k0 = first[(hx * fy + hy) * fz + hz]
-                    n_rows = 0
-                    for k in range(k0, n_off):
-                        if offset_bound[k] >= limit:
+        for b in range(worker, blocks.shape[0] - 1, n_workers):
+            row_gap = np.empty(0)
+            row_list = np.empty(0, np.int32)
+            key_now = -1
+            prev = -1
+            for j in range(blocks[b], blocks[b + 1]):
+                i = order[j]
+                key = keys[i]
+                px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+                best, best_t, bu, bw = limit, -1, 0.0, 0.0
+                finished = False
+                if key != outside:
+                    if key != key_now:
+                        key_now = key
+                        hz = key % dims[2] + low[2]
+                        hy = (key // dims[2]) % dims[1] + low[1]
+                        hx = key // (dims[1] * dims[2]) + low[0]
+                        cx, cy, cz = m * hx, m * hy, m * hz
+                        lx, ly, lz = origin[0] + cx * cell, origin[1] + cy * cell, origin[2] + cz * cell
+                        size = m * cell
+                        k0 = 0
+                        fx, fy, fz = (shape[0] + m - 1) // m, (shape[1] + m - 1) // m, (shape[2] + m - 1) // m
+                        if 0 <= hx < fx and 0 <= hy < fy and 0 <= hz < fz:
+                            k0 = first[(hx * fy + hy) * fz + hz]
+                        n_rows = 0
+                        for k in range(k0, n_off):
+                            if offset_bound[k] >= limit:
+                                break
+                            ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
+                            if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
+                                continue
+                            r = slot[(ix * shape[1] + iy) * shape[2] + iz]
+                            if r < 0:
+                                continue
+                            gx = max(boxes[r, 0] - lx - size, 0.0, lx - boxes[r, 3])
+                            gy = max(boxes[r, 1] - ly - size, 0.0, ly - boxes[r, 4])
+                            gz = max(boxes[r, 2] - lz - size, 0.0, lz - boxes[r, 5])
+                            g = gx * gx + gy * gy + gz * gz
+                            if g < limit:
+                                gap[n_rows] = g
+                                rows[n_rows] = r
+                                n_rows += 1
+                        by_gap = np.argsort(gap[:n_rows])
+                        row_gap = gap[:n_rows][by_gap]
+                        row_list = rows[:n_rows][by_gap]
+                    searched[b] += row_list.shape[0] > 0
+                    if prev >= 0:
+                        tried[prev] = j
+                        d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
+                        if d < best:
+                            best, best_t, bu, bw = d, prev, u, w
+                    for q in range(row_list.shape[0]):
+                        if row_gap[q] >= best:
+                            finished = True
                             break
-                        ix, iy, iz = cx + offsets[k, 0], cy + offsets[k, 1], cz + offsets[k, 2]
-                        if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
-                            continue
-                        r = slot[(ix * shape[1] + iy) * shape[2] + iz]
-                        if r < 0:
-                            continue
-                        gx = max(boxes[r, 0] - lx - size, 0.0, lx - boxes[r, 3])
-                        gy = max(boxes[r, 1] - ly - size, 0.0, ly - boxes[r, 4])
-                        gz = max(boxes[r, 2] - lz - size, 0.0, lz - boxes[r, 5])
-                        g = gx * gx + gy * gy + gz * gz
-                        if g < limit:
-                            gap[n_rows] = g
-                            rows[n_rows] = r
-                            n_rows += 1
-                    by_gap = np.argsort(gap[:n_rows])
-                    row_gap = gap[:n_rows][by_gap]
-                    row_list = rows[:n_rows][by_gap]
-                searched[b] += row_list.shape[0] > 0
-                if prev >= 0:
-                    d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
-                    if d < best:
-                        best, best_t, bu, bw = d, prev, u, w
-                for q in range(row_list.shape[0]):
-                    if row_gap[q] >= best:
-                        finished = True
-                        break
-                    r = row_list[q]
-                    gx = max(boxes[r, 0] - px, 0.0, px - boxes[r, 3])
-                    gy = max(boxes[r, 1] - py, 0.0, py - boxes[r, 4])
-                    gz = max(boxes[r, 2] - pz, 0.0, pz - boxes[r, 5])
-                    if gx * gx + gy * gy + gz * gz < best:
-                        best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw)
-            if not finished and best > covered:
-                for t in range(n_tri):
-                    d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-                    if d < best:
-                        best, best_t, bu, bw = d, t, u, w
-            if best_t < 0:
-                distance[i], face[i], feature[i], rim[i] = np.nan, -1, FACE, False
-                continue
-            prev = best_t
-            f = face_id[best_t]
-            face[i] = f
-            distance[i], feature[i], rim[i] = _signed_one(
-                px, py, pz, f, bu, bw, best, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
-                vertex_normals, boundary_vertex)
+                        r = row_list[q]
+                        gx = max(boxes[r, 0] - px, 0.0, px - boxes[r, 3])
+                        gy = max(boxes[r, 1] - py, 0.0, py - boxes[r, 4])
+                        gz = max(boxes[r, 2] - pz, 0.0, pz - boxes[r, 5])
+                        if gx * gx + gy * gy + gz * gz < best:
+                            best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw,
+                                                                  tried, j)
+                if not finished and best > covered:
+                    for t in range(n_tri):
+                        d, u, w = _closest_on_triangle(px, py, pz, tri, t)
+                        if d < best:
+                            best, best_t, bu, bw = d, t, u, w
+                if best_t < 0:
+                    distance[i], face[i], feature[i], rim[i] = np.nan, -1, FACE, False
+                    continue
+                prev = best_t
+                f = face_id[best_t]
+                face[i] = f
+                distance[i], feature[i], rim[i] = _signed_one(
+                    px, py, pz, f, bu, bw, best, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
+                    vertex_normals, boundary_vertex)
     return searched
 
 
