@@ -701,9 +701,9 @@ class TriangleGrid:
     Notes
     -----
     Memory: 136 bytes per triangle, 4 bytes per (triangle, cell) pair, 56 bytes per non-empty
-    cell and 4 bytes per cell of the mesh's bounding box, plus 4 bytes per cell for each search
-    plan (:meth:`offsets`; 8 more while it is built): 38 MB (+2 MB per plan) for 230k triangles
-    in a 58 nm box with 0.76 nm cells.
+    cell and 4 bytes per cell of the mesh's bounding box, plus 4 bytes per home block for each
+    search plan (:meth:`offsets`; 8 bytes per cell while it is built): 38 MB (+0.3 MB per plan)
+    for 230k triangles in a 58 nm box with 0.76 nm cells.
     """
 
     origin: np.ndarray
