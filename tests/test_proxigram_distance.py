@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.analysis.distance import EDGE, FACE, VERTEX, NarrowBand, SurfaceDistance
+from apt_filters.analysis.distance import EDGE, FACE, VERTEX, SurfaceDistance
 from tests.proxigram_specimens import box_distance, cube, icosphere, plane, sphere_distance
 
 HALF = (3.0, 4.0, 5.0)  # asymmetric, so that an x/y/z mix-up shows
@@ -85,18 +85,22 @@ def test_open_plane_rim_and_sign():
     (cube(HALF, 2, CENTER), lambda p: box_distance(p, HALF, CENTER)),
     (icosphere(4.0, 3, CENTER), lambda p: sphere_distance(p, 4.0, CENTER)),
 ])
-@pytest.mark.parametrize("max_distance, voxel", [(3.0, 0.5), (1.0, 0.5), (2.0, 0.9)])
-def test_narrow_band_is_conservative_and_narrow(mesh, truth, max_distance, voxel):
+@pytest.mark.parametrize("max_distance, home", [(3.0, 2), (1.0, 2), (2.0, 3)])
+def test_narrow_band_is_conservative_and_narrow(mesh, truth, max_distance, home):
+    """Points are rejected by their search block: none within range is lost, few beyond are searched."""
     rng = np.random.default_rng(5)
     pts = (rng.uniform(-12, 12, size=(200000, 3)) + CENTER).astype(np.float32)
     d = truth(pts.astype(np.float64))
-    band = NarrowBand.build(mesh, max_distance, voxel=voxel)
-    inside = band.contains(pts)
-    # faceting of the sphere (< 0.05 nm at 1280 faces) is allowed for in the reach
-    assert not np.any(~inside & (np.abs(d) <= max_distance - 0.05))
-    # and it is a band: nothing beyond the proven reach of max + sqrt(3) + 1/2 voxels (+ voxel slack)
-    assert not np.any(inside & (np.abs(d) > max_distance + (np.sqrt(3) + 2) * voxel))
-
+    surface = SurfaceDistance(mesh, home=home)
+    sd = surface.query(pts, max_distance=max_distance)
+    # faceting of the sphere (< 0.05 nm at 1280 faces) is allowed for at the range's ends
+    assert np.all(np.isfinite(sd.distance[np.abs(d) <= max_distance - 0.05]))
+    assert np.all(np.isnan(sd.distance[np.abs(d) > max_distance + 0.05]))
+    # searched: the block's diagonal plus a triangle's bounding box (a row's box) beyond the range
+    tri = mesh.vertices[mesh.faces]
+    slack = np.sqrt(3) * home * surface.grid.cell + np.linalg.norm(np.ptp(tri, axis=1), axis=1).max()
+    within = np.count_nonzero(np.abs(d) <= max_distance + slack)
+    assert np.count_nonzero(np.abs(d) <= max_distance) < sd.searched <= within
 
 
 def _reference(mesh, pts):

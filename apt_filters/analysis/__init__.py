@@ -8,11 +8,11 @@
   and pooled, detection efficiencies of common instruments; JSON.
 """
 
-from apt_filters.analysis.distance import NarrowBand, SignedDistance, SurfaceDistance
+from apt_filters.analysis.distance import SignedDistance, SurfaceDistance
 from apt_filters.analysis.excess import (INSTRUMENT_EFFICIENCY, Excess, interfacial_excess, interface_position,
                                          write_excess_json)
 from apt_filters.analysis.proxigram import POOLED, Proxigram, compute_proxigram
 
-__all__ = ["INSTRUMENT_EFFICIENCY", "POOLED", "Excess", "NarrowBand", "Proxigram", "SignedDistance",
+__all__ = ["INSTRUMENT_EFFICIENCY", "POOLED", "Excess", "Proxigram", "SignedDistance",
            "SurfaceDistance", "compute_proxigram", "interface_position", "interfacial_excess",
            "write_excess_json"]

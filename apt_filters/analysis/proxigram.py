@@ -20,7 +20,7 @@ from typing import Iterable
 
 import numpy as np
 
-from apt_filters.analysis.distance import MeshTopology, NarrowBand, SurfaceDistance
+from apt_filters.analysis.distance import MeshTopology, SurfaceDistance
 from apt_filters.core.atomic import atomic_output, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
@@ -56,8 +56,9 @@ class Proxigram:
     shell_volumes : (k, b) float64
         Volume of each distance shell, nm³ (see :func:`shell_volumes`).
     n_ions, n_candidates, n_rim : int
-        Ions read, ions in the narrow band (given exact distances), ions within range whose
-        closest point is on the rim of an open surface.
+        Ions read, ions in the narrow band (searched: their block of the search grid has a
+        triangle within range), ions within range whose closest point is on the rim of an open
+        surface.
     rim_kept : bool
         Whether the rim ions are counted (``keep_edge``) or left out (default).
     iso_value : float or None
@@ -245,7 +246,7 @@ def shell_volumes(edges: np.ndarray, area: np.ndarray, mean: np.ndarray, gauss: 
 
 def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, mesh: TriMesh, bin_width: float = 0.1,
                       max_distance: float = 3.0, keep_edge: bool = False, iso_value: float | None = None,
-                      chunk: int = 1 << 22, band_voxel: float = 0.5) -> Proxigram:
+                      chunk: int = 1 << 22) -> Proxigram:
     """Proxigram of ``ions`` across ``mesh``, per object.
 
     Parameters
@@ -265,11 +266,9 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         Iso-value (fraction), only recorded for the plot.
     chunk : int
         Ions per chunk of an ``IonTable``. Peak memory about 60 bytes x chunk size (250 MB at the
-        default 4 M; the ions themselves not counted) plus
-        the narrow-band grid (:meth:`NarrowBand.build`, at most about 180 MB while built), independent
-        of the number of ions.
-    band_voxel : float
-        Voxel of the narrow-band mask, nm.
+        default 4 M; the ions themselves not counted) plus the search grid (about 40 MB for 230k
+        triangles, :class:`~apt_filters.analysis.distance.TriangleGrid`), independent of the
+        number of ions.
 
     Returns
     -------
@@ -283,7 +282,6 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
     n_bins = int(round(2 * max_distance / bin_width))
     edges = np.linspace(-max_distance, max_distance, n_bins + 1)
     surface = SurfaceDistance(mesh)
-    band = NarrowBand.build(mesh, max_distance, voxel=band_voxel)
     labels = face_objects(mesh, surface.topology)
     object_ids, face_slot = np.unique(labels, return_inverse=True)
     n_obj, n_ion = len(object_ids), len(ranges.ions)
@@ -295,16 +293,16 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
     for part in parts:
         points = np.asarray(part.positions, dtype=np.float32)
         n_ions += len(points)
-        candidates = np.flatnonzero(band.contains(points))
-        sd = surface.query(points[candidates], max_distance=max_distance)  # NaN beyond: not kept
-        n_candidates += len(candidates)
+        sd = surface.query(points, max_distance=max_distance)  # NaN beyond: not kept
+        n_candidates += sd.searched
         keep = (sd.distance >= -max_distance) & (sd.distance < max_distance)
         n_edge += int(np.count_nonzero(keep & sd.on_boundary))
         if not keep_edge:
             keep &= ~sd.on_boundary
-        species = ranges.ion_index(np.asarray(part.mz)[candidates[keep]]) + 1
-        bins = np.minimum(((sd.distance[keep] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
-        slot = (face_slot[sd.face[keep]] * n_bins + bins) * (n_ion + 1) + species
+        kept = np.flatnonzero(keep)
+        species = ranges.ion_index(np.asarray(part.mz)[kept]) + 1
+        bins = np.minimum(((sd.distance[kept] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
+        slot = (face_slot[sd.face[kept]] * n_bins + bins) * (n_ion + 1) + species
         counts += np.bincount(slot, minlength=len(counts))
     counts = counts.reshape(n_obj, n_bins, n_ion + 1)
     area, mean, gauss = curvature_integrals(mesh, surface.topology, face_slot, n_obj)
