@@ -389,9 +389,10 @@ class BlockAccumulator:
 
         Blocks in x, y, z block order, whatever the order the ions came in.
         """
-        pool = self.pools[0]
-        for other in self.pools[1:]:
-            pool.merge(other)
+        pool, others = self.pools[0], self.pools[1:]
+        self.pools = []
+        while others:
+            pool.merge(others.pop())
         n = pool.n_active
         order = np.lexsort(pool.coords[:n].T[::-1])
         coords = pool.coords[order]
@@ -399,7 +400,7 @@ class BlockAccumulator:
         fields = np.empty((pool.stride // BLOCK**3, n, BLOCK, BLOCK, BLOCK))
         _unpool(pool.blocks().reshape(len(pool.coords), -1, BLOCK, BLOCK, BLOCK), order, fields)
         channels = list(fields)
-        self.pools = []  # release the pools before pass 2
+        del pool  # released before pass 2
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
         return coords, channels
