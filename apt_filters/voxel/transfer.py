@@ -299,11 +299,12 @@ class _Pool:
         theirs = other.coords[:n]
         slots = self.table[theirs[:, 0], theirs[:, 1], theirs[:, 2]].astype(np.int64)
         new = slots < 0
-        self.reserve(self.n_active + int(new.sum()))
-        slots[new] = np.arange(self.n_active, self.n_active + int(new.sum()))
+        n_new = int(new.sum())
+        self.reserve(self.n_active + n_new)
+        slots[new] = np.arange(self.n_active, self.n_active + n_new)
         self.coords[slots[new]] = theirs[new]
         self.table[theirs[new, 0], theirs[new, 1], theirs[new, 2]] = slots[new]
-        self.n_active += int(new.sum())
+        self.n_active += n_new
         self.blocks()[slots] += other.blocks()[:n]
         self.counts += other.counts
 
