@@ -90,3 +90,31 @@ def test_threaded_gaussian_is_independent_of_thread_count_and_order():
 def test_thread_count_below_one_is_refused():
     with pytest.raises(AptFiltersError, match="threads must be at least 1"):
         voxelize(ions([[1.0, 1.0, 1.0]], ["Cu"]), ranges(), kernel="square", threads=0)
+
+
+@pytest.mark.parametrize("kernel, reference", [("square", dense_square), ("sawtooth", dense_sawtooth)])
+def test_pool_growth_resumes_without_losing_or_repeating_an_ion(kernel, reference):
+    """A first chunk of one ion sizes the pool for a few blocks; the next chunks fill an
+    asymmetric box of many blocks, so the fused scatter stops at full pools and resumes."""
+    table = random_ions(40_000, [0.0, 0.0, 0.0], [37.0, 21.0, 70.0], seed=8, names=("Cu",))
+    pos = table.positions
+    grid = Grid.covering(np.zeros(3), [37.0, 21.0, 70.0], 1.0, kernel_reach(kernel))
+    chunks = [ions(pos[:1], ["Cu"]), ions(pos[1:15_000], ["Cu"] * 14_999), ions(pos[15_000:], ["Cu"] * 25_000)]
+    got = voxelize(chunks, ranges(), grid=grid, kernel=kernel)
+    np.testing.assert_allclose(got.counts["Cu"].dense(), reference(pos.astype(np.float64), grid), rtol=0, atol=1e-9)
+    assert got.n_counted["Cu"] == len(pos)
+    blocks = np.unique(np.floor(grid.fractional_index(pos) + (0.5 if kernel == "square" else 0)).astype(int) // 8,
+                       axis=0)
+    assert got.counts["Cu"].n_blocks >= len(blocks)
+
+
+def test_blocks_come_out_in_block_order_whatever_the_ion_order_and_threads():
+    table = random_ions(5_000, [0.0, 0.0, 0.0], [30.0, 17.0, 41.0], seed=9)
+    grid = Grid.covering(np.zeros(3), [30.0, 17.0, 41.0], 1.0, kernel_reach("sawtooth"))
+    runs = [voxelize(IonTable(table.positions[idx], table.mz[idx]), ranges(), grid=grid, kernel="sawtooth",
+                     threads=threads)
+            for threads, idx in ((1, np.arange(5_000)), (2, np.arange(5_000)[::-1]), (3, np.argsort(table.mz)))]
+    for f in runs:
+        coords = f.total.coords
+        assert np.array_equal(coords, coords[np.lexsort(coords.T[::-1])])
+        np.testing.assert_array_equal(coords, runs[0].total.coords)

@@ -198,9 +198,9 @@ def voxelize(
     memory_budget : int, optional
         Bytes; default half the physical RAM. A grid whose fields could exceed it is refused up front.
     threads : int
-        Threads that scatter each chunk (they write disjoint z layers of blocks). Default 1: on
-        the shared 2-core benchmark machine (load 4-6) 2 threads ran 1.2-1.3x slower than 1, as
-        each thread also reads the whole chunk; use more on idle cores.
+        Threads that scatter each chunk, each a contiguous share of its ions into its own pool
+        (merged at the end: ``threads`` pools of memory). Default 1: on the shared 2-core
+        benchmark machine (load 4-10) 2 threads did not run faster; use more on idle cores.
 
     Returns
     -------
@@ -208,10 +208,12 @@ def voxelize(
 
     Notes
     -----
-    Peak memory: the pool of occupied blocks (≤ 2× the occupied blocks × fields × 4 kB while
-    growing, never more than the box's blocks), its copy into the fields at the end, one chunk
-    with its ranging (≈ 30 bytes per ion), and for the gaussian second pass two dense float64
-    copies of one field's bounding box; :func:`~apt_filters.voxel.grid.check_budget` bounds it.
+    Peak memory: the pool of occupied blocks (up to 1.5× the occupied blocks × fields × 4 kB,
+    2.5× for a moment while it grows, never more than the box's blocks; one pool per thread), its
+    copy into the fields at the end, one chunk with its ranging (≈ 30 bytes per ion), and for the
+    gaussian second pass two dense float64 copies of one field's bounding box;
+    :func:`~apt_filters.voxel.grid.check_budget` bounds it (measured: 10 M ions in a
+    60 × 60 × 200 nm box, 8 species, see benchmarks/results_voxel.md).
     """
     check_kernel(kernel)
     if not (0 < efficiency <= 1):
@@ -224,7 +226,7 @@ def voxelize(
         if iter(chunks) is chunks:
             raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
-    check_budget(grid, len(names), memory_budget)
+    check_budget(grid, len(names), memory_budget, copies=int(threads) + 1)
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization, threads)
     lookup = MzLookup.from_ranges(ranges)
     for chunk in chunks:

@@ -127,13 +127,14 @@ def field_bytes(grid: Grid, n_fields: int, itemsize: int = 8) -> int:
     return int(np.prod(grid.block_shape, dtype=np.int64)) * BLOCK**3 * itemsize * n_fields
 
 
-def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 8) -> int:
+def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 8, copies: int = 2) -> int:
     """Refuse up front a request whose fields could exceed ``budget`` bytes; return the bound.
 
     The bound counts every block of the bounding box as occupied (what a dense grid would
-    need) for twice the ``n_fields`` species fields plus two working fields: the scatter pool
-    and the fields copied off it exist together for a moment, and the total or the gaussian
-    second pass's dense copies come on top. Block-sparse storage usually needs much less, but
+    need) for ``copies`` times the ``n_fields`` species fields plus two working fields: the
+    scatter pool and the fields copied off it exist together for a moment (2 copies; a scatter
+    on t threads holds t pools and merges them: t + 1), and the total or the gaussian second
+    pass's dense copies come on top. Block-sparse storage usually needs much less, but
     the check stays conservative so that a run never dies half-way.
 
     Raises
@@ -142,12 +143,12 @@ def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 
         With the voxel size and the number of species that would fit.
     """
     budget = default_budget() if budget is None else int(budget)
-    need = field_bytes(grid, 2 * n_fields + 2, itemsize)
+    need = field_bytes(grid, copies * n_fields + 2, itemsize)
     if need <= budget:
         return need
     per_field = field_bytes(grid, 1, itemsize)
-    fit_fields = (budget // per_field - 2) // 2
-    fit_voxel = np.ceil(_fitting_voxel(grid, 2 * n_fields + 2, budget, itemsize) * 100) / 100  # nm, rounded up
+    fit_fields = (budget // per_field - 2) // copies
+    fit_voxel = np.ceil(_fitting_voxel(grid, copies * n_fields + 2, budget, itemsize) * 100) / 100  # nm, rounded up
     fields_hint = f"at most {fit_fields} species" if fit_fields >= 1 else "no species at this voxel size"
     raise AptFiltersError(
         f"voxelizing {n_fields} species on {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} voxels of "

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 from scipy.ndimage import binary_dilation, gaussian_filter1d
 
 from apt_filters.core.errors import AptFiltersError
@@ -78,79 +79,34 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
     return r + 0.5, n - 1.5 - r
 
 
-# Each chunk is scattered in three passes, on ``threads`` Python threads running
-# nogil kernels (compiled like serial code: numba's parallel=True took 4x the first-call JIT
-# time). ``_mark`` (each thread on a contiguous share of the ions) checks every ion against the
-# admissible range, counts the ions per row and flags the absent blocks its footprint touches;
-# ``_assign`` (serial, over the flags: one byte per block of the box) gives them pool slots in
-# block order; the scatter (threads) then only reads the block table. Scatter threads write
-# disjoint blocks: an ion belongs to the z layer of blocks holding the lowest z index of its
-# footprint (which spans at most that layer and the next), and in phase p the threads take the
-# layers L with L % 2 == p, task (L // 2) % n_tasks, so two layers scattered at once are >= 2
-# apart. Every thread reads the whole chunk and skips the ions of other tasks (cheap next to the
-# writes; in detection order the layer changes rarely).
+# One fused pass per chunk and thread: each ion is checked against the admissible range, its
+# footprint's blocks are looked up in a dense slot table over the box's blocks (4 bytes per block:
+# no hashing or sorting) and given pool slots on first touch, and its weights are added in place;
+# no per-ion arrays. When the pool is full the kernel stops before the ion that needs a slot,
+# having written none of its weight, and resumes from it once the pool has grown.
 #
-# Footprint along one axis: first grid index floor(f + shift) + offset, then ``width`` more.
-FOOTPRINT = {"square": (0.5, 0, 0), "sawtooth": (0.0, 0, 1), "gaussian": (0.5, -1, 2)}
-
-
-@njit(nogil=True, cache=True)
-def _mark(pos, row, origin, inv_h, lo, hi, shift, offset, width, row_ptr, table, fresh, counts, i0, i1):
-    """Flag (``fresh`` = 1) the absent blocks of the footprints of ions [i0, i1); count them per row.
-
-    Returns the first ion outside the admissible range (or NaN), else -1. Threads on other
-    shares may flag one block together: they all store the same byte.
-    """
-    for i in range(i0, i1):
-        r = row[i]
-        counts[r] += 1
-        if row_ptr[r] == row_ptr[r + 1]:
-            continue  # an ion that counts in no field
-        fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
-        fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
-        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-        if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
-            return i
-        x0 = np.int64(np.floor(fx + shift)) + offset
-        y0 = np.int64(np.floor(fy + shift)) + offset
-        z0 = np.int64(np.floor(fz + shift)) + offset
-        if (x0 & 7) + width < 8 and (y0 & 7) + width < 8 and (z0 & 7) + width < 8:  # most ions: one block
-            if table[x0 >> 3, y0 >> 3, z0 >> 3] < 0:
-                fresh[x0 >> 3, y0 >> 3, z0 >> 3] = 1
-            continue
-        for bx in range(x0 >> 3, ((x0 + width) >> 3) + 1):
-            for by in range(y0 >> 3, ((y0 + width) >> 3) + 1):
-                for bz in range(z0 >> 3, ((z0 + width) >> 3) + 1):
-                    if table[bx, by, bz] < 0:
-                        fresh[bx, by, bz] = 1
-    return -1
-
-
-@njit(cache=True)
-def _assign(fresh, table, coords, n_active):
-    """Give the flagged blocks the next pool slots (x, y, z block order), clear the flags; new n_active."""
-    for bx in range(fresh.shape[0]):
-        for by in range(fresh.shape[1]):
-            for bz in range(fresh.shape[2]):
-                if fresh[bx, by, bz]:
-                    fresh[bx, by, bz] = 0
-                    table[bx, by, bz] = n_active
-                    coords[n_active, 0] = bx
-                    coords[n_active, 1] = by
-                    coords[n_active, 2] = bz
-                    n_active += 1
-    return n_active
+# The transfer function reaches the kernel as a tuple whose length selects it (``_KIND``): numba
+# specialises the one scatter loop on the tuple's type (and caches each specialisation), so the
+# footprint's 1, 2 or 3 taps per axis are compile-time constants that the compiler unrolls (a loop
+# over a run-time tap count ran 2-3x slower).
+_KIND = {"square": (), "sawtooth": (0,), "gaussian": (0, 0)}
+_DONE, _FULL, _OUTSIDE = 0, 1, 2
 
 
 @njit(inline="always")
-def _owns(layer, last_layer, owned, phase, task, n_tasks):
-    """Whether this task scatters ions of block layer ``layer`` (memoised on the previous layer)."""
-    if layer != last_layer:
-        owned = n_tasks == 1 or ((layer & 1) == phase and (layer >> 1) % n_tasks == task)
-    return owned
+def _nearest(f):
+    """Square on one axis: the nearest grid point (f >= -0.5 in the admissible range, so int() floors)."""
+    return np.int64(f + 0.5), (1.0,)
 
 
-@njit
+@njit(inline="always")
+def _lever(f):
+    """Sawtooth on one axis: the grid point below (f >= 0) and the next, lever-rule weights."""
+    i = np.int64(f)
+    return i, (1.0 - (f - i), f - i)
+
+
+@njit(inline="always")
 def _gauss3(f):
     """Pass 1 on one axis: first of the 3 grid points around the nearest one, and their weights.
 
@@ -164,104 +120,118 @@ def _gauss3(f):
     return np.int64(c) - 1, (_E18 * b * w1, w1, _E18 / b * w1)
 
 
-# The pool stores each block as [z, y, x] (the fields as [x, y, z]): ions come in detection order,
-# z falling, so the values written while the scatter sweeps one z plane lie 8 to a cache line
-# (330 kB for 8 fields of a 60 x 60 nm plane, in L2) instead of 1 to a line (2.6 MB); this
-# halved the scatter time of a dense test loop.
-#
-# The scatter loops are written out per kernel, with scalar locals, because the footprint size is
-# then a constant that the compiler unrolls (a generic loop ran 2-3x slower). They index the pool
-# flat (``chan`` values per channel, 512 per block): shifts instead of numba's 5-d stride arithmetic.
+def _footprint(kind, f):
+    """(first grid index, weights) along one axis of the transfer function ``kind`` (see ``_KIND``)."""
 
 
-@njit(nogil=True, cache=True)
-def _scatter_square(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
-    last, owned = np.int64(-1), False
-    for i in range(pos.shape[0]):
-        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-        if p0 == p1:
-            continue
-        iz = np.int64(np.floor((np.float64(pos[i, 2]) - origin[2]) * inv_h + 0.5))
-        owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
-        last = iz >> 3
-        if not owned:
-            continue
-        ix = np.int64(np.floor((np.float64(pos[i, 0]) - origin[0]) * inv_h + 0.5))
-        iy = np.int64(np.floor((np.float64(pos[i, 1]) - origin[1]) * inv_h + 0.5))
-        voxel = ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7) + (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9)
+@overload(_footprint, inline="always")
+def _footprint_impl(kind, f):
+    axis = (_nearest, _lever, _gauss3)[len(kind)]
+    return lambda kind, f: axis(f)
+
+
+@njit(inline="always")
+def _touch(table, coords, n_active, ix, iy, iz, taps):
+    """Give the absent blocks of a footprint (taps³ points from ix, iy, iz) the next pool slots.
+
+    Returns the new number of active blocks, or -1 (nothing changed) if the pool lacks room.
+    """
+    bx, by, bz = ix >> 3, iy >> 3, iz >> 3
+    ex, ey, ez = (ix + taps - 1) >> 3, (iy + taps - 1) >> 3, (iz + taps - 1) >> 3
+    if bx == ex and by == ey and bz == ez and table[bx, by, bz] >= 0:
+        return n_active  # most ions: one block, already there
+    missing = 0
+    for x in range(bx, ex + 1):
+        for y in range(by, ey + 1):
+            for z in range(bz, ez + 1):
+                missing += table[x, y, z] < 0
+    if n_active + missing > coords.shape[0]:
+        return -1
+    for x in range(bx, ex + 1):
+        for y in range(by, ey + 1):
+            for z in range(bz, ez + 1):
+                if table[x, y, z] < 0:
+                    table[x, y, z] = n_active
+                    coords[n_active, 0], coords[n_active, 1], coords[n_active, 2] = x, y, z
+                    n_active += 1
+    return n_active
+
+
+# The pool stores block after block, each as [channel][z][y][x] (the fields as [x, y, z]): a
+# footprint's x neighbours share a cache line, and ions come in detection order, z falling, so the
+# values written while the scatter sweeps one z plane lie 8 to a cache line (330 kB for 8 fields
+# of a 60 x 60 nm plane, in L2) instead of 1 to a line (2.6 MB).
+
+
+@njit(inline="always")
+def _splat(pool, stride, table, ix, iy, iz, wx, wy, wz, p0, p1, row_chan, row_w):
+    """Add the weights wx[a] wy[b] wz[d] at grid point (ix, iy, iz) + (a, b, d) for every channel of one ion's row."""
+    taps = len(wx)
+    if (ix & 7) + taps <= 8 and (iy & 7) + taps <= 8 and (iz & 7) + taps <= 8:  # all in one block: one lookup
+        at = np.int64(table[ix >> 3, iy >> 3, iz >> 3]) * stride + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
         for p in range(p0, p1):
-            pool[row_chan[p] * chan + voxel] += row_w[p]
-
-
-@njit(nogil=True, cache=True, inline="always")
-def _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, taps, p0, p1, row_chan, row_w):
-    """Add the taps x taps x taps weights wx[a] wy[b] wz[d] at grid point (ix, iy, iz) + (a, b, d)
-    for every channel of one ion's row, in the pool's z-first block layout."""
-    last = 8 - taps
-    if (ix & 7) <= last and (iy & 7) <= last and (iz & 7) <= last:  # all in one block: one lookup
-        at = (np.int64(table[ix >> 3, iy >> 3, iz >> 3]) << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7)
-        for p in range(p0, p1):
-            c, m = row_chan[p], row_w[p]
+            c, m = at + (row_chan[p] << 9), row_w[p]
             for a in range(taps):
                 for b in range(taps):
                     wab = m * wx[a] * wy[b]
                     for d in range(taps):
-                        pool[c * chan + at + (d << 6) + (b << 3) + a] += wab * wz[d]
+                        pool[c + (d << 6) + (b << 3) + a] += wab * wz[d]
         return
     for p in range(p0, p1):
-        c, m = row_chan[p], row_w[p]
+        c, m = row_chan[p] << 9, row_w[p]
         for a in range(taps):
+            x = ix + a
             for b in range(taps):
+                y = iy + b
                 wab = m * wx[a] * wy[b]
-                column = c * chan + (((iy + b) & 7) << 3) + ((ix + a) & 7)
-                at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, iz >> 3]) << 9)
+                column = c + ((y & 7) << 3) + (x & 7)
                 for d in range(taps):
-                    if d and (iz + d) & 7 == 0:  # the z column enters the next block
-                        at = column + (np.int64(table[(ix + a) >> 3, (iy + b) >> 3, (iz + d) >> 3]) << 9)
-                    pool[at + (((iz + d) & 7) << 6)] += wab * wz[d]
+                    z = iz + d
+                    pool[np.int64(table[x >> 3, y >> 3, z >> 3]) * stride + column + ((z & 7) << 6)] += wab * wz[d]
 
 
 @njit(nogil=True, cache=True)
-def _scatter_sawtooth(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
-    last, owned = np.int64(-1), False
-    for i in range(pos.shape[0]):
-        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-        if p0 == p1:
-            continue
-        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-        z0 = np.floor(fz)
-        iz = np.int64(z0)
-        owned = _owns(iz >> 3, last, owned, phase, task, n_tasks)
-        last = iz >> 3
-        if not owned:
+def _scatter(kind, pos, row, start, origin, inv_h, lo, hi, row_ptr, row_chan, row_w, table, coords, n_active,
+             pool, stride, counts):
+    """Scatter ions [start, N) with transfer function ``kind`` into ``pool`` (flat, ``stride`` values per block).
+
+    Returns (stop, n_active, status): ``_DONE``; ``_FULL``: the pool has no slot for ion ``stop``
+    (none of its weight written: grow the pool and resume from it); ``_OUTSIDE``: ion ``stop``
+    lies outside the admissible range (or has a NaN coordinate).
+    """
+    for i in range(start, pos.shape[0]):
+        r = row[i]
+        p0, p1 = row_ptr[r], row_ptr[r + 1]
+        if p0 == p1:  # an ion that counts in no field
+            counts[r] += 1
             continue
         fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
         fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
-        x0, y0 = np.floor(fx), np.floor(fy)
-        wx = (1.0 - (fx - x0), fx - x0)  # lever rule
-        wy = (1.0 - (fy - y0), fy - y0)
-        wz = (1.0 - (fz - z0), fz - z0)
-        ix, iy = np.int64(x0), np.int64(y0)
-        _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, 2, p0, p1, row_chan, row_w)
+        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
+        if not (fx >= lo[0] and fx < hi[0] and fy >= lo[1] and fy < hi[1] and fz >= lo[2] and fz < hi[2]):
+            return i, n_active, _OUTSIDE
+        ix, wx = _footprint(kind, fx)
+        iy, wy = _footprint(kind, fy)
+        iz, wz = _footprint(kind, fz)
+        grown = _touch(table, coords, n_active, ix, iy, iz, len(wx))
+        if grown < 0:
+            return i, n_active, _FULL
+        n_active = grown
+        counts[r] += 1
+        _splat(pool, stride, table, ix, iy, iz, wx, wy, wz, p0, p1, row_chan, row_w)
+    return pos.shape[0], n_active, _DONE
 
 
 @njit(nogil=True, cache=True)
-def _scatter_gaussian(pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, pool, chan, phase, task, n_tasks):
-    last, owned = np.int64(-1), False
-    for i in range(pos.shape[0]):
-        p0, p1 = row_ptr[row[i]], row_ptr[row[i] + 1]
-        if p0 == p1:
-            continue
-        fz = (np.float64(pos[i, 2]) - origin[2]) * inv_h
-        layer = (np.int64(np.floor(fz + 0.5)) - 1) >> 3  # as _gauss3 places it, without its exp
-        owned = _owns(layer, last, owned, phase, task, n_tasks)
-        last = layer
-        if not owned:
-            continue
-        iz, wz = _gauss3(fz)
-        ix, wx = _gauss3((np.float64(pos[i, 0]) - origin[0]) * inv_h)
-        iy, wy = _gauss3((np.float64(pos[i, 1]) - origin[1]) * inv_h)
-        _splat(pool, chan, table, ix, iy, iz, wx, wy, wz, 3, p0, p1, row_chan, row_w)
+def _unpool(blocks, order, out):
+    """out[c, k, x, y, z] = blocks[order[k], c, z, y, x]: the pool's blocks (z, y, x) as fields (x, y, z)."""
+    for k in range(order.shape[0]):
+        s = order[k]
+        for c in range(out.shape[0]):
+            for x in range(BLOCK):
+                for y in range(BLOCK):
+                    for z in range(BLOCK):
+                        out[c, k, x, y, z] = blocks[s, c, z, y, x]
 
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
@@ -277,16 +247,87 @@ def _on_threads(fn, calls: list[tuple]) -> list:
     return list(executor.map(lambda args: fn(*args), calls))
 
 
-_SCATTER = {"square": _scatter_square, "sawtooth": _scatter_sawtooth, "gaussian": _scatter_gaussian}
+class _Pool:
+    """One thread's blocks: slot table over the box's blocks, block coordinates, values and row counts.
+
+    ``data`` holds ``capacity`` blocks of ``n_channels`` × 512 float64 values, block-major.
+    """
+
+    def __init__(self, block_shape: tuple[int, int, int], n_channels: int, n_rows: int):
+        self.table = np.full(block_shape, -1, dtype=np.int32)
+        self.coords = np.zeros((0, 3), dtype=np.int32)
+        self.stride = n_channels * BLOCK**3
+        self.data = np.zeros(0)
+        self.n_active = 0
+        self.counts = np.zeros(n_rows, dtype=np.int64)
+
+    def blocks(self) -> np.ndarray:
+        """(capacity, n_channels * 512) view of the values."""
+        return self.data.reshape(-1, self.stride)
+
+    def reserve(self, need: int) -> None:
+        """Capacity for at least ``need`` blocks (zero-filled; copies the occupied ones once)."""
+        cap = len(self.coords)
+        if need <= cap:
+            return
+        data = np.zeros(need * self.stride)
+        data[: self.n_active * self.stride] = self.data[: self.n_active * self.stride]
+        coords = np.zeros((need, 3), dtype=np.int32)
+        coords[: self.n_active] = self.coords[: self.n_active]
+        self.data, self.coords = data, coords
+
+    def scatter(self, kind: tuple, positions, rows, origin, inv_h, lo, hi, csr, max_blocks: int) -> int:
+        """Scatter all ions, growing the pool (x1.5, at most ``max_blocks``) as needed.
+
+        Returns the index of the first ion outside the admissible range, or -1.
+        """
+        start = 0
+        while True:
+            start, self.n_active, status = _scatter(kind, positions, rows, start, origin, inv_h, lo, hi, *csr,
+                                                    self.table, self.coords, self.n_active, self.data,
+                                                    self.stride, self.counts)
+            if status == _DONE:
+                return -1
+            if status == _OUTSIDE:
+                return start
+            # +8: a footprint needs at most 8 new blocks
+            self.reserve(min(max_blocks, max(len(self.coords) * 3 // 2, self.n_active + 8)))
+
+    def merge(self, other: "_Pool") -> None:
+        """Add another thread's blocks into this pool."""
+        n = other.n_active
+        theirs = other.coords[:n]
+        slots = self.table[theirs[:, 0], theirs[:, 1], theirs[:, 2]].astype(np.int64)
+        new = slots < 0
+        n_new = int(new.sum())
+        self.reserve(self.n_active + n_new)
+        slots[new] = np.arange(self.n_active, self.n_active + n_new)
+        self.coords[slots[new]] = theirs[new]
+        self.table[theirs[new, 0], theirs[new, 1], theirs[new, 2]] = slots[new]
+        self.n_active += n_new
+        self.blocks()[slots] += other.blocks()[:n]
+        self.counts += other.counts
+
+
+def _first_capacity(positions: np.ndarray, grid: Grid, max_blocks: int) -> int:
+    """Pool blocks to start with: 1.25 x the distinct blocks of every 64th ion, at most ``max_blocks``.
+
+    Sized from the data so that a dense box gets its pool in one allocation (no growth copies)
+    and a sparse one does not get the box's.
+    """
+    sample = np.floor(grid.fractional_index(positions[::64]) + 0.5)
+    sample = np.clip(np.nan_to_num(sample), 0, np.asarray(grid.shape) - 1).astype(np.int64) // BLOCK
+    distinct = len(np.unique(np.ravel_multi_index(tuple(sample.T), grid.block_shape)))
+    return int(min(max_blocks, distinct * 5 // 4 + 8))
 
 
 class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
-    Memory: ``n_channels * capacity * 512 * 8`` bytes of pool (capacity grows by doubling, so up
-    to twice the occupied blocks while scattering, capped at the box's blocks) plus the block
-    table and its flags (5 bytes per block of the bounding box). With ``threads`` > 1 the
-    threads share the one pool (they write disjoint blocks) and add ``threads × n_rows`` counters.
+    Memory: ``n_channels * 4096`` bytes per pool block, the pool holding up to 1.5× the occupied
+    blocks (never more than the box's blocks) and 2.5× for a moment while it grows, plus the
+    slot table (4 bytes per block of the bounding box). With ``threads`` > 1 every thread has
+    its own pool (so up to ``threads`` × that), merged at the end.
 
     Parameters
     ----------
@@ -299,7 +340,8 @@ class BlockAccumulator:
     delocalization : (3,) nm
         Gaussian only.
     threads : int
-        Threads that scatter each chunk (1 by default: see :func:`~apt_filters.voxel.fields.voxelize`).
+        Threads that scatter each chunk, each a contiguous share of its ions into its own pool
+        (1 by default: see :func:`~apt_filters.voxel.fields.voxelize`).
 
     Attributes
     ----------
@@ -312,69 +354,54 @@ class BlockAccumulator:
         check_kernel(kernel)
         if int(threads) < 1:
             raise AptFiltersError(f"scatter threads must be at least 1, got {threads!r}")
-        self.threads = int(threads)
         self.grid = grid
         self.kernel = kernel
         self.delocalization = delocalization
         self.rows = tuple(np.ascontiguousarray(a) for a in rows)
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
-        self.table = np.full(grid.block_shape, -1, dtype=np.int32)
-        self.fresh = np.zeros(grid.block_shape, dtype=np.uint8)
-        # empty until the first chunk says how many blocks it needs (no growth copy for one chunk)
-        self.pool = np.zeros((n_channels, 0, BLOCK, BLOCK, BLOCK))
-        self.coords = np.zeros((0, 3), dtype=np.int32)
-        self.n_active = 0
+        self.max_blocks = int(np.prod(grid.block_shape))
+        self.pools = [_Pool(grid.block_shape, n_channels, len(self.rows[0]) - 1) for _ in range(int(threads))]
         self.row_count = np.zeros(len(self.rows[0]) - 1, dtype=np.int64)
 
     def add(self, positions: np.ndarray, rows: np.ndarray) -> None:
         """Scatter ions: positions (N, 3) nm, rows (N,) int (ion species index + 1)."""
         positions = np.ascontiguousarray(positions)
         rows = np.ascontiguousarray(rows)
-        origin = np.asarray(self.grid.origin)
-        inv_h = 1.0 / self.grid.voxel
-        n_tasks = self.threads
-        counts = np.zeros((n_tasks, len(self.row_count)), dtype=np.int64)
-        shares = np.linspace(0, len(positions), n_tasks + 1).astype(np.int64)
-        mark_args = (positions, rows, origin, inv_h, self.lo, self.hi, *FOOTPRINT[self.kernel], self.rows[0],
-                     self.table, self.fresh)
-        bad = [i for i in _on_threads(_mark, [mark_args + (counts[t], shares[t], shares[t + 1])
-                                              for t in range(n_tasks)]) if i >= 0]
-        if bad:
-            self.fresh[:] = 0
-            p = positions[bad[0]]
-            raise AptFiltersError(
-                f"ion at ({p[0]:g}, {p[1]:g}, {p[2]:g}) nm lies outside the grid or within the {self.kernel} "
-                f"kernel's reach of its edge; build the grid with Grid.covering(lower, upper, voxel, "
-                f"margin=kernel_reach(...)) from the ions' bounds"
-            )
-        self._grow(self.n_active + int(np.count_nonzero(self.fresh)))
-        self.n_active = _assign(self.fresh, self.table, self.coords, self.n_active)
-        self.row_count += counts.sum(axis=0)
-        scatter_args = (positions, rows, origin, inv_h, *self.rows, self.table, self.pool.reshape(-1),
-                        self.pool[0].size)
-        for phase in range(2 if n_tasks > 1 else 1):  # the layers of one phase are >= 2 apart
-            _on_threads(_SCATTER[self.kernel], [scatter_args + (phase, t, n_tasks) for t in range(n_tasks)])
-
-    def _grow(self, need: int) -> None:
-        """Make room for ``need`` blocks: double the pool (at least to ``need``, never beyond the box's blocks)."""
-        cap = self.pool.shape[1]
-        if need <= cap:
-            return
-        new_cap = int(min(max(2 * cap, need), np.prod(self.grid.block_shape)))
-        pool = np.zeros((self.pool.shape[0], new_cap, BLOCK, BLOCK, BLOCK))
-        pool[:, :cap] = self.pool
-        coords = np.zeros((new_cap, 3), dtype=np.int32)
-        coords[:cap] = self.coords
-        self.pool, self.coords = pool, coords
+        shares = np.linspace(0, len(positions), len(self.pools) + 1).astype(np.int64)
+        for pool, a, b in zip(self.pools, shares[:-1], shares[1:]):
+            if not len(pool.coords) and b > a:
+                pool.reserve(_first_capacity(positions[a:b], self.grid, self.max_blocks))
+        args = (_KIND[self.kernel], np.asarray(self.grid.origin), 1.0 / self.grid.voxel, self.lo, self.hi,
+                self.rows, self.max_blocks)
+        bad = _on_threads(lambda pool, a, b: pool.scatter(args[0], positions[a:b], rows[a:b], *args[1:]),
+                          list(zip(self.pools, shares[:-1], shares[1:])))
+        for a, i in zip(shares, bad):
+            if i >= 0:
+                p = positions[a + i]
+                raise AptFiltersError(
+                    f"ion at ({p[0]:g}, {p[1]:g}, {p[2]:g}) nm lies outside the grid or within the {self.kernel} "
+                    f"kernel's reach of its edge; build the grid with Grid.covering(lower, upper, voxel, "
+                    f"margin=kernel_reach(...)) from the ions' bounds"
+                )
+        self.row_count = sum(p.counts for p in self.pools)
 
     def result(self) -> tuple[np.ndarray, list[np.ndarray]]:
-        """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian."""
-        coords = self.coords[: self.n_active].copy()
-        # copies, so that the fields hold their occupied blocks only, not the spare capacity; the
-        # pool stores a block z, y, x (see POOL_ORDER), the fields x, y, z
-        channels = [np.ascontiguousarray(self.pool[c, : self.n_active].transpose(0, 3, 2, 1))
-                    for c in range(self.pool.shape[0])]
-        self.pool = self.coords = None  # release the over-allocated pool before pass 2
+        """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian.
+
+        Blocks in x, y, z block order, whatever the order the ions came in.
+        """
+        pool, others = self.pools[0], self.pools[1:]
+        self.pools = []
+        while others:
+            pool.merge(others.pop())
+        n = pool.n_active
+        order = np.lexsort(pool.coords[:n].T[::-1])
+        coords = pool.coords[order]
+        # one array for all channels, holding the occupied blocks only (not the spare capacity)
+        fields = np.empty((pool.stride // BLOCK**3, n, BLOCK, BLOCK, BLOCK))
+        _unpool(pool.blocks().reshape(len(pool.coords), -1, BLOCK, BLOCK, BLOCK), order, fields)
+        channels = list(fields)
+        del pool  # released before pass 2
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
         return coords, channels
