@@ -2,11 +2,13 @@
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import quality, remesh
+from apt_filters.remesh import cvt, extract, quality, remesh, repair
+from apt_filters.remesh.sampling import refine
 from benchmarks import remesh_shapes as shapes
 
 SHAPES = ["sphere", "torus", "capped_cylinder", "open_sphere", "rotated_box", "box_minus_sphere"]
@@ -125,6 +127,56 @@ def test_small_bumpy_torus_keeps_its_genus():
     out = remesh(mesh, edge_length=0.5).mesh
     topo = quality.topology(out)
     assert (topo.components, topo.boundary_loops, topo.genus, topo.non_manifold_vertices) == (1, 0, 1, 0), topo
+
+
+# The 100 M-ion Al15 object (1,200 faces) that still opened: a patch cell of 3 samples squeezed
+# between two feature-curve cells touched only those two, so its dual was two triangles on the
+# same three generators with opposite orientations, which repair cannot mend. Constructed here:
+# a refined face of cell A with one edge on cell B and its third corner inside A gets a cell of
+# its own.
+def test_cell_bordered_by_two_cells_is_dissolved():
+    samples = refine(shapes.sphere(3.0), 0.2)
+    faces = samples.faces
+    k = np.arange(60) + 0.5
+    z, phi = 1 - 2 * k / 60, np.pi * (3 - np.sqrt(5)) * k  # even sites on the sphere
+    sites = 3.0 * np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
+    labels = cKDTree(sites).query(samples.points)[1]
+    seen = [set() for _ in samples.vertices]
+    for v, label in zip(faces.ravel(), np.repeat(labels, 3)):
+        seen[v].add(label)
+    around = [set().union(*(seen[v] for v in face)) for face in faces]
+    pick = next(f for f in range(len(faces)) if sorted(len(seen[v]) for v in faces[f]) == [1, 2, 2]
+                and len(around[f]) == 2)
+    a = labels[pick]
+    b = (around[pick] - {a}).pop()
+    lens = len(sites)
+    labels[pick] = lens
+    n = lens + 1
+    gens = cvt.Generators(np.vstack([sites, samples.points[pick]]), np.full(n, cvt.CURVE), np.zeros(n, np.int64),
+                          np.full(n, np.nan))
+    gens.kind[lens] = cvt.PATCH
+    no = np.zeros(n, bool)
+    group = np.zeros(len(faces), np.int64)
+
+    dual = extract.dual_faces(samples, labels, gens.positions, no)[0]
+    pillow = dual[(dual == lens).any(axis=1)]
+    assert len(pillow) == 2 and all(set(f) == {a, b, lens} for f in pillow.tolist())
+    assert any(np.array_equal(np.roll(pillow[0], s), pillow[1][::-1]) for s in range(3))  # opposite turns
+    bad = repair.defects(gens.positions, dual, no)
+    assert bad[[a, b, lens]].all()
+    lone = repair.lone_generators(dual, n)
+    assert np.flatnonzero(lone).tolist() == [lens]
+    # keeping each cell's main piece alone does not help: the lens is one piece
+    kept = cvt.connect_cells(faces, labels, samples.weights, group, gens, 1, bad, no)
+    assert np.array_equal(kept, labels)
+
+    fixed = cvt.connect_cells(faces, labels, samples.weights, group, gens, 1, bad, bad & lone)
+    assert fixed[pick] in (a, b) and np.array_equal(np.delete(fixed, pick), np.delete(labels, pick))
+    dual = extract.dual_faces(samples, fixed, gens.positions, no)[0]
+    assert not repair.defects(gens.positions, dual, no).any()
+    out = TriMesh(gens.positions, repair.repair(gens.positions, dual, no, no))
+    assert quality.topology(out) == quality.Topology(components=1, boundary_loops=0, genus=0,
+                                                     non_manifold_edges=0, non_manifold_vertices=0)
 
 
 def test_vertex_count_target():

@@ -25,7 +25,8 @@ def test_remesh_cli_round_trip(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "out.ply"]  # no temporary files left
 
 
-def test_remesh_cli_bad_input(tmp_path, capsys):
+def test_remesh_cli_bad_input(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # pymeshlab leaves the working directory at a file it failed to read
     bad = tmp_path / "bad.ply"
     bad.write_text("this is not a mesh\n")
     assert main(["remesh", str(bad), "-o", str(tmp_path / "o.ply")]) == 2

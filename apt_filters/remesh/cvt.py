@@ -293,14 +293,15 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
 
 
 def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
-                  gens: Generators, n_patches: int, cells: np.ndarray) -> np.ndarray:
+                  gens: Generators, n_patches: int, cells: np.ndarray, dissolve: np.ndarray) -> np.ndarray:
     """Labels with the restricted Voronoi cells ``cells`` ((n,) bool over generators) made connected.
 
     A cell can reach across a fold or a thin neck of a bumpy surface in Euclidean distance and
     come out in pieces; its dual is then a vertex with several fans, or a hole. Each of those
     cells keeps its heaviest piece; the other pieces join the neighbouring cells they touch,
     ring by ring, as long as :func:`allowed` lets them (same patch; beside a curve, only curve
-    and corner cells).
+    and corner cells). Cells in ``dissolve`` ((n,) bool, a subset of ``cells``) give away all
+    their pieces: their generators drop out of the mesh.
 
     ``faces`` (f, 3) is the refined mesh, ``labels`` (f,) the generator of each refined face,
     ``weights`` (f,) their areas, ``group`` (f,) their sample groups. Only the faces of
@@ -326,7 +327,7 @@ def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, gr
     piece_label[piece] = local
     heaviest = np.lexsort((-np.bincount(piece, weights[sub]), piece_label))
     first = np.r_[True, piece_label[heaviest][1:] != piece_label[heaviest][:-1]]
-    orphan = ~isin(piece, heaviest[first]) & cells[local]
+    orphan = (~isin(piece, heaviest[first]) & cells[local]) | dissolve[local]
     touch = orphan[a] | orphan[b]
     x, y = np.r_[a[touch], b[touch]], np.r_[b[touch], a[touch]]
     g = group[sub]

@@ -122,7 +122,10 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     bad = repair.defects(gens.positions, faces, on_boundary)
     if bad.any():  # cells in pieces (bumps, folds): keep each one's main piece, then extract again
-        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad)
+        # patch cells with only two neighbours cannot be manifold vertices: they go entirely
+        lone = bad & repair.lone_generators(faces, len(gens.positions)) & (gens.kind == cvt.PATCH)
+        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad,
+                                   lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     faces = repair.repair(gens.positions, faces, on_boundary, pinned)
     used, faces = np.unique(faces, return_inverse=True)

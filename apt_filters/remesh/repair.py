@@ -123,6 +123,21 @@ def defects(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray) ->
     return bad | non_manifold_vertices(TriMesh(vertices, faces))
 
 
+def lone_generators(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: generators in ``faces`` with fewer than three distinct neighbours.
+
+    A restricted Voronoi cell bordered by only two cells (a sliver squeezed between two
+    generators of a feature curve) has a dual of two triangles on the same three vertices with
+    opposite orientations: no closed manifold holds such a vertex.
+    """
+    edges = unique_rows(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1))[0]
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    degree = np.bincount(edges.ravel(), minlength=n)
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    return used & (degree < 3)
+
+
 def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """Duplicates, over-full edges, then holes; returns the new faces."""
     faces = drop_duplicates(faces)
