@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -309,3 +310,14 @@ def test_chain_on_a_users_meshset_records_only_the_chain(tmp_path):
     assert run.resolved[0]["targetperc"] == 0.5
     z = m.vertex_custom_scalar_attribute_array("z")  # custom attributes stay inside MeshLab
     assert np.all(np.abs(z - m.vertex_matrix()[:, 2]) < 0.2)
+
+
+def test_unreadable_mesh_is_one_error_and_leaves_the_working_directory(tmp_path, monkeypatch):
+    from apt_filters.meshlab.bridge import load_mesh
+
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "bad.ply").write_text("not a mesh\n")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(InputError, match="bad.ply"):
+        load_mesh("sub/bad.ply")
+    assert os.getcwd() == str(tmp_path)

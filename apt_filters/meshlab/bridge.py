@@ -182,10 +182,14 @@ def load_mesh(path: str | os.PathLike) -> pymeshlab.MeshSet:
     if not path.is_file():
         raise InputError("mesh file not found", path)
     ms = pymeshlab.MeshSet()
+    cwd = os.getcwd()
     try:
         ms.load_new_mesh(str(path))
     except pymeshlab.PyMeshLabException as exc:
         raise InputError(f"cannot read mesh: {exc}", path) from None
+    finally:
+        # pymeshlab leaves the process inside the file's folder when a load fails.
+        os.chdir(cwd)
     ms.clear_filter_script()
     return ms
 
