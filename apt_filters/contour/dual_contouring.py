@@ -150,11 +150,14 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     max_rank : int
         Highest QEF rank used (0 gives surface nets: vertices at the mass point).
     max_fold_angle : float
-        Degrees; adjacent triangles whose normals differ more count as folded. Their
-        vertices step half a QEF rank down per round (the point moves half-way toward the
-        next lower rank's minimiser) until no fold is left (rank 0, the mass point, is the
-        floor); where a folded pair holds vertices whose QEF point was clamped to the cell,
-        only those move (they are the compromises next to a corner).
+        Degrees; adjacent triangles whose normals differ more count as folded. A quad
+        holding a folded face is first re-split along its other diagonal where that folds
+        less (no vertex moves). Vertices of the folds left step half a QEF rank down per
+        round (the point moves half-way toward the next lower rank's minimiser) until no
+        fold is left (rank 0, the mass point, is the floor); where a folded pair holds
+        compromise vertices (QEF point clamped to the cell and more than 0.05 voxel rms
+        off its planes), only those move: next to a corner they fold against the vertex
+        that holds it.
     repair_intersections : bool
         Treat vertices of self-intersecting faces the same way (pymeshlab test confirmed
         exactly, run on the faces within 3 cells of vertices more than 0.1 voxel from
@@ -228,7 +231,8 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         local = np.flatnonzero(ring[tris].any(axis=1))
         folded = local[folded_pairs(pos, tris[local], max_fold_angle)]
         # First cure: the other diagonal of a folded quad, which moves no vertex.
-        flipped = _flip_diagonals(pos, split, quads, folded, max_fold_angle) if len(folded) else folded
+        flipped = (_flip_diagonals(pos, split, quads, folded, max_fold_angle) if len(folded)
+                   else np.zeros(0, dtype=np.int64))
         if len(flipped):
             folded = local[folded_pairs(pos, tris[local], max_fold_angle)]
         groups = [tris[folded].reshape(-1, 6)]
