@@ -117,11 +117,13 @@ COLUMNS = ["hausdorff", "chamfer", "normal_consistency", "edge_chamfer", "edge_f
            "boundary_edges", "non_manifold_edges", "non_manifold_vertices", "folded_pairs", "self_intersections"]
 
 
-def quality_table(n: int) -> str:
+def quality_table(n: int, names: list[str] | None = None) -> str:
     rows = [f"Grid {n}³ on [-1, 1]³ (h = {2 / (n - 1):.4f} nm); distances in voxels; "
             "peers' faces flipped to outward where needed.", "",
             "| shape | method | " + " | ".join(COLUMNS) + " |", "|" + "---|" * (len(COLUMNS) + 2)]
     for shape in benchmark_shapes():
+        if names and shape.name not in names:
+            continue
         values, spacing, origin = shape.grid(n)
         methods = {
             "skimage": lambda: outward(skimage_mc(values, 0.0, spacing, origin)),
@@ -145,6 +147,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller grids (128³ timing, 64³ quality)")
     parser.add_argument("--part", choices=["time", "scaling", "quality", "all"], default="all")
+    parser.add_argument("--shapes", help="comma-separated shape names for the quality table (default: all)")
     args = parser.parse_args()
     big, small, repeats = (128, 64, 1) if args.quick else (256, 128, 3)
     if args.part in ("time", "all"):
@@ -153,7 +156,7 @@ def main() -> None:
         print("## Scaling with active cells\n\n" + scaling_table(256 if not args.quick else 128, repeats) + "\n", flush=True)
     if args.part in ("quality", "all"):
         print("## Quality\n", flush=True)
-        quality_table(small)
+        quality_table(small, args.shapes.split(",") if args.shapes else None)
 
 
 if __name__ == "__main__":

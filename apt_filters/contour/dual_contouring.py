@@ -9,9 +9,9 @@ import numpy as np
 from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, near_cells, prepare_field, trilinear
 from apt_filters.contour.gradients import crossing_gradients
 from apt_filters.contour.marching_cubes import cap_cells
-from apt_filters.contour.qef import solve_qef
+from apt_filters.contour.qef import plane_misfit, solve_qef
 from apt_filters.contour.tables import case_table
-from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
+from apt_filters.contour.topology import face_pairs, folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
 
 # Position of a cell around a grid edge, by the cube-edge sub-index k (e % 4): the four
@@ -21,6 +21,11 @@ _QUAD_SLOT = np.array([0, 1, 3, 2])
 # Vertices farther than this (voxels) from their mass point are the ones a rank fallback
 # can move appreciably; the self-intersection test looks only near them.
 _MOVED = 0.1
+
+# A vertex clamped to its cell that misses its Hermite planes by more than this (rms,
+# voxels) is a compromise; one clamped onto a cell face but still on its planes (an edge
+# or corner point that lies exactly on the face) holds the feature and is not.
+_MISFIT = 0.05
 
 
 def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradient, method: str) -> np.ndarray:
@@ -62,6 +67,19 @@ def _culprits(groups: np.ndarray, rank: np.ndarray, clamped: np.ndarray) -> np.n
     return groups[np.where(suspect.any(axis=1)[:, None], suspect, can)]
 
 
+def _splits(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two ways to split (q, 4) quads: (q, 2, 3) triangles along diagonal 0-2 and along 1-3."""
+    q0, q1, q2, q3 = quads.T
+    return (np.stack([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)], axis=1),
+            np.stack([np.stack([q0, q1, q3], 1), np.stack([q1, q2, q3], 1)], axis=1))
+
+
+def _folds(pos: np.ndarray, a: np.ndarray, b: np.ndarray, max_fold: float) -> np.ndarray:
+    """(k,) bool: whether triangles ``a`` and ``b`` ((k, 3) vertex ids) fold against each other."""
+    na, nb = unit_normals(pos, a), unit_normals(pos, b)
+    return np.einsum("ij,ij->i", na, nb) < np.cos(np.radians(max_fold))
+
+
 def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.ndarray, max_fold: float) -> np.ndarray:
     """(q, 2, 3) triangles per quad, split along the better diagonal.
 
@@ -69,19 +87,46 @@ def _choose_split(values: np.ndarray, iso: float, pos: np.ndarray, quads: np.nda
     to the iso-surface (trilinear field), which follows ridges and valleys.
     """
     q0, q1, q2, q3 = quads.T
-    split_a = np.stack([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)], axis=1)
-    split_b = np.stack([np.stack([q0, q1, q3], 1), np.stack([q1, q2, q3], 1)], axis=1)
-    cos_max = np.cos(np.radians(max_fold))
-
-    def folds(split):
-        na, nb = unit_normals(pos, split[:, 0]), unit_normals(pos, split[:, 1])
-        return np.einsum("ij,ij->i", na, nb) < cos_max
-
+    split_a, split_b = _splits(quads)
     err_a = np.abs(trilinear(values, 0.5 * (pos[q0] + pos[q2])) - iso)
     err_b = np.abs(trilinear(values, 0.5 * (pos[q1] + pos[q3])) - iso)
-    fold_a, fold_b = folds(split_a), folds(split_b)
+    fold_a = _folds(pos, split_a[:, 0], split_a[:, 1], max_fold)
+    fold_b = _folds(pos, split_b[:, 0], split_b[:, 1], max_fold)
     use_b = (fold_a & ~fold_b) | ((fold_a == fold_b) & (err_b < err_a))
     return np.where(use_b[:, None, None], split_b, split_a)
+
+
+def _flip_diagonals(pos: np.ndarray, split: np.ndarray, quads: np.ndarray, folded: np.ndarray,
+                    max_fold: float) -> np.ndarray:
+    """Re-split the quads of ``folded`` faces ((k, 2) ids into ``split``) where that folds less.
+
+    A quad's other diagonal leaves its four outer edges, and so its neighbours across them,
+    unchanged: the folds it takes part in are counted for both diagonals (inside the quad
+    and against each outer neighbour) and the quad is re-split in place where the other
+    diagonal has fewer. Vertices stay where they are, so sharp vertices keep their place.
+    Returns the (f,) ids of the re-split quads.
+    """
+    cand = np.unique(folded // 2)
+    tris = split.reshape(-1, 3)
+    near = np.flatnonzero(np.isin(tris, split[cand]).any(axis=1))
+    pairs = near[face_pairs(tris[near])]
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])
+    pairs = pairs[np.isin(pairs[:, 0] // 2, cand) & (pairs[:, 0] // 2 != pairs[:, 1] // 2)]
+    split_a, split_b = _splits(quads[cand])
+    alt = np.where((split[cand] == split_a).all(axis=(1, 2))[:, None, None], split_b, split_a)
+    slot = np.searchsorted(cand, pairs[:, 0] // 2)
+    other = tris[pairs[:, 1]]
+    # The outer edge shared with the neighbour lies in whichever new triangle holds both its ends.
+    holds = (alt[slot, 0][:, :, None] == other[:, None, :]).any(axis=2).sum(axis=1) == 2
+    alt_face = np.where(holds[:, None], alt[slot, 0], alt[slot, 1])
+    count = len(cand)
+    now = (np.bincount(slot, _folds(pos, tris[pairs[:, 0]], other, max_fold), count)
+           + _folds(pos, split[cand, 0], split[cand, 1], max_fold))
+    then = (np.bincount(slot, _folds(pos, alt_face, other, max_fold), count)
+            + _folds(pos, alt[:, 0], alt[:, 1], max_fold))
+    better = then < now
+    split[cand[better]] = alt[better]
+    return cand[better]
 
 
 def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), mask=None,
@@ -105,11 +150,14 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     max_rank : int
         Highest QEF rank used (0 gives surface nets: vertices at the mass point).
     max_fold_angle : float
-        Degrees; adjacent triangles whose normals differ more count as folded. Their
-        vertices step half a QEF rank down per round (the point moves half-way toward the
-        next lower rank's minimiser) until no fold is left (rank 0, the mass point, is the
-        floor); where a folded pair holds vertices whose QEF point was clamped to the cell,
-        only those move (they are the compromises next to a corner).
+        Degrees; adjacent triangles whose normals differ more count as folded. A quad
+        holding a folded face is first re-split along its other diagonal where that folds
+        less (no vertex moves). Vertices of the folds left step half a QEF rank down per
+        round (the point moves half-way toward the next lower rank's minimiser) until no
+        fold is left (rank 0, the mass point, is the floor); where a folded pair holds
+        compromise vertices (QEF point clamped to the cell and more than 0.05 voxel rms
+        off its planes), only those move: next to a corner they fold against the vertex
+        that holds it.
     repair_intersections : bool
         Treat vertices of self-intersecting faces the same way (pymeshlab test confirmed
         exactly, run on the faces within 3 cells of vertices more than 0.1 voxel from
@@ -151,11 +199,13 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     d = np.einsum("ij,ij->i", n, p)
     ata = np.stack([np.stack([total(n[:, a] * n[:, b]) for b in range(3)], -1) for a in range(3)], -2)
     atb = np.stack([total(n[:, a] * d) for a in range(3)], -1)
-    mass = np.stack([total(p[:, a]) for a in range(3)], -1) / total(np.ones(len(vertex)))[:, None]
+    count = total(np.ones(len(vertex)))
+    mass = np.stack([total(p[:, a]) for a in range(3)], -1) / count[:, None]
     cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
     vertex_cell = act.cell[cell_of_vertex]
     lo = np.stack(np.unravel_index(vertex_cell, shape), axis=1).astype(np.float64)
     candidates, clamped = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
+    compromise = clamped & (plane_misfit(ata, atb, total(d * d), count, candidates) > _MISFIT)
     rank = np.full(n_vertices, float(max_rank))
     ids = np.arange(n_vertices)
     seeds = np.linalg.norm(candidates[max_rank] - mass, axis=1) > _MOVED
@@ -167,30 +217,39 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     quads = np.where(start_inside[:, None], quads, quads[:, ::-1])[keep]
 
     split = np.empty((len(quads), 2, 3), dtype=np.int64)
-    changed = np.ones(n_vertices, dtype=bool)  # vertices moved since the last round
+    moved = np.ones(n_vertices, dtype=bool)  # vertices moved since the last round
+    touched = moved  # ... and vertices of quads re-split since then
     for _ in range(4 * max_rank + 2):  # each round lowers offenders half a rank; rank 0 is the floor
         below, t = np.floor(rank).astype(np.int64), rank % 1.0
         pos = (1 - t[:, None]) * candidates[below, ids] + t[:, None] * candidates[np.ceil(rank).astype(np.int64), ids]
-        redo = changed[quads].any(axis=1)
+        redo = moved[quads].any(axis=1)
         split[redo] = _choose_split(field.values, field.iso, pos, quads[redo], max_fold_angle)
         tris = split.reshape(-1, 3)
-        # Only faces of moved vertices and the faces next to them can have changed folds.
+        # Only faces of touched vertices and the faces next to them can have changed folds.
         ring = np.zeros(n_vertices, dtype=bool)
-        ring[tris[changed[tris].any(axis=1)]] = True
-        local = tris[ring[tris].any(axis=1)]
-        groups = [local[folded_pairs(pos, local, max_fold_angle)].reshape(-1, 6)]
+        ring[tris[touched[tris].any(axis=1)]] = True
+        local = np.flatnonzero(ring[tris].any(axis=1))
+        folded = local[folded_pairs(pos, tris[local], max_fold_angle)]
+        # First cure: the other diagonal of a folded quad, which moves no vertex.
+        flipped = (_flip_diagonals(pos, split, quads, folded, max_fold_angle) if len(folded)
+                   else np.zeros(0, dtype=np.int64))
+        if len(flipped):
+            folded = local[folded_pairs(pos, tris[local], max_fold_angle)]
+        groups = [tris[folded].reshape(-1, 6)]
         if repair_intersections:
             # First round: near every vertex off its mass point (elsewhere a lower rank moves
-            # nothing); later rounds: near the vertices the last round moved.
+            # nothing); later rounds: near the vertices the last round touched.
             groups.append(_intersecting_near(field, pos, seeds, tris, vertex_cell))
-        suspect = clamped[np.ceil(rank).astype(np.int64), ids]
+        suspect = compromise[np.ceil(rank).astype(np.int64), ids]
         lower = np.unique(np.concatenate([_culprits(g, rank, suspect) for g in groups]))
-        if not len(lower):
+        if not len(lower) and not len(flipped):
             break
         rank[lower] -= 0.5
-        changed = np.zeros(n_vertices, dtype=bool)
-        changed[lower] = True
-        seeds = changed
+        moved = np.zeros(n_vertices, dtype=bool)
+        moved[lower] = True
+        touched = moved.copy()
+        touched[quads[flipped]] = True
+        seeds = touched
 
     used, faces = np.unique(tris, return_inverse=True)
     faces = faces.reshape(-1, 3)

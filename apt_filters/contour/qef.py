@@ -53,6 +53,7 @@ def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray
     for r in range(1, max_rank + 1):
         out[r] = out[r - 1] + u[:, :, 3 - r] * coef[:, 3 - r, None]
         outside = np.flatnonzero(np.any((out[r] < lo - 1e-9) | (out[r] > hi + 1e-9), axis=1))
+        clamped[r] = clamped[r - 1]  # a rank built on a clamped point is a compromise too
         clamped[r, outside] = True
         if len(outside):
             top = u[outside, :, 3 - r:]  # (k, 3, r) the r strongest directions
@@ -60,6 +61,18 @@ def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray
             r_r = np.einsum("nik,nk->ni", top, proj[outside, 3 - r:] * keep[outside, 3 - r:])
             out[r, outside] = minimise_in_box(a_r, r_r, mass[outside], lo[outside], hi[outside], cutoff**2)
     return out, clamped
+
+
+def plane_misfit(ata: np.ndarray, atb: np.ndarray, btb: np.ndarray, count: np.ndarray,
+                 points: np.ndarray) -> np.ndarray:
+    """(..., n) root-mean-square distance of ``points`` (..., n, 3) to each vertex's planes.
+
+    ``btb`` (n,) is the sum of squared plane offsets and ``count`` (n,) the number of
+    planes; the error ``xᵀ AᵀA x - 2 xᵀ Aᵀb + bᵀb`` is clipped at 0 against round-off.
+    """
+    err = (np.einsum("...ni,nij,...nj->...n", points, ata, points) - 2 * np.einsum("...ni,ni->...n", points, atb)
+           + btb)
+    return np.sqrt(np.clip(err, 0, None) / count)
 
 
 def minimise_in_box(a: np.ndarray, r: np.ndarray, mass: np.ndarray, lo: np.ndarray, hi: np.ndarray,
