@@ -13,7 +13,8 @@ Rows (each timed as the best of ``--repeat`` runs, all side by side in one proce
 - ``ours ranging (MzLookup)``: our bin-table ranging (what ``voxelize`` uses) beside ``RangeTable.ion_index``;
 - ``ours <kernel> scatter``: our block-sparse scatter given the same species index, on 1 thread
   (the default) and on 2 threads;
-- ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields);
+- ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields)
+  with its default thread count (one per available core, within the memory budget);
 - ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
   compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
   by its reflecting edges.
@@ -36,6 +37,7 @@ import numpy as np
 from apt_filters.io import IonTable, Range, RangeTable, iter_ion_chunks
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel.fields import decomposition
+from apt_filters.voxel.grid import available_cores, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
 
@@ -161,9 +163,10 @@ def main(argv=None) -> int:
     for kernel in ("square", "sawtooth", "gaussian"):
         voxelize(warm, rt, grid=grid, kernel=kernel)
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"load average {os.getloadavg()[0]:.1f} at the start "
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+          f"({available_cores()} available), load average {os.getloadavg()[0]:.1f} at the start "
           "(shared with other jobs: compare ratios, not absolute times)")
+    print(f"voxelize's default scatter threads here: {scatter_threads(grid, len(names), None)}")
     results = []
     if args.full:
         n, chunk = 100_000_000, 5_000_000

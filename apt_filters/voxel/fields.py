@@ -10,7 +10,7 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.voxel.grid import Grid, check_budget
+from apt_filters.voxel.grid import Grid, check_budget, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.sparse import SparseField
 from apt_filters.voxel.transfer import BlockAccumulator, check_kernel, kernel_reach
@@ -166,7 +166,7 @@ def voxelize(
     keep_unranged: bool | None = None,
     efficiency: float = 1.0,
     memory_budget: int | None = None,
-    threads: int = 1,
+    threads: int | None = None,
 ) -> Fields:
     """Voxelize ions into block-sparse count fields with a contribution transfer function.
 
@@ -197,10 +197,12 @@ def voxelize(
         Detection efficiency in (0, 1], for :meth:`Fields.density`.
     memory_budget : int, optional
         Bytes; default half the physical RAM. A grid whose fields could exceed it is refused up front.
-    threads : int
+    threads : int, optional
         Threads that scatter each chunk, each a contiguous share of its ions into its own pool
-        (merged at the end: ``threads`` pools of memory). Default 1: on the shared 2-core
-        benchmark machine (load 4-10) 2 threads did not run faster; use more on idle cores.
+        (merged at the end: ``threads`` pools of memory). Default: one per core this process
+        may use, fewer if the memory budget cannot hold a pool for each
+        (:func:`~apt_filters.voxel.grid.scatter_threads`). The fields do not depend on the
+        thread count beyond the rounding of the pools' merge.
 
     Returns
     -------
@@ -226,6 +228,8 @@ def voxelize(
         if iter(chunks) is chunks:
             raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
+    if threads is None:
+        threads = scatter_threads(grid, len(names), memory_budget)
     check_budget(grid, len(names), memory_budget, copies=int(threads) + 1)
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization, threads)
     lookup = MzLookup.from_ranges(ranges)
