@@ -276,15 +276,15 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
 
 
 @njit(nogil=True, cache=True)
-def _unpool(blocks, order, out):
-    """out[c, k, x, y, z] = blocks[order[k], c, z, y, x]: the pool's blocks (z, y, x) as fields (x, y, z)."""
-    for k in range(order.shape[0]):
-        s = order[k]
+def _unpool(blocks, where, out):
+    """out[c, where[s], x, y, z] += blocks[s, c, z, y, x]: a pool's blocks (z, y, x) added into the fields (x, y, z)."""
+    for s in range(where.shape[0]):
+        k = where[s]
         for c in range(out.shape[0]):
             for x in range(BLOCK):
                 for y in range(BLOCK):
                     for z in range(BLOCK):
-                        out[c, k, x, y, z] = blocks[s, c, z, y, x]
+                        out[c, k, x, y, z] += blocks[s, c, z, y, x]
 
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
@@ -354,24 +354,13 @@ class _Pool:
         _scatter(kind, positions, rows, origin, inv_h, *csr, self.table.ravel(), *strides, self.data, self.stride)
         return -1
 
-    def merge(self, other: "_Pool", max_blocks: int) -> None:
-        """Add another thread's blocks into this pool."""
-        n = other.n_active
-        theirs = other.coords[:n]
-        self.marks[theirs[:, 0], theirs[:, 1], theirs[:, 2]] = 1
-        self.assign(max_blocks)
-        slots = self.table[theirs[:, 0], theirs[:, 1], theirs[:, 2]]
-        self.blocks()[slots] += other.blocks()[:n]
-        self.counts += other.counts
-
-
 class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
     Memory: ``n_channels * 4096`` bytes per pool block, the pool holding up to 1.5× the occupied
     blocks (never more than the box's blocks) and 2.5× for a moment while it grows, plus the
     slot table (4 bytes per block of the bounding box). With ``threads`` > 1 every thread has
-    its own pool (so up to ``threads`` × that), merged at the end.
+    its own pool (so up to ``threads`` × that), added one after the other into the fields at the end.
 
     Parameters
     ----------
@@ -431,18 +420,18 @@ class BlockAccumulator:
 
         Blocks in x, y, z block order, whatever the order the ions came in.
         """
-        pool, others = self.pools[0], self.pools[1:]
-        self.pools = []
-        while others:
-            pool.merge(others.pop(), self.max_blocks)
-        n = pool.n_active
-        order = np.lexsort(pool.coords[:n].T[::-1])
-        coords = pool.coords[order]
-        # one array for all channels, holding the occupied blocks only (not the spare capacity)
-        fields = np.empty((pool.stride // BLOCK**3, n, BLOCK, BLOCK, BLOCK))
-        _unpool(pool.blocks().reshape(len(pool.coords), -1, BLOCK, BLOCK, BLOCK), order, fields)
+        pools, self.pools = self.pools, []
+        keys = [np.ravel_multi_index(tuple(p.coords[: p.n_active].T), self.grid.block_shape) for p in pools]
+        union = np.unique(np.concatenate(keys))  # flat block indices, sorted: x, y, z block order
+        coords = np.column_stack(np.unravel_index(union, self.grid.block_shape)).astype(np.int32)
+        # one array for all channels, holding the occupied blocks only; each pool is added in and released
+        fields = np.zeros((pools[0].stride // BLOCK**3, len(union), BLOCK, BLOCK, BLOCK))
+        while pools:
+            pool, key = pools.pop(), keys.pop()
+            blocks = pool.blocks()[: pool.n_active].reshape(pool.n_active, fields.shape[0], BLOCK, BLOCK, BLOCK)
+            _unpool(blocks, np.searchsorted(union, key), fields)
+            del pool, blocks
         channels = list(fields)
-        del pool  # released before pass 2
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
         return coords, channels
