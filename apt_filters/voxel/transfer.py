@@ -172,6 +172,13 @@ def _taps_impl(kind):
     return lambda kind: taps
 
 
+@njit(inline="always")
+def _u(i):
+    """An index known to be >= 0, as unsigned: numba then leaves out its negative-index wraparound
+    (a compare and add per subscript that made the scatter 1.3-1.5x slower)."""
+    return np.uint64(i)
+
+
 @njit(nogil=True, cache=True)
 def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts):
     """Count the ions per row and set ``marks`` to 1 on every block their footprints touch.
@@ -183,8 +190,8 @@ def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts)
     """
     for i in range(pos.shape[0]):
         r = row[i]
-        counts[r] += 1
-        if row_ptr[r] == row_ptr[r + 1]:  # an ion that counts in no field
+        counts[_u(r)] += 1
+        if row_ptr[_u(r)] == row_ptr[_u(r + 1)]:  # an ion that counts in no field
             continue
         fx = (np.float64(pos[i, 0]) - origin[0]) * inv_h
         fy = (np.float64(pos[i, 1]) - origin[1]) * inv_h
@@ -197,15 +204,15 @@ def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts)
         x0, x1 = (ix >> 3) * sx, ((ix + last) >> 3) * sx
         y0, y1 = (iy >> 3) * sy, ((iy + last) >> 3) * sy
         z0, z1 = iz >> 3, (iz + last) >> 3
-        marks[x0 + y0 + z0] = 1
+        marks[_u(x0 + y0 + z0)] = 1
         if last:
-            marks[x1 + y0 + z0] = 1
-            marks[x0 + y1 + z0] = 1
-            marks[x1 + y1 + z0] = 1
-            marks[x0 + y0 + z1] = 1
-            marks[x1 + y0 + z1] = 1
-            marks[x0 + y1 + z1] = 1
-            marks[x1 + y1 + z1] = 1
+            marks[_u(x1 + y0 + z0)] = 1
+            marks[_u(x0 + y1 + z0)] = 1
+            marks[_u(x1 + y1 + z0)] = 1
+            marks[_u(x0 + y0 + z1)] = 1
+            marks[_u(x1 + y0 + z1)] = 1
+            marks[_u(x0 + y1 + z1)] = 1
+            marks[_u(x1 + y1 + z1)] = 1
     return -1
 
 
@@ -242,7 +249,7 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
     """
     for i in range(pos.shape[0]):
         r = row[i]
-        p0, p1 = row_ptr[r], row_ptr[r + 1]
+        p0, p1 = row_ptr[_u(r)], row_ptr[_u(r + 1)]
         if p0 == p1:
             continue
         ix, wx = _footprint(kind, (np.float64(pos[i, 0]) - origin[0]) * inv_h)
@@ -250,15 +257,15 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
         iz, wz = _footprint(kind, (np.float64(pos[i, 2]) - origin[2]) * inv_h)
         taps = len(wx)
         if (ix & 7) + taps <= 8 and (iy & 7) + taps <= 8 and (iz & 7) + taps <= 8:  # all in one block: one lookup
-            at = (np.int64(table[(ix >> 3) * sx + (iy >> 3) * sy + (iz >> 3)]) * stride
+            at = (np.int64(table[_u((ix >> 3) * sx + (iy >> 3) * sy + (iz >> 3))]) * stride
                   + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7))
             for p in range(p0, p1):
-                c, m = at + (row_chan[p] << 9), row_w[p]
+                c, m = at + (row_chan[_u(p)] << 9), row_w[_u(p)]
                 for a in range(taps):
                     for b in range(taps):
                         wab = m * wx[a] * wy[b]
                         for d in range(taps):
-                            pool[c + (d << 6) + (b << 3) + a] += wab * wz[d]
+                            pool[_u(c + (d << 6) + (b << 3) + a)] += wab * wz[d]
             continue
         # across block faces: per axis and grid point its block's share of the table index and
         # its offset in the block, added up per point (the table is read per point, but in L1)
@@ -266,13 +273,13 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
         ty, oy = _axis_taps(wy, iy, sy, 8)
         tz, oz = _axis_taps(wz, iz, 1, 64)
         for p in range(p0, p1):
-            c, m = row_chan[p] << 9, row_w[p]
+            c, m = row_chan[_u(p)] << 9, row_w[_u(p)]
             for a in range(taps):
                 for b in range(taps):
                     wab = m * wx[a] * wy[b]
                     column, offset = tx[a] + ty[b], c + ox[a] + oy[b]
                     for d in range(taps):
-                        pool[np.int64(table[column + tz[d]]) * stride + offset + oz[d]] += wab * wz[d]
+                        pool[_u(np.int64(table[_u(column + tz[d])]) * stride + offset + oz[d])] += wab * wz[d]
 
 
 @njit(nogil=True, cache=True)
