@@ -83,9 +83,10 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
 # it and flags the blocks its footprint touches in a dense uint8 table over the box's blocks;
 # the flagged blocks without a slot get the next pool slots in block order (``_Pool.assign``, one
 # pass over the box's blocks); ``_scatter`` then adds the weights through the int32 slot table
-# with no checks, no allocation and no early exit. A fused pass that allocated on first touch ran
-# 2x slower (sawtooth) although it almost never allocated: its loop-carried slot count and
-# conditional table writes kept the compiler from keeping the hot loop tight.
+# with no checks, no allocation and no early exit (the fused pass this replaces, which gave slots
+# on first touch and stopped when the pool was full, cost 1.2-1.3x as much per ion in one process).
+# The slot table is read flat, and every subscript goes through ``_u`` (unsigned), which spares
+# numba's negative-index handling on each of the up to 27 writes per ion.
 #
 # The transfer function reaches the kernels as a tuple whose length selects it (``_KIND``): numba
 # specialises each loop on the tuple's type (and caches each specialisation), so the
@@ -361,13 +362,16 @@ class _Pool:
         _scatter(kind, positions, rows, origin, inv_h, *csr, self.table.ravel(), *strides, self.data, self.stride)
         return -1
 
+
 class BlockAccumulator:
     """Scatters chunks of ions into block-sparse count fields (one channel per field).
 
-    Memory: ``n_channels * 4096`` bytes per pool block, the pool holding up to 1.5× the occupied
-    blocks (never more than the box's blocks) and 2.5× for a moment while it grows, plus the
-    slot table (4 bytes per block of the bounding box). With ``threads`` > 1 every thread has
-    its own pool (so up to ``threads`` × that), added one after the other into the fields at the end.
+    Memory: ``n_channels * 4096`` bytes per pool block. The first chunk sizes the pool to its
+    occupied blocks exactly; later chunks that add blocks grow it by at least 1.5× (never beyond
+    the box's blocks), so it holds up to 1.5× the occupied blocks, 2.5× for a moment while it
+    grows; plus the slot table and the marks (5 bytes per block of the bounding box). With
+    ``threads`` > 1 every thread has its own pool (so up to ``threads`` × that), added one after
+    the other into the fields at the end.
 
     Parameters
     ----------
@@ -381,7 +385,7 @@ class BlockAccumulator:
         Gaussian only.
     threads : int
         Threads that scatter each chunk, each a contiguous share of its ions into its own pool
-        (1 by default: see :func:`~apt_filters.voxel.fields.voxelize`).
+        (1 here; :func:`~apt_filters.voxel.fields.voxelize` uses one per available core).
 
     Attributes
     ----------
