@@ -213,7 +213,8 @@ def voxelize(
     Peak memory: the pool of occupied blocks (up to 1.5× the occupied blocks × fields × 4 kB,
     2.5× for a moment while it grows, never more than the box's blocks; one pool per thread), its
     copy into the fields at the end, one chunk with its ranging (≈ 30 bytes per ion), and for the
-    gaussian second pass two dense float64 copies of one field's bounding box;
+    gaussian second pass (after the pools are released) two dense float64 copies of one field's
+    bounding box per thread, one field per thread at a time;
     :func:`~apt_filters.voxel.grid.check_budget` bounds it (measured: 10 M ions in a
     60 × 60 × 200 nm box, 8 species, see benchmarks/results_voxel.md).
     """

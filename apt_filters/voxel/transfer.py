@@ -432,6 +432,7 @@ class BlockAccumulator:
         Blocks in x, y, z block order, whatever the order the ions came in.
         """
         pools, self.pools = self.pools, []
+        threads = len(pools)
         keys = [np.ravel_multi_index(tuple(p.coords[: p.n_active].T), self.grid.block_shape) for p in pools]
         union = np.unique(np.concatenate(keys))  # flat block indices, sorted: x, y, z block order
         coords = np.column_stack(np.unravel_index(union, self.grid.block_shape)).astype(np.int32)
@@ -444,26 +445,34 @@ class BlockAccumulator:
             del pool, blocks
         channels = list(fields)
         if self.kernel == "gaussian":
-            return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization))
+            return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization),
+                               threads)
         return coords, channels
 
 
-def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigma_vox: np.ndarray):
+def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigma_vox: np.ndarray,
+                threads: int = 1):
     """Separable Gaussian (truncated at 4 sigma, zero outside) of each block-sparse channel.
 
     The result lives on the blocks within the kernel radius of the input blocks. Works one
-    channel at a time through a dense copy of the block-rounded box: transient memory is two
-    dense float64 fields.
+    channel at a time per thread (scipy's filter releases the GIL) through a dense copy of the
+    block-rounded box: transient memory is two dense float64 fields per thread, at most
+    ``min(threads, len(channels))`` threads.
     """
     reach = -(-second_pass_radius(sigma_vox) // BLOCK)
     occupied = np.zeros(grid.block_shape, dtype=bool)
     occupied[coords[:, 0], coords[:, 1], coords[:, 2]] = True
     footprint = np.ones(tuple(2 * reach + 1), dtype=bool)
     new_coords = np.argwhere(binary_dilation(occupied, structure=footprint)).astype(np.int32)
-    out = []
-    for data in channels:
+
+    def smooth(data: np.ndarray) -> np.ndarray:
         dense = blocks_to_dense(grid, coords, data)
         for axis in range(3):
             dense = gaussian_filter1d(dense, sigma_vox[axis], axis=axis, mode="constant", truncate=TRUNCATE)
-        out.append(dense_to_blocks(dense, new_coords))
+        return dense_to_blocks(dense, new_coords)
+
+    n_threads = max(1, min(int(threads), len(channels)))
+    shares = _on_threads(lambda mine: [smooth(d) for d in mine],
+                         [(channels[k::n_threads],) for k in range(n_threads)])
+    out = [shares[i % n_threads][i // n_threads] for i in range(len(channels))]
     return new_coords, out
