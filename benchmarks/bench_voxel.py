@@ -15,7 +15,7 @@ all side by side in one process):
 - ``ours <kernel> scatter``: our block-sparse scatter given the same species index, on 1 thread
   (the default) and on 2 threads;
 - ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields)
-  with its default thread count (one per available core, within the memory budget);
+  with its default thread count (one per available core, within the memory budget), and on 1 thread;
 - ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
   compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
   by its reflecting edges.
@@ -226,6 +226,8 @@ def main(argv=None) -> int:
         for kernel in ("square", "sawtooth", "gaussian"):
             rows_timed.append((f"ours {kernel} voxelize", lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k),
                                True))
+            rows_timed.append((f"ours {kernel} voxelize, 1 thread",
+                               lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k, threads=1), False))
         times = best_times([fn for _, fn, _ in rows_timed], args.repeat)
         for (name, fn, traced), t in zip(rows_timed, times):
             results.append((name, t, peak_bytes(fn) if traced else None))
