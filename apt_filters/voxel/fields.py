@@ -235,7 +235,7 @@ def voxelize(
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization, threads)
     lookup = MzLookup.from_ranges(ranges)
     for chunk in chunks:
-        acc.add(chunk.positions, lookup.rows_of(chunk.mz))  # rows int32: 4 bytes per ion
+        acc.add(chunk.positions, lookup.rows_of(chunk.mz, threads))  # rows int32: 4 bytes per ion
     matrix_counts = acc.row_count.astype(np.float64)
     coords, channels = acc.result()
     counts = {n: SparseField(grid, coords, d) for n, d in zip(names, channels)}

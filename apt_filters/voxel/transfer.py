@@ -14,8 +14,6 @@ sum of a field equals its count exactly (to rounding): mass is never reflected a
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 from numba import njit
 from numba.extending import overload
@@ -24,6 +22,7 @@ from scipy.ndimage import binary_dilation, gaussian_filter1d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.voxel.grid import BLOCK, Grid
 from apt_filters.voxel.sparse import blocks_to_dense, dense_to_blocks
+from apt_filters.voxel.threads import on_threads, shares
 
 KERNELS = ("square", "sawtooth", "gaussian")
 TRUNCATE = 4.0
@@ -295,19 +294,6 @@ def _unpool(blocks, where, out):
                         out[c, k, x, y, z] += blocks[s, c, z, y, x]
 
 
-_EXECUTORS: dict[int, ThreadPoolExecutor] = {}
-
-
-def _on_threads(fn, calls: list[tuple]) -> list:
-    """Results of ``fn(*args)`` for each args in ``calls``, one thread each (the kernels release the GIL)."""
-    if len(calls) == 1:
-        return [fn(*calls[0])]
-    executor = _EXECUTORS.get(len(calls))
-    if executor is None:
-        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="voxel-scatter")
-    return list(executor.map(lambda args: fn(*args), calls))
-
-
 class _Pool:
     """One thread's blocks: slot table over the box's blocks, block coordinates, values and row counts.
 
@@ -411,12 +397,12 @@ class BlockAccumulator:
         """Scatter ions: positions (N, 3) nm, rows (N,) int (ion species index + 1)."""
         positions = np.ascontiguousarray(positions)
         rows = np.ascontiguousarray(rows)
-        shares = np.linspace(0, len(positions), len(self.pools) + 1).astype(np.int64)
+        parts = shares(len(positions), len(self.pools))
         args = (_KIND[self.kernel], np.asarray(self.grid.origin), 1.0 / self.grid.voxel, self.lo, self.hi,
                 self.rows, self.max_blocks)
-        bad = _on_threads(lambda pool, a, b: pool.scatter(args[0], positions[a:b], rows[a:b], *args[1:]),
-                          list(zip(self.pools, shares[:-1], shares[1:])))
-        for a, i in zip(shares, bad):
+        bad = on_threads(lambda pool, a, b: pool.scatter(args[0], positions[a:b], rows[a:b], *args[1:]),
+                         [(pool, a, b) for pool, (a, b) in zip(self.pools, parts)])
+        for (a, _), i in zip(parts, bad):
             if i >= 0:
                 p = positions[a + i]
                 raise AptFiltersError(
@@ -472,7 +458,6 @@ def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigm
         return dense_to_blocks(dense, new_coords)
 
     n_threads = max(1, min(int(threads), len(channels)))
-    shares = _on_threads(lambda mine: [smooth(d) for d in mine],
-                         [(channels[k::n_threads],) for k in range(n_threads)])
-    out = [shares[i % n_threads][i // n_threads] for i in range(len(channels))]
+    smoothed = on_threads(lambda mine: [smooth(d) for d in mine], [(channels[k::n_threads],) for k in range(n_threads)])
+    out = [smoothed[i % n_threads][i // n_threads] for i in range(len(channels))]
     return new_coords, out
