@@ -95,7 +95,9 @@ _KIND = {"square": (), "sawtooth": (0,), "gaussian": (0, 0)}
 
 
 # Each transfer function on one axis: the first of its 1, 2 or 3 grid points (``_*_start``; the
-# marking pass needs no more) and that point with the weights.
+# marking pass needs no more), and that point with the weights and their sum: the scatter divides
+# once per ion by the product of the three sums (1.0 and folded away for square and sawtooth),
+# not once per axis.
 
 
 @njit(inline="always")
@@ -106,7 +108,7 @@ def _nearest_start(f):
 
 @njit(inline="always")
 def _nearest(f):
-    return _nearest_start(f), (1.0,)
+    return _nearest_start(f), (1.0,), 1.0
 
 
 @njit(inline="always")
@@ -119,7 +121,7 @@ def _lever_start(f):
 def _lever(f):
     """Sawtooth: the grid point below and the next, lever-rule weights."""
     i = _lever_start(f)
-    return i, (1.0 - (f - i), f - i)
+    return i, (1.0 - (f - i), f - i), 1.0
 
 
 @njit(inline="always")
@@ -130,20 +132,21 @@ def _gauss3_start(f):
 
 @njit(inline="always")
 def _gauss3(f):
-    """Pass 1: first of the 3 grid points around the nearest one, and their weights.
+    """Pass 1: first of the 3 grid points around the nearest one, their weights relative to the
+    nearest one's, and the sum of the three.
 
-    Weights exp(-d² / (2 sigma²)) with sigma = voxel / 6, i.e. exp(-18 d²) in voxels, normalised.
-    With d the offset of the nearest point, exp(-18 (d ± 1)²) = exp(-18 d²) e^-18 exp(±36 d), so
-    one exp per axis gives all three.
+    Weights exp(-d² / (2 sigma²)) with sigma = voxel / 6, i.e. exp(-18 d²) in voxels. With d the
+    offset of the nearest point, exp(-18 (d ± 1)²) / exp(-18 d²) = e^-18 exp(±36 d), so one exp
+    per axis gives all three.
     """
     i = _gauss3_start(f)
     b = np.exp(36.0 * (i + 1 - f))
-    w1 = 1.0 / (1.0 + _E18 * (b + 1.0 / b))
-    return i, (_E18 * b * w1, w1, _E18 / b * w1)
+    before, after = _E18 * b, _E18 / b
+    return i, (before, 1.0, after), 1.0 + before + after
 
 
 def _footprint(kind, f):
-    """(first grid index, weights) along one axis of the transfer function ``kind`` (see ``_KIND``)."""
+    """(first grid index, weights, their sum) along one axis of the transfer function ``kind`` (see ``_KIND``)."""
 
 
 def _start(kind, f):
@@ -243,24 +246,25 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
 
     ``table`` is flat over the box's blocks (block (x, y, z) at ``x * sx + y * sy + z``). Every
     ion must lie in the admissible range and every block it touches have a slot (``_mark`` and
-    ``_Pool.assign`` see to both). Ion ``i`` of row ``r`` adds ``row_w[p]`` times its weights
-    ``wx[a] wy[b] wz[d]`` at grid point (ix + a, iy + b, iz + d) of channel ``row_chan[p]`` for
-    each ``p`` in ``row_ptr[r]:row_ptr[r + 1]``.
+    ``_Pool.assign`` see to both). Ion ``i`` of row ``r`` adds ``row_w[p]`` times its normalised
+    weights ``wx[a] wy[b] wz[d] / (nx ny nz)`` at grid point (ix + a, iy + b, iz + d) of channel
+    ``row_chan[p]`` for each ``p`` in ``row_ptr[r]:row_ptr[r + 1]``.
     """
     for i in range(pos.shape[0]):
         r = row[i]
         p0, p1 = row_ptr[_u(r)], row_ptr[_u(r + 1)]
         if p0 == p1:
             continue
-        ix, wx = _footprint(kind, (np.float64(pos[i, 0]) - origin[0]) * inv_h)
-        iy, wy = _footprint(kind, (np.float64(pos[i, 1]) - origin[1]) * inv_h)
-        iz, wz = _footprint(kind, (np.float64(pos[i, 2]) - origin[2]) * inv_h)
+        ix, wx, nx = _footprint(kind, (np.float64(pos[i, 0]) - origin[0]) * inv_h)
+        iy, wy, ny = _footprint(kind, (np.float64(pos[i, 1]) - origin[1]) * inv_h)
+        iz, wz, nz = _footprint(kind, (np.float64(pos[i, 2]) - origin[2]) * inv_h)
+        norm = 1.0 / (nx * ny * nz)  # the ion's weights sum to 1
         taps = len(wx)
         if (ix & 7) + taps <= 8 and (iy & 7) + taps <= 8 and (iz & 7) + taps <= 8:  # all in one block: one lookup
             at = (np.int64(table[_u((ix >> 3) * sx + (iy >> 3) * sy + (iz >> 3))]) * stride
                   + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7))
             for p in range(p0, p1):
-                c, m = at + (row_chan[_u(p)] << 9), row_w[_u(p)]
+                c, m = at + (row_chan[_u(p)] << 9), row_w[_u(p)] * norm
                 for a in range(taps):
                     for b in range(taps):
                         wab = m * wx[a] * wy[b]
@@ -273,7 +277,7 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
         ty, oy = _axis_taps(wy, iy, sy, 8)
         tz, oz = _axis_taps(wz, iz, 1, 64)
         for p in range(p0, p1):
-            c, m = row_chan[_u(p)] << 9, row_w[_u(p)]
+            c, m = row_chan[_u(p)] << 9, row_w[_u(p)] * norm
             for a in range(taps):
                 for b in range(taps):
                     wab = m * wx[a] * wy[b]
