@@ -7,13 +7,15 @@ default, 1 M with ``--quick``; ``--full`` writes 100 M ions (in detection order)
 POS file and streams it memory-mapped in chunks of 5 M (peak memory = fields + one chunk),
 skipping APAV, which needs every ion in memory.
 
-Rows (each timed as the best of ``--repeat`` runs, all side by side in one process):
+Rows (each timed as the best of ``--repeat`` rounds, a round running every in-memory row in turn,
+all side by side in one process):
 - ``numpy bincount square``: the plain numpy square kernel (nearest voxel, one bincount over
   species × voxels), given the species index, as the peer for the scatter;
 - ``ours ranging (MzLookup)``: our bin-table ranging (what ``voxelize`` uses) beside ``RangeTable.ion_index``;
 - ``ours <kernel> scatter``: our block-sparse scatter given the same species index, on 1 thread
   (the default) and on 2 threads;
-- ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields);
+- ``ours <kernel> voxelize``: the whole ``voxelize`` call (ranging, scatter, second pass, fields)
+  with its default thread count (one per available core, within the memory budget), and on 1 thread;
 - ``apav RangedGrid``: APAV 1.4's IVAS-scheme gaussian on the same ions (ranging included),
   compared with ``ours gaussian voxelize``; agreement checked where APAV's grid is not affected
   by its reflecting edges.
@@ -36,6 +38,7 @@ import numpy as np
 from apt_filters.io import IonTable, Range, RangeTable, iter_ion_chunks
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel.fields import decomposition
+from apt_filters.voxel.grid import available_cores, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
 
@@ -76,14 +79,22 @@ def bincount_square(positions: np.ndarray, species: np.ndarray, grid: Grid, n_sp
 def best_time(fn, repeat: int) -> tuple[float, float]:
     """Best (wall, CPU) seconds of ``repeat`` runs; CPU time is less disturbed by other jobs
     for our single-threaded loops, wall time is what counts for APAV's two OpenMP threads."""
-    wall, cpu = [], []
+    return best_times([fn], repeat)[0]
+
+
+def best_times(fns: list, repeat: int) -> list[tuple[float, float]]:
+    """Best (wall, CPU) seconds of each function over ``repeat`` rounds that run them all in turn,
+    so that a change of the machine's load during the run falls on every row alike."""
+    wall = np.full(len(fns), np.inf)
+    cpu = np.full(len(fns), np.inf)
     for _ in range(repeat):
-        gc.collect()
-        t, c = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    return min(wall), min(cpu)
+        for k, fn in enumerate(fns):
+            gc.collect()
+            t, c = time.perf_counter(), time.process_time()
+            fn()
+            wall[k] = min(wall[k], time.perf_counter() - t)
+            cpu[k] = min(cpu[k], time.process_time() - c)
+    return list(zip(wall.tolist(), cpu.tolist()))
 
 
 def timed_peak(fn) -> tuple[np.ndarray, int]:
@@ -161,9 +172,10 @@ def main(argv=None) -> int:
     for kernel in ("square", "sawtooth", "gaussian"):
         voxelize(warm, rt, grid=grid, kernel=kernel)
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"load average {os.getloadavg()[0]:.1f} at the start "
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+          f"({available_cores()} available), load average {os.getloadavg()[0]:.1f} at the start "
           "(shared with other jobs: compare ratios, not absolute times)")
+    print(f"voxelize's default scatter threads here: {scatter_threads(grid, len(names), None)}")
     results = []
     if args.full:
         n, chunk = 100_000_000, 5_000_000
@@ -202,19 +214,23 @@ def main(argv=None) -> int:
             acc.add(ions.positions, row)
             return acc.result()
 
-        base = lambda: bincount_square(ions.positions, species, grid, len(ELEMENTS))  # noqa: E731
-        results.append(("numpy bincount square", best_time(base, args.repeat), peak_bytes(base)))
-        results.append(("ranging (RangeTable.ion_index)", best_time(lambda: rt.ion_index(ions.mz), args.repeat), None))
         lookup = MzLookup.from_ranges(rt)
-        results.append(("ours ranging (MzLookup)", best_time(lambda: lookup.rows_of(ions.mz), args.repeat), None))
+        rows_timed = [  # (name, function, trace its peak memory)
+            ("numpy bincount square", lambda: bincount_square(ions.positions, species, grid, len(ELEMENTS)), True),
+            ("ranging (RangeTable.ion_index)", lambda: rt.ion_index(ions.mz), False),
+            ("ours ranging (MzLookup)", lambda: lookup.rows_of(ions.mz), False),
+        ]
         for kernel in ("square", "sawtooth", "gaussian"):
-            fn = lambda k=kernel: scatter(k)  # noqa: E731
-            results.append((f"ours {kernel} scatter", best_time(fn, args.repeat), peak_bytes(fn)))
-            fn2 = lambda k=kernel: scatter(k, 2)  # noqa: E731
-            results.append((f"ours {kernel} scatter, 2 threads", best_time(fn2, args.repeat), None))
+            rows_timed.append((f"ours {kernel} scatter", lambda k=kernel: scatter(k), True))
+            rows_timed.append((f"ours {kernel} scatter, 2 threads", lambda k=kernel: scatter(k, 2), False))
         for kernel in ("square", "sawtooth", "gaussian"):
-            fn = lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k)  # noqa: E731
-            results.append((f"ours {kernel} voxelize", best_time(fn, args.repeat), peak_bytes(fn)))
+            rows_timed.append((f"ours {kernel} voxelize", lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k),
+                               True))
+            rows_timed.append((f"ours {kernel} voxelize, 1 thread",
+                               lambda k=kernel: voxelize(ions, rt, grid=grid, kernel=k, threads=1), False))
+        times = best_times([fn for _, fn, _ in rows_timed], args.repeat)
+        for (name, fn, traced), t in zip(rows_timed, times):
+            results.append((name, t, peak_bytes(fn) if traced else None))
         if not args.no_apav:
             try:
                 import apav  # noqa: F401

@@ -1,4 +1,6 @@
-"""The fast paths of the scatter: bin-table ranging and the multi-threaded, block-layer-partitioned scatter."""
+"""The fast paths of the scatter: bin-table ranging, the multi-threaded scatter and its default thread count."""
+
+import os
 
 import numpy as np
 import pytest
@@ -6,6 +8,8 @@ import pytest
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
+from apt_filters.voxel import grid as grid_module
+from apt_filters.voxel.grid import available_cores, field_bytes, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from tests.voxel_helpers import ions, random_ions, ranges
 
@@ -34,7 +38,9 @@ def test_lookup_ranging_equals_ion_index_everywhere(table):
     special = np.array([np.nan, np.inf, -np.inf, -5.0, 0.0, 1e30, 3e38], dtype=np.float32)
     mz = np.concatenate([rng.uniform(-1, 260, 200_000).astype(np.float32), at_bounds, special])
     want = table.ion_index(mz) + 1
-    np.testing.assert_array_equal(MzLookup.from_ranges(table).rows_of(mz), want)
+    lookup = MzLookup.from_ranges(table)
+    for threads in (1, 3):
+        np.testing.assert_array_equal(lookup.rows_of(mz, threads), want, err_msg=f"{threads} threads")
 
 
 def dense_square(pos, grid):
@@ -118,3 +124,19 @@ def test_blocks_come_out_in_block_order_whatever_the_ion_order_and_threads():
         coords = f.total.coords
         assert np.array_equal(coords, coords[np.lexsort(coords.T[::-1])])
         np.testing.assert_array_equal(coords, runs[0].total.coords)
+
+
+def test_default_threads_are_one_per_core_within_the_memory_budget(monkeypatch):
+    grid = Grid.covering(np.zeros(3), [100.0, 60.0, 140.0], 1.0)
+    per_field = field_bytes(grid, 1)
+    monkeypatch.setattr(grid_module, "available_cores", lambda: 4)
+    assert scatter_threads(grid, 3, 10**13) == 4
+    # t threads need (t + 1) * 3 + 2 fields: 14 fit 3 threads, not 4 (17); 8 fit one
+    assert scatter_threads(grid, 3, 14 * per_field) == 3
+    assert scatter_threads(grid, 3, 14 * per_field - 1) == 2
+    assert scatter_threads(grid, 3, 8 * per_field) == 1
+    assert scatter_threads(grid, 3, 1) == 1  # and check_budget refuses it
+
+
+def test_available_cores_is_this_process_s_share():
+    assert 1 <= available_cores() <= (os.cpu_count() or 1)

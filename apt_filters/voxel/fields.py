@@ -10,7 +10,7 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.voxel.grid import Grid, check_budget
+from apt_filters.voxel.grid import Grid, check_budget, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.sparse import SparseField
 from apt_filters.voxel.transfer import BlockAccumulator, check_kernel, kernel_reach
@@ -166,7 +166,7 @@ def voxelize(
     keep_unranged: bool | None = None,
     efficiency: float = 1.0,
     memory_budget: int | None = None,
-    threads: int = 1,
+    threads: int | None = None,
 ) -> Fields:
     """Voxelize ions into block-sparse count fields with a contribution transfer function.
 
@@ -197,10 +197,12 @@ def voxelize(
         Detection efficiency in (0, 1], for :meth:`Fields.density`.
     memory_budget : int, optional
         Bytes; default half the physical RAM. A grid whose fields could exceed it is refused up front.
-    threads : int
+    threads : int, optional
         Threads that scatter each chunk, each a contiguous share of its ions into its own pool
-        (merged at the end: ``threads`` pools of memory). Default 1: on the shared 2-core
-        benchmark machine (load 4-10) 2 threads did not run faster; use more on idle cores.
+        (merged at the end: ``threads`` pools of memory). Default: one per core this process
+        may use, fewer if the memory budget cannot hold a pool for each
+        (:func:`~apt_filters.voxel.grid.scatter_threads`). The fields do not depend on the
+        thread count beyond the rounding of the pools' merge.
 
     Returns
     -------
@@ -211,7 +213,8 @@ def voxelize(
     Peak memory: the pool of occupied blocks (up to 1.5× the occupied blocks × fields × 4 kB,
     2.5× for a moment while it grows, never more than the box's blocks; one pool per thread), its
     copy into the fields at the end, one chunk with its ranging (≈ 30 bytes per ion), and for the
-    gaussian second pass two dense float64 copies of one field's bounding box;
+    gaussian second pass (after the pools are released) two dense float64 copies of one field's
+    bounding box per thread, one field per thread at a time;
     :func:`~apt_filters.voxel.grid.check_budget` bounds it (measured: 10 M ions in a
     60 × 60 × 200 nm box, 8 species, see benchmarks/results_voxel.md).
     """
@@ -226,11 +229,13 @@ def voxelize(
         if iter(chunks) is chunks:
             raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
+    if threads is None:
+        threads = scatter_threads(grid, len(names), memory_budget)
     check_budget(grid, len(names), memory_budget, copies=int(threads) + 1)
     acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization, threads)
     lookup = MzLookup.from_ranges(ranges)
     for chunk in chunks:
-        acc.add(chunk.positions, lookup.rows_of(chunk.mz))  # rows int32: 4 bytes per ion
+        acc.add(chunk.positions, lookup.rows_of(chunk.mz, threads))  # rows int32: 4 bytes per ion
     matrix_counts = acc.row_count.astype(np.float64)
     coords, channels = acc.result()
     counts = {n: SparseField(grid, coords, d) for n, d in zip(names, channels)}

@@ -158,6 +158,24 @@ def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 
     )
 
 
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity masks on this OS
+        return os.cpu_count() or 1
+
+
+def scatter_threads(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 8) -> int:
+    """Default scatter threads: one per available core, as many as :func:`check_budget` allows
+    with one pool per thread (``copies = threads + 1``), at least 1."""
+    budget = default_budget() if budget is None else int(budget)
+    threads = available_cores()
+    while threads > 1 and field_bytes(grid, (threads + 1) * n_fields + 2, itemsize) > budget:
+        threads -= 1
+    return threads
+
+
 def _fitting_voxel(grid: Grid, n_fields: int, budget: int, itemsize: int) -> float:
     """Smallest voxel (to 2%) at which a grid over the same extent (+2 points a side for the
     re-aligned padding) holds ``n_fields`` fields within ``budget``."""

@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from apt_filters.io.ranges import RangeTable
+from apt_filters.voxel.threads import on_threads, shares
 
 N_BINS = 1 << 14
 """Bins of the lookup table (64 kB of int32: stays in cache)."""
@@ -60,11 +61,14 @@ class MzLookup:
         first = (np.searchsorted(lowers, starts, side="right") - 1).astype(np.int32)
         return cls(lowers, uppers, rows, float(base), float(1.0 / width), first)
 
-    def rows_of(self, mz: np.ndarray) -> np.ndarray:
-        """(N,) int32 ion row (ion species index + 1, 0 = unranged) of each m/z (Da)."""
+    def rows_of(self, mz: np.ndarray, threads: int = 1) -> np.ndarray:
+        """(N,) int32 ion row (ion species index + 1, 0 = unranged) of each m/z (Da), ``threads``
+        contiguous shares at once."""
+        mz = np.ascontiguousarray(mz)
         out = np.empty(len(mz), dtype=np.int32)
-        _rows_of(np.ascontiguousarray(mz), self.lowers, self.uppers, self.rows, self.base, self.inv_width,
-                 self.first, out)
+        on_threads(lambda a, b: _rows_of(mz[a:b], self.lowers, self.uppers, self.rows, self.base, self.inv_width,
+                                         self.first, out[a:b]),
+                   shares(len(mz), max(1, int(threads))))
         return out
 
 

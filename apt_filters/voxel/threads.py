@@ -1,0 +1,26 @@
+"""Running the voxel kernels on threads: they are nogil numba loops (or scipy filters), so Python
+threads run them in parallel without copies of their inputs."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+_EXECUTORS: dict[int, ThreadPoolExecutor] = {}
+
+
+def on_threads(fn, calls: list[tuple]) -> list:
+    """Results of ``fn(*args)`` for each args in ``calls``, one thread each (the caller's thread for a single call)."""
+    if len(calls) == 1:
+        return [fn(*calls[0])]
+    executor = _EXECUTORS.get(len(calls))
+    if executor is None:
+        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="voxel")
+    return list(executor.map(lambda args: fn(*args), calls))
+
+
+def shares(n: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` contiguous (start, stop) shares of ``range(n)``, as equal as can be."""
+    bounds = np.linspace(0, n, parts + 1).astype(np.int64)
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
