@@ -253,12 +253,13 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
 
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
-          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4,
-          full_every: int = 5) -> LloydResult:
+          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
 
-    Every ``full_every``-th assignment searches all generators; the others only the
-    neighbours of each sample's previous generator (see :func:`assign`).
+    The first assignment searches all generators; the others only the neighbours of each
+    sample's previous generator (see :func:`assign`). The returned labels belong to the
+    returned positions. On the test shapes and the 30k torus the final labels were identical
+    to a full search (previously every 5th step searched all generators, for the same result).
     """
     scenes = patch_scenes(mesh, features)
     permitted = allowed(features, gens)
@@ -269,8 +270,7 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
     labels = None
     for it in range(max_iter + 1):
-        local = labels is not None and it % full_every != 0
-        labels = assign(samples.points, group, gens.positions, permitted, labels if local else None)
+        labels = assign(samples.points, group, gens.positions, permitted, labels)
         d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
         energy.append(float((w * d2).sum()))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
