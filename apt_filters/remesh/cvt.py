@@ -208,76 +208,146 @@ def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
     return idx.numpy().astype(np.int64).reshape(len(queries), k)
 
 
-@njit(nogil=True, cache=True)
-def _nearest_candidate(points, sel, local, near, previous):
-    """For each sample ``sel[i]``: the nearest of the generators ``near[previous[i]]`` (local ids)."""
-    out = np.empty(len(sel), np.int64)
-    for i in range(len(sel)):
-        p = sel[i]
-        best, arg = np.inf, 0
-        for j in range(near.shape[1]):
-            c = near[previous[i], j]
-            d = (points[p, 0] - local[c, 0]) ** 2 + (points[p, 1] - local[c, 1]) ** 2 \
-                + (points[p, 2] - local[c, 2]) ** 2
-            if d < best:
-                best, arg = d, c
-        out[i] = arg
-    return out
+class _Candidates:
+    """Where each sample may look for its nearest generator, given its previous one.
 
-
-def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list,
-           previous: np.ndarray | None = None, k: int = 10) -> np.ndarray:
-    """Nearest allowed generator of every sample point, per group.
-
-    Without ``previous`` every sample is searched in an open3d KD-tree of the group's
-    generators. With ``previous`` labels (generators have moved a little since), only the
-    ``k`` generators nearest to each sample's previous generator are candidates: the KD-tree
-    then runs on the generators alone and the samples need k distances each (a compiled
-    loop, no (samples, k, 3) temporaries), several times cheaper; the new nearest generator is a Voronoi neighbour of the old one in practice.
+    Samples of group ``g`` whose generator was ``c`` look at the ``k`` generators of
+    ``allowed[g]`` nearest to ``c`` (an open3d KD-tree over the generators alone, rebuilt
+    every step). A generator may be allowed in several groups (curve and corner generators
+    border two or more patches), so its rows are found through a small CSR table
+    (``slot_*``: for each generator, its groups and its row in ``table``).
     """
+
+    def __init__(self, allowed: list, n_generators: int, k: int):
+        self.allowed, self.k = allowed, k
+        sizes = np.array([len(ids) for ids in allowed])
+        self.offset = np.r_[0, np.cumsum(sizes)]
+        gen = np.concatenate(allowed) if len(allowed) else np.empty(0, np.int64)
+        grp = np.repeat(np.arange(len(allowed)), sizes)
+        order = np.argsort(gen, kind="stable")
+        self.slot_group, self.slot_row = grp[order], np.arange(len(gen))[order]
+        self.slot_ptr = np.r_[0, np.cumsum(np.bincount(gen, minlength=n_generators))]
+        self._table, self._built, self._spacing, self.builds = None, None, 0.0, 0
+
+    def table(self, positions: np.ndarray) -> np.ndarray:
+        """(rows, k) global generator ids, -1 padded: the k nearest allowed generators of each slot.
+
+        Kept while no generator has moved more than a quarter of the generator spacing since it
+        was built (a k-nearest search over 160k generators costs about a second; rebuilt every
+        step it was a third of the Lloyd time of a 200k-face input).
+        """
+        if self._table is not None:
+            moved = np.sqrt(((positions - self._built) ** 2).sum(axis=1).max())
+            if moved <= 0.25 * self._spacing:
+                return self._table
+        out = np.full((self.offset[-1], self.k), -1, np.int64)
+        done = {}
+        for g, ids in enumerate(self.allowed):
+            if len(ids) == 0:
+                continue
+            if id(ids) not in done:  # a patch without curves shares its list between its two groups
+                kk = min(self.k, len(ids))
+                done[id(ids)] = ids[_knn(positions[ids], positions[ids], kk)]
+            rows = done[id(ids)]
+            out[self.offset[g]:self.offset[g + 1], :rows.shape[1]] = rows
+        first = out[:, 1][out[:, 1] >= 0]
+        owner = out[:, 0][out[:, 1] >= 0]
+        self._spacing = float(np.median(np.linalg.norm(positions[first] - positions[owner], axis=1))) if len(first) else 0.0
+        self._table, self._built = out, positions.copy()
+        self.builds += 1
+        return out
+
+
+@njit(nogil=True, cache=True)
+def _lloyd_pass(points, weights, group, previous, positions, slot_ptr, slot_group, slot_row, table):
+    """Nearest candidate generator of every sample, and the cells' weighted mass, first moments and energy.
+
+    One pass over the samples with no temporaries of their size: labels (f,), mass (n,),
+    moments (n, 3), energy (sum of w·d²).
+    """
+    n = len(positions)
+    labels = np.empty(len(points), np.int64)
+    mass = np.zeros(n)
+    moment = np.zeros((n, 3))
+    energy = 0.0
+    for i in range(len(points)):
+        c = previous[i]
+        row = -1
+        for s in range(slot_ptr[c], slot_ptr[c + 1]):
+            if slot_group[s] == group[i]:
+                row = slot_row[s]
+                break
+        best, arg = np.inf, c
+        for j in range(table.shape[1]):
+            g = table[row, j]
+            if g < 0:
+                break
+            d = (points[i, 0] - positions[g, 0]) ** 2 + (points[i, 1] - positions[g, 1]) ** 2 \
+                + (points[i, 2] - positions[g, 2]) ** 2
+            if d < best:
+                best, arg = d, g
+        labels[i] = arg
+        w = weights[i]
+        mass[arg] += w
+        moment[arg, 0] += w * points[i, 0]
+        moment[arg, 1] += w * points[i, 1]
+        moment[arg, 2] += w * points[i, 2]
+        energy += w * best
+    return labels, mass, moment, energy
+
+
+def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
+    """Nearest allowed generator of every sample point, per group (open3d KD-tree of each group's generators)."""
     labels = np.full(len(points), -1)
     order = np.argsort(group, kind="stable")
     bounds = np.searchsorted(group[order], np.arange(len(allowed) + 1))
-    lut = np.full(len(positions), -1)
     for g, ids in enumerate(allowed):
         sel = order[bounds[g]:bounds[g + 1]]
-        if len(sel) == 0 or len(ids) == 0:
-            continue
-        if previous is None:
+        if len(sel) and len(ids):
             labels[sel] = ids[_knn(positions[ids], points[sel], 1)[:, 0]]
-            continue
-        lut[ids] = np.arange(len(ids))
-        near = _knn(positions[ids], positions[ids], min(k, len(ids)))
-        labels[sel] = ids[_nearest_candidate(points, sel, positions[ids], near, lut[previous[sel]])]
     return labels
 
 
+def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
+    """A nearby allowed generator for every sample: the nearest one of the first sample of each run of
+    samples with the same input face and group (refined faces are stored by input face), so the
+    KD-tree answers one query per input face instead of 4^levels."""
+    key = samples.parent * (len(allowed) + 1) + group
+    first = np.r_[True, key[1:] != key[:-1]]
+    rep = np.flatnonzero(first)
+    return assign(samples.points[rep], group[rep], positions, allowed)[np.cumsum(first) - 1]
+
+
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
-          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4) -> LloydResult:
+          curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4, k: int = 10) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
 
-    The first assignment searches all generators; the others only the neighbours of each
-    sample's previous generator (see :func:`assign`). The returned labels belong to the
-    returned positions. On the test shapes and the 30k torus the final labels were identical
-    to a full search (previously every 5th step searched all generators, for the same result).
+    Each step assigns every sample to the nearest of ``k`` candidates: the allowed generators
+    nearest its previous generator (the new nearest generator is a Voronoi neighbour of the old
+    one, since generators move little), and sums the cells' masses and moments in the same
+    compiled pass. The first step starts from the nearest generator of one sample per input
+    face (:func:`_first_labels`). On the test shapes and the 30k torus the final labels were
+    identical to a full KD-tree search (previously every 5th step searched all generators for
+    every sample). The returned labels belong to the returned positions.
     """
     scenes = patch_scenes(mesh, features)
     permitted = allowed(features, gens)
+    candidates = _Candidates(permitted, len(gens.positions), k)
     w = samples.weights * density
     o3d = open3d()
     energy: list = []
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
-    labels = None
+    labels = _first_labels(samples, group, gens.positions, permitted)
     for it in range(max_iter + 1):
-        labels = assign(samples.points, group, gens.positions, permitted, labels)
-        d2 = ((samples.points - gens.positions[labels]) ** 2).sum(axis=1)
-        energy.append(float((w * d2).sum()))
+        labels, mass, moment, e = _lloyd_pass(samples.points, w, group, labels, gens.positions, candidates.slot_ptr,
+                                              candidates.slot_group, candidates.slot_row,
+                                              candidates.table(gens.positions))
+        energy.append(float(e))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
             break
-        mass = np.bincount(labels, w, minlength=len(gens.positions))
-        centroid = np.stack([np.bincount(labels, w * samples.points[:, k], minlength=len(mass)) for k in range(3)], 1)
         has = mass > 0
+        centroid = moment.copy()
         centroid[has] /= mass[has, None]
         for p, ids in enumerate(patch_ids):
             ids = ids[has[ids]]
