@@ -6,7 +6,8 @@ on one patch, projected back onto it after each centroid step). A sample of patc
 only belong to a generator of ``p`` or of a curve or corner bounding ``p``, so Voronoi cells
 never straddle a sharp edge and the dual mesh has edges along every feature curve.
 
-Peak memory: a few arrays of the number of samples (nearest-neighbour indices and distances).
+Peak memory: the labels of the samples and a few arrays of the number of generators (the
+candidate table: 10 int64 per generator and group it may serve).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ The input is refined by midpoint subdivision until (nearly) no edge is longer th
 normal and the id of the input face they lie in). Keeping the refined mesh, not only its
 points, lets the restricted Voronoi cells be read off its connectivity later.
 
-Peak memory: about 200 bytes per refined face (pymeshlab's copy plus ours).
+Peak memory: a few hundred bytes per refined face (the last split's temporaries plus the result).
 """
 
 from __future__ import annotations
