@@ -10,6 +10,7 @@ voxels.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -46,10 +47,11 @@ def acvd(mesh: TriMesh, edge: float) -> TriMesh:
 
 
 METHODS = {"ours (CVT)": ours, "pyacvd": acvd, "pymeshlab isotropic": meshlab}
+MAX_INTERSECTION_FACES = 50_000  # open3d's self-intersection test is all-pairs: minutes at 200k
 
 
 def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sharp: bool) -> str:
-    q = quality.assess(out, mesh, 200_000)
+    q = quality.assess(out, mesh, 200_000, intersections=mesh.n_faces <= MAX_INTERSECTION_FACES)
     ref = quality.topology(mesh)
     topo_ok = (q.components, q.boundary_loops, q.genus) == (ref.components, ref.boundary_loops, ref.genus)
     f1 = ""
@@ -59,16 +61,18 @@ def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sha
         f1 = f"{quality.edge_f1(samples, reference, 0.1):.3f}"
     return (f"| {name} | {seconds:.2f} | {seconds / base:.2f} | {q.faces} | {100 * (1 - q.frac_ge_30):.2f} | "
             f"{q.min_angle:.1f} | {q.mean_q:.3f} | {q.hausdorff:.3f} | {q.non_manifold_edges}/{q.non_manifold_vertices} | "
-            f"{q.self_intersections} | {'yes' if topo_ok else 'NO'} | {f1} |")
+            f"{q.self_intersections if q.self_intersections >= 0 else 'not run'} | {'yes' if topo_ok else 'NO'} | {f1} |")
 
 
-def bench(label: str, mesh: TriMesh, edge: float, sharp: bool) -> list[str]:
-    lines = [f"\n**{label}**: {mesh.n_faces} input triangles, target edge {edge} voxel\n",
+def bench(label: str, mesh: TriMesh, edge: float, sharp: bool, methods: list[str]) -> list[str]:
+    lines = [f"\n**{label}**: {mesh.n_faces} input triangles, target edge {edge} voxel, load average "
+             f"{os.getloadavg()[0]:.2f} at the start\n",
              "| method | time s | time / ours | triangles | % min angle < 30° | min angle ° | mean Q | "
              "Hausdorff (voxel) | non-manifold e/v | self-intersections | topology kept | edge F1 |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     base = None
-    for name, method in METHODS.items():
+    for name in methods:
+        method = METHODS[name]
         t = time.perf_counter()
         out = method(mesh, edge)
         seconds = time.perf_counter() - t
@@ -78,10 +82,38 @@ def bench(label: str, mesh: TriMesh, edge: float, sharp: bool) -> list[str]:
     return lines
 
 
+def profile(mesh: TriMesh, edge: float, top: int) -> None:
+    """Ours alone: wall time per phase, peak RSS and the ``top`` functions of cProfile by own time."""
+    import cProfile
+    import pstats
+    import resource
+
+    profiler = cProfile.Profile()
+    t = time.perf_counter()
+    result = profiler.runcall(remesh, mesh, edge_length=edge)
+    wall = time.perf_counter() - t
+    t = time.perf_counter()
+    q = quality.assess(result.mesh, mesh, 200_000, intersections=mesh.n_faces <= MAX_INTERSECTION_FACES)
+    phases = {**result.timings, "quality (assess)": time.perf_counter() - t}
+    print(f"\n{mesh.n_faces} input triangles -> {result.mesh.n_faces}, {result.iterations} Lloyd steps, "
+          f"remesh {wall:.2f} s (under cProfile), load {os.getloadavg()[0]:.2f}, peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.2f} GB")
+    print(f"mean Q {q.mean_q:.4f}, % < 30° {100 * (1 - q.frac_ge_30):.2f}, Hausdorff {q.hausdorff:.3f}\n")
+    print("| phase | s |\n|---|---:|")
+    for name, seconds in phases.items():
+        print(f"| {name} | {seconds:.2f} |")
+    pstats.Stats(profiler).sort_stats("tottime").print_stats(top)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a 30k-triangle torus instead of 200k")
+    parser.add_argument("--profile", action="store_true",
+                        help="profile ours alone on the torus (phase wall times, cProfile) instead of the comparison")
+    parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:],
+                        help="leave a peer out (pyacvd takes minutes at 200k triangles); repeatable")
     args = parser.parse_args(argv)
+    methods = [name for name in METHODS if name not in args.without]
     # imports first, so that no method's time holds a library's import (open3d alone takes seconds)
     import pyacvd  # noqa: F401
     import pymeshlab  # noqa: F401
@@ -90,8 +122,12 @@ def main(argv=None) -> None:
 
     open3d()
     torus = shapes.torus(26.0, 10.0) if args.quick else shapes.torus(66.0, 27.0)
-    lines = bench("marching-cubes torus", torus, 1.0, sharp=False)
-    lines += bench("box minus sphere (exact sharp edges, boolean slivers)", shapes.box_minus_sphere(), 1.0, sharp=True)
+    if args.profile:
+        profile(torus, 1.0, 25)
+        return
+    lines = bench("marching-cubes torus", torus, 1.0, sharp=False, methods=methods)
+    lines += bench("box minus sphere (exact sharp edges, boolean slivers)", shapes.box_minus_sphere(), 1.0, sharp=True,
+                   methods=methods)
     print("\n".join(lines))
 
 

@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from apt_filters.contour.metrics import face_quality
+from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import cvt, extract, quality, remesh, repair
@@ -32,17 +33,11 @@ def results():
     return get
 
 
-# issue target: mean Q >= 0.9. Reached on the smooth shapes; on the two with sharp features
-# the measured figure is 0.898 (near feature curves and acute corners triangles cannot all be
-# equilateral), so those keep the honest 0.895 bound and the shortfall is reported.
-MEAN_Q = {"rotated_box": 0.895, "box_minus_sphere": 0.895}
-
-
 @pytest.mark.parametrize("name", SHAPES)
 def test_triangle_quality(results, name):
     _, _, q = results(name)
     assert q.frac_ge_30 >= 0.995, q
-    assert q.mean_q >= MEAN_Q.get(name, 0.9), q
+    assert q.mean_q >= 0.9, q  # the issue's target, sharp shapes included
 
 
 @pytest.mark.parametrize("name", ["sphere", "torus", "open_sphere", "rotated_box", "box_minus_sphere"])
@@ -221,3 +216,26 @@ def test_quality_measures_on_known_triangles():
     assert q[1] < 0.05
     assert np.allclose(angles[0], 60.0)
     assert quality.topology(tri).boundary_loops == 1
+
+
+def test_self_intersections_ignore_separated_coplanar_triangles():
+    # two triangles of one face of the rotated box (a remesh output), 0.8 nm apart in their
+    # plane: open3d's triangle-triangle test reports them as intersecting
+    gap = np.array([[1.9187254905700684, -2.125217914581299, 7.3052754402160645],
+                    [2.655438184738159, -1.7179865837097168, 8.028884887695312],
+                    [1.9861036539077759, -1.7230888605117798, 8.237363815307617],
+                    [2.5706634521484375, -2.364898920059204, 6.521633148193359],
+                    [3.739675998687744, -2.145174980163574, 6.6577982902526855],
+                    [3.092186689376831, -1.9393960237503052, 7.359521389007568]])
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    o3d = open3d()
+    legacy = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(gap), o3d.utility.Vector3iVector(faces.astype(np.int32)))
+    assert len(np.asarray(legacy.get_self_intersecting_triangles())) == 1  # the false report this guards against
+    assert quality.self_intersections(TriMesh(gap, faces)) == 0
+    # moved into the first one's plane over it, and crossing it: both count
+    centre_shift = gap[:3].mean(axis=0) - gap[3:].mean(axis=0)
+    overlapping = np.vstack([gap[:3], gap[3:] + centre_shift])
+    assert quality.self_intersections(TriMesh(overlapping, faces)) == 1
+    normal = np.cross(gap[1] - gap[0], gap[2] - gap[0])
+    crossing = np.vstack([gap[:3], gap[:3].mean(axis=0) + np.array([normal, -normal, np.cross(normal, gap[1] - gap[0])])])
+    assert quality.self_intersections(TriMesh(crossing, faces)) == 1

@@ -87,6 +87,21 @@ def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -
     return fans[int(np.argmax(score))]
 
 
+def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """:func:`triangulate_polygon` for many quadrilaterals (q, 4) at once: (2q, 3) faces.
+
+    Of the two diagonals, the one between two ``pinned`` generators wins, then the one whose
+    two triangles have the larger smallest angle (the diagonal 0-2 on ties).
+    """
+    first = np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1)  # diagonal 0-2
+    second = np.stack([quads[:, [1, 2, 3]], quads[:, [1, 3, 0]]], axis=1)  # diagonal 1-3
+    both = np.concatenate([first, second]).reshape(-1, 3)
+    angles = face_quality(TriMesh(positions, both))[0].min(axis=1).reshape(2, -1, 2).min(axis=2)
+    angles[0] += 180.0 * (pinned[quads[:, 0]] & pinned[quads[:, 2]])
+    angles[1] += 180.0 * (pinned[quads[:, 1]] & pinned[quads[:, 3]])
+    return np.where((angles[1] > angles[0])[:, None, None], second, first).reshape(-1, 3)
+
+
 def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
                pinned: np.ndarray) -> tuple[np.ndarray, int]:
     """Faces (k, 3) of the restricted Delaunay triangulation, and the number of skipped Voronoi vertices.
@@ -115,8 +130,11 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     cstart = np.r_[0, np.cumsum(counts)[:-1]]
     tri = np.flatnonzero(counts == 3)
     out = [np.stack([cl[cstart[tri]], cl[cstart[tri] + 1], cl[cstart[tri] + 2]], 1)]
-    skipped = 0
-    for g in np.flatnonzero(counts > 3):
+    quads = cl[cstart[counts == 4, None] + np.arange(4)]
+    repeated = (quads[:, [0, 0, 0, 1, 1, 2]] == quads[:, [1, 2, 3, 2, 3, 3]]).any(axis=1)
+    out.append(triangulate_quads(quads[~repeated], positions, pinned))
+    skipped = int(repeated.sum())
+    for g in np.flatnonzero(counts > 4):
         poly = cl[cstart[g]:cstart[g] + counts[g]].tolist()
         if len(set(poly)) != len(poly):
             skipped += 1

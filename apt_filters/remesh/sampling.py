@@ -1,11 +1,11 @@
 """Dense area-weighted samples of the input surface, on a conforming refinement of it.
 
-The input is refined by midpoint subdivision (pymeshlab) until no edge is longer than
+The input is refined by midpoint subdivision until (nearly) no edge is longer than
 ``max_edge``; the refined faces' centroids are the samples (weight = area, with the face
 normal and the id of the input face they lie in). Keeping the refined mesh, not only its
 points, lets the restricted Voronoi cells be read off its connectivity later.
 
-Peak memory: about 200 bytes per refined face (pymeshlab's copy plus ours).
+Peak memory: a few hundred bytes per refined face (the last split's temporaries plus the result).
 """
 
 from __future__ import annotations
@@ -45,23 +45,6 @@ class Samples:
     weights: np.ndarray
     normals: np.ndarray
     parent: np.ndarray
-    levels: int = 0
-
-    def coarser(self) -> "Samples":
-        """The samples of the previous subdivision level (groups of four merged), without a mesh.
-
-        Lloyd steps run on these (four times fewer nearest-neighbour queries); the final
-        labelling uses the full resolution.
-        """
-        if self.levels == 0:
-            return self
-        w = self.weights.reshape(-1, 4)
-        total = w.sum(axis=1)
-        safe = np.where(total > 0, total, 1.0)[:, None]
-        points = (self.points.reshape(-1, 4, 3) * w[..., None]).sum(axis=1) / safe
-        normals = (self.normals.reshape(-1, 4, 3) * w[..., None]).sum(axis=1) / safe
-        return Samples(self.vertices, np.empty((0, 3), np.int64), points, total, normals,
-                       self.parent[::4], self.levels - 1)
 
 
 def closest_points(mesh: TriMesh, points: np.ndarray) -> dict:
@@ -105,4 +88,4 @@ def refine(mesh: TriMesh, max_edge: float, quantile: float = 0.9) -> Samples:
     cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     normals = np.divide(cross, area2[:, None], out=np.zeros_like(cross), where=area2[:, None] > 0)
-    return Samples(vertices, faces, v.mean(axis=1), area2 / 2, normals, parent, levels)
+    return Samples(vertices, faces, v.mean(axis=1), area2 / 2, normals, parent)
