@@ -1,10 +1,11 @@
 """Remesher benchmark: ours vs pyacvd (ACVD clustering) vs pymeshlab isotropic explicit remeshing.
 
-Run: ``/work/venv/bin/python -m benchmarks.bench_remesh [--quick]``. All three remesh the same
+Run: ``/work/venv/bin/python -m benchmarks.bench_remesh [--quick] [--dc exact|eno]``. All three remesh the same
 marching-cubes torus (about 200k triangles; 30k with ``--quick``) to the same target edge
 length (1 voxel), side by side in one run; a second, sharp case (a box with a sphere carved
-out, exact edges) checks feature survival by edge F1. Prints a markdown table; lengths in
-voxels.
+out, exact edges) checks feature survival by edge F1. ``--dc`` runs the issue's own inputs
+instead: the analytic shapes contoured by our dual contouring, with edge F1 against the analytic
+edges. Prints a markdown table; lengths in voxels.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ METHODS = {"ours (CVT)": ours, "pyacvd": acvd, "pymeshlab isotropic": meshlab}
 MAX_INTERSECTION_FACES = 50_000  # open3d's self-intersection test is all-pairs: minutes at 200k
 
 
-def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sharp: bool) -> str:
+def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sharp: bool, truth: str = "") -> str:
     q = quality.assess(out, mesh, 200_000, intersections=mesh.n_faces <= MAX_INTERSECTION_FACES)
     ref = quality.topology(mesh)
     topo_ok = (q.components, q.boundary_loops, q.genus) == (ref.components, ref.boundary_loops, ref.genus)
@@ -59,12 +60,14 @@ def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sha
         reference = quality.sample_edges(mesh.vertices, quality.feature_edges(mesh), 0.1)
         samples = quality.sample_edges(out.vertices, quality.feature_edges(out), 0.1)
         f1 = f"{quality.edge_f1(samples, reference, 0.1):.3f}"
+    if truth:  # against the analytic shape: input -> output
+        f1 = f"{shapes.truth_edge_f1(mesh, truth):.3f} -> {shapes.truth_edge_f1(out, truth):.3f}"
     return (f"| {name} | {seconds:.2f} | {seconds / base:.2f} | {q.faces} | {100 * (1 - q.frac_ge_30):.2f} | "
             f"{q.min_angle:.1f} | {q.mean_q:.3f} | {q.hausdorff:.3f} | {q.non_manifold_edges}/{q.non_manifold_vertices} | "
             f"{q.self_intersections if q.self_intersections >= 0 else 'not run'} | {'yes' if topo_ok else 'NO'} | {f1} |")
 
 
-def bench(label: str, mesh: TriMesh, edge: float, sharp: bool, methods: list[str]) -> list[str]:
+def bench(label: str, mesh: TriMesh, edge: float, sharp: bool, methods: list[str], truth: str = "") -> list[str]:
     lines = [f"\n**{label}**: {mesh.n_faces} input triangles, target edge {edge} voxel, load average "
              f"{os.getloadavg()[0]:.2f} at the start\n",
              "| method | time s | time / ours | triangles | % min angle < 30° | min angle ° | mean Q | "
@@ -77,7 +80,7 @@ def bench(label: str, mesh: TriMesh, edge: float, sharp: bool, methods: list[str
         out = method(mesh, edge)
         seconds = time.perf_counter() - t
         base = base or seconds
-        lines.append(row(name, mesh, out, seconds, base, sharp))
+        lines.append(row(name, mesh, out, seconds, base, sharp, truth))
         print(lines[-1], flush=True)
     return lines
 
@@ -112,6 +115,9 @@ def main(argv=None) -> None:
                         help="profile ours alone on the torus (phase wall times, cProfile) instead of the comparison")
     parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:],
                         help="leave a peer out (pyacvd takes minutes at 200k triangles); repeatable")
+    parser.add_argument("--dc", choices=["exact", "eno"],
+                        help="instead: the issue's dual-contouring meshes of the analytic shapes (1 nm voxels, "
+                             "Hermite normals exact or ENO); edge F1 against the analytic edges, input -> output")
     args = parser.parse_args(argv)
     methods = [name for name in METHODS if name not in args.without]
     # imports first, so that no method's time holds a library's import (open3d alone takes seconds)
@@ -121,6 +127,14 @@ def main(argv=None) -> None:
     from apt_filters.core.deps import open3d
 
     open3d()
+    if args.dc:
+        lines = []
+        for name in shapes.DC_SHAPES:
+            mesh = shapes.dual_contoured(name, exact_normals=args.dc == "exact")
+            lines += bench(f"{name}, dual contouring ({args.dc} normals)", mesh, 1.0, sharp=False, methods=methods,
+                           truth=name if name in ("rotated_box", "box_minus_sphere", "cylinder") else "")
+        print("\n".join(lines))
+        return
     torus = shapes.torus(26.0, 10.0) if args.quick else shapes.torus(66.0, 27.0)
     if args.profile:
         profile(torus, 1.0, 25)
