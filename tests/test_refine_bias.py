@@ -78,3 +78,15 @@ def test_refinement_started_on_the_truth_keeps_cube_edges_with_the_mesh_distance
     assert abs(_edge_bias(cube, mesh)) < 0.015
     assert _edge_bias(cube, tangent) < -0.025
     assert mesh.signed_volume() / cube.volume() - 1 > -0.03 > tangent.signed_volume() / cube.volume() - 1
+
+
+def test_contrast_weights_leave_out_elements_whose_plateaus_differ_only_by_noise():
+    from apt_filters.refine import contrast_weights
+
+    elements = ["Al", "Cr", "Ni", "B"]
+    inside, outside = np.array([0.20, 0.05, 0.7445, 0.0055]), np.array([0.10, 0.15, 0.745, 0.005])
+    # B from ~11 atoms inside: 0.55 vs 0.50 at.% is noise, and B's interface shell would bias the crossing
+    w = contrast_weights(inside, outside, elements, "Al", "contrast", 2000.0, 30000.0)
+    assert w[0] > 0 > w[1] and w[2] == 0 and w[3] == 0
+    exact = contrast_weights(inside, outside, elements, "Al", "contrast")  # plateaus known exactly: all count
+    assert exact[3] > 0.05 and exact[2] != 0
