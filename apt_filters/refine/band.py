@@ -1,11 +1,15 @@
-"""Ions near a mesh: signed distance along the nearest vertex's normal, binned per vertex.
+"""Ions near a mesh: signed distance to the mesh around the nearest vertex, binned per vertex.
 
-The distance of an ion is ``(p - v) . n_v`` for its nearest vertex ``v`` (normal ``n_v``,
-pointing out of the region above the iso-value), as Felfer's toolbox measures proxigrams.
-Binned against that distance, each vertex owns a short 1D composition profile across the
-interface made of the ions of its Voronoi patch; pooling the profiles of nearby vertices gives
-enough ions per bin while each ion keeps the distance to its own local surface, so pooling
-adds no curvature bias.
+Each ion is assigned to its nearest mesh vertex ``v`` and gets its signed distance to the faces
+around ``v`` (closest point on each triangle of the fan; the sign from the pseudo-normal there),
+which is its exact signed distance to the mesh wherever the closest surface point lies in that
+fan (every ion within 1 nm of a convex polyhedral mesh). The offset along ``v``'s normal,
+``(p - v) . n_v``, as Felfer's toolbox measures proxigrams, is kept as ``distance="tangent"``:
+on a convex surface the faces lie below ``v``'s tangent plane, so it places the ions' interface
+inside the mesh. Binned against the distance, each vertex owns a short 1D composition profile
+across the interface made of the ions of its Voronoi patch; pooling the profiles of nearby
+vertices gives enough ions per bin while each ion keeps the distance to its own local surface,
+so pooling adds no curvature bias.
 
 :class:`NearIons` holds the ions near a mesh (selected chunk by chunk through a cell grid, so
 10^8-10^9 memory-mapped ions are read once in bounded memory) and keeps their nearest vertices

@@ -4,15 +4,20 @@ Method
 ------
 Each outer iteration:
 
-1. Every ion within reach is assigned to its nearest vertex and gets a signed distance ``d``
-   along that vertex's normal (:mod:`apt_filters.refine.band`). The ions within reach are
+1. Every ion within reach is assigned to its nearest vertex and gets its signed distance ``d``
+   to the faces around that vertex, i.e. to the mesh itself (:mod:`apt_filters.refine.band`;
+   not the offset along the vertex normal: on a convex surface the faces lie below the vertex's
+   tangent plane, so that offset sees the interface inside the mesh and the vertices walk
+   inward, -0.02 nm along cube edges, -0.03 nm at corners, and the faces' chord deficit stays).
+   The ions within reach are
    selected once, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`), and their nearest
    vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
-2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface) give the
-   score weights (:func:`~apt_filters.refine.composition.contrast_weights`) and the score's two
-   levels ``s_in`` and ``s_out``; they are measured again until the surface is near the
-   interface (``far_iterations + 1``), then kept, and the ions narrowed to those that later
-   profiles can reach.
+2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
+   :data:`PLATEAU_WINDOW`) give the score weights
+   (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
+   differ significantly) and the score's two levels ``s_in`` and ``s_out``; measured again in
+   every iteration (plateaus measured against a surface still inside put interface ions into the
+   outside window).
 3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
    is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
    midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
@@ -20,7 +25,7 @@ Each outer iteration:
    is unbiased for any symmetric blur, and is exact for a step; bins without ions take the step's
    value on their side.
 4. The offsets are clamped to ``max_step``, smoothed ``smoothing`` times by the umbrella
-   Laplacian (the regularisation: noise cannot roughen the surface faster than neighbours
+   Laplacian (bilateral, with normals averaged over ``normal_smoothing`` passes; the regularisation: noise cannot roughen the surface faster than neighbours
    agree), and each vertex moves along its normal; a tangential relaxation then evens out the
    triangles without changing the shape.
 
@@ -284,6 +289,15 @@ def refine_surface(
     subdivisions : int
         Midpoint subdivisions of the input first (:func:`~apt_filters.refine.subdivide.subdivide`):
         each one halves the edge length, so that edges and corners can form.
+    distance : {"mesh", "tangent"}
+        Each ion's profile coordinate: its signed distance to the faces around its nearest vertex,
+        or its offset along that vertex's normal (biased inward on convex surfaces; for comparison).
+    normal_smoothing : int
+        Umbrella passes over the vertex normals used for the bilateral weights and the moves: the
+        raw normals of a marching-cubes mesh vary from vertex to vertex, which keeps its roughness.
+    relax_start : int
+        Rounds of tangential relaxation (weight 0.5, guarded) of the subdivided input: fewer sliver
+        triangles, whose flips the fold guard would otherwise cancel vertex by vertex.
 
     Returns
     -------
