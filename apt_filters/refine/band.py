@@ -221,7 +221,8 @@ class NearIons:
         """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances.
 
         ``distance="mesh"``: each ion's signed distance to the faces around its nearest vertex
-        (the mesh itself, :func:`_fan_offsets`); ``"tangent"``: its offset along that vertex's
+        (the mesh itself, :func:`_fan_offsets`; beyond :data:`EXACT` nm, where ions only count in
+        the outer part of the plateau windows, their offset along the normal); ``"tangent"``: its offset along that vertex's
         normal, i.e. from the vertex's tangent plane. On a convex surface the tangent plane lies
         outside the faces (by ``rho * h / 2R`` at a lateral offset ``rho`` with edges ``h``, and
         by ``rho * sin(theta / 2)`` near an edge of dihedral ``theta``), so ``"tangent"`` sees
@@ -238,8 +239,8 @@ class NearIons:
             self.assigned = vertices.copy()
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
-            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, d2,
-                         signed)
+            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, EXACT,
+                         d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -278,73 +279,90 @@ class Fan:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Closest point to p on triangle abc (Ericson, Real-Time Collision Detection 5.1.5), as (x, y, z)."""
+    """Closest point to p on triangle abc (Ericson, Real-Time Collision Detection 5.1.5), as (x, y, z, inner):
+    ``inner`` is True when it lies inside the triangle (not on an edge or corner)."""
     abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
     apx, apy, apz = px - ax, py - ay, pz - az
     d1, d2 = abx * apx + aby * apy + abz * apz, acx * apx + acy * apy + acz * apz
     if d1 <= 0.0 and d2 <= 0.0:
-        return ax, ay, az
+        return ax, ay, az, False
     bpx, bpy, bpz = px - bx, py - by, pz - bz
     d3, d4 = abx * bpx + aby * bpy + abz * bpz, acx * bpx + acy * bpy + acz * bpz
     if d3 >= 0.0 and d4 <= d3:
-        return bx, by, bz
+        return bx, by, bz, False
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         t = d1 / (d1 - d3)
-        return ax + t * abx, ay + t * aby, az + t * abz
+        return ax + t * abx, ay + t * aby, az + t * abz, False
     cpx, cpy, cpz = px - cx, py - cy, pz - cz
     d5, d6 = abx * cpx + aby * cpy + abz * cpz, acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
-        return cx, cy, cz
+        return cx, cy, cz, False
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
         t = d2 / (d2 - d6)
-        return ax + t * acx, ay + t * acy, az + t * acz
+        return ax + t * acx, ay + t * acy, az + t * acz, False
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
         t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz)
+        return bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz), False
     s = 1.0 / (va + vb + vc)
     v, w = vb * s, vc * s
-    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _face_normal(vertices, q, a, b):
+    """Unit normal of the face (q, a, b) (q a point, a and b vertex indices) as (x, y, z); zeros if degenerate."""
+    ux, uy, uz = vertices[a, 0] - q[0], vertices[a, 1] - q[1], vertices[a, 2] - q[2]
+    wx, wy, wz = vertices[b, 0] - q[0], vertices[b, 1] - q[1], vertices[b, 2] - q[2]
+    fx, fy, fz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+    length = np.sqrt(fx * fx + fy * fy + fz * fz)
+    if length == 0.0:
+        return 0.0, 0.0, 0.0
+    return fx / length, fy / length, fz / length
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
-    from the closest point along the pseudo-normal there (sum of the unit normals of the fan faces sharing it)."""
+    from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
+    unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
+    from the vertex's tangent plane keep their offset along its normal."""
     for i in prange(points.shape[0]):
         v = vertex[i]
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        qx, qy, qz = vertices[v, 0], vertices[v, 1], vertices[v, 2]
-        d2[i] = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
-        best, bx_, by_, bz_ = np.inf, qx, qy, qz
+        q = vertices[v]
+        d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
+        tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
+        if abs(tangent) > exact:
+            signed[i] = tangent
+            continue
+        best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
         for k in range(fan_ptr[v], fan_ptr[v + 1]):
             a, b = fan_a[k], fan_b[k]
-            cx, cy, cz = _closest_on_triangle(px, py, pz, qx, qy, qz, vertices[a, 0], vertices[a, 1], vertices[a, 2],
-                                              vertices[b, 0], vertices[b, 1], vertices[b, 2])
+            cx, cy, cz, on_face = _closest_on_triangle(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+                                                       vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
             d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
             if d < best:
-                best, bx_, by_, bz_ = d, cx, cy, cz
-        if best == np.inf:
-            signed[i] = (px - qx) * normals[v, 0] + (py - qy) * normals[v, 1] + (pz - qz) * normals[v, 2]
+                best, bx_, by_, bz_, best_k, inner = d, cx, cy, cz, k, on_face
+        if best_k < 0:
+            signed[i] = tangent
             continue
-        nx = ny = nz = 0.0
-        tol = 1e-18 + 1e-12 * best
-        for k in range(fan_ptr[v], fan_ptr[v + 1]):
-            a, b = fan_a[k], fan_b[k]
-            ax, ay, az = vertices[a, 0], vertices[a, 1], vertices[a, 2]
-            bx, by, bz = vertices[b, 0], vertices[b, 1], vertices[b, 2]
-            cx, cy, cz = _closest_on_triangle(px, py, pz, qx, qy, qz, ax, ay, az, bx, by, bz)
-            if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
-                ux, uy, uz = ax - qx, ay - qy, az - qz
-                wx, wy, wz = bx - qx, by - qy, bz - qz
-                fx, fy, fz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-                length = np.sqrt(fx * fx + fy * fy + fz * fz)
-                if length > 0.0:
-                    nx += fx / length
-                    ny += fy / length
-                    nz += fz / length
+        if inner:
+            nx, ny, nz = _face_normal(vertices, q, fan_a[best_k], fan_b[best_k])
+        else:
+            nx = ny = nz = 0.0
+            tol = 1e-18 + 1e-12 * best
+            for k in range(fan_ptr[v], fan_ptr[v + 1]):
+                a, b = fan_a[k], fan_b[k]
+                cx, cy, cz, _ = _closest_on_triangle(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+                                                     vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
+                if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
+                    fx, fy, fz = _face_normal(vertices, q, a, b)
+                    nx += fx
+                    ny += fy
+                    nz += fz
         side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
         signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
 
