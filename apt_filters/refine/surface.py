@@ -26,7 +26,8 @@ Each outer iteration:
    value on their side.
 4. The offsets are clamped to ``max_step``, smoothed ``smoothing`` times by the umbrella
    Laplacian (bilateral, with normals averaged over ``normal_smoothing`` passes; the regularisation: noise cannot roughen the surface faster than neighbours
-   agree), and each vertex moves along its normal; a tangential relaxation then evens out the
+   agree; fewer passes at creases, so that cube edges and corners come out), and each vertex moves along its normal
+   (full steps for ``full_steps`` iterations, then damped); a tangential relaxation then evens out the
    triangles without changing the shape.
 
 Every move is guarded: a face whose normal would turn by more than 90° in one move, or an
@@ -401,7 +402,7 @@ def refine_surface(
         at_crease = offset
         for k in range(smoothing):
             offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
-            if k + 1 == crease_smoothing:
+            if k + 1 == min(crease_smoothing, smoothing):
                 at_crease = offset
         # fewer passes where the surface bends sharply: a cube's corner needs a larger step than its faces
         offset = np.where(crease, at_crease, offset)
