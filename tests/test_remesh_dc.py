@@ -66,8 +66,8 @@ def test_edge_f1_within_0_05_of_input(results, name):
 
 
 # With the default ENO Hermite normals the bend at a rim is spread over two edges under 40 deg
-# in places; the gaps this leaves in the creases are bridged, so every analytic edge and corner
-# is found (before the bridges: 1 curve on the box, none on the box minus sphere).
+# in places; with ``bridge_gaps`` the gaps this leaves in the creases are bridged, so every
+# analytic edge and corner is found (without: 1 curve on the box, none on the box minus sphere).
 @pytest.fixture(scope="module")
 def eno_results():
     cache = {}
@@ -75,7 +75,7 @@ def eno_results():
     def get(name):
         if name not in cache:
             mesh = shapes.dual_contoured(name, exact_normals=False)
-            cache[name] = (mesh, remesh(mesh, edge_length=EDGE, max_iter=20))
+            cache[name] = (mesh, remesh(mesh, edge_length=EDGE, max_iter=20, bridge_gaps=True))
         return cache[name]
 
     return get
