@@ -22,7 +22,8 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         raise AptFiltersError("exists already; pass --force to replace it", out)
     try:
-        result = remesh(mesh, edge_length=args.edge_length, feature_angle=args.feature_angle)
+        result = remesh(mesh, edge_length=args.edge_length, feature_angle=args.feature_angle,
+                        bridge_gaps=args.bridge_gaps)
     except AptFiltersError as exc:
         raise AptFiltersError(str(exc), args.input) from exc
     write_mesh(result.mesh, out, overwrite=args.force)
@@ -42,5 +43,8 @@ def register(subparsers) -> None:
                    help="target edge length in nm (default: the input's mean edge length)")
     p.add_argument("--feature-angle", type=float, default=40.0, metavar="A",
                    help="dihedral angle in degrees above which an edge is sharp (default 40; 180 = none)")
+    p.add_argument("--bridge-gaps", action="store_true",
+                   help="join gaps in creases whose bend is spread over two edges (dual-contouring meshes "
+                        "with estimated normals; not for noisy iso-surfaces)")
     p.add_argument("--force", action="store_true", help="replace OUT.ply if it exists")
     p.set_defaults(func=run)

@@ -5,7 +5,13 @@ Faces joined across non-feature edges form *patches*; patches smaller than ``min
 merged into a neighbour, which removes the spurious "features" around the noisy normals of
 marching-cubes slivers. The final feature edges are exactly the edges between two different
 patches plus the boundary edges, so every feature curve separates patches (dangling creases
-that fade out are not features). Feature curves are chains of such edges between *corners*,
+that fade out are not features). With ``bridge=True``, gaps in a crease are bridged before patches
+are formed: where a sharp bend is spread over two edges under the threshold (dual contouring with
+estimated Hermite normals), a crease stops short; each dangling crease end is joined to another
+crease through a path of at most ``BRIDGE_STEPS`` edges whose dihedral angle exceeds ``BRIDGE_FRACTION`` of the
+threshold and whose bend over a window of two faces (:func:`window_cos`) exceeds the threshold.
+Off by default: on the refined, bumpy surfaces of the pipeline it joins noise creases (the 10M
+`many` surfaces: 89 -> 348 curves, mean Q 0.918 -> 0.905). Feature curves are chains of such edges between *corners*,
 the vertices where three or more feature curves meet (or closed loops without a corner).
 
 Peak memory: a few integer arrays of 3 x the number of faces.
@@ -21,6 +27,9 @@ from scipy.sparse.csgraph import connected_components
 
 from apt_filters.remesh._arrays import unique, unique_rows
 from apt_filters.core.mesh import TriMesh
+
+BRIDGE_STEPS = 3  # longest bridge (edges) across a gap in a crease
+BRIDGE_FRACTION = 0.5  # a bridge edge bends by at least this fraction of the feature angle
 
 
 @dataclass
@@ -115,15 +124,77 @@ def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray,
     return patch.ravel()
 
 
+def window_cos(pair: np.ndarray, half_edge: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(e,) per edge, the bend over a window of two faces as a cosine: the smallest cosine between
+    the normal of one of its faces and the normal of a face next to the other one (1 on boundary
+    edges, ``pair`` as :func:`face_pairs` gives it)."""
+    m = len(normals)
+    own = np.repeat(np.arange(m), 3)
+    other = np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0])
+    nbr = np.where(other >= 0, other, own).reshape(m, 3)
+    a, b = pair[:, 0], np.maximum(pair[:, 1], 0)
+    ca = np.einsum("eij,ej->ei", normals[nbr[a]], normals[b]).min(axis=1)
+    cb = np.einsum("eij,ej->ei", normals[nbr[b]], normals[a]).min(axis=1)
+    return np.where(pair[:, 1] >= 0, np.minimum(ca, cb), 1.0)
+
+
+def _incidence(edges: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR vertex -> edge incidence: edges of vertex v are ``incident[start[v]:start[v + 1]]``."""
+    ends = np.concatenate([edges[:, 0], edges[:, 1]])
+    order = np.argsort(ends, kind="stable")
+    return np.searchsorted(ends[order], np.arange(n_vertices + 1)), np.tile(np.arange(len(edges)), 2)[order]
+
+
+def _bridge_gaps(edges: np.ndarray, vertices: np.ndarray, crease: np.ndarray, weak: np.ndarray,
+                 bend: np.ndarray, steps: int = BRIDGE_STEPS) -> np.ndarray:
+    """``crease`` with every dangling end joined to another crease where a bridge exists.
+
+    A bridge is the shortest path (then the one bending most in total, ``bend`` per edge) of
+    ``weak`` edges, at most ``steps`` long, from a crease end to a vertex of another crease (or of
+    its own crease, more than ``2 * steps`` crease edges away), ending ahead of the end. Ends are
+    taken one after the other, so the two ends of one gap make one bridge.
+    """
+    start, incident = _incidence(edges, len(vertices))
+    crease = crease.copy()
+    degree = np.bincount(edges[crease].ravel(), minlength=len(vertices))
+
+    def crease_step(front: set[int]) -> set[int]:
+        return {int(w) for u in front for e in incident[start[u]:start[u + 1]] if crease[e] for w in edges[e]}
+
+    for end in np.flatnonzero(degree == 1).tolist():
+        if degree[end] != 1:  # a bridge reached it
+            continue
+        near = {end}
+        for _ in range(2 * steps):
+            near |= crease_step(near)
+        back = next(int(w) for w in crease_step({end}) if w != end)
+        ahead = vertices[end] - vertices[back]
+        best, best_key = None, None
+        stack = [(end, [])]
+        while stack:
+            v, path = stack.pop()
+            for e in incident[start[v]:start[v + 1]].tolist():
+                if crease[e] or not weak[e] or e in path:
+                    continue
+                w = int(edges[e, 1] if edges[e, 0] == v else edges[e, 0])
+                longer = path + [e]
+                if degree[w] > 0 and w not in near:
+                    key = (len(longer), -bend[longer].sum())
+                    if ahead @ (vertices[w] - vertices[end]) > 0 and (best_key is None or key < best_key):
+                        best, best_key = longer, key
+                elif degree[w] == 0 and len(longer) < steps:
+                    stack.append((w, longer))
+        if best is not None:
+            crease[best] = True
+            degree[edges[best].ravel()] += 1
+    return crease
+
+
 def _walk_curves(edges: np.ndarray, n_vertices: int, corner: np.ndarray) -> list[np.ndarray]:
     """Split the feature-edge graph into chains between corners and closed loops."""
     if len(edges) == 0:
         return []
-    ends = np.concatenate([edges[:, 0], edges[:, 1]])
-    ids = np.tile(np.arange(len(edges)), 2)
-    order = np.argsort(ends, kind="stable")
-    start = np.searchsorted(ends[order], np.arange(n_vertices + 1))
-    incident = ids[order]
+    start, incident = _incidence(edges, n_vertices)
     used = np.zeros(len(edges), bool)
     curves = []
 
@@ -150,7 +221,7 @@ def _walk_curves(edges: np.ndarray, n_vertices: int, corner: np.ndarray) -> list
     return curves
 
 
-def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0) -> Features:
+def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bool = False) -> Features:
     """Find patches, feature curves and corners of ``mesh``.
 
     Parameters
@@ -160,6 +231,8 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0) -> Feature
         boundaries stay).
     min_area : float
         Patches smaller than this (nm²) are merged into their neighbour.
+    bridge : bool
+        Join the gaps of creases whose bend is spread over two edges (see the module docstring).
     """
     faces = mesh.faces
     edges, half_face, half_edge = edge_faces(faces)
@@ -169,7 +242,13 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0) -> Feature
     cos = np.ones(len(edges))
     cos[manifold] = np.einsum("ij,ij->i", normals[pair[manifold, 0]], normals[pair[manifold, 1]])
     degenerate = (np.linalg.norm(normals[pair[:, 0]], axis=1) == 0) | (np.linalg.norm(normals[pair[:, 1]], axis=1) == 0)
-    smooth = manifold & ((cos >= np.cos(np.radians(angle))) | degenerate)
+    threshold = np.radians(angle)
+    crease = manifold & ~degenerate & (cos < np.cos(threshold))
+    if bridge:
+        weak = (manifold & ~degenerate & ~crease & (cos < np.cos(BRIDGE_FRACTION * threshold))
+                & (window_cos(pair, half_edge, normals) < np.cos(threshold)))
+        crease = _bridge_gaps(edges, mesh.vertices, crease, weak, np.arccos(np.clip(cos, -1.0, 1.0)))
+    smooth = manifold & ~crease
     graph = sparse.coo_matrix((np.ones(smooth.sum()), (pair[smooth, 0], pair[smooth, 1])),
                               shape=(len(faces), len(faces)))
     _, patch = connected_components(graph, directed=False)

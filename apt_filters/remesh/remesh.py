@@ -73,7 +73,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float) -> np.ndarray
 
 def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | None = None,
            feature_angle: float = 40.0, adaptive: float = 0.0, max_iter: int = 30, tol: float = 1e-3,
-           smooth_rounds: int = 5, seed: int = 0) -> RemeshResult:
+           smooth_rounds: int = 5, seed: int = 0, bridge_gaps: bool = False) -> RemeshResult:
     """Remesh ``mesh`` into near-equilateral triangles, keeping sharp features and boundaries.
 
     Parameters
@@ -84,6 +84,10 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         Target edge length (nm) or vertex count; default: the input's mean edge length.
     feature_angle : float
         Dihedral angle (degrees) above which an edge is sharp; 180 disables sharp features.
+    bridge_gaps : bool
+        Join gaps in creases whose bend is spread over two edges under ``feature_angle``
+        (dual contouring with estimated normals); off by default because on noisy refined
+        surfaces it turns noise creases into features.
     adaptive : float
         0 for uniform triangles; > 0 shrinks edges where the surface bends (see
         :func:`curvature_density`).
@@ -113,7 +117,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         clock[0] = now
 
     edge = _edge_length(mesh, edge_length, n_vertices)
-    features = feat.detect(mesh, feature_angle, min_area=edge**2)
+    features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps)
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     if adaptive > 0:
