@@ -34,6 +34,7 @@ from scipy.sparse.csgraph import connected_components
 
 from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
+from apt_filters.core.triangle import closest_on_triangle
 
 _MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
@@ -255,82 +256,12 @@ class SurfaceDistance:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
-    """Squared distance and parameter t in [0, 1] of the closest point a + t (b - a)."""
-    ex, ey, ez = bx - ax, by - ay, bz - az
-    ee = ex * ex + ey * ey + ez * ez
-    t = 0.0
-    if ee > 0.0:
-        t = min(1.0, max(0.0, ((px - ax) * ex + (py - ay) * ey + (pz - az) * ez) / ee))
-    dx, dy, dz = px - ax - t * ex, py - ay - t * ey, pz - az - t * ez
-    return dx * dx + dy * dy + dz * dz, t
-
-
-@njit(cache=True, error_model="numpy")
 def _closest_on_triangle(px, py, pz, tri, t):
     """Squared distance of p to triangle ``t`` of the packed table ``tri`` (corners a, b, c in
-    columns 0-8) and the weights (u, w) of b and c.
-
-    Ericson, Real-Time Collision Detection (2005), 5.1.5: Voronoi regions of the corners, then
-    of the edges, then the face. Degenerate (zero-area) triangles fall back to their edges.
-    """
-    ax, ay, az = tri[t, 0], tri[t, 1], tri[t, 2]
-    bx, by, bz = tri[t, 3], tri[t, 4], tri[t, 5]
-    cx, cy, cz = tri[t, 6], tri[t, 7], tri[t, 8]
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    u = 0.0
-    w = 0.0
-    if d1 <= 0.0 and d2 <= 0.0:
-        return apx * apx + apy * apy + apz * apz, 0.0, 0.0
-    bpx, bpy, bpz = px - bx, py - by, pz - bz
-    d3 = abx * bpx + aby * bpy + abz * bpz
-    d4 = acx * bpx + acy * bpy + acz * bpz
-    if d3 >= 0.0 and d4 <= d3:
-        return bpx * bpx + bpy * bpy + bpz * bpz, 1.0, 0.0
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 > d3:
-        u = d1 / (d1 - d3)
-    else:
-        cpx, cpy, cpz = px - cx, py - cy, pz - cz
-        d5 = abx * cpx + aby * cpy + abz * cpz
-        d6 = acx * cpx + acy * cpy + acz * cpz
-        if d6 >= 0.0 and d5 <= d6:
-            return cpx * cpx + cpy * cpy + cpz * cpz, 0.0, 1.0
-        vb = d5 * d2 - d1 * d6
-        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 > d6:
-            w = d2 / (d2 - d6)
-        else:
-            va = d3 * d6 - d5 * d4
-            if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and d4 - d3 + d5 - d6 > 0.0:
-                w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                u = 1.0 - w
-            elif va + vb + vc > 0.0:
-                u = vb / (va + vb + vc)
-                w = vc / (va + vb + vc)
-            else:
-                return _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
-    qx = ax + u * abx + w * acx - px
-    qy = ay + u * aby + w * acy - py
-    qz = az + u * abz + w * acz - pz
-    return qx * qx + qy * qy + qz * qz, u, w
-
-
-@njit(cache=True, error_model="numpy")
-def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Closest point on a zero-area triangle: the nearest of its three edges."""
-    best, t = _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz)
-    u, w = t, 0.0
-    d, t = _closest_on_segment(px, py, pz, ax, ay, az, cx, cy, cz)
-    if d < best:
-        best, u, w = d, 0.0, t
-    d, t = _closest_on_segment(px, py, pz, bx, by, bz, cx, cy, cz)
-    if d < best:
-        best, u, w = d, 1.0 - t, t
-    return best, u, w
+    columns 0-8) and the weights (u, w) of b and c (:func:`apt_filters.core.triangle.closest_on_triangle`)."""
+    d, u, w, _ = closest_on_triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3], tri[t, 4], tri[t, 5],
+                                     tri[t, 6], tri[t, 7], tri[t, 8])
+    return d, u, w
 
 
 @njit(cache=True, error_model="numpy")

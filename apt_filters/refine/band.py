@@ -26,6 +26,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
+from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import IonAtoms, ion_atoms
@@ -277,38 +278,11 @@ class Fan:
         return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Closest point to p on triangle abc (Ericson, Real-Time Collision Detection 5.1.5), as (x, y, z, inner):
-    ``inner`` is True when it lies inside the triangle (not on an edge or corner)."""
-    abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1, d2 = abx * apx + aby * apy + abz * apz, acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        return ax, ay, az, False
-    bpx, bpy, bpz = px - bx, py - by, pz - bz
-    d3, d4 = abx * bpx + aby * bpy + abz * bpz, acx * bpx + acy * bpy + acz * bpz
-    if d3 >= 0.0 and d4 <= d3:
-        return bx, by, bz, False
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        t = d1 / (d1 - d3)
-        return ax + t * abx, ay + t * aby, az + t * abz, False
-    cpx, cpy, cpz = px - cx, py - cy, pz - cz
-    d5, d6 = abx * cpx + aby * cpy + abz * cpz, acx * cpx + acy * cpy + acz * cpz
-    if d6 >= 0.0 and d5 <= d6:
-        return cx, cy, cz, False
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        t = d2 / (d2 - d6)
-        return ax + t * acx, ay + t * acy, az + t * acz, False
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz), False
-    s = 1.0 / (va + vb + vc)
-    v, w = vb * s, vc * s
-    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, True
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _closest_point(px, py, pz, qx, qy, qz, ax, ay, az, bx, by, bz):
+    """Closest point to p on triangle (q, a, b) as (x, y, z, inner) (see :func:`closest_on_triangle`)."""
+    _, u, w, inner = closest_on_triangle(px, py, pz, qx, qy, qz, ax, ay, az, bx, by, bz)
+    return qx + u * (ax - qx) + w * (bx - qx), qy + u * (ay - qy) + w * (by - qy), qz + u * (az - qz) + w * (bz - qz), inner
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -341,7 +315,7 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact
         best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
         for k in range(fan_ptr[v], fan_ptr[v + 1]):
             a, b = fan_a[k], fan_b[k]
-            cx, cy, cz, on_face = _closest_on_triangle(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+            cx, cy, cz, on_face = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
                                                        vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
             d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
             if d < best:
@@ -356,7 +330,7 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact
             tol = 1e-18 + 1e-12 * best
             for k in range(fan_ptr[v], fan_ptr[v + 1]):
                 a, b = fan_a[k], fan_b[k]
-                cx, cy, cz, _ = _closest_on_triangle(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+                cx, cy, cz, _ = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
                                                      vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
                 if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
                     fx, fy, fz = _face_normal(vertices, q, a, b)
