@@ -13,7 +13,7 @@ Each outer iteration:
    selected once, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`), and their nearest
    vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
-   :data:`PLATEAU_WINDOW`) give the score weights
+   :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
    differ significantly) and the score's two levels ``s_in`` and ``s_out``; measured again in
    every iteration (plateaus measured against a surface still inside put interface ions into the
@@ -68,7 +68,7 @@ GUARD_HALVINGS = 6
 RESELECT = 1.5
 """nm a vertex may move before the ions near the surface are selected again."""
 FOLD_ANGLE = 120.0
-PLATEAU_WINDOW = (1.0, 3.0)
+REFINE_WINDOW = (1.0, 3.0)
 """nm from the surface between which the refinement measures each object's plateaus, again in every
 iteration. The inner edge lies beyond the matched filter's reach (about two profile widths, ~0.7 nm), so
 that the ions that place the surface barely take part in measuring its plateaus. With the inner edge at
@@ -77,7 +77,8 @@ that fluctuation's ions enter the inside window, and where it has moved in over 
 leave it. On 12 precipitates of a gamma-prime-like box (6 seeds) the inside plateau came out 0.98 at.%
 high (outside -0.05), which put the midpoint ~0.45 at.% high and the surfaces ~0.04 nm inside; at 1.0 nm
 the bias is +0.24 at.%, at 1.5 nm none, but a 3 nm sphere then keeps only ~300 atoms inside and its
-plateau is mostly the other objects' (``plateau_prior``)."""
+plateau is mostly the other objects' (``plateau_prior``). The reported plateaus
+(:data:`apt_filters.refine.levels.PLATEAU_WINDOW`, 0.75-3 nm) keep the wider window."""
 
 
 @dataclass
@@ -249,7 +250,7 @@ def refine_surface(
     iterations: int = 12,
     far_iterations: int = 2,
     tolerance: float = 0.02,
-    plateau_window=PLATEAU_WINDOW,
+    plateau_window=REFINE_WINDOW,
     plateau_prior: float = PLATEAU_PRIOR,
     subdivisions: int = 1,
     distance: str = "mesh",
@@ -340,10 +341,11 @@ def refine_surface(
     adj = adjacency(faces, n)
     pairs = face_pairs(faces)
     # the fold guard keeps the folds it is given: none may be left in the start
-    vertices, _ = unfold(vertices, faces, umbrella(adj))
+    plain = umbrella(adj)
+    vertices, _ = unfold(vertices, faces, plain)
     for _ in range(relax_start):
         nn = vertex_normals(vertices, faces)
-        lap = umbrella(adj) @ vertices - vertices
+        lap = plain @ vertices - vertices
         lap -= np.einsum("ij,ij->i", lap, nn)[:, None] * nn
         vertices, _ = guarded_move(vertices, faces, 0.5 * lap, pairs)
     unfolded = vertices.copy()
@@ -353,7 +355,6 @@ def refine_surface(
     pairs_near = Pairs.find(vertices, components, pool_radius)
     guarded, history, levels = 0, [], []
     it = 0
-    plain = umbrella(adj)
     for it in range(1, iterations + 1):
         normals = vertex_normals(vertices, faces)
         for _ in range(normal_smoothing):
@@ -414,14 +415,14 @@ def refine_surface(
         vertices = new
         if tangential > 0:
             normals = vertex_normals(vertices, faces)
-            lap = umbrella(adj) @ vertices - vertices
+            lap = plain @ vertices - vertices
             lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
             vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < tolerance * gain:
             break
-    vertices, untangled = untangle(vertices, faces, unfolded, umbrella(adj))
+    vertices, untangled = untangle(vertices, faces, unfolded, plain)
     start = mesh.vertices.astype(np.float64)
     moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
