@@ -15,6 +15,7 @@ import numpy as np
 # Every face of a box (3 free axes = the box itself, then its 6 facets, 12 edges, 8 corners):
 # per axis 0 = free, 1 = at the lower bound, 2 = at the upper bound.
 _ACTIVE_SETS = np.array(list(itertools.product(range(3), repeat=3)))
+_TIE = 1e-9  # values closer than this times trace(AᵀA) are equal (see minimise_in_box)
 
 
 def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray, hi: np.ndarray,
@@ -50,9 +51,11 @@ def solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, lo: np.ndarray
     out = np.empty((max_rank + 1,) + mass.shape)
     out[0] = mass
     clamped = np.zeros((max_rank + 1, len(mass)), dtype=bool)
+    free = mass  # the unconstrained rank-r minimiser; a clamped rank is no base for the next
     for r in range(1, max_rank + 1):
-        out[r] = out[r - 1] + u[:, :, 3 - r] * coef[:, 3 - r, None]
-        outside = np.flatnonzero(np.any((out[r] < lo - 1e-9) | (out[r] > hi + 1e-9), axis=1))
+        free = free + u[:, :, 3 - r] * coef[:, 3 - r, None]
+        out[r] = free
+        outside = np.flatnonzero(np.any((free < lo - 1e-9) | (free > hi + 1e-9), axis=1))
         clamped[r] = clamped[r - 1]  # a rank built on a clamped point is a compromise too
         clamped[r, outside] = True
         if len(outside):
@@ -84,8 +87,11 @@ def minimise_in_box(a: np.ndarray, r: np.ndarray, mass: np.ndarray, lo: np.ndarr
     corners), where it minimises the quadratic over that face's affine hull. Each hull's
     minimiser is solved with a pseudo-inverse (``rcond`` relative to the largest
     eigenvalue of the free block), which keeps weakly constrained directions at the mass
-    point; the feasible one of least value wins. Cost: 27 small pseudo-inverses per row,
-    so callers pass only the rows whose unconstrained minimiser left the box.
+    point; the feasible one of least value wins. Where several tie (the quadratic is flat
+    along a direction the truncation dropped, so a facet, its edges and its corners can all
+    be minimal), the one nearest the mass point wins: without that rule round-off chose,
+    and it could pick a far corner. Cost: 27 small pseudo-inverses per row, so callers
+    pass only the rows whose unconstrained minimiser left the box.
     """
     sets = _ACTIVE_SETS  # (27, 3)
     free = sets == 0
@@ -98,5 +104,8 @@ def minimise_in_box(a: np.ndarray, r: np.ndarray, mass: np.ndarray, lo: np.ndarr
     value = np.einsum("sni,nij,snj->sn", y, a, y) - 2 * np.einsum("sni,ni->sn", y, r)
     x = y + mass[None]
     feasible = np.all((x >= lo[None] - 1e-9) & (x <= hi[None] + 1e-9), axis=2)
-    best = np.argmin(np.where(feasible, value, np.inf), axis=0)
+    value = np.where(feasible, value, np.inf)
+    # Values are O(trace(a)) over a unit box; round-off is ~1e-16 of that, real gaps far larger.
+    tie = value <= value.min(axis=0) + _TIE * np.trace(a, axis1=1, axis2=2)
+    best = np.argmin(np.where(tie, np.einsum("sni,sni->sn", y, y), np.inf), axis=0)
     return x[best, np.arange(len(mass))]
