@@ -220,7 +220,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
         if flipped == 0:
             break
     vertices = optimize.relax(vertices, faces, movable, project)
-    return vertices, faces
+    return optimize.improve_angles(vertices, faces, movable, project), faces
 
 
 def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
