@@ -3,7 +3,7 @@
 # .venv, the package (editable) with its runtime dependencies.
 #   bash scripts/setup.sh          runtime only (enough for `apt-filters demo`)
 #   bash scripts/setup.sh --dev    plus tests and benchmark peers (pytest, hypothesis,
-#                                  scikit-image, vtk, pyacvd, apav)
+#                                  scikit-image, vtk, pyacvd, apav; Debian's meshlab and xvfb)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,12 +18,19 @@ ldconfig -p | grep -q 'libOpenGL.so.0' || need+=(libopengl0)
 ldconfig -p | grep -q 'libGL.so.1' || need+=(libgl1)
 ldconfig -p | grep -q 'libgomp.so.1' || need+=(libgomp1)
 ldconfig -p | grep -q 'libGLU.so.1' || need+=(libglu1-mesa)
+# Tests only: Debian's meshlab (2020.09) still ships meshlabserver, which replays our .mlx
+# scripts headless under xvfb-run, a second MeshLab client besides pymeshlab.
+if [ $dev = 1 ]; then
+  command -v meshlabserver >/dev/null || need+=(meshlab)
+  command -v xvfb-run >/dev/null || need+=(xvfb xauth)
+fi
 if [ ${#need[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     echo "setup: installing system libraries: ${need[*]}"
     export DEBIAN_FRONTEND=noninteractive
     apt-get update -qq && apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null \
-      || echo "setup: apt-get failed; libusb falls back to the pip package libusb-package" >&2
+      || echo "setup: apt-get failed; libusb falls back to the pip package libusb-package" \
+              "(without meshlab the meshlabserver replay test is skipped)" >&2
   else
     echo "setup: missing system libraries ${need[*]} (not root): libusb falls back to libusb-package;" \
          "pymeshlab's meshing filters need libopengl0" >&2
