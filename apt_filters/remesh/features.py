@@ -13,9 +13,10 @@ threshold and whose bend over a window of two faces (:func:`window_cos`) exceeds
 become creases where they connect to a crease through weak edges. Where the bend is spread over
 two edges that both pass, the two parallel creases cut out a strip one face wide; patches without
 an interior vertex are merged into a neighbour whatever their area.
-Off by default: on the refined, bumpy surfaces of the pipeline it joins noise creases (the 10M
-`many` surfaces: 89 -> 348 curves, mean Q 0.918 -> 0.905). Feature curves are chains of such edges between *corners*,
-the vertices where three or more feature curves meet (or closed loops without a corner).
+Off by default: on the refined, bumpy surfaces of the pipeline it turns noise creases into
+features (the 10M `many` surfaces: 5 -> 71 curves, spheres among them, Hausdorff to the input 0.302
+-> 0.351 nm). Feature curves are chains of such edges between *corners*, the vertices where three
+or more feature curves meet (or closed loops without a corner).
 
 Peak memory: a few integer arrays of 3 x the number of faces.
 """
