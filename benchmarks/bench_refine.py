@@ -12,9 +12,10 @@ on the same ions:
 ``iso``     ``basis`` contoured again per object at its own plateaus' midpoint (:func:`per_object_iso`).
 ``refined`` ``iso``, specks removed, then :func:`refine_surface` (ours, the defaults).
 
-Per precipitate: volume, area and B excess per own area (relative to the truth), mean and
-Hausdorff distance to the true surface, the Al plateaus 1-3 nm inside/outside (all species in
-the denominator, at.% absolute error), proxigram sign errors (ions within 2 nm whose exact
+Per precipitate: volume, area and B excess per own area (relative to the truth; the solute's plateaus
+1-3 nm from the surface, ``object_excess``'s default), mean and Hausdorff distance to the true surface,
+the Al plateaus 0.75-3 nm inside/outside (``object_levels``' default; all
+species in the denominator, at.% absolute error), proxigram sign errors (ions within 2 nm whose exact
 signed distance to the surface, ``apt_filters.analysis.distance``, disagrees with a ray-parity
 inside test), folded triangle pairs; per run the specks and the time of each pipeline.
 """

@@ -12,12 +12,12 @@ import pytest
 from apt_filters.contour import marching_cubes
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import refine_surface
+from apt_filters.refine import object_excess, refine_surface
 from apt_filters.refine.band import NearIons, vertex_normals
-from apt_filters.synth import Cuboid, generate
+from apt_filters.synth import Cuboid, Sphere, generate
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.presets import GAMMA, GAMMA_PRIME
-from apt_filters.synth.specimen import Feature, SpecimenSpec
+from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec
 from apt_filters.voxel import ConcentrationBasis
 
 NO_B = ConcentrationBasis(exclude=("B",))
@@ -130,3 +130,22 @@ def test_refinement_brings_rounded_cube_edges_and_corners_out(sharp_cube):
     assert mesh.area() / cube.area() - 1 > -0.14
     assert bias_full[2] > -0.04 and bias_full[3] > -0.22
     assert full.signed_volume() / cube.volume() - 1 > -0.045
+
+
+def test_excess_plateaus_start_beyond_the_blurred_segregation_shell():
+    """The solute's plateaus must not take in the tail of its own shell: measured from 0.75 nm they do
+    (the B shell, sigma 0.25 nm with the 0.3/0.1 nm blur, holds ~3 % of the excess beyond 0.75 nm on
+    each side), and the excess comes out low.
+
+    A 6 nm sphere with a strong B shell (7,200 excess ions per specimen, Poisson noise ~1.2 %) measured
+    against its TRUE surface, two specimens: mean excess error -1.95 % with the plateaus from 0.75 nm
+    (the previous default; -2.3 and -1.6 %), +0.03 % from 1.0 nm (-0.4 and +0.4 %)."""
+    errors = []
+    for seed in (1, 2):
+        shell = (Segregation("B", peak=0.3, sigma=0.25),)
+        spec = SpecimenSpec(Box((20.0, 20.0, 20.0)), GAMMA, (Feature(Sphere((0, 0, -10), 6.0), GAMMA_PRIME, 0.2,
+                                                                     shell, "sphere"),), efficiency=1.0, name="shell")
+        sp = generate(spec, seed=seed)
+        excess = object_excess(sp.meshes[0], sp.ions, sp.ranges, "B")
+        errors.append(excess[0].excess_ions / sp.truth["features"][0]["excess"]["B"]["excess_ions"] - 1)
+    assert abs(np.mean(errors)) < 0.01, errors

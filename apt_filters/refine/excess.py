@@ -18,8 +18,20 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import NearIons, vertex_components, vertex_normals
-from apt_filters.refine.levels import PLATEAU_WINDOW, plateaus
+from apt_filters.refine.levels import plateaus
 from apt_filters.voxel import ConcentrationBasis
+
+EXCESS_WINDOW = (1.0, 3.0)
+"""nm from the surface between which :func:`object_excess` measures the solute's plateaus, each side.
+
+The segregation shell, blurred by the reconstruction and by the surface's own noise (~0.2 nm rms), still
+holds solute 0.75 nm from the interface (synthetic B shell of sigma 0.25 nm with 0.3/0.1 nm blur: ~3 % of
+the excess on each side beyond 0.75 nm): a plateau window from 0.75 nm counts that tail as plateau, so the
+expected counts come out high and the excess low. Gamma-prime seeds 1-5, 20 precipitates against their
+TRUE surfaces: excess count -4.6 % (mean signed) from 0.75 nm, -1.8 % from 1.0 nm; refined surfaces,
+seeds 1-3: -5.4 -> -1.4 %, seeds 4-5: -7.4 -> -3.5 %. From 1.25 or 1.5 nm the bias is no smaller than
+the noise of the thinner windows (benchmarks/results_refine.md). The same as the proxigram's excess
+(analysis, plateaus 1-3 nm)."""
 
 
 @dataclass
@@ -48,8 +60,11 @@ class ObjectExcess:
 
 
 def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str, half_width: float = 1.5,
-                  window=PLATEAU_WINDOW) -> list[ObjectExcess]:
+                  window=EXCESS_WINDOW) -> list[ObjectExcess]:
     """Excess of ``solute`` at each connected surface of ``mesh`` per its own area.
+
+    The solute's plateaus are measured ``window`` nm from the surface each side (:data:`EXCESS_WINDOW`:
+    beyond the blurred segregation shell).
 
     Fractions count every ranged element (the solute must be in the denominator here).
     ``half_width`` (nm) must cover the segregation shell and the blur on both sides.
