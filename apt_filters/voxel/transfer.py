@@ -17,11 +17,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 from numba.extending import overload
-from scipy.ndimage import binary_dilation, gaussian_filter1d
+from scipy.ndimage import binary_dilation
 
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.voxel.grid import BLOCK, Grid
-from apt_filters.voxel.sparse import blocks_to_dense, dense_to_blocks
 from apt_filters.voxel.threads import on_threads, shares
 
 KERNELS = ("square", "sawtooth", "gaussian")
@@ -287,10 +286,13 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
 
 
 @njit(nogil=True, cache=True)
-def _unpool(blocks, where, out):
-    """out[c, where[s], x, y, z] += blocks[s, c, z, y, x]: a pool's blocks (z, y, x) added into the fields (x, y, z)."""
+def _unpool(blocks, where, lo, hi, out):
+    """out[c, where[s], x, y, z] += blocks[s, c, z, y, x] for the slots s with lo <= where[s] < hi: a
+    pool's blocks (z, y, x) added into the fields (x, y, z), one thread's share of the blocks."""
     for s in range(where.shape[0]):
         k = where[s]
+        if k < lo or k >= hi:
+            continue
         for c in range(out.shape[0]):
             for x in range(BLOCK):
                 for y in range(BLOCK):
@@ -426,13 +428,14 @@ class BlockAccumulator:
         keys = [np.ravel_multi_index(tuple(p.coords[: p.n_active].T), self.grid.block_shape) for p in pools]
         union = np.unique(np.concatenate(keys))  # flat block indices, sorted: x, y, z block order
         coords = np.column_stack(np.unravel_index(union, self.grid.block_shape)).astype(np.int32)
-        # one array for all channels, holding the occupied blocks only; each pool is added in and released
+        # one array for all channels, holding the occupied blocks only; each thread adds every
+        # pool's share of its range of blocks (disjoint writes), then the pools are released
         fields = np.zeros((pools[0].stride // BLOCK**3, len(union), BLOCK, BLOCK, BLOCK))
-        while pools:
-            pool, key = pools.pop(), keys.pop()
-            blocks = pool.blocks()[: pool.n_active].reshape(pool.n_active, fields.shape[0], BLOCK, BLOCK, BLOCK)
-            _unpool(blocks, np.searchsorted(union, key), fields)
-            del pool, blocks
+        blocks = [p.blocks()[: p.n_active].reshape(p.n_active, fields.shape[0], BLOCK, BLOCK, BLOCK) for p in pools]
+        wheres = [np.searchsorted(union, key) for key in keys]
+        on_threads(lambda lo, hi: [_unpool(b, w, lo, hi, fields) for b, w in zip(blocks, wheres)],
+                   shares(len(union), threads))
+        del pools, blocks
         channels = list(fields)
         if self.kernel == "gaussian":
             return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization),
@@ -440,28 +443,109 @@ class BlockAccumulator:
         return coords, channels
 
 
+def second_pass_weights(sigma_vox: float) -> tuple[float, ...]:
+    """Taps of the pass-2 Gaussian on one axis (2 radius + 1, summing to 1), as scipy's
+    ``gaussian_filter1d`` builds them (truncated at :data:`TRUNCATE` sigma): a tuple, so that the
+    compiled filter is specialised (and unrolled) on the number of taps."""
+    r = int(second_pass_radius(sigma_vox))
+    x = np.arange(-r, r + 1)
+    phi = np.exp(-0.5 / sigma_vox**2 * x**2)
+    return tuple((phi / phi.sum()).tolist())
+
+
+@njit(nogil=True, cache=True)
+def _correlate_rows(src, dst, w):
+    """dst[i, :] = sum_k w[k] src[i + k - r, :] on (n, m) arrays, zero beyond the first axis's ends (r = len(w) // 2).
+
+    Rows whose taps all lie inside take the unrolled loop (a branch per tap made the pass 1.5x slower).
+    """
+    n, m = src.shape
+    r = len(w) // 2
+    for i in range(n):
+        if i >= r and i + r < n:
+            for j in range(m):
+                s = 0.0
+                for k in range(len(w)):
+                    s += w[k] * src[_u(i + k - r), _u(j)]
+                dst[_u(i), _u(j)] = s
+        else:
+            for j in range(m):
+                s = 0.0
+                for k in range(len(w)):
+                    if 0 <= i + k - r < n:
+                        s += w[k] * src[_u(i + k - r), _u(j)]
+                dst[_u(i), _u(j)] = s
+
+
+@njit(nogil=True, cache=True)
+def _correlate_last(src, dst, w):
+    """dst[i, j] = sum_k w[k] src[i, j + k - r] on (n, m) arrays, zero beyond the last axis's ends."""
+    n, m = src.shape
+    r = len(w) // 2
+    for i in range(n):
+        for j in range(m):
+            if j >= r and j + r < m:
+                s = 0.0
+                for k in range(len(w)):
+                    s += w[k] * src[_u(i), _u(j + k - r)]
+            else:
+                s = 0.0
+                for k in range(len(w)):
+                    if 0 <= j + k - r < m:
+                        s += w[k] * src[_u(i), _u(j + k - r)]
+            dst[_u(i), _u(j)] = s
+
+
+@njit(nogil=True, cache=True)
+def _smooth(coords, data, new_coords, wx, wy, wz, a, b, out):
+    """One channel's pass 2: blocks ``data`` at ``coords`` into the dense block-rounded box ``a``,
+    filtered along x (into ``b``), y (into ``a``) and z (into ``b``), read back at ``new_coords``
+    into ``out``."""
+    nx, ny, nz = a.shape
+    a[...] = 0.0
+    for s in range(coords.shape[0]):
+        x0, y0, z0 = coords[s, 0] * BLOCK, coords[s, 1] * BLOCK, coords[s, 2] * BLOCK
+        for i in range(BLOCK):
+            for j in range(BLOCK):
+                for k in range(BLOCK):
+                    a[_u(x0 + i), _u(y0 + j), _u(z0 + k)] = data[s, i, j, k]
+    _correlate_rows(a.reshape(nx, ny * nz), b.reshape(nx, ny * nz), wx)
+    for x in range(nx):
+        _correlate_rows(b[x], a[x], wy)
+    _correlate_last(a.reshape(nx * ny, nz), b.reshape(nx * ny, nz), wz)
+    for s in range(new_coords.shape[0]):
+        x0, y0, z0 = new_coords[s, 0] * BLOCK, new_coords[s, 1] * BLOCK, new_coords[s, 2] * BLOCK
+        for i in range(BLOCK):
+            for j in range(BLOCK):
+                for k in range(BLOCK):
+                    out[s, i, j, k] = b[_u(x0 + i), _u(y0 + j), _u(z0 + k)]
+
+
 def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigma_vox: np.ndarray,
                 threads: int = 1):
     """Separable Gaussian (truncated at 4 sigma, zero outside) of each block-sparse channel.
 
     The result lives on the blocks within the kernel radius of the input blocks. Works one
-    channel at a time per thread (scipy's filter releases the GIL) through a dense copy of the
-    block-rounded box: transient memory is two dense float64 fields per thread, at most
-    ``min(threads, len(channels))`` threads.
+    channel at a time per thread (a nogil compiled filter, the same taps as scipy's
+    ``gaussian_filter1d``) through a dense copy of the block-rounded box: transient memory is
+    two dense float64 fields per thread, at most ``min(threads, len(channels))`` threads.
     """
     reach = -(-second_pass_radius(sigma_vox) // BLOCK)
     occupied = np.zeros(grid.block_shape, dtype=bool)
     occupied[coords[:, 0], coords[:, 1], coords[:, 2]] = True
     footprint = np.ones(tuple(2 * reach + 1), dtype=bool)
     new_coords = np.argwhere(binary_dilation(occupied, structure=footprint)).astype(np.int32)
+    taps = [second_pass_weights(s) for s in sigma_vox]
+    box = tuple(n * BLOCK for n in grid.block_shape)
 
-    def smooth(data: np.ndarray) -> np.ndarray:
-        dense = blocks_to_dense(grid, coords, data)
-        for axis in range(3):
-            dense = gaussian_filter1d(dense, sigma_vox[axis], axis=axis, mode="constant", truncate=TRUNCATE)
-        return dense_to_blocks(dense, new_coords)
+    def smooth(mine: list[np.ndarray]) -> list[np.ndarray]:
+        a, b = np.empty(box), np.empty(box)
+        out = [np.empty((len(new_coords), BLOCK, BLOCK, BLOCK)) for _ in mine]
+        for data, o in zip(mine, out):
+            _smooth(coords, data, new_coords, *taps, a, b, o)
+        return out
 
     n_threads = max(1, min(int(threads), len(channels)))
-    smoothed = on_threads(lambda mine: [smooth(d) for d in mine], [(channels[k::n_threads],) for k in range(n_threads)])
+    smoothed = on_threads(smooth, [(channels[k::n_threads],) for k in range(n_threads)])
     out = [smoothed[i % n_threads][i // n_threads] for i in range(len(channels))]
     return new_coords, out
