@@ -14,6 +14,8 @@ sum of a field equals its count exactly (to rounding): mass is never reflected a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from numba.extending import overload
@@ -106,7 +108,7 @@ def _nearest_start(f):
 
 
 @njit(inline="always")
-def _nearest(f):
+def _nearest(f, e):
     return _nearest_start(f), (1.0,), 1.0
 
 
@@ -117,7 +119,7 @@ def _lever_start(f):
 
 
 @njit(inline="always")
-def _lever(f):
+def _lever(f, e):
     """Sawtooth: the grid point below and the next, lever-rule weights."""
     i = _lever_start(f)
     return i, (1.0 - (f - i), f - i), 1.0
@@ -130,22 +132,92 @@ def _gauss3_start(f):
 
 
 @njit(inline="always")
-def _gauss3(f):
+def _gauss3(f, e):
     """Pass 1: first of the 3 grid points around the nearest one, their weights relative to the
-    nearest one's, and the sum of the three.
+    nearest one's, and the sum of the three; ``e`` = exp(36 d) (``_exponentials``).
 
     Weights exp(-d² / (2 sigma²)) with sigma = voxel / 6, i.e. exp(-18 d²) in voxels. With d the
     offset of the nearest point, exp(-18 (d ± 1)²) / exp(-18 d²) = e^-18 exp(±36 d), so one exp
     per axis gives all three.
     """
-    i = _gauss3_start(f)
-    b = np.exp(36.0 * (i + 1 - f))
-    before, after = _E18 * b, _E18 / b
-    return i, (before, 1.0, after), 1.0 + before + after
+    before, after = _E18 * e, _E18 / e
+    return _gauss3_start(f), (before, 1.0, after), 1.0 + before + after
 
 
-def _footprint(kind, f):
-    """(first grid index, weights, their sum) along one axis of the transfer function ``kind`` (see ``_KIND``)."""
+# Pass 1's exponentials are computed ahead of the scatter, ``_BATCH`` ions at a time, by two loops
+# that the compiler vectorizes (8 ns per ion for the three; libm's exp does not vectorize, and as
+# one loop the two did not either): with libm's exp called inside the scatter loop, pass 1 took
+# 61-63 ns per ion, with the batches 53 (one process, 4 M ions).
+_BATCH = 512
+"""Ions per batch of pass-1 exponentials (12 kB of float64, in L1)."""
+_TAYLOR = tuple(1.0 / math.factorial(k) for k in range(16))
+
+
+@njit(inline="always")
+def _exp36(y):
+    """exp(y) for |y| <= 18, vectorizable: the degree-15 Taylor polynomial of y / 32 (|y / 32| <= 0.57,
+    truncation below 5e-18) squared 5 times: relative error below 1e-14 (8.4e-15 at most over 4 M
+    points of the range). Each ion's weights are still renormalised, so conservation is untouched;
+    pass-1 fields moved by 6e-16 of their maximum against libm's exp."""
+    r = y * (1.0 / 32.0)
+    p = _TAYLOR[15]
+    for k in range(14, -1, -1):
+        p = p * r + _TAYLOR[k]
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    return p * p
+
+
+@njit(nogil=True, cache=True)
+def _pass1_exponents(pos, origin, inv_h, out):
+    """out[3 j + a] = 36 d on axis a of ion j, d = its nearest grid point's offset (|d| <= 1/2)."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for j in range(pos.shape[0]):
+        fx, fy, fz = (np.float64(pos[j, 0]) - ox) * inv_h, (np.float64(pos[j, 1]) - oy) * inv_h, \
+            (np.float64(pos[j, 2]) - oz) * inv_h
+        out[3 * j] = 36.0 * (_nearest_start(fx) - fx)
+        out[3 * j + 1] = 36.0 * (_nearest_start(fy) - fy)
+        out[3 * j + 2] = 36.0 * (_nearest_start(fz) - fz)
+
+
+@njit(nogil=True, cache=True)
+def _exp36_in_place(y):
+    for j in range(y.shape[0]):
+        y[j] = _exp36(y[j])
+
+
+def _exponentials(kind, pos, origin, inv_h, out):
+    """Gaussian: out[3 j + a] = exp(36 d) on axis a of ion j of ``pos`` (a batch); other kinds: nothing."""
+
+
+@overload(_exponentials, inline="always")
+def _exponentials_impl(kind, pos, origin, inv_h, out):
+    if len(kind) < 2:
+        return lambda kind, pos, origin, inv_h, out: None
+
+    def impl(kind, pos, origin, inv_h, out):
+        _pass1_exponents(pos, origin, inv_h, out)
+        _exp36_in_place(out[: 3 * pos.shape[0]])
+    return impl
+
+
+def _batch_starts(kind, i, start):
+    """Whether ion ``i`` starts a new batch of ``_exponentials`` (the last began at ``start``):
+    gaussian only."""
+
+
+@overload(_batch_starts, inline="always")
+def _batch_starts_impl(kind, i, start):
+    if len(kind) < 2:
+        return lambda kind, i, start: False
+    return lambda kind, i, start: i - start == _BATCH or i == 0
+
+
+def _footprint(kind, f, e):
+    """(first grid index, weights, their sum) along one axis of the transfer function ``kind`` (see
+    ``_KIND``); ``e``: the axis's exponential from ``_exponentials`` (gaussian only)."""
 
 
 def _start(kind, f):
@@ -153,9 +225,9 @@ def _start(kind, f):
 
 
 @overload(_footprint, inline="always")
-def _footprint_impl(kind, f):
+def _footprint_impl(kind, f, e):
     axis = (_nearest, _lever, _gauss3)[len(kind)]
-    return lambda kind, f: axis(f)
+    return lambda kind, f, e: axis(f, e)
 
 
 @overload(_start, inline="always")
@@ -249,14 +321,20 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
     weights ``wx[a] wy[b] wz[d] / (nx ny nz)`` at grid point (ix + a, iy + b, iz + d) of channel
     ``row_chan[p]`` for each ``p`` in ``row_ptr[r]:row_ptr[r + 1]``.
     """
+    expo = np.empty(3 * _BATCH)
+    start = 0
     for i in range(pos.shape[0]):
+        if _batch_starts(kind, i, start):
+            start = i
+            _exponentials(kind, pos[i: i + _BATCH], origin, inv_h, expo)
+        e = 3 * (i - start)
         r = row[i]
         p0, p1 = row_ptr[_u(r)], row_ptr[_u(r + 1)]
         if p0 == p1:
             continue
-        ix, wx, nx = _footprint(kind, (np.float64(pos[i, 0]) - origin[0]) * inv_h)
-        iy, wy, ny = _footprint(kind, (np.float64(pos[i, 1]) - origin[1]) * inv_h)
-        iz, wz, nz = _footprint(kind, (np.float64(pos[i, 2]) - origin[2]) * inv_h)
+        ix, wx, nx = _footprint(kind, (np.float64(pos[i, 0]) - origin[0]) * inv_h, expo[_u(e)])
+        iy, wy, ny = _footprint(kind, (np.float64(pos[i, 1]) - origin[1]) * inv_h, expo[_u(e + 1)])
+        iz, wz, nz = _footprint(kind, (np.float64(pos[i, 2]) - origin[2]) * inv_h, expo[_u(e + 2)])
         norm = 1.0 / (nx * ny * nz)  # the ion's weights sum to 1
         taps = len(wx)
         if (ix & 7) + taps <= 8 and (iy & 7) + taps <= 8 and (iz & 7) + taps <= 8:  # all in one block: one lookup
