@@ -9,7 +9,6 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel import grid as grid_module
-from apt_filters.voxel import transfer
 from apt_filters.voxel.grid import available_cores, field_bytes, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from tests.voxel_helpers import ions, random_ions, ranges
@@ -79,33 +78,6 @@ def test_threaded_scatter_equals_numpy_reference(kernel, reference, order):
     for threads in (1, 2, 3):
         got = voxelize(ions(pos, ["Cu"] * len(pos)), ranges(), grid=grid, kernel=kernel, threads=threads)
         np.testing.assert_allclose(got.counts["Cu"].dense(), want, rtol=0, atol=1e-9, err_msg=f"{threads} threads")
-
-
-@pytest.mark.parametrize("order", ["detection", "shuffled"])
-def test_square_through_many_windows_equals_numpy_reference(monkeypatch, order):
-    """The square kernel marks and scatters window by window: windows of 192 ions here (4 per block of
-    the 48-block box), molecular and unranged ions mixed, 1-3 threads; a bad ion in a late window is refused."""
-    monkeypatch.setattr(transfer, "_WINDOW", 64)
-    table = random_ions(30_000, [0.0, 0.0, 0.0], [9.0, 13.0, 95.0], seed=8)
-    idx = np.argsort(-table.positions[:, 2]) if order == "detection" else np.arange(len(table))
-    table = IonTable(table.positions[idx], table.mz[idx])
-    grid = Grid.covering(np.zeros(3), [9.0, 13.0, 95.0], 1.0, kernel_reach("square"))
-    assert 4 * np.prod(grid.block_shape) == 192
-    rt = ranges()
-    species = rt.ion_index(table.mz)
-    pos = table.positions.astype(np.float64)
-    matrix = rt.element_matrix()
-    want = {el: sum(matrix[k, e] * dense_square(pos[species == k], grid) for k in range(len(rt.ions)))
-            for e, el in enumerate(rt.elements)}
-    for threads in (1, 2, 3):
-        got = voxelize(table, rt, grid=grid, kernel="square", threads=threads)
-        for el in rt.elements:
-            np.testing.assert_allclose(got.counts[el].dense(), want[el], rtol=0, atol=1e-9,
-                                       err_msg=f"{el}, {threads} threads")
-    bad = table.positions.copy()
-    bad[-1] = [50.0, 1.0, 1.0]
-    with pytest.raises(AptFiltersError, match="outside the grid"):
-        voxelize(IonTable(bad, np.full(len(bad), 63.0, np.float32)), rt, grid=grid, kernel="square")
 
 
 def test_threaded_gaussian_is_independent_of_thread_count_and_order():

@@ -86,19 +86,13 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
 # with no checks, no allocation and no early exit (the fused pass this replaces, which gave slots
 # on first touch and stopped when the pool was full, cost 1.2-1.3x as much per ion in one process).
 # The slot table is read flat, and every subscript goes through ``_u`` (unsigned), which spares
-# numba's negative-index handling on each of the up to 27 writes per ion. Square, whose ion
-# touches one voxel, has ``_mark`` store that voxel as a key (block × 512 + index in the block)
-# and ``_scatter_keys`` read it back instead of the position, window by window of the chunk
-# (``_WINDOW``), so the keys stay a few MB.
+# numba's negative-index handling on each of the up to 27 writes per ion.
 #
 # The transfer function reaches the kernels as a tuple whose length selects it (``_KIND``): numba
 # specialises each loop on the tuple's type (and caches each specialisation), so the
 # footprint's 1, 2 or 3 taps per axis are compile-time constants that the compiler unrolls (a loop
 # over a run-time tap count ran 2-3x slower).
 _KIND = {"square": (), "sawtooth": (0,), "gaussian": (0, 0)}
-_WINDOW = 1 << 20
-"""Ions per window of the square kernel's mark and scatter, at least (``_Pool.scatter``): 4 MB of
-keys per thread (2^16 to 2^22 measured within 10 % of each other)."""
 
 
 # Each transfer function on one axis: the first of its 1, 2 or 3 grid points (``_*_start``; the
@@ -111,6 +105,11 @@ keys per thread (2^16 to 2^22 measured within 10 % of each other)."""
 def _nearest_start(f):
     """Square: the nearest grid point (f >= -0.5 in the admissible range, so int() floors)."""
     return np.int64(f + 0.5)
+
+
+@njit(inline="always")
+def _nearest(f, e):
+    return _nearest_start(f), (1.0,), 1.0
 
 
 @njit(inline="always")
@@ -217,9 +216,8 @@ def _batch_starts_impl(kind, i, start):
 
 
 def _footprint(kind, f, e):
-    """(first grid index, weights, their sum) along one axis of the sawtooth or gaussian transfer
-    function ``kind`` (see ``_KIND``; square goes through ``_scatter_keys``); ``e``: the axis's
-    exponential from ``_exponentials`` (gaussian only)."""
+    """(first grid index, weights, their sum) along one axis of the transfer function ``kind`` (see
+    ``_KIND``); ``e``: the axis's exponential from ``_exponentials`` (gaussian only)."""
 
 
 def _start(kind, f):
@@ -228,7 +226,7 @@ def _start(kind, f):
 
 @overload(_footprint, inline="always")
 def _footprint_impl(kind, f, e):
-    axis = (_lever, _gauss3)[len(kind) - 1]
+    axis = (_nearest, _lever, _gauss3)[len(kind)]
     return lambda kind, f, e: axis(f, e)
 
 
@@ -255,28 +253,11 @@ def _u(i):
     return np.uint64(i)
 
 
-def _store_key(kind, keys, i, block, ix, iy, iz):
-    """Square: keys[i] = block × 512 + the voxel's index in its block ([z][y][x], as the pool stores
-    it); other kinds: nothing."""
-
-
-@overload(_store_key, inline="always")
-def _store_key_impl(kind, keys, i, block, ix, iy, iz):
-    if len(kind):
-        return lambda kind, keys, i, block, ix, iy, iz: None
-    key = keys.dtype
-
-    def impl(kind, keys, i, block, ix, iy, iz):
-        keys[i] = key((block << 9) + ((iz & 7) << 6) + ((iy & 7) << 3) + (ix & 7))
-    return impl
-
-
 @njit(nogil=True, cache=True)
-def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts, keys):
+def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts):
     """Count the ions per row and set ``marks`` to 1 on every block their footprints touch.
 
-    ``marks`` is flat over the box's blocks: block (x, y, z) at ``x * sx + y * sy + z``. Square:
-    ``keys[i]`` = ion i's block × 512 + its voxel's index in the block (``_scatter_keys``).
+    ``marks`` is flat over the box's blocks: block (x, y, z) at ``x * sx + y * sy + z``.
 
     Returns the index of the first ion that counts in a field and lies outside the admissible
     range (or has a NaN coordinate), or -1.
@@ -298,7 +279,6 @@ def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts,
         y0, y1 = (iy >> 3) * sy, ((iy + last) >> 3) * sy
         z0, z1 = iz >> 3, (iz + last) >> 3
         marks[_u(x0 + y0 + z0)] = 1
-        _store_key(kind, keys, i, x0 + y0 + z0, ix, iy, iz)
         if last:
             marks[_u(x1 + y0 + z0)] = 1
             marks[_u(x0 + y1 + z0)] = 1
@@ -333,8 +313,7 @@ def _axis_taps_impl(w, i, sb, sv):
 
 @njit(nogil=True, cache=True)
 def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx, sy, pool, stride):
-    """Sawtooth and gaussian: add every ion's weights into ``pool`` (flat, ``stride`` values per
-    block) through the slot table.
+    """Add every ion's weights into ``pool`` (flat, ``stride`` values per block) through the slot table.
 
     ``table`` is flat over the box's blocks (block (x, y, z) at ``x * sx + y * sy + z``). Every
     ion must lie in the admissible range and every block it touches have a slot (``_mark`` and
@@ -382,24 +361,6 @@ def _scatter(kind, pos, row, origin, inv_h, row_ptr, row_chan, row_w, table, sx,
                     column, offset = tx[a] + ty[b], c + ox[a] + oy[b]
                     for d in range(taps):
                         pool[_u(np.int64(table[_u(column + tz[d])]) * stride + offset + oz[d])] += wab * wz[d]
-
-
-@njit(nogil=True, cache=True)
-def _scatter_keys(keys, row, row_ptr, row_chan, row_w, table, pool, stride):
-    """Square: add each ion's weight at its voxel, ``keys`` from ``_mark`` (its block × 512 + the
-    voxel's index in the block), through the slot table; ions of rows that count nowhere are skipped.
-
-    Reading a 4-byte key instead of the 12-byte position and recomputing the voxel: mark + scatter
-    15.2-16.0 -> 11.3-11.6 ns per ion (10 M ions, one process, best of 9, load 3.1-3.5)."""
-    for i in range(keys.shape[0]):
-        r = row[i]
-        p0, p1 = row_ptr[_u(r)], row_ptr[_u(r + 1)]
-        if p0 == p1:
-            continue
-        k = np.int64(keys[i])
-        at = np.int64(table[_u(k >> 9)]) * stride + (k & 511)
-        for p in range(p0, p1):
-            pool[_u(at + (row_chan[_u(p)] << 9))] += row_w[_u(p)]
 
 
 @njit(nogil=True, cache=True)
@@ -461,28 +422,14 @@ class _Pool:
         self.n_active += len(new)
 
     def scatter(self, kind: tuple, positions, rows, origin, inv_h, lo, hi, csr, max_blocks: int) -> int:
-        """Scatter all ions; returns the index of the first ion outside the admissible range, or -1.
-
-        Square works through windows of ``max(_WINDOW, 4 * max_blocks)`` ions (the keys of one
-        window: 4 bytes per ion, 8 beyond 2^22 blocks), so ions of the windows before a bad ion's are
-        scattered by then; the other kernels mark the whole share first and scatter nothing then.
-        """
+        """Scatter all ions; returns the index of the first ion outside the admissible range (none
+        scattered then), or -1."""
         strides = self.table.shape[1] * self.table.shape[2], self.table.shape[2]
-        n, square = len(positions), kind == _KIND["square"]
-        window = max(_WINDOW, 4 * max_blocks) if square else max(n, 1)  # 4 per block: assign's scan stays cheap
-        keys = np.empty(min(window, n) if square else 0, dtype=np.int32 if max_blocks < 1 << 22 else np.int64)
-        for a in range(0, n, window):
-            b = min(a + window, n)
-            bad = _mark(kind, positions[a:b], rows[a:b], origin, inv_h, lo, hi, csr[0], self.marks.ravel(), *strides,
-                        self.counts, keys)
-            if bad >= 0:
-                return a + bad
-            self.assign(max_blocks)
-            if square:
-                _scatter_keys(keys[: b - a], rows[a:b], *csr, self.table.ravel(), self.data, self.stride)
-            else:
-                _scatter(kind, positions, rows, origin, inv_h, *csr, self.table.ravel(), *strides, self.data,
-                         self.stride)
+        bad = _mark(kind, positions, rows, origin, inv_h, lo, hi, csr[0], self.marks.ravel(), *strides, self.counts)
+        if bad >= 0:
+            return bad
+        self.assign(max_blocks)
+        _scatter(kind, positions, rows, origin, inv_h, *csr, self.table.ravel(), *strides, self.data, self.stride)
         return -1
 
 
