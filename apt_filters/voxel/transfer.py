@@ -506,6 +506,10 @@ class BlockAccumulator:
         keys = [np.ravel_multi_index(tuple(p.coords[: p.n_active].T), self.grid.block_shape) for p in pools]
         union = np.unique(np.concatenate(keys))  # flat block indices, sorted: x, y, z block order
         coords = np.column_stack(np.unravel_index(union, self.grid.block_shape)).astype(np.int32)
+        sigma = second_pass_sigma(self.grid.voxel, self.delocalization) if self.kernel == "gaussian" else None
+        if sigma is not None:  # the fields hold pass 2's blocks from the start: it then works in place
+            coords = second_pass_blocks(self.grid, coords, sigma)
+            union = np.ravel_multi_index(tuple(coords.T), self.grid.block_shape)
         # one array for all channels, holding the occupied blocks only; each thread adds every
         # pool's share of its range of blocks (disjoint writes), then the pools are released
         fields = np.zeros((pools[0].stride // BLOCK**3, len(union), BLOCK, BLOCK, BLOCK))
@@ -515,9 +519,8 @@ class BlockAccumulator:
                    shares(len(union), threads))
         del pools, blocks
         channels = list(fields)
-        if self.kernel == "gaussian":
-            return second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization),
-                               threads)
+        if sigma is not None:
+            second_pass(self.grid, coords, channels, sigma, threads)
         return coords, channels
 
 
@@ -575,12 +578,12 @@ def _correlate_last(src, dst, w):
 
 
 @njit(nogil=True, cache=True)
-def _smooth(coords, data, slots, wx, wy, wz, a, plane, plane2, out):
-    """One channel's pass 2: blocks ``data`` at ``coords`` into the dense block-rounded box ``a``, then
-    plane by plane along x: filtered along x (into ``plane``), y (into ``plane2``) and z (into
-    ``plane``), and written into the blocks of ``out`` (``slots``: the out slot of each block of the
-    box, or -1). One plane (120 kB here) is filtered along y and z while it is in cache: one pass
-    over the box instead of three, and one dense copy per thread instead of two."""
+def _smooth(coords, data, slots, wx, wy, wz, a, plane, plane2):
+    """One channel's pass 2, in place: blocks ``data`` at ``coords`` into the dense block-rounded box
+    ``a``, then plane by plane along x: filtered along x (into ``plane``), y (into ``plane2``) and z
+    (into ``plane``), and written back into the blocks (``slots``: each block's slot, or -1). One plane
+    (120 kB here) is filtered along y and z while it is in cache: one pass over the box instead of
+    three, and one dense copy per thread instead of two."""
     nx, ny, nz = a.shape
     a[...] = 0.0
     for s in range(coords.shape[0]):
@@ -602,37 +605,38 @@ def _smooth(coords, data, slots, wx, wy, wz, a, plane, plane2, out):
                 if slot >= 0:
                     for j in range(BLOCK):
                         for k in range(BLOCK):
-                            out[slot, i, j, k] = plane[_u(by * BLOCK + j), _u(bz * BLOCK + k)]
+                            data[slot, i, j, k] = plane[_u(by * BLOCK + j), _u(bz * BLOCK + k)]
 
 
-def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigma_vox: np.ndarray,
-                threads: int = 1):
-    """Separable Gaussian (truncated at 4 sigma, zero outside) of each block-sparse channel.
-
-    The result lives on the blocks within the kernel radius of the input blocks. Works one
-    channel at a time per thread (a nogil compiled filter, the same taps as scipy's
-    ``gaussian_filter1d``) through a dense copy of the block-rounded box: transient memory is
-    one dense float64 field per thread (and two of its x planes), at most
-    ``min(threads, len(channels))`` threads.
-    """
+def second_pass_blocks(grid: Grid, coords: np.ndarray, sigma_vox: np.ndarray) -> np.ndarray:
+    """(n, 3) int32 block coordinates, x, y, z block order: ``coords`` and every block within pass 2's
+    kernel radius of one of them (where pass 2 puts weight)."""
     reach = -(-second_pass_radius(sigma_vox) // BLOCK)
     occupied = np.zeros(grid.block_shape, dtype=bool)
     occupied[coords[:, 0], coords[:, 1], coords[:, 2]] = True
     footprint = np.ones(tuple(2 * reach + 1), dtype=bool)
-    new_coords = np.argwhere(binary_dilation(occupied, structure=footprint)).astype(np.int32)
+    return np.argwhere(binary_dilation(occupied, structure=footprint)).astype(np.int32)
+
+
+def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigma_vox: np.ndarray,
+                threads: int = 1) -> None:
+    """Separable Gaussian (truncated at 4 sigma, zero outside) of each block-sparse channel, in place.
+
+    ``coords`` must hold every block within the kernel radius of a block with weight
+    (:func:`second_pass_blocks`). Works one channel at a time per thread (a nogil compiled filter,
+    the same taps as scipy's ``gaussian_filter1d``) through a dense copy of the block-rounded box:
+    transient memory is one dense float64 field per thread (and two of its x planes), at most
+    ``min(threads, len(channels))`` threads.
+    """
     taps = [second_pass_weights(s) for s in sigma_vox]
     box = tuple(n * BLOCK for n in grid.block_shape)
     slots = np.full(grid.block_shape, -1, dtype=np.int32)
-    slots[new_coords[:, 0], new_coords[:, 1], new_coords[:, 2]] = np.arange(len(new_coords), dtype=np.int32)
+    slots[coords[:, 0], coords[:, 1], coords[:, 2]] = np.arange(len(coords), dtype=np.int32)
 
-    def smooth(mine: list[np.ndarray]) -> list[np.ndarray]:
+    def smooth(mine: list[np.ndarray]) -> None:
         a, plane, plane2 = np.empty(box), np.empty(box[1:]), np.empty(box[1:])
-        out = [np.empty((len(new_coords), BLOCK, BLOCK, BLOCK)) for _ in mine]
-        for data, o in zip(mine, out):
-            _smooth(coords, data, slots, *taps, a, plane, plane2, o)
-        return out
+        for data in mine:
+            _smooth(coords, data, slots, *taps, a, plane, plane2)
 
     n_threads = max(1, min(int(threads), len(channels)))
-    smoothed = on_threads(smooth, [(channels[k::n_threads],) for k in range(n_threads)])
-    out = [smoothed[i % n_threads][i // n_threads] for i in range(len(channels))]
-    return new_coords, out
+    on_threads(smooth, [(channels[k::n_threads],) for k in range(n_threads)])
