@@ -40,8 +40,8 @@ def _hermite_data(field: Field, act: ActiveCells, gradient, method: str) -> tupl
     Returns (V, 3) points, normals, and the linear crossings with their normals. With an
     exact gradient both pairs are the linear crossings and their normals; with estimated
     ones the first pair is re-placed along kinked edges
-    (:func:`~apt_filters.contour.gradients.hermite_crossings`), which the QEF falls back from
-    where it does not meet in the cell.
+    (:func:`~apt_filters.contour.gradients.hermite_crossings`) and the second is the QEF's
+    fallback for compromise vertices whose planes it fits better.
     """
     shape = field.values.shape
     linear = act.crossing_points(shape)
