@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
 from apt_filters.contour.cells import ActiveCells, Field, find_active_cells, near_cells, prepare_field, trilinear
-from apt_filters.contour.gradients import crossing_gradients
+from apt_filters.contour.gradients import hermite_crossings
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.qef import plane_misfit, solve_qef
 from apt_filters.contour.tables import case_table
@@ -28,15 +29,28 @@ _MOVED = 0.1
 _MISFIT = 0.05
 
 
-def _hermite_normals(field: Field, act: ActiveCells, points: np.ndarray, gradient, method: str) -> np.ndarray:
-    """(V, 3) unit normals in index space at the crossings (sign irrelevant to the QEF)."""
-    if gradient is not None:
-        g = np.asarray(gradient(field.to_world(points)), dtype=np.float64).reshape(-1, 3)
-        g = g * field.spacing  # world plane normal -> index-space plane normal
-    else:
-        g = crossing_gradients(field.values, act.crossing_start, act.crossing_axis, act.crossing_t, method)
+def _unit(g: np.ndarray) -> np.ndarray:
     length = np.linalg.norm(g, axis=1, keepdims=True)
     return np.divide(g, length, out=np.zeros_like(g), where=length > 0)
+
+
+def _hermite_data(field: Field, act: ActiveCells, gradient, method: str) -> tuple[np.ndarray, ...]:
+    """Crossings and unit normals in index space (sign irrelevant to the QEF), twice.
+
+    Returns (V, 3) points, normals, and the linear crossings with their normals. With an
+    exact gradient both pairs are the linear crossings and their normals; with estimated
+    ones the first pair is re-placed along kinked edges
+    (:func:`~apt_filters.contour.gradients.hermite_crossings`) and the second is the QEF's
+    fallback for compromise vertices whose planes it fits better.
+    """
+    shape = field.values.shape
+    linear = act.crossing_points(shape)
+    if gradient is not None:
+        g = np.asarray(gradient(field.to_world(linear)), dtype=np.float64).reshape(-1, 3)
+        g = _unit(g * field.spacing)  # world plane normal -> index-space plane normal
+        return linear, g, linear, g
+    t, g, g_linear = hermite_crossings(field.values, act.crossing_start, act.crossing_axis, act.crossing_t, method)
+    return replace(act, crossing_t=t).crossing_points(shape), _unit(g), linear, _unit(g_linear)
 
 
 def _intersecting_near(field: Field, pos: np.ndarray, seeds: np.ndarray, tris: np.ndarray,
@@ -141,7 +155,9 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
         As for :func:`~apt_filters.contour.marching_cubes.marching_cubes`.
     gradient : callable, optional
         Exact gradient: maps (n, 3) world points (nm) to (n, 3) gradients. Without it the
-        Hermite normals come from the field by ``field_gradient``.
+        Hermite normals come from the field by ``field_gradient``; with ``"eno"`` a crossing
+        on an edge whose ends lie on two faces is also re-placed onto the face that holds
+        there (vertices whose planes then miss their cell keep the linear crossings).
     field_gradient : {"eno", "central", "fit"}
         Estimator of normals from the samples (see :mod:`apt_filters.contour.gradients`);
         ``"fit"`` suits noisy counted fields, ``"eno"`` sharp analytic ones.
@@ -182,8 +198,7 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     act = find_active_cells(field)
     table = case_table()
     shape = field.values.shape
-    points = act.crossing_points(shape)
-    normals = _hermite_normals(field, act, points, gradient, field_gradient)
+    points, normals, linear, linear_normals = _hermite_data(field, act, gradient, field_gradient)
 
     n_loops = table.n_loops[act.key]
     first = np.cumsum(n_loops) - n_loops
@@ -191,21 +206,38 @@ def dual_contouring(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.
     crossing = act.edge_crossing[rows, edges]
     vertex = first[rows] + table.edge_loop[act.key[rows], edges]
     n_vertices = int(n_loops.sum())
+    cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
+    vertex_cell = act.cell[cell_of_vertex]
+    lo = np.stack(np.unravel_index(vertex_cell, shape), axis=1).astype(np.float64)
 
     def total(weights: np.ndarray) -> np.ndarray:
         return np.bincount(vertex, weights=weights, minlength=n_vertices)
 
-    n, p = normals[crossing], points[crossing]
-    d = np.einsum("ij,ij->i", n, p)
-    ata = np.stack([np.stack([total(n[:, a] * n[:, b]) for b in range(3)], -1) for a in range(3)], -2)
-    atb = np.stack([total(n[:, a] * d) for a in range(3)], -1)
-    count = total(np.ones(len(vertex)))
-    mass = np.stack([total(p[:, a]) for a in range(3)], -1) / count[:, None]
-    cell_of_vertex = np.repeat(np.arange(len(act.cell)), n_loops)
-    vertex_cell = act.cell[cell_of_vertex]
-    lo = np.stack(np.unravel_index(vertex_cell, shape), axis=1).astype(np.float64)
-    candidates, clamped = solve_qef(ata, atb, mass, lo, lo + 1.0, cutoff, max_rank)
-    compromise = clamped & (plane_misfit(ata, atb, total(d * d), count, candidates) > _MISFIT)
+    def solve(pts: np.ndarray, nrm: np.ndarray, rows: np.ndarray):
+        """Mass points, minimisers by rank (clamped to the cell), compromise flags and the
+        top rank's plane misfit of the vertices ``rows`` from Hermite data ``pts``, ``nrm``."""
+        n, p = nrm[crossing], pts[crossing]
+        d = np.einsum("ij,ij->i", n, p)
+        ata = np.stack([np.stack([total(n[:, a] * n[:, b]) for b in range(3)], -1) for a in range(3)], -2)[rows]
+        atb = np.stack([total(n[:, a] * d) for a in range(3)], -1)[rows]
+        count = total(np.ones(len(vertex)))[rows]
+        mass = np.stack([total(p[:, a]) for a in range(3)], -1)[rows] / count[:, None]
+        cand, clamp = solve_qef(ata, atb, mass, lo[rows], lo[rows] + 1.0, cutoff, max_rank)
+        misfit = plane_misfit(ata, atb, total(d * d)[rows], count, cand)
+        return mass, cand, clamp & (misfit > _MISFIT), misfit[max_rank]
+
+    mass, candidates, compromise, misfit = solve(points, normals, slice(None))
+    # A re-placed crossing carries an end's plane to the true crossing; next to a corner that
+    # end's gradient can point at the corner rather than along the face, and the planes then
+    # meet outside the cell. Such compromise vertices keep the linear Hermite data where its
+    # planes fit better.
+    re_placed = np.any(points != linear, axis=1)[crossing]
+    retry = np.flatnonzero(compromise[max_rank] & (total(re_placed) > 0))
+    if len(retry):
+        mass_l, cand_l, comp_l, misfit_l = solve(linear, linear_normals, retry)
+        better = misfit_l < misfit[retry]
+        back = retry[better]
+        mass[back], candidates[:, back], compromise[:, back] = mass_l[better], cand_l[:, better], comp_l[:, better]
     rank = np.full(n_vertices, float(max_rank))
     ids = np.arange(n_vertices)
     seeds = np.linalg.norm(candidates[max_rank] - mass, axis=1) > _MOVED

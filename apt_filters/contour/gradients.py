@@ -15,8 +15,12 @@ combined at the crossing, in index space (voxel units):
     whose stencil has the smaller second difference, i.e. the one that does not reach
     across a kink of the field. The two edge ends are then weighted by how smooth their
     stencils were (relative residual curvature), so a crossing next to a convex edge takes
-    its normal from the flat inside end, next to a concave edge from the outside end; ends
-    whose normals differ by more than 20° are not blended (the better one is taken).
+    its normal from the flat inside end, next to a concave edge from the outside end. Ends
+    whose normals differ by more than 20° lie on two faces and are not blended: along the
+    edge each end's tangent line is extended to where the two meet (the kink), the crossing
+    is taken on the line of the end on its side of the kink, at that line's zero, with that
+    end's normal (:func:`hermite_crossings`); without a kink inside the edge, the end with
+    the larger weight.
 """
 
 from __future__ import annotations
@@ -70,14 +74,30 @@ def point_gradients(values: np.ndarray, pts: np.ndarray, method: str) -> tuple[n
 
 def crossing_gradients(values: np.ndarray, start: np.ndarray, axis: np.ndarray, t: np.ndarray,
                        method: str = "eno") -> np.ndarray:
-    """(V, 3) index-space gradients at crossings on grid edges.
+    """(V, 3) index-space gradients at crossings on grid edges (see :func:`hermite_crossings`)."""
+    return hermite_crossings(values, start, axis, t, method)[1]
+
+
+def hermite_crossings(values: np.ndarray, start: np.ndarray, axis: np.ndarray, t: np.ndarray,
+                      method: str = "eno") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Crossings on grid edges, re-placed along kinked edges, and their index-space gradients.
 
     Parameters
     ----------
     values : (nx, ny, nz) ndarray
     start : (V,) int64 flat index of each edge's first point; axis (V,) its direction
-    t : (V,) fraction along the edge
+    t : (V,) fraction along the edge (linear interpolation)
     method : {"eno", "central", "fit"}
+
+    Returns
+    -------
+    t : (V,) fraction along the edge; with ``"eno"``, where the two ends lie on different
+        faces of a sharp edge, the zero of the end's tangent line that holds at the
+        crossing (see :func:`_near_piece`), else the input ``t``
+    gradients : (V, 3)
+    linear : (V, 3)
+        Gradients for the linear crossings (the input ``t``): where ``t`` was re-placed, the
+        end with the larger weight, as chosen before the kink test; elsewhere ``gradients``.
     """
     if method not in METHODS:
         raise ValueError(f"unknown gradient method {method!r}; choose one of {METHODS}")
@@ -95,8 +115,47 @@ def crossing_gradients(values: np.ndarray, start: np.ndarray, axis: np.ndarray, 
     n1 = g1 / (np.linalg.norm(g1, axis=1, keepdims=True) + 1e-300)
     blend = w0[:, None] * n0 + w1[:, None] * n1
     if method != "eno":
-        return blend
-    # Ends on two different faces of a sharp edge: a blend is a plane that does not exist;
-    # take the end with the larger weight instead.
+        return t, blend, blend
+    # Ends on two different faces of a sharp edge: a blend is a plane that does not exist.
+    # Take the end whose plane holds at the crossing and that plane's zero on the edge (the
+    # linear t, up to 0.35 voxel off there, offsets the plane by that times the normal's
+    # component along the edge); where no kink lies on the edge, the end with the larger weight.
     split = np.einsum("ij,ij->i", n0, n1) < np.cos(np.radians(20.0))
-    return np.where(split[:, None], np.where((w0 >= w1)[:, None], n0, n1), blend)
+    piece, t_piece = _near_piece(values, start, axis, t, g0, g1)
+    kinked = split & (piece >= 0)
+    linear = np.where(split[:, None], np.where((w0 >= w1)[:, None], n0, n1), blend)
+    return (np.where(kinked, t_piece, t), np.where(kinked[:, None], np.where((piece == 0)[:, None], n0, n1), linear),
+            linear)
+
+
+def _near_piece(values: np.ndarray, start: np.ndarray, axis: np.ndarray, t: np.ndarray, g0: np.ndarray,
+                g1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which end's tangent line holds at the crossing along a kinked edge, and where it crosses.
+
+    Along the edge the field is taken as two lines, each end's own (its value and its
+    gradient's component along the edge), meeting at a kink where they cross. The field
+    changes sign once, so the crossing lies between the kink and the end whose value has
+    the other sign than the field at the kink; that end's plane is the one through the
+    crossing. The nearer end (the larger t-weight) is often the wrong one: a crossing
+    close to a convex rim's outer sample can still lie on the face of the inner sample.
+
+    Returns (V,) piece: 0, 1, or -1 where no kink lies inside the edge; (V,) the zero of
+    that end's line (meaningful where piece >= 0).
+    """
+    flat = values.reshape(-1)
+    idx = np.arange(len(start))
+    v0 = flat[start].astype(np.float64)
+    v1 = flat[start + strides(values.shape)[axis]].astype(np.float64)
+    s0, s1 = g0[idx, axis], g1[idx, axis]
+    iso = v0 + t * (v1 - v0)  # t is the linear crossing, so this is the iso-value
+    den = s0 - s1
+    safe = np.abs(den) > 1e-9 * (np.abs(s0) + np.abs(s1) + 1e-300)
+    kink = np.where(safe, (v1 - s1 - v0) / np.where(safe, den, 1.0), -1.0)
+    at_kink = v0 + s0 * kink - iso
+    piece = np.where(safe & (kink > 0) & (kink < 1) & (at_kink != 0),
+                     np.where(at_kink * (v1 - iso) > 0, 0, 1), -1)
+    # Between its end and the kink the chosen line changes sign, so its slope is not 0 there.
+    slope = np.where(piece == 0, s0, s1)
+    slope = np.where(slope != 0, slope, 1.0)
+    zero = np.where(piece == 0, (iso - v0) / slope, 1.0 + (iso - v1) / slope)
+    return piece, np.where(piece >= 0, zero, t)
