@@ -1,0 +1,127 @@
+"""The refinement's two final corrections (issue 9), against analytic surfaces and synthetic specimens.
+
+- the reconstruction blur's curvature bias (``apt_filters.refine.blur``): a blurred interface's midpoint
+  lies ``(1/2) tr(Sigma S)`` inside a convex surface;
+- sharp edges and corners rebuilt where planar facets meet (``apt_filters.refine.facets``).
+"""
+
+import numpy as np
+import pytest
+
+from apt_filters.contour import marching_cubes
+from apt_filters.refine import refine_surface, remove_specks
+from apt_filters.refine.blur import blur_shift, shape_operator
+from apt_filters.refine.facets import facet_steps, find_facets
+from apt_filters.synth import Cuboid, Sphere, generate
+from apt_filters.synth.geometry import Box
+from apt_filters.synth.presets import GAMMA, GAMMA_PRIME
+from apt_filters.synth.specimen import Feature, SpecimenSpec
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+
+NO_B = ConcentrationBasis(exclude=("B",))
+
+
+def _contour(sdf, lo, hi, spacing):
+    """Marching cubes of ``-sdf`` (inside positive) on a grid over [lo, hi] (x, y, z extents may differ)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    shape = np.round((hi - lo) / spacing).astype(int) + 1
+    axes = [lo[a] + spacing * np.arange(shape[a]) for a in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    return marching_cubes(-sdf(grid).reshape(*shape), 0.0, spacing=spacing, origin=lo)
+
+
+def test_shape_operator_of_a_sphere_and_the_blur_shift_of_a_cylinder_along_x():
+    r = 3.0
+    sphere = _contour(lambda p: np.linalg.norm(p, axis=1) - r, (-4, -4, -4), (4, 4, 4), 0.2)
+    normals = sphere.vertices / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
+    trace = np.trace(shape_operator(sphere.vertices, sphere.faces, normals), axis1=1, axis2=2)
+    assert np.median(np.abs(trace * r / 2 - 1)) < 0.02  # sum of principal curvatures 2 / R
+    # a cylinder of radius 2 along x (an asymmetric box, x longest): curvature only round the axis, in
+    # y and z, so the shift is (1/2) sigma_t^2 / rho with sigma_t^2 = 0.09 sin^2 + 0.01 cos^2 at normal
+    # (0, cos, sin): the depth sigma (z) must act where the tangent is along z, i.e. at the cylinder's sides
+    rho, lateral, depth = 2.0, 0.3, 0.1
+    cyl = _contour(lambda p: np.hypot(p[:, 1], p[:, 2]) - rho, (-6, -3, -3), (6, 3, 3), 0.2)
+    shift, along = blur_shift(cyl, (lateral, depth))
+    v = cyl.vertices
+    middle = np.abs(v[:, 0]) < 4  # away from the open ends
+    angle = np.arctan2(v[middle, 2], v[middle, 1])
+    expected = 0.5 * (lateral ** 2 * np.sin(angle) ** 2 + depth ** 2 * np.cos(angle) ** 2) / rho
+    # measured on this 0.2 nm marching-cubes mesh: mean 0.96 of the expected, correlation 0.92, normal along z
+    # 0.92, along y 1.22 (spurious curvature along the axis of ~0.01/nm, times the lateral 0.09 nm^2)
+    assert shift[middle].mean() == pytest.approx(expected.mean(), rel=0.06)
+    assert np.corrcoef(shift[middle], expected)[0, 1] > 0.9
+    top, side = np.abs(np.sin(angle)) > 0.95, np.abs(np.cos(angle)) > 0.95  # normal along z / along y
+    assert shift[middle][top].mean() == pytest.approx(0.5 * lateral ** 2 / rho, rel=0.1)
+    assert shift[middle][side].mean() == pytest.approx(0.5 * depth ** 2 / rho, rel=0.3)
+    assert shift[middle][top].mean() > 6 * shift[middle][side].mean()  # x, y lateral; z depth
+    # a plane has none
+    plane = _contour(lambda p: p[:, 2] - 0.3, (-3, -3, -2), (3, 3, 2), 0.25)
+    assert np.abs(blur_shift(plane, (lateral, depth))[0]).max() < 1e-9
+
+
+def _sphere_specimen(seed, blur):
+    """A 3 nm gamma-prime sphere in a dense box, no segregant: the volume error is the profile's own."""
+    spec = SpecimenSpec(Box((14.0, 14.0, 14.0)), GAMMA, (Feature(Sphere((0.3, -0.2, -7.1), 3.0), GAMMA_PRIME, 0.2, (),
+                                                                  "sphere"),),
+                        density=170.0, efficiency=1.0, blur=blur, name="blurred sphere")
+    sp = generate(spec, seed=seed)
+    fields = voxelize(sp.ions, sp.ranges)
+    c = fields.concentration("Al", NO_B).dense()
+    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin,
+                                         mask=inside_mask(fields).dense()))[0]
+    return sp, start
+
+
+def test_blur_correction_removes_the_curvature_bias_of_a_blurred_sphere():
+    blur = (0.45, 0.45)
+    errors = {False: [], True: []}
+    for seed in (1, 2, 3):
+        sp, start = _sphere_specimen(seed, blur)
+        true_volume = sp.truth["features"][0]["volume_nm3"]
+        for correct in (False, True):
+            mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, blur=blur if correct else None).mesh
+            errors[correct].append(mesh.signed_volume() / true_volume - 1)
+    # theory: the midpoint lies sigma^2 / R = 0.0675 nm inside, -6.6 % of the volume. Measured: -5.9, -5.3,
+    # -2.9 % uncorrected, +0.8, +1.4, +3.9 % corrected: the shift is the theory's, and a +1-2 % bias of
+    # another origin remains on this dense specimen (+1.0 % with the gamma-prime blur, 0.3 / 0.1 nm)
+    uncorrected, corrected = np.mean(errors[False]), np.mean(errors[True])
+    assert uncorrected < -0.035
+    assert corrected - uncorrected == pytest.approx(3 * 0.0675 / 3.0 + 3 * (0.0675 / 3.0) ** 2, rel=0.15)
+    assert abs(corrected) < 0.5 * abs(uncorrected)
+
+
+def _rounded_box(rounding=1.0, rotation=27, spacing=0.3, noise=0.03, seed=0):
+    box = Cuboid((0.2, -0.1, 0.3), (7.0, 6.0, 5.0), rotation=rotation)
+    inner = Cuboid(box.center, box.size - 2 * rounding, rotation=rotation)
+    mesh = _contour(lambda p: inner.sdf(p) - rounding, (-6, -6, -6), (6, 6, 6), spacing)
+    rng = np.random.default_rng(seed)
+    mesh.vertices = mesh.vertices + rng.normal(0.0, noise, mesh.vertices.shape)
+    return box, mesh
+
+
+def test_facets_of_a_rounded_noisy_box_and_its_rebuilt_edges_and_corners():
+    from apt_filters.refine.evaluate import surface_error
+
+    box, mesh = _rounded_box()
+    facets = find_facets(mesh.vertices, mesh.faces)
+    assert len(facets) == 6
+    axes = box.rotation.T  # rows: the box's local axes in the world frame
+    for f in facets:
+        k = np.argmax(np.abs(axes @ f.normal))
+        assert abs(axes[k] @ f.normal) > np.cos(np.radians(1.0))
+        assert abs(abs(f.offset - f.normal @ box.center) - box.size[k] / 2) < 0.05
+    step, normals = facet_steps(mesh.vertices, mesh.faces, facets)
+    sharp = type(mesh)(mesh.vertices + step[:, None] * normals, mesh.faces)
+    before = surface_error(mesh, box.sdf, box.mesh(0.2), box.volume(), box.area())
+    after = surface_error(sharp, box.sdf, box.mesh(0.2), box.volume(), box.area())
+    # a 1 nm fillet: corners 0.73 nm in, volume -3.9 %, area -3.8 %
+    assert before.hausdorff > 0.6 and before.volume_error < -0.03
+    assert after.hausdorff < 0.25 and abs(after.volume_error) < 0.006 and abs(after.area_error) < 0.01
+
+
+def test_a_noisy_sphere_has_no_facets():
+    rng = np.random.default_rng(2)
+    for r in (3.0, 6.0):
+        mesh = _contour(lambda p: np.linalg.norm(p, axis=1) - r, (-r - 1,) * 3, (r + 1,) * 3, 0.3)
+        mesh.vertices = mesh.vertices + rng.normal(0.0, 0.05, mesh.vertices.shape)
+        assert find_facets(mesh.vertices, mesh.faces) == []
