@@ -15,9 +15,12 @@ Each outer iteration:
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
    :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
-   differ significantly) and the score's two levels ``s_in`` and ``s_out``; measured again in
-   every iteration (plateaus measured against a surface still inside put interface ions into the
-   outside window).
+   differ significantly) and the score's two levels ``s_in`` and ``s_out``. By default
+   (``cross_fit``) they are measured once, before the iterations, on ions that did not place the
+   surface they are measured against (each half of the ions against the other half's refined
+   surface), and kept; with ``cross_fit=False`` they are measured again in every iteration against
+   the current surface (plateaus measured against a surface still inside put interface ions into the
+   outside window), which reads the inside plateau high (the surface's own noise selects the ions).
 3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
    is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
    midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
@@ -91,7 +94,9 @@ class RefineResult:
         Same faces as the input, vertices moved; ``vertex_scalars["displacement"]`` is each
         vertex's total signed move along its normals (nm, positive outward).
     levels : list of ObjectLevels
-        Each object's plateaus and midpoint iso-value, measured against the refined surface.
+        Each object's plateaus and midpoint iso-value (``plateau_window``, ``plateau_prior``): the
+        cross-fitted ones the surface was placed with (``cross_fit``), or else measured against
+        the refined surface with the same ions (biased: see ``cross_fit``).
     displacement : dict
         ``mean``, ``rms``, ``max_abs`` of the total signed normal displacement (nm), and
         ``last_step_max`` (nm), the largest move of the final iteration (convergence).
@@ -364,13 +369,17 @@ def refine_surface(
         Measured against the surface the same ions placed, the inside plateau reads high: where
         the surface has moved out over an Al-rich fluctuation, ions of that fluctuation near the
         inner edge of the window enter it, and where it moved in over an Al-poor one they leave
-        it (+0.4 at.% Al on gamma-prime, every object size; the benchmark's start surface, a
-        contour of the same ions, shows it too, so frames derived from the start do not help).
-        The high plateau puts the midpoint high and the surface inward. Gamma-prime seeds 1-3,
-        volume worst / mean abs (signed): 9.1 / 5.6 % (-5.2 %) -> 8.4 / 4.7 % (-4.1 %); seeds 4-5
-        9.9 / 5.2 % (-5.1 %) -> 8.6 / 4.8 % (-3.9 %) (benchmarks/results_refine.md). Costs two
-        refinements of half the ions (about 2.3x the time). ``False``: plateaus measured against
-        the current surface in every iteration (the previous behaviour).
+        it. Against the same ions' plateaus in the windows of the TRUE surfaces (gamma-prime seeds
+        1-5, 20 objects, no prior): +0.35 +- 0.12 at.% Al measured against the refined surface,
+        +0.03 +- 0.14 cross-fitted, with the same scatter (rms 0.62 / 0.59 at.%). The benchmark's
+        start surface, a contour of the same ions, is biased alike (+0.2-0.8 at.% per seed), so
+        windows measured against the start moved by the mean or low-passed displacement do not help
+        (volume 6.5 / 6.4 % mean abs). The high plateau puts the midpoint high and the surface
+        inward. Gamma-prime seeds 1-3, volume worst / mean abs (signed): 9.1 / 5.6 % (-5.2 %) ->
+        8.4 / 4.7 % (-4.1 %); seeds 4-5 9.9 / 5.2 % (-5.1 %) -> 8.6 / 4.8 % (-3.9 %); area,
+        distances and Hausdorff unchanged within 0.3 points (benchmarks/results_refine.md). Costs
+        two refinements of half the ions first (about 2.3x the time). ``False``: plateaus measured
+        against the current surface in every iteration (the previous behaviour).
 
     Returns
     -------
@@ -485,8 +494,9 @@ def refine_surface(
                   dict(mesh.face_scalars))
     if near.moved(vertices) > RESELECT:
         near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-    levels = plateaus(near.band(vertices, vertex_normals(vertices, faces), reach, distance), near.atoms,
-                      components, n_comp, species, plateau_window, plateau_prior)
+    levels = fixed if fixed is not None else plateaus(near.band(vertices, vertex_normals(vertices, faces), reach,
+                                                                distance), near.atoms, components, n_comp, species,
+                                                      plateau_window, plateau_prior)
     stats = {"mean": float(moved_total.mean()) if n else 0.0,
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
