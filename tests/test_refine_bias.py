@@ -12,13 +12,13 @@ import pytest
 from apt_filters.contour import marching_cubes
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import object_excess, refine_surface
-from apt_filters.refine.band import NearIons, vertex_normals
+from apt_filters.refine import object_excess, refine_surface, remove_specks
+from apt_filters.refine.band import NearIons, vertex_components, vertex_normals
 from apt_filters.synth import Cuboid, Sphere, generate
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.presets import GAMMA, GAMMA_PRIME
 from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec
-from apt_filters.voxel import ConcentrationBasis
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
 NO_B = ConcentrationBasis(exclude=("B",))
 
@@ -149,3 +149,44 @@ def test_excess_plateaus_start_beyond_the_blurred_segregation_shell():
         excess = object_excess(sp.meshes[0], sp.ions, sp.ranges, "B")
         errors.append(excess[0].excess_ions / sp.truth["features"][0]["excess"]["B"]["excess_ions"] - 1)
     assert abs(np.mean(errors)) < 0.01, errors
+
+
+def test_plateaus_the_refinement_uses_are_not_biased_by_the_surface_they_place():
+    """Measured against the surface the same ions placed, an object's inside plateau reads high: where the
+    surface moved out over an Al-rich fluctuation, ions of it near the window's inner edge enter the window,
+    where it moved in over an Al-poor one they leave it. The cross-fit (``cross_fit``, the default) counts
+    each half's ions against the other half's surface.
+
+    Eight 3 nm gamma-prime spheres (B shell, efficiency 0.5), two specimens, the plateaus from 0.75 nm
+    (where the selection is strong) and no prior, against the same ions' plateaus in the windows of the TRUE
+    surfaces: mean inside Al error +0.38 / +0.40 at.% against the refined surface (``cross_fit=False``),
+    +0.06 / -0.01 at.% cross-fitted; per sphere +-0.4-0.8 at.% (counting noise)."""
+    errors = {True: [], False: []}
+    window = (0.75, 3.0)
+    for seed in (1, 2):
+        centres = [(x, y, z) for x in (-5.0, 5.0) for y in (-5.0, 5.0) for z in (-5.0, -15.0)]
+        spec = SpecimenSpec(Box((20.0, 20.0, 20.0)), GAMMA,
+                            tuple(Feature(Sphere(c, 3.0), GAMMA_PRIME, 0.2, (Segregation("B", peak=0.08, sigma=0.25),),
+                                          f"sphere {i}") for i, c in enumerate(centres)), efficiency=0.5,
+                            name="spheres")
+        sp = generate(spec, seed=seed)
+        fields = voxelize(sp.ions, sp.ranges)
+        start = remove_specks(marching_cubes(fields.concentration("Al", NO_B).dense(), 0.15, spacing=fields.grid.voxel,
+                                             origin=fields.grid.origin, mask=inside_mask(fields).dense()))[0]
+        species, names = sp.ions.extra["species"], sp.truth["species"]
+        counted = (species >= 0) & (species != names.index("B"))
+        positions = sp.ions.positions.astype(np.float64)
+        for cross_fit in (True, False):
+            result = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, plateau_window=window, plateau_prior=0.0,
+                                    cross_fit=cross_fit)
+            components = vertex_components(result.mesh.faces, result.mesh.n_vertices)
+            k = result.levels[0].elements.index("Al")
+            assert len(result.levels) == len(centres)
+            for i in range(len(centres)):
+                sdf = sp.feature_sdf(i)
+                c = np.bincount(components[np.abs(sdf(result.mesh.vertices)) < 0.7]).argmax()
+                d = sdf(positions)
+                truth = np.mean(species[counted & (d <= -window[0]) & (d >= -window[1])] == names.index("Al"))
+                errors[cross_fit].append(100 * (result.levels[c].inside[k] - truth))
+    assert abs(np.mean(errors[True])) < 0.15, errors[True]
+    assert np.mean(errors[False]) > 0.25, errors[False]  # the selection the cross-fit removes

@@ -59,13 +59,16 @@ class ObjectLevels:
                 "outside": dict(zip(self.elements, self.outside.tolist()))}
 
 
-def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int, species: str,
-             window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
-    """Plateaus of every component from ions already in a band (see :func:`object_levels`)."""
+def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int,
+                 window=PLATEAU_WINDOW) -> np.ndarray:
+    """(n_components, 2, k) atoms of each basis element in each object's inside (0) and outside (1) window.
+
+    Sums, so that the windows of separate ion sets (e.g. the two halves of :func:`refine_surface`'s
+    cross-fit) add up before :func:`levels_from_sums`.
+    """
     inner, outer = window
     comp = components[band.vertex]
     a = atoms.atoms[band.index].astype(np.float64)
-    k = atoms.elements.index(species)
     window_of = np.full(len(comp), -1)  # 0: inside plateau window, 1: outside
     window_of[(band.distance <= -inner) & (band.distance >= -outer)] = 0
     window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
@@ -73,10 +76,17 @@ def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: 
     key = 2 * comp[use] + window_of[use]
     per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
                    axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
-    sums = [(per[2 * c], per[2 * c + 1]) for c in range(n_components)]
+    return per.reshape(n_components, 2, a.shape[1])
+
+
+def levels_from_sums(sums: np.ndarray, elements: list[str], species: str,
+                     prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
+    """Each object's plateaus from its window sums (:func:`plateau_sums`), shrunk toward the pooled ones."""
+    k = elements.index(species)
     out = []
-    pooled = [np.sum([s[side] for s in sums], axis=0) for side in (0, 1)] if sums else []
-    for c, (inside, outside) in enumerate(sums):
+    pooled = [sums[:, side].sum(axis=0) for side in (0, 1)] if len(sums) else []
+    for c in range(len(sums)):
+        inside, outside = sums[c, 0], sums[c, 1]
         n_in, n_out = inside.sum(), outside.sum()
         if prior > 0:
             # shrink toward the pooled levels: a small object's own plateau is mostly noise
@@ -84,9 +94,16 @@ def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: 
             outside = outside + prior * pooled[1] / max(pooled[1].sum(), 1e-300)
         c_in = inside / inside.sum() if inside.sum() > 0 else np.full(len(inside), np.nan)
         c_out = outside / outside.sum() if outside.sum() > 0 else np.full(len(outside), np.nan)
-        out.append(ObjectLevels(c, atoms.elements, c_in, c_out, float(n_in), float(n_out),
+        out.append(ObjectLevels(c, list(elements), c_in, c_out, float(n_in), float(n_out),
                                 float(0.5 * (c_in[k] + c_out[k]))))
     return out
+
+
+def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int, species: str,
+             window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
+    """Plateaus of every component from ions already in a band (see :func:`object_levels`)."""
+    return levels_from_sums(plateau_sums(band, atoms, components, n_components, window), atoms.elements, species,
+                            prior)
 
 
 def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
