@@ -29,7 +29,8 @@ def build_config(args: argparse.Namespace):
         config.surface = [cfg.SurfaceConfig(species, iso)]
     overrides = {("voxel", "size"): args.voxel, ("voxel", "kernel"): args.kernel, ("voxel", "exclude"): args.exclude,
                  ("contour", "method"): args.method, ("remesh", "method"): args.remesh,
-                 ("analysis", "efficiency"): args.efficiency}
+                 ("analysis", "efficiency"): args.efficiency, ("refine", "blur"): args.blur,
+                 ("refine", "cross_fit"): args.cross_fit or None, ("refine", "facets"): False if args.no_facets else None}
     for (section, key), value in overrides.items():
         if value is not None:
             setattr(getattr(config, section), key, value)
@@ -68,6 +69,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--voxel", type=float, help="voxel edge in nm (default 1.0)")
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")
     p.add_argument("--efficiency", type=float, help="detection efficiency (default 0.5)")
+    p.add_argument("--blur", type=float, nargs=2, metavar=("LATERAL", "DEPTH"),
+                   help="reconstruction blur sigmas in nm whose curvature bias the refinement undoes")
+    p.add_argument("--cross-fit", action="store_true", help="refinement plateaus cross-fitted on two halves of the ions")
+    p.add_argument("--no-facets", action="store_true", help="keep edges as refined (no facet sharpening)")
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
     loud = p.add_mutually_exclusive_group()
     loud.add_argument("--quiet", "-q", action="store_true", help="no step summaries")

@@ -65,6 +65,8 @@ def _check_config(config: PipelineConfig) -> None:
         raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
     if not config.surface:
         raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
+    if len(config.refine.blur) not in (0, 2) or any(b < 0 for b in config.refine.blur):
+        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty")
     for s in config.surface:
         if s.species and not 0 < s.iso < 1:
             raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
@@ -134,11 +136,15 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 with log.step("refine") as s:
                     mesh, specks = remove_specks(mesh, config.refine.min_volume, config.refine.min_area)
                     refined = refine_surface(mesh, ions, ranges, surface.species, basis,
-                                             iterations=config.refine.iterations)
+                                             iterations=config.refine.iterations, facets=config.refine.facets,
+                                             blur=tuple(config.refine.blur) or None,
+                                             cross_fit=config.refine.cross_fit)
                     mesh = refined.mesh
                     refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
                                     "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
-                                    "self_intersections": refined.self_intersections}
+                                    "self_intersections": refined.self_intersections, "facets": refined.facets,
+                                    "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),
+                                    "cross_fit": config.refine.cross_fit}
                     s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
                                  f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
             else:

@@ -24,7 +24,8 @@ Method
    otherwise run out to the other planes' intersection), and at most ``max_move`` nm; every move is
    fold-guarded (:func:`~apt_filters.refine.surface.guarded_move`).
 
-A sphere has no facet and is left exactly as it is. This is a prior: edges where found planar facets
+A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
+the specimen edge is not a polyhedron). This is a prior: edges where found planar facets
 meet are taken as sharp, which the ions cannot confirm at the 0.1-0.3 nm scale (a blurred sharp edge and
 a ~1 nm fillet give similar profiles), so :func:`~apt_filters.refine.surface.refine_surface` lets it be
 switched off (``facets=False``) for objects known to have rounded edges.
@@ -38,6 +39,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from apt_filters.core.mesh import TriMesh
 from apt_filters.refine.band import adjacency, vertex_components, vertex_normals
 from apt_filters.refine.blur import vertex_areas
 
@@ -106,8 +108,10 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
     area = vertex_areas(vertices, faces)
     components = vertex_components(faces, len(vertices))
     detect, fit = np.cos(np.radians(cap)), np.cos(np.radians(fit_cap))
+    # open surfaces (interfaces that meet the specimen edge) are not polyhedra: only closed objects
+    open_components = np.unique(components[TriMesh(vertices, faces).boundary_edges().ravel()])
     out = []
-    for c in np.unique(components[components >= 0]):
+    for c in np.setdiff1d(np.unique(components[components >= 0]), open_components):
         idx = np.flatnonzero(components == c)
         nn, aa = normals[idx], area[idx]
         total = aa.sum()

@@ -58,7 +58,7 @@ float64 arrays.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csr_matrix, diags
@@ -69,8 +69,8 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
-from apt_filters.refine.blur import BLUR, blur_shift
-from apt_filters.refine.facets import Facet, facet_steps, find_facets
+from apt_filters.refine.blur import blur_shift
+from apt_filters.refine.facets import facet_steps, find_facets
 from apt_filters.refine.composition import contrast_weights
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
@@ -258,25 +258,6 @@ def matched_offset(u: np.ndarray, total: np.ndarray, width: np.ndarray, half_wid
     return np.divide(np.sum(total * slope * (u - model), axis=1), den, out=np.zeros(len(u)), where=den > 0)
 
 
-def facet_at_crossing(facet: Facet, positions: np.ndarray, vertex: np.ndarray, score: np.ndarray,
-                      total: np.ndarray, s_in: float, s_out: float, half_width: float, bin_width: float) -> Facet:
-    """The facet's plane moved to the equal-area crossing of the profile of the ions of its vertices.
-
-    The ions whose nearest vertex is in the facet's core, binned by their distance to its plane: one
-    profile of thousands of ions, so its crossing fixes the plane to ~0.02 nm, and the equal-area rule is
-    unbiased on a plane for any symmetric blur. The mesh's own faces are noisier and slightly pillowed
-    (their centres stand out from their rims), which a plane fitted to the vertices inherits.
-    """
-    mine = np.isin(vertex, facet.core)
-    d = positions[mine] @ facet.normal - facet.offset
-    s = binned(np.zeros(int(mine.sum()), dtype=np.int64), d, score[mine], 1, half_width, bin_width)
-    t = binned(np.zeros(int(mine.sum()), dtype=np.int64), d, total[mine], 1, half_width, bin_width)
-    if t.sum() == 0 or s_in == s_out:
-        return facet
-    u = normalised_profile(s, t, np.array([s_in]), np.array([s_out]), half_width, bin_width)
-    return replace(facet, offset=facet.offset + float(equal_area_offset(u, half_width, bin_width)[0]))
-
-
 def _cross_fitted_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
                          basis: ConcentrationBasis, keywords: dict) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' refined surface plus the odd ions
@@ -331,9 +312,9 @@ def refine_surface(
     full_steps: int = 4,
     crease_angle: float = 20.0,
     crease_smoothing: int = 6,
-    blur: tuple[float, float] | None = BLUR,
+    blur: tuple[float, float] | None = None,
     facets: bool = True,
-    cross_fit: bool = True,
+    cross_fit: bool = False,
 ) -> RefineResult:
     """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
 
@@ -444,7 +425,7 @@ def refine_surface(
                         plateau_window=plateau_window, plateau_prior=plateau_prior, subdivisions=subdivisions,
                         distance=distance, normal_smoothing=normal_smoothing, relax_start=relax_start,
                         full_steps=full_steps, crease_angle=crease_angle, crease_smoothing=crease_smoothing,
-                        cross_fit=False)
+                        blur=blur, facets=facets, cross_fit=False)
         fixed = _cross_fitted_levels(mesh, ions, ranges, species, basis, keywords)
     for _ in range(subdivisions):
         mesh = subdivide(mesh)
@@ -545,11 +526,6 @@ def refine_surface(
     found = find_facets(vertices, faces) if facets else []
     sharpened = 0
     if found:
-        band = near.band(vertices, vertex_normals(vertices, faces), reach, distance)
-        ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[components[band.vertex]])
-        found = [facet_at_crossing(f, near.positions[band.index], band.vertex, ion_score,
-                                   total_atoms[band.index], s_in[f.component], s_out[f.component], half_width,
-                                   bin_width) if usable[f.component] else f for f in found]
         step, along = facet_steps(vertices, faces, found)
         vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
         guarded += g
