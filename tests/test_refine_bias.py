@@ -155,7 +155,7 @@ def test_excess_plateaus_start_beyond_the_blurred_segregation_shell():
 def test_plateaus_the_refinement_uses_are_not_biased_by_the_surface_they_place():
     """Measured against the surface the same ions placed, an object's inside plateau reads high: where the
     surface moved out over an Al-rich fluctuation, ions of it near the window's inner edge enter the window,
-    where it moved in over an Al-poor one they leave it. The cross-fit (``cross_fit``, the default) counts
+    where it moved in over an Al-poor one they leave it. The cross-fit (``cross_fit=True``, opt-in) counts
     each half's ions against the other half's surface.
 
     Eight 3 nm gamma-prime spheres (B shell, efficiency 0.5), two specimens, the plateaus from 0.75 nm

@@ -21,8 +21,8 @@ Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
     excess = object_excess(result.mesh, ions, ranges, "B")  # per object, over its refined area
 
 On the gamma-prime specimen (3 seeds) this takes volumes from -31% (AP Suite-style, mean abs) to
-4.7%, mean distance to the true surface from 0.41 to 0.19 nm, Hausdorff from 1.5 to 0.87 nm, area
-errors from 22% to 4.8%, with no folds, self-intersections or proxigram sign errors
+4.3%, mean distance to the true surface from 0.41 to 0.16 nm, Hausdorff from 1.5 to 0.79 nm, area
+errors from 22% to 2.7% (cube edges rebuilt where planar facets meet), with no folds, self-intersections or proxigram sign errors
 (benchmarks/results_refine.md, docs/refine.md for the inward bias that was found and removed).
 """
 

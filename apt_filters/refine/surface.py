@@ -15,10 +15,10 @@ Each outer iteration:
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
    :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
-   differ significantly) and the score's two levels ``s_in`` and ``s_out``. By default
-   (``cross_fit``) they are measured once, before the iterations, on ions that did not place the
+   differ significantly) and the score's two levels ``s_in`` and ``s_out``. With
+   ``cross_fit=True`` they are measured once, before the iterations, on ions that did not place the
    surface they are measured against (each half of the ions against the other half's refined
-   surface), and kept; with ``cross_fit=False`` they are measured again in every iteration against
+   surface), and kept; by default they are measured again in every iteration against
    the current surface (plateaus measured against a surface still inside put interface ions into the
    outside window), which reads the inside plateau high (the surface's own noise selects the ions).
 3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
@@ -391,6 +391,9 @@ def refine_surface(
         (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched).
 
     cross_fit : bool
+        Off by default (the integrator's decision, session 5): it removes the self-selection and
+        takes gamma-prime's volume bias to ~0, but the ``small`` specimen's 3 nm sphere, already
+        large, grows past its test's area and Hausdorff guards, and it costs 2.3x the time.
         Measure the plateaus the refinement uses on ions that did not place the surface they are
         measured against: the ions are split in two (even and odd rows), each half is refined on
         its own (same keywords, ``cross_fit=False``), each half's plateau windows are counted against
