@@ -69,13 +69,14 @@ class RefineConfig:
     """Open components smaller than this (nm²) are specks too."""
     facets: bool = True
     """Rebuild sharp edges and corners where planar facets of an object meet (cuboids; spheres are
-    untouched). Gamma-prime seeds 1-5: area 4.4 -> 2.4 % mean abs, Hausdorff 0.92 -> 0.76 nm."""
+    untouched). Gamma-prime seeds 1-5 (20 objects): area 4.5 -> 2.4 % mean abs, Hausdorff 0.90 -> 0.76 nm."""
     blur: list[float] = field(default_factory=list)
     """[lateral, depth] reconstruction blur sigmas in nm whose curvature bias is undone (a 3 nm sphere
     comes out ~2 % small under 0.3 / 0.1 nm); empty: no correction. Set it where the resolution is known."""
     cross_fit: bool = False
     """Plateaus from each half of the ions against the other half's refined surface (no self-selection;
-    volume bias -3.2 -> 0 % on gamma-prime, but 2.3x the refinement time and rougher 3 nm spheres' areas)."""
+    with blur, gamma-prime's mean signed volume error -3.2 -> 0 %; 2.3x the refinement time, and the test
+    specimen's already large 3 nm spheres grow; see docs/refine.md)."""
 
 
 @dataclass
