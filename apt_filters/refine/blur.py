@@ -25,10 +25,6 @@ import numpy as np
 from apt_filters.core.mesh import TriMesh
 from apt_filters.refine.band import adjacency, vertex_normals
 
-BLUR = (0.3, 0.1)
-"""Default reconstruction blur (lateral, depth) sigmas in nm: a typical laser-pulsed reconstruction's
-resolution, and the synthetic specimens'. Set it from the data's own resolution where known."""
-
 
 def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(n,) barycentric vertex areas in nm² (a third of each adjacent face's area)."""
