@@ -69,7 +69,7 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
-from apt_filters.refine.blur import blur_shift
+from apt_filters.refine.blur import blur_shift, smoothed_normals
 from apt_filters.refine.facets import facet_steps, find_facets
 from apt_filters.refine.composition import contrast_weights
 from apt_filters.refine.subdivide import subdivide
@@ -269,15 +269,11 @@ def _cross_fitted_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, spec
     faces = fits[0].faces  # both halves' meshes have the same (subdivided) faces: same components
     components = vertex_components(faces, len(fits[0].vertices))
     n_comp = int(components.max()) + 1 if len(components) else 0
-    plain = umbrella(adjacency(faces, len(fits[0].vertices)))
     reach = window[1] + 1.0
     sums, elements = 0.0, None
     for k in (0, 1):
         vertices = fits[1 - k].vertices
-        normals = vertex_normals(vertices, faces)
-        for _ in range(keywords["normal_smoothing"]):
-            normals = plain @ normals
-            normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+        normals = smoothed_normals(vertices, faces, keywords["normal_smoothing"])
         near = NearIons.select(halves[k], ranges, basis, vertices, faces, reach)
         band = near.band(vertices, normals, reach, keywords["distance"])
         sums = sums + plateau_sums(band, near.atoms, components, n_comp, window)
