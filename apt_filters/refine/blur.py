@@ -14,11 +14,24 @@ profile crossing (equal-area or matched filter, :mod:`apt_filters.refine.surface
 small, 2 % of its volume. The correction moves each vertex outward by ``shift`` afterwards.
 
 The normal profile alone cannot give ``Sigma``: its width mixes the blur with the interface's own width
-(no curvature bias) and with the surface's noise, so the blur is a parameter (the reconstruction's
-lateral and depth resolution, e.g. from spatial distribution maps).
+(no curvature bias) and with the surface's noise. Its orientation dependence can, in part: APT blurs
+laterally (x, y) more than in depth (z), so an interface seen edge-on (normal in the x-y plane) looks
+wider than one seen face-on. With ``s(n)`` the error-function width of the profile at normal ``n``,
+
+    s(n)^2 = a + (sigma_lat^2 - sigma_depth^2) (1 - n_z^2),
+
+``a`` holding the interface's own width, the surface noise and ``sigma_depth^2``. :func:`lateral_blur`
+fits the slope from the ions of all objects pooled by ``n_z^2``; with ``sigma_depth`` taken as 0 (APT's
+depth resolution, ~0.05-0.1 nm, is several times its lateral one) it gives ``sigma_lat``, and the
+correction uses ``Sigma = diag(s, s, 0)``: on the gamma-prime specimen (0.3 / 0.1 nm) that is 89 % of
+the lateral variance and leaves out the depth part (0.003 nm on a 3 nm sphere). A flat interface (all
+normals alike) gives no estimate and no correction; ``refine_surface(blur=(lateral, depth))`` sets a
+known blur instead.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -104,3 +117,95 @@ def blur_shift(mesh: TriMesh, blur: tuple[float, float], normal_smoothing: int =
     sigma = np.diag([lateral ** 2, lateral ** 2, depth ** 2])
     shift = 0.5 * np.einsum("ij,nji->n", sigma, shape_operator(vertices, mesh.faces, normals))
     return shift, normals
+
+
+@dataclass
+class BlurEstimate:
+    """The lateral blur read off the orientation dependence of the profile width (module docstring).
+
+    Attributes
+    ----------
+    lateral : float, nm
+        ``sqrt(max(slope, 0))``: the lateral sigma with the depth sigma taken as 0.
+    slope : float, nm²
+        Fitted ``sigma_lat^2 - sigma_depth^2``.
+    slope_se : float, nm²
+        Its standard error (from the widths' fit errors).
+    widths : (classes,) float64, nm
+        Error-function width of the pooled profile per class of ``1 - n_z^2``.
+    tilt : (classes,) float64
+        Mean ``1 - n_z^2`` of each class.
+    """
+
+    lateral: float
+    slope: float
+    slope_se: float
+    widths: np.ndarray
+    tilt: np.ndarray
+
+
+def _step_width(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, half_width: float,
+                bin_width: float) -> tuple[float, float]:
+    """Error-function width (nm) and its standard error fitted to binned normalised profile values."""
+    from scipy.optimize import least_squares
+    from scipy.special import erfc
+
+    edges = np.arange(-half_width, half_width + 1e-9, bin_width)
+    idx = np.digitize(distance, edges) - 1
+    ok = (idx >= 0) & (idx < len(edges) - 1)
+    n = np.bincount(idx[ok], weights=weight[ok], minlength=len(edges) - 1)
+    mean = np.divide(np.bincount(idx[ok], weights=(weight * u)[ok], minlength=len(edges) - 1), n,
+                     out=np.zeros(len(n)), where=n > 0)
+    centre, use = 0.5 * (edges[1:] + edges[:-1]), n > 0
+    # binomial-like variance of a bin mean: u (1 - u) / n, floored so that plateau bins keep some weight
+    se = np.sqrt(0.25 / np.maximum(n, 1.0))
+    fit = least_squares(lambda p: ((0.5 * erfc((centre - p[0]) / (np.sqrt(2) * abs(p[1]) + 1e-9)) - mean) / se)[use],
+                        [0.0, 0.3])
+    jac = fit.jac
+    cov = np.linalg.pinv(jac.T @ jac) * max(float(np.mean(fit.fun ** 2)), 1.0)
+    return abs(float(fit.x[1])), float(np.sqrt(cov[1, 1]))
+
+
+def lateral_blur(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, nz2: np.ndarray, classes: int = 4,
+                 half_width: float = 1.5, bin_width: float = 0.1, min_ions: int = 2000) -> BlurEstimate | None:
+    """Lateral blur sigma from the profile width's dependence on the surface orientation.
+
+    Parameters
+    ----------
+    distance : (b,) float64, nm
+        Ions' signed distances to the surface.
+    u : (b,) float64
+        Their normalised score (0 on the outside plateau, 1 inside; a fraction per ion).
+    weight : (b,) float64
+        Atoms per ion.
+    nz2 : (b,) float64
+        Squared z component of the unit normal where each ion is.
+    classes : int
+        Classes of ``1 - n_z^2`` (equal width on [0, 1]).
+    min_ions : int
+        Fewest ions in a class for it to count; fewer than two such classes at least half the range apart
+        give None (no estimate: e.g. one flat interface).
+
+    Returns
+    -------
+    BlurEstimate or None
+    """
+    tilt = 1 - np.clip(nz2, 0.0, 1.0)
+    label = np.minimum((tilt * classes).astype(np.int64), classes - 1)
+    near = np.abs(distance) <= half_width
+    widths, errors, means = [], [], []
+    for k in range(classes):
+        sel = near & (label == k)
+        if sel.sum() < min_ions:
+            continue
+        w, e = _step_width(distance[sel], u[sel], weight[sel], half_width, bin_width)
+        widths.append(w), errors.append(e), means.append(float(tilt[sel].mean()))
+    if len(widths) < 2 or max(means) - min(means) < 0.5:
+        return None
+    widths, errors, means = map(np.asarray, (widths, errors, means))
+    y, sy = widths ** 2, np.maximum(2 * widths * errors, 1e-6)
+    design = np.column_stack([np.ones_like(means), means]) / sy[:, None]
+    coef, *_ = np.linalg.lstsq(design, y / sy, rcond=None)
+    cov = np.linalg.pinv(design.T @ design)
+    slope = float(coef[1])
+    return BlurEstimate(float(np.sqrt(max(slope, 0.0))), slope, float(np.sqrt(cov[1, 1])), widths, means)

@@ -87,3 +87,45 @@ def contrast_weights(inside: np.ndarray, outside: np.ndarray, elements: list[str
     significant[elements.index(species)] = True
     w = np.where(significant, w, 0.0)
     return w / max(np.abs(w).max(), 1e-300)
+
+
+@dataclass(frozen=True)
+class ObjectScores:
+    """Each object's score weights and the score's two plateau levels (see :func:`object_scores`).
+
+    Attributes
+    ----------
+    usable : (c,) bool
+        Objects with both plateaus measured (a thin object has no inside plateau).
+    weights : (c, k) float64
+        Weight of each basis element in the object's score (zeros where not usable).
+    inside, outside : (c,) float64
+        The score's inside and outside plateau levels ``s_in``, ``s_out``.
+    """
+
+    usable: np.ndarray
+    weights: np.ndarray
+    inside: np.ndarray
+    outside: np.ndarray
+
+    def fraction(self, atoms: np.ndarray, component: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(score, total): each ion's score sum and basis atoms, ``atoms`` (b, k) of ions of objects ``component``."""
+        a = atoms.astype(np.float64)
+        return np.einsum("ij,ij->i", a, self.weights[component]), a.sum(axis=1)
+
+
+def object_scores(levels, elements: list[str], species: str, mode: str, prior: float) -> ObjectScores:
+    """Score weights (:func:`contrast_weights`) and levels of every object from its plateaus.
+
+    ``levels``: :class:`~apt_filters.refine.levels.ObjectLevels` per object; ``prior`` (atoms) is added to
+    each window's count in the significance test, as in the shrinkage of the plateaus.
+    """
+    k = len(elements)
+    usable = np.array([bool(np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside))) for lv in levels],
+                      dtype=bool)
+    weights = np.array([contrast_weights(lv.inside, lv.outside, elements, species, mode, lv.n_inside + prior,
+                                         lv.n_outside + prior) if ok else np.zeros(k)
+                        for lv, ok in zip(levels, usable)]).reshape(len(levels), k)
+    inside = np.array([w @ lv.inside if ok else 0.0 for w, lv, ok in zip(weights, levels, usable)])
+    outside = np.array([w @ lv.outside if ok else 0.0 for w, lv, ok in zip(weights, levels, usable)])
+    return ObjectScores(usable, weights, inside, outside)

@@ -23,6 +23,11 @@ Method
    non-negative mix of their normals (to within ``span_tol``: a face not found as a facet would
    otherwise run out to the other planes' intersection), and at most ``max_move`` nm; every move is
    fold-guarded (:func:`~apt_filters.refine.surface.guarded_move`).
+3. **Corners** (:func:`corner_steps`). Moving rims along their normals lands them on the planes but no
+   vertex on a corner, so the triangles there cut it off (a cube's corner ~0.9 nm in). Where three
+   facets of an object meet in a point that lies near all three and inside the object's other planes,
+   the vertex nearest that point moves onto it. Gamma-prime seeds 1, 2, 5, 6, 8 (10 cubes): area 2.9 ->
+   2.3 % mean abs (worst 6.1 -> 5.3 %), volume and distances unchanged.
 
 A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
 the specimen edge is not a polyhedron). This is a prior: edges where found planar facets
@@ -33,6 +38,7 @@ switched off (``facets=False``) for objects known to have rounded edges.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,8 +83,35 @@ class Facet:
     rms: float
 
 
+def _mode(nn: np.ndarray, aa: np.ndarray, free: np.ndarray, start: np.ndarray, detect: float) -> np.ndarray:
+    """Area-weighted mean shift of a unit direction within the cone ``detect`` (cosine) among ``free`` normals."""
+    mode = start
+    for _ in range(5):
+        sel = free & (nn @ mode > detect)
+        if not sel.any():
+            break
+        mode = (nn[sel] * aa[sel, None]).sum(axis=0)
+        mode /= np.linalg.norm(mode)
+    return mode
+
+
+def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndarray, fit_from: np.ndarray,
+         detected: np.ndarray, mode: np.ndarray, fit: float, component: int, found: float) -> Facet:
+    """The plane of a facet: least squares over the connected part of ``fit_from`` within ``fit`` of ``mode``."""
+    sel = np.flatnonzero(fit_from & (nn @ mode > fit))
+    _, label = connected_components(adj[idx[sel]][:, idx[sel]], directed=False)
+    keep = sel[label == np.bincount(label, weights=aa[sel]).argmax()]
+    p, w = vertices[idx[keep]], aa[keep]
+    centre = (p * w[:, None]).sum(axis=0) / w.sum()
+    q = (p - centre) * np.sqrt(w)[:, None]
+    eigval, eigvec = np.linalg.eigh(q.T @ q)
+    normal = eigvec[:, 0] if eigvec[:, 0] @ mode > 0 else -eigvec[:, 0]
+    return Facet(component, normal, float(normal @ centre), idx[keep], idx[keep[detected[keep]]], float(found),
+                 float(np.sqrt(max(eigval[0], 0.0) / w.sum())))
+
+
 def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_cap: float = 40.0,
-                share: float = 0.06, min_area: float = 12.0, smooth: int = 5) -> list[Facet]:
+                share: float = 0.06, min_area: float = 12.0, smooth: int = 5, opposite: float = 0.5) -> list[Facet]:
     """Planar facets of every object of a closed or open surface (method: module docstring, step 1).
 
     Parameters
@@ -93,6 +126,12 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         Smallest area in that cone.
     smooth : int
         Umbrella passes over a copy of the vertices before their normals are taken.
+    opposite : float
+        Of an object with at least two facets, a mode opposite a facet (within ``cap``) needs only this
+        fraction of ``share`` and ``min_area``: crystal facets come in {hkl} / {-h-k-l} pairs (the
+        gamma-prime cuboids, any centrosymmetric habit), and a face that the start left rounder than its
+        opposite one then still counts (a 6 nm cube's face held 8.7 nm² within 20° where its opposite
+        held 16; gamma-prime seed 6).
 
     Returns
     -------
@@ -116,35 +155,37 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         nn, aa = normals[idx], area[idx]
         total = aa.sum()
         free = np.ones(len(idx), dtype=bool)
+        mine, weak = [], []  # (mode, detected, fit_from, area in the cone) of modes above / below min_area
         while free.any():
             cand = np.flatnonzero(free)[:: max(1, int(free.sum()) // MAX_CANDIDATES)]
             held = (nn[cand] @ nn[free].T > detect) @ aa[free]
             if held.max() < share * total:
                 break
-            mode = nn[cand[np.argmax(held)]]
-            for _ in range(5):  # mean shift within the cone
-                sel = free & (nn @ mode > detect)
-                mode = (nn[sel] * aa[sel, None]).sum(axis=0)
-                mode /= np.linalg.norm(mode)
+            mode = _mode(nn, aa, free, nn[cand[np.argmax(held)]], detect)
             detected = free & (nn @ mode > detect)
             found = aa[detected].sum()
             if found < share * total:
                 break
             fit_from = free.copy()  # later facets do not fit to earlier ones' cones
             free &= ~detected
-            if found < min_area:
-                continue
-            sel = np.flatnonzero(fit_from & (nn @ mode > fit))
-            _, label = connected_components(adj[idx[sel]][:, idx[sel]], directed=False)
-            keep = sel[label == np.bincount(label, weights=aa[sel]).argmax()]
-            p, w = vertices[idx[keep]], aa[keep]
-            centre = (p * w[:, None]).sum(axis=0) / w.sum()
-            q = (p - centre) * np.sqrt(w)[:, None]
-            eigval, eigvec = np.linalg.eigh(q.T @ q)
-            normal = eigvec[:, 0] if eigvec[:, 0] @ mode > 0 else -eigvec[:, 0]
-            core = idx[keep[detected[keep]]]
-            out.append(Facet(int(c), normal, float(normal @ centre), idx[keep], core, float(found),
-                             float(np.sqrt(max(eigval[0], 0.0) / w.sum()))))
+            (mine if found >= min_area else weak).append((mode, detected, fit_from, found))
+        if len(mine) >= 2:
+            # a mode opposite a facet needs less (``opposite``), whether the search above met it (weak) or
+            # not (searched for from the facet's antipode among the vertices left)
+            for mode in [m[0] for m in mine]:
+                if any(m[0] @ -mode > detect for m in mine):
+                    continue
+                pick = [m for m in weak if m[0] @ -mode > detect]
+                if not pick:
+                    anti = _mode(nn, aa, free, -mode, detect)
+                    detected = free & (nn @ anti > detect)
+                    if anti @ -mode > detect:
+                        pick = [(anti, detected, free.copy(), aa[detected].sum())]
+                        free &= ~detected
+                if pick and pick[0][3] >= opposite * max(min_area, share * total):
+                    mine.append(pick[0])
+        out += [_fit(vertices, adj, idx, nn, aa, fit_from, detected, mode, fit, int(c), found)
+                for mode, detected, fit_from, found in mine]
     return out
 
 
@@ -192,3 +233,33 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
             step[idx[i]] = np.clip(t, -max_move, max_move)
     return step, normals
 
+
+
+def corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], reach: float = 2.5,
+                 max_move: float = 1.5, slack: float = 0.1) -> np.ndarray:
+    """(n, 3) moves that put one vertex on each convex corner of an object's facets (module docstring, step 3).
+
+    A corner is the intersection of three facets of one object whose normals are well apart (determinant
+    > 0.5), within ``reach`` nm of each facet's fitted vertices and inside every other facet's plane (to
+    ``slack`` nm); the vertex of that object nearest to it moves onto it if it is within ``max_move`` nm.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    components = vertex_components(faces, len(vertices))
+    moves = np.zeros_like(vertices)
+    for c in sorted({f.component for f in facets}):
+        mine = [f for f in facets if f.component == c]
+        trees = [cKDTree(vertices[f.vertices]) for f in mine]
+        idx = np.flatnonzero(components == c)
+        normals = np.array([f.normal for f in mine])
+        offsets = np.array([f.offset for f in mine])
+        for trio in itertools.combinations(range(len(mine)), 3):
+            n3 = normals[list(trio)]
+            if abs(np.linalg.det(n3)) < 0.5:
+                continue
+            corner = np.linalg.solve(n3, offsets[list(trio)])
+            if any(trees[k].query(corner)[0] > reach for k in trio) or np.any(normals @ corner - offsets > slack):
+                continue
+            nearest = idx[np.argmin(np.linalg.norm(vertices[idx] - corner, axis=1))]
+            if np.linalg.norm(corner - vertices[nearest]) < max_move:
+                moves[nearest] = corner - vertices[nearest]
+    return moves
