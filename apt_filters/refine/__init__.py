@@ -27,7 +27,8 @@ errors from 22% to 2.7% (cube edges rebuilt where planar facets meet), with no f
 """
 
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
-from apt_filters.refine.evaluate import SurfaceError, match_objects, split_components, surface_error
+from apt_filters.refine.evaluate import (CountingFloor, SurfaceError, counting_floor, match_objects, split_components,
+                                        surface_error)
 from apt_filters.refine.excess import ObjectExcess, object_excess
 from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
 from apt_filters.refine.recontour import merge, recontour
@@ -37,7 +38,8 @@ from apt_filters.refine.surface import RefineResult, guarded_move, refine_surfac
 from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
 
 __all__ = [
-    "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError", "contrast_weights",
+    "CountingFloor", "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError",
+    "contrast_weights", "counting_floor",
     "guarded_move", "intersecting_faces", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
 ]

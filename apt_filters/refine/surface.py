@@ -16,11 +16,11 @@ Each outer iteration:
    :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
    differ significantly) and the score's two levels ``s_in`` and ``s_out``. With
-   ``cross_fit=True`` they are measured once, before the iterations, on ions that did not place the
-   surface they are measured against (each half of the ions against the other half's refined
-   surface), and kept; by default they are measured again in every iteration against
-   the current surface (plateaus measured against a surface still inside put interface ions into the
-   outside window), which reads the inside plateau high (the surface's own noise selects the ions).
+   ``cross_fit=True`` (default) they are measured once, before the iterations, on ions that did not place
+   the surface they are measured against: the even and the odd ions each place a surface of their own
+   (the same iterations), and each half's windows are counted against the other half's surface;
+   with ``cross_fit=False`` they are measured again in every iteration against the current surface,
+   which reads the inside plateau high (the surface's own noise selects the ions).
 3. Per vertex, the profile of the score fraction in bins of ``d`` over ``[-half_width, half_width]``
    is pooled with the vertices within ``pool_radius`` (Gaussian weights). Its crossing of the
    midpoint is estimated by the equal-area (Gibbs) rule: with ``u = (f - s_out) / (s_in - s_out)``,
@@ -33,13 +33,20 @@ Each outer iteration:
    (full steps for ``full_steps`` iterations, then damped); a tangential relaxation then evens out the
    triangles without changing the shape.
 
-After the iterations, two corrections (each can be switched off):
+After the iterations (each step can be switched off):
 
-5. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
+5. Each closed object's smoothness (``select_modes``, :mod:`apt_filters.refine.crossval`): the two half
+   surfaces of the cross-fit, low-passed in their manifold harmonics (:mod:`apt_filters.refine.spectral`)
+   to 4-64 modes and finished as below, are scored on the other half's ions; the object keeps the
+   fewest modes within one standard error of the best. A 3 nm sphere keeps 4-9 (its noise and the
+   start's grid pattern at degrees 2-8 go), a cube more or its refined shape.
+6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
-   out by that much.
-6. Sharp edges and corners (:mod:`apt_filters.refine.facets`, ``facets``): where planar facets of an
-   object are found, the rounded rims between them move onto the envelope of the facets' planes.
+   out by that much. By default the lateral blur is read off the ions (the profile width's orientation
+   dependence).
+7. Sharp edges and corners (:mod:`apt_filters.refine.facets`, ``facets``): where planar facets of an
+   object are found (on the surface as the iterations left it), the rounded rims between them move onto
+   the envelope of the facets' planes and one vertex onto each corner.
 
 Every move is guarded: a face whose normal would turn by more than 90° in one move, or an
 edge whose two faces would fold (normals more than 120° apart, :func:`folded_pairs`), halves the
@@ -69,9 +76,11 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
-from apt_filters.refine.blur import blur_shift, smoothed_normals
-from apt_filters.refine.facets import facet_steps, find_facets
-from apt_filters.refine.composition import contrast_weights
+from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, smoothed_normals
+from apt_filters.refine.composition import ObjectScores, object_scores
+from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size, cross_validated_modes,
+                                        object_harmonics)
+from apt_filters.refine.facets import corner_steps, facet_steps, find_facets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
 from apt_filters.refine.levels import PLATEAU_PRIOR, ObjectLevels, levels_from_sums, plateau_sums, plateaus
@@ -130,6 +139,19 @@ class RefineResult:
         Planar facets found (:func:`~apt_filters.refine.facets.find_facets`), all objects together.
     sharpened : int
         Vertices moved onto the envelope of their facets' planes (edges and corners).
+    blur_estimate : BlurEstimate or None
+        The lateral blur read off the ions (``blur="auto"``), None if not estimated.
+    modes : ModeSelection or None
+        Manifold harmonics kept per closed object and the held-out losses behind the choice
+        (``select_modes``), None if not selected.
+    widths : (c,) float64, nm
+        Each object's profile width (error-function sigma) in the last iteration.
+    offset_errors : (c,) float64, nm
+        Counting-statistics standard error of each object's mean offset along its normals, from the
+        Fisher information of its score profile (NaN for objects without both plateaus); times the
+        object's area it is that of its volume. On the gamma-prime specimen 0.037-0.040 nm for a 3 nm
+        sphere (3.7-4.0 % of its volume), against the Cramér-Rao floor of all the element profiles with
+        the truth known, 0.036 nm (:func:`~apt_filters.refine.evaluate.counting_floor`).
     """
 
     mesh: TriMesh
@@ -146,6 +168,10 @@ class RefineResult:
     blur: tuple[float, float] = (0.0, 0.0)
     facets: int = 0
     sharpened: int = 0
+    blur_estimate: BlurEstimate | None = None
+    modes: ModeSelection | None = None
+    widths: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    offset_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: float = 0.0) -> csr_matrix:
@@ -258,27 +284,225 @@ def matched_offset(u: np.ndarray, total: np.ndarray, width: np.ndarray, half_wid
     return np.divide(np.sum(total * slope * (u - model), axis=1), den, out=np.zeros(len(u)), where=den > 0)
 
 
-def _cross_fitted_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
-                         basis: ConcentrationBasis, keywords: dict) -> list[ObjectLevels]:
-    """Each object's plateaus from the even ions against the odd ions' refined surface plus the odd ions
-    against the even ions' (see ``cross_fit`` of :func:`refine_surface`)."""
-    window, prior = keywords["plateau_window"], keywords["plateau_prior"]
-    # strided views: no copy of a memory-mapped table
-    halves = [IonTable(ions.positions[k::2], ions.mz[k::2]) for k in (0, 1)]
-    fits = [refine_surface(mesh, half, ranges, species, basis, **keywords).mesh for half in halves]
-    faces = fits[0].faces  # both halves' meshes have the same (subdivided) faces: same components
+@dataclass
+class _Placed:
+    """Where the iterations left one surface (same faces as the prepared start)."""
+
+    vertices: np.ndarray
+    levels: list[ObjectLevels]
+    widths: np.ndarray
+    normals: np.ndarray
+    near: NearIons
+    guarded: int
+    history: list[float]
+    iterations: int
+
+
+def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMesh, np.ndarray, np.ndarray, csr_matrix]:
+    """Subdivided input, its unfolded and relaxed vertices (the iterations' start; a copy for :func:`untangle` to
+    fall back on), the umbrella operator."""
+    for _ in range(subdivisions):
+        mesh = subdivide(mesh)
+    vertices, faces = mesh.vertices.astype(np.float64).copy(), mesh.faces
+    plain = umbrella(adjacency(faces, len(vertices)))
+    pairs = face_pairs(faces)
+    # the fold guard keeps the folds it is given: none may be left in the start
+    vertices, _ = unfold(vertices, faces, plain)
+    for _ in range(relax_start):
+        nn = vertex_normals(vertices, faces)
+        lap = plain @ vertices - vertices
+        lap -= np.einsum("ij,ij->i", lap, nn)[:, None] * nn
+        vertices, _ = guarded_move(vertices, faces, 0.5 * lap, pairs)
+    return mesh, vertices, vertices.copy(), plain
+
+
+def _place(vertices: np.ndarray, faces: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
+           basis: ConcentrationBasis, fixed: list[ObjectLevels] | None, *, score: str, half_width: float,
+           bin_width: float, pool_radius: float, normal_power: float, smoothing: int, max_step: float,
+           tangential: float, iterations: int, far_iterations: int, tolerance: float, plateau_window,
+           plateau_prior: float, distance: str, normal_smoothing: int, full_steps: int, crease_angle: float,
+           crease_smoothing: int) -> _Placed:
+    """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``."""
+    vertices = vertices.copy()
+    n = len(vertices)
+    components = vertex_components(faces, n)
+    n_comp = int(components.max()) + 1 if n else 0
+    adj = adjacency(faces, n)
+    pairs = face_pairs(faces)
+    plain = umbrella(adj)
+    reach = max(plateau_window[1], half_width) + 1.0
+    # ions within reach of the surface, selected once (chunked) and again only if it moves far
+    near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+    pairs_near = Pairs.find(vertices, components, pool_radius)
+    guarded, history, levels = 0, [], []
+    widths = np.ones(n_comp)
+    normals = vertex_normals(vertices, faces)
+    it = 0
+    for it in range(1, iterations + 1):
+        normals = vertex_normals(vertices, faces)
+        for _ in range(normal_smoothing):
+            normals = plain @ normals
+            normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+        if near.moved(vertices) > RESELECT:
+            near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+        band = near.band(vertices, normals, reach, distance)
+        # measured again every iteration: plateaus measured against a surface still off the interface
+        # take interface ions into a window
+        levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
+                                                          plateau_window, plateau_prior)
+        scores = object_scores(levels, near.atoms.elements, species, score, plateau_prior)
+        usable = np.append(scores.usable, False)  # last entry: unused vertices (-1)
+        s_in, s_out = scores.inside, scores.outside
+        ion_score, ion_total = scores.fraction(near.atoms.atoms[band.index], components[band.vertex])
+        pairs_near = pairs_near.update(vertices, components)
+        mean_of_neighbours = umbrella(adj, normals, normal_power)
+        raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
+        raw_t = binned(band.vertex, band.distance, ion_total, n, half_width, bin_width)
+        s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, normal_power), 2)
+        ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
+        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
+        used = components >= 0
+        obj_s, obj_t = (np.zeros((n_comp, raw_s.shape[1])) for _ in range(2))
+        np.add.at(obj_s, components[used], raw_s[used])
+        np.add.at(obj_t, components[used], raw_t[used])
+        widths = np.array([profile_width(normalised_profile(obj_s[c:c + 1], obj_t[c:c + 1], s_in[c:c + 1],
+                                                            s_out[c:c + 1], half_width, bin_width), bin_width)
+                           if usable[c] else 1.0 for c in range(n_comp)])
+        offset = np.zeros(n)
+        if it <= far_iterations:
+            offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
+        else:
+            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], bin_width),
+                                        half_width, bin_width)
+        offset = np.clip(offset, -max_step, max_step)
+        crease = creases(adj, normals, crease_angle)
+        at_crease = offset
+        for k in range(smoothing):
+            offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
+            if k + 1 == min(crease_smoothing, smoothing):
+                at_crease = offset
+        # fewer passes where the surface bends sharply: a cube's corner needs a larger step than its faces
+        offset = np.where(crease, at_crease, offset)
+        # full steps first, then Robbins-Monro averaging of the noisy estimates
+        gain = min(1.0, full_steps / it)
+        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
+        step = np.einsum("ij,ij->i", new - vertices, normals)
+        guarded += g
+        vertices = new
+        if tangential > 0:
+            normals = vertex_normals(vertices, faces)
+            lap = plain @ vertices - vertices
+            lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
+            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
+            guarded += g
+        history.append(float(np.abs(step).max()) if n else 0.0)
+        if history[-1] < tolerance * gain:
+            break
+    if near.moved(vertices) > RESELECT:
+        near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
+    normals = smoothed_normals(vertices, faces, normal_smoothing)
+    if fixed is None:
+        levels = plateaus(near.band(vertices, normals, reach, distance), near.atoms, components, n_comp, species,
+                          plateau_window, plateau_prior)
+    return _Placed(vertices, levels, widths, normals, near, guarded, history, it)
+
+
+def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, halves: list[IonTable], ranges: RangeTable,
+                         species: str, basis: ConcentrationBasis, window, prior: float,
+                         distance: str) -> list[ObjectLevels]:
+    """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
+    even ions' (see ``cross_fit`` of :func:`refine_surface`)."""
     components = vertex_components(faces, len(fits[0].vertices))
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = window[1] + 1.0
     sums, elements = 0.0, None
     for k in (0, 1):
-        vertices = fits[1 - k].vertices
-        normals = smoothed_normals(vertices, faces, keywords["normal_smoothing"])
-        near = NearIons.select(halves[k], ranges, basis, vertices, faces, reach)
-        band = near.band(vertices, normals, reach, keywords["distance"])
+        other = fits[1 - k]
+        near = NearIons.select(halves[k], ranges, basis, other.vertices, faces, reach)
+        band = near.band(other.vertices, other.normals, reach, distance)
         sums = sums + plateau_sums(band, near.atoms, components, n_comp, window)
         elements = near.atoms.elements
     return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), elements, species, prior)
+
+
+def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+                   scores: ObjectScores, half_width: float, distance: str) -> BlurEstimate | None:
+    """:func:`~apt_filters.refine.blur.lateral_blur` from the ions ``near`` a surface."""
+    band = near.band(vertices, normals, half_width, distance)
+    comp = components[band.vertex]
+    use = scores.usable[comp] & (np.abs(scores.inside - scores.outside)[comp] > 0)
+    score, total = scores.fraction(near.atoms.atoms[band.index[use]], comp[use])
+    ok = total > 0
+    comp = comp[use][ok]
+    u = (score[ok] / total[ok] - scores.outside[comp]) / (scores.inside - scores.outside)[comp]
+    nz = normals[band.vertex[use][ok], 2]
+    return lateral_blur(band.distance[use][ok], u, total[ok], nz ** 2, half_width=half_width)
+
+
+def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+                   levels: list[ObjectLevels], scores: ObjectScores, widths: np.ndarray, half_width: float,
+                   distance: str) -> np.ndarray:
+    """(c,) nm: counting-statistics standard error of each object's mean offset (``RefineResult.offset_errors``).
+
+    The score profile of an object is ``m(d) = s_out + (s_in - s_out) Phi(-d / w)`` (its plateaus and
+    width); an atom at ``d`` carries ``m'(d)^2 / var(d)`` of information on a shift of the whole surface,
+    ``var(d) = sum_k w_k^2 f_k(d) - m(d)^2`` the variance of one atom's score (``f_k`` the element
+    fractions' own steps). One over the square root of the sum over the object's atoms within
+    ``half_width`` is the error of its mean offset; times its area, that of its volume.
+    """
+    from scipy.special import erfc
+
+    n_comp = len(levels)
+    band = near.band(vertices, normals, half_width, distance)
+    comp = components[band.vertex]
+    total = near.atoms.atoms[band.index].sum(axis=1).astype(np.float64)
+    out = np.full(n_comp, np.nan)
+    for c in np.flatnonzero(scores.usable & (np.abs(scores.inside - scores.outside) > 0)):
+        mine = comp == c
+        d, atoms = band.distance[mine], total[mine]
+        w = widths[c]
+        step = 0.5 * erfc(d / (np.sqrt(2) * w))
+        fractions = levels[c].outside + (levels[c].inside - levels[c].outside) * step[:, None]
+        weights = scores.weights[c]
+        mean = fractions @ weights
+        var = np.maximum(fractions @ weights ** 2 - mean ** 2, 1e-12)
+        slope = (scores.inside[c] - scores.outside[c]) * np.exp(-0.5 * (d / w) ** 2) / (np.sqrt(2 * np.pi) * w)
+        info = float(np.sum(atoms * slope ** 2 / var))
+        out[c] = 1.0 / np.sqrt(info) if info > 0 else np.nan
+    return out
+
+
+def _finisher(found: list, faces: np.ndarray, pairs: np.ndarray, blur: tuple[float, float] | None):
+    """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
+    of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened).
+
+    The facets are found (:func:`_facets`) on the surface as the iterations left it, not on its low-passed copy:
+    its faces are flat where the copy's are curved, and planes fitted to curved faces tilted by up to 12°
+    (cubes of gamma-prime seeds 6 and 8, which then stood out by ~1 nm at a corner).
+    """
+
+    def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int]:
+        guarded = 0
+        if blur is not None and any(blur):
+            shift, along = blur_shift(TriMesh(vertices, faces), blur)
+            vertices, g = guarded_move(vertices, faces, shift[:, None] * along, pairs)
+            guarded += g
+        sharpened = 0
+        if found:
+            step, along = facet_steps(vertices, faces, found)
+            vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
+            corners = corner_steps(vertices, faces, found)
+            vertices, g2 = guarded_move(vertices, faces, corners, pairs)
+            guarded += g + g2
+            sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
+        return vertices, len(found), sharpened, guarded
+
+    return finish
+
+
+def _facets(reference: np.ndarray, faces: np.ndarray, facets: bool) -> list:
+    """The facets of ``reference`` (the surface as the iterations left it), none if switched off."""
+    return find_facets(reference, faces) if facets else []
 
 
 def refine_surface(
@@ -308,9 +532,10 @@ def refine_surface(
     full_steps: int = 4,
     crease_angle: float = 20.0,
     crease_smoothing: int = 6,
-    blur: tuple[float, float] | None = None,
+    blur: tuple[float, float] | str | None = "auto",
     facets: bool = True,
-    cross_fit: bool = False,
+    cross_fit: bool = True,
+    select_modes: bool = True,
 ) -> RefineResult:
     """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
 
@@ -331,7 +556,11 @@ def refine_surface(
     score : {"contrast", "species"}
         Profile of every element weighted by its contrast, or of ``species`` alone.
     half_width, bin_width : float, nm
-        Profile range each side of the current surface and its bins.
+        Profile range each side of the current surface and its bins. The range should hold ~5 profile
+        widths: a curved interface's blurred profile has a longer tail inside, and cut short it loses part
+        of the curvature shift the blur correction then adds back (a dense 3 nm sphere under an isotropic
+        0.45 nm blur, profile width ~0.5 nm: shift -4.2 % of the volume at 1.5 nm, -7.1 % at 2.5 nm, theory
+        -6.75 %; under the gamma-prime blur, 0.3 / 0.1 nm, 1.5 nm keeps it).
     pool_radius : float, nm
         Vertices within this distance pool their profiles (Gaussian, sigma = radius / 2).
     normal_power : float
@@ -378,171 +607,104 @@ def refine_surface(
     relax_start : int
         Rounds of tangential relaxation (weight 0.5, guarded) of the subdivided input: fewer sliver
         triangles, whose flips the fold guard would otherwise cancel vertex by vertex.
-    blur : (lateral, depth) float, nm, or None
+    blur : (lateral, depth) float nm, "auto" or None
         Reconstruction blur whose curvature bias is undone after the iterations
-        (:mod:`apt_filters.refine.blur`: each vertex moves out by ``(1/2) tr(Sigma S)``); None or
-        zeros: no correction.
+        (:mod:`apt_filters.refine.blur`: each vertex moves out by ``(1/2) tr(Sigma S)``). ``"auto"``
+        (default): the lateral sigma estimated from the profile width's orientation dependence
+        (:func:`~apt_filters.refine.blur.lateral_blur`, depth taken as 0; no correction where the
+        orientations do not allow an estimate); None or zeros: no correction.
     facets : bool
         Rebuild sharp edges and corners where planar facets of an object meet
         (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched).
-
     cross_fit : bool
-        Off by default (the integrator's decision, session 5): it removes the self-selection and
-        takes gamma-prime's volume bias to ~0, but the ``small`` specimen's 3 nm sphere, already
-        large, grows past its test's area and Hausdorff guards, and it costs 2.3x the time.
         Measure the plateaus the refinement uses on ions that did not place the surface they are
-        measured against: the ions are split in two (even and odd rows), each half is refined on
-        its own (same keywords, ``cross_fit=False``), each half's plateau windows are counted against
-        the OTHER half's refined surface, the two counts are added (all the ions, so no more noise
-        than one window) and these plateaus are kept fixed while all the ions refine the surface.
-        Measured against the surface the same ions placed, the inside plateau reads high: where
-        the surface has moved out over an Al-rich fluctuation, ions of that fluctuation near the
-        inner edge of the window enter it, and where it moved in over an Al-poor one they leave
-        it. Against the same ions' plateaus in the windows of the TRUE surfaces (gamma-prime seeds
-        1-5, 20 objects, no prior): +0.35 +- 0.12 at.% Al measured against the refined surface,
-        +0.03 +- 0.14 cross-fitted, with the same scatter (rms 0.62 / 0.59 at.%). The benchmark's
-        start surface, a contour of the same ions, is biased alike (+0.2-0.8 at.% per seed), so
-        windows measured against the start moved by the mean or low-passed displacement do not help
-        (volume 6.5 / 6.4 % mean abs). The high plateau puts the midpoint high and the surface
-        inward. Gamma-prime seeds 1-3, volume worst / mean abs (signed): 9.1 / 5.6 % (-5.2 %) ->
-        8.4 / 4.7 % (-4.1 %); seeds 4-5 9.9 / 5.2 % (-5.1 %) -> 8.6 / 4.8 % (-3.9 %); area mean
-        abs within 0.3 points, mean distance and Hausdorff a little better; the ``small`` test
-        specimen's 3 nm sphere, once out, shows more of its roughness (area 6.2 -> 7.3 %, Hausdorff
-        0.81 -> 0.86 nm, means over 8 seeds; benchmarks/results_refine.md). Costs
-        two refinements of half the ions first (about 2.3x the time). ``False``: plateaus measured
-        against the current surface in every iteration (the previous behaviour).
+        measured against: the ions are split in two (even and odd rows), each half places its own
+        surface (same keywords), each half's plateau windows are counted against the OTHER half's
+        surface, the two counts are added (all the ions, so no more noise than one window) and these
+        plateaus are kept fixed while all the ions place the surface. Measured against the surface
+        the same ions placed, the inside plateau reads high: where the surface has moved out over an
+        Al-rich fluctuation, ions of that fluctuation near the inner edge of the window enter it, and
+        where it moved in over an Al-poor one they leave it. Against the same ions' plateaus in the
+        windows of the TRUE surfaces (gamma-prime seeds 1-5, 20 objects, no prior): +0.35 +- 0.12 at.%
+        Al measured against the refined surface, +0.03 +- 0.14 cross-fitted, with the same scatter.
+        The two half surfaces also serve ``select_modes``. Costs two placements of half the ions
+        (about 2.3x the time of one). ``False``: plateaus measured against the current surface in
+        every iteration.
+    select_modes : bool
+        Low-pass each closed object in its manifold harmonics (:mod:`apt_filters.refine.spectral`) to
+        the number of modes that best predicts held-out ions (two-fold cross-validation on the halves of
+        ``cross_fit``, :mod:`apt_filters.refine.crossval`); needs ``cross_fit``.
 
     Returns
     -------
     RefineResult
     """
-    fixed = None
-    if cross_fit:
-        keywords = dict(score=score, half_width=half_width, bin_width=bin_width, pool_radius=pool_radius,
-                        normal_power=normal_power, smoothing=smoothing, max_step=max_step, tangential=tangential,
-                        iterations=iterations, far_iterations=far_iterations, tolerance=tolerance,
-                        plateau_window=plateau_window, plateau_prior=plateau_prior, subdivisions=subdivisions,
-                        distance=distance, normal_smoothing=normal_smoothing, relax_start=relax_start,
-                        full_steps=full_steps, crease_angle=crease_angle, crease_smoothing=crease_smoothing,
-                        blur=blur, facets=facets, cross_fit=False)
-        fixed = _cross_fitted_levels(mesh, ions, ranges, species, basis, keywords)
-    for _ in range(subdivisions):
-        mesh = subdivide(mesh)
-    vertices = mesh.vertices.astype(np.float64).copy()
+    if not (blur is None or blur == "auto" or (not isinstance(blur, str) and len(blur) == 2 and min(blur) >= 0)):
+        raise ValueError(f"blur must be (lateral, depth) sigmas >= 0 nm, 'auto' or None, got {blur!r}")
+    keywords = dict(score=score, half_width=half_width, bin_width=bin_width, pool_radius=pool_radius,
+                    normal_power=normal_power, smoothing=smoothing, max_step=max_step, tangential=tangential,
+                    iterations=iterations, far_iterations=far_iterations, tolerance=tolerance,
+                    plateau_window=plateau_window, plateau_prior=plateau_prior, distance=distance,
+                    normal_smoothing=normal_smoothing, full_steps=full_steps, crease_angle=crease_angle,
+                    crease_smoothing=crease_smoothing)
+    mesh, start, unfolded, plain = _prepare(mesh, subdivisions, relax_start)
     faces = mesh.faces
-    n = len(vertices)
+    n = len(start)
     components = vertex_components(faces, n)
-    n_comp = int(components.max()) + 1 if n else 0
-    adj = adjacency(faces, n)
     pairs = face_pairs(faces)
-    # the fold guard keeps the folds it is given: none may be left in the start
-    plain = umbrella(adj)
-    vertices, _ = unfold(vertices, faces, plain)
-    for _ in range(relax_start):
-        nn = vertex_normals(vertices, faces)
-        lap = plain @ vertices - vertices
-        lap -= np.einsum("ij,ij->i", lap, nn)[:, None] * nn
-        vertices, _ = guarded_move(vertices, faces, 0.5 * lap, pairs)
-    unfolded = vertices.copy()
-    reach = max(plateau_window[1], half_width) + 1.0
-    # ions within reach of the surface, selected once (chunked) and again only if it moves far
-    near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-    pairs_near = Pairs.find(vertices, components, pool_radius)
-    guarded, history, levels = 0, [], []
-    it = 0
-    for it in range(1, iterations + 1):
-        normals = vertex_normals(vertices, faces)
-        for _ in range(normal_smoothing):
-            normals = plain @ normals
-            normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        if near.moved(vertices) > RESELECT:
-            near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-        band = near.band(vertices, normals, reach, distance)
-        # measured again every iteration: plateaus measured against a surface still off the interface
-        # take interface ions into a window
-        levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
-                                                          plateau_window, plateau_prior)
-        atoms = near.atoms
-        total_atoms = atoms.total.astype(np.float64)
-        weights = [contrast_weights(lv.inside, lv.outside, atoms.elements, species, score, lv.n_inside + plateau_prior,
-                                    lv.n_outside + plateau_prior)
-                   if np.all(np.isfinite(lv.inside)) and np.all(np.isfinite(lv.outside)) else None for lv in levels]
-        usable = np.array([w is not None for w in weights] + [False])  # last entry: unused vertices (-1)
-        wmat = np.array([w if w is not None else np.zeros(len(atoms.elements)) for w in weights] or
-                        np.zeros((0, len(atoms.elements))))
-        s_in = np.array([wmat[c] @ lv.inside if usable[c] else 0.0 for c, lv in enumerate(levels)])
-        s_out = np.array([wmat[c] @ lv.outside if usable[c] else 0.0 for c, lv in enumerate(levels)])
-        comp = components[band.vertex]
-        ion_score = np.einsum("ij,ij->i", atoms.atoms[band.index].astype(np.float64), wmat[comp])
-        pairs_near = pairs_near.update(vertices, components)
-        mean_of_neighbours = umbrella(adj, normals, normal_power)
-        raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
-        raw_t = binned(band.vertex, band.distance, total_atoms[band.index], n, half_width, bin_width)
-        s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, normal_power), 2)
-        ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
-        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
-        used = components >= 0
-        obj_s, obj_t = (np.zeros((n_comp, raw_s.shape[1])) for _ in range(2))
-        np.add.at(obj_s, components[used], raw_s[used])
-        np.add.at(obj_t, components[used], raw_t[used])
-        widths = np.array([profile_width(normalised_profile(obj_s[c:c + 1], obj_t[c:c + 1], s_in[c:c + 1],
-                                                            s_out[c:c + 1], half_width, bin_width), bin_width)
-                           if usable[c] else 1.0 for c in range(n_comp)])
-        offset = np.zeros(n)
-        if it <= far_iterations:
-            offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
-        else:
-            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], bin_width),
-                                        half_width, bin_width)
-        offset = np.clip(offset, -max_step, max_step)
-        crease = creases(adj, normals, crease_angle)
-        at_crease = offset
-        for k in range(smoothing):
-            offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
-            if k + 1 == min(crease_smoothing, smoothing):
-                at_crease = offset
-        # fewer passes where the surface bends sharply: a cube's corner needs a larger step than its faces
-        offset = np.where(crease, at_crease, offset)
-        # full steps first, then Robbins-Monro averaging of the noisy estimates
-        gain = min(1.0, full_steps / it)
-        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
-        step = np.einsum("ij,ij->i", new - vertices, normals)
-        guarded += g
-        vertices = new
-        if tangential > 0:
-            normals = vertex_normals(vertices, faces)
-            lap = plain @ vertices - vertices
-            lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
-            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
-            guarded += g
-        history.append(float(np.abs(step).max()) if n else 0.0)
-        if history[-1] < tolerance * gain:
-            break
-    if blur is not None and any(blur):
-        shift, along = blur_shift(TriMesh(vertices, faces), blur)
-        vertices, g = guarded_move(vertices, faces, shift[:, None] * along, pairs)
-        guarded += g
-    found = find_facets(vertices, faces) if facets else []
-    sharpened = 0
-    if found:
-        step, along = facet_steps(vertices, faces, found)
-        vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
-        guarded += g
-        sharpened = int(np.count_nonzero(step))
+    fits, halves, fixed = [], [], None
+    if cross_fit:
+        # strided views: no copy of a memory-mapped table
+        halves = [IonTable(ions.positions[k::2], ions.mz[k::2]) for k in (0, 1)]
+        fits = [_place(start, faces, half, ranges, species, basis, None, **keywords) for half in halves]
+        fixed = _cross_fitted_levels(fits, faces, halves, ranges, species, basis, plateau_window, plateau_prior,
+                                     distance)
+    placed = _place(start, faces, ions, ranges, species, basis, fixed, **keywords)
+    scores = object_scores(placed.levels, placed.near.atoms.elements, species, score, plateau_prior)
+    closed = np.ones(len(scores.usable), dtype=bool)
+    closed[np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])] = False
+    objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
+    auto = isinstance(blur, str)
+    selection = None
+    vertices, guarded = placed.vertices, placed.guarded
+    if select_modes and cross_fit and objects:
+        # candidates are finished with the blur given, or without one while it is still to be estimated
+        selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, halves, ranges,
+                                          basis, scores, placed.widths,
+                                          lambda fit: _finisher(_facets(fit, faces, facets), faces, pairs,
+                                                                None if auto else blur))
+        kept = {c: k for c, k in selection.modes.items() if k}
+        if kept:
+            bases = object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
+            target = apply_modes(vertices, bases, kept)
+            # the low-passed shape is smooth: taken whole unless it folds; the guard would cancel the moves of
+            # the noisy start's tilted slivers (whose normals turn past 90° on the way) and crumple the mesh
+            if len(folded_pairs(target, faces, FOLD_ANGLE)):
+                target, g = guarded_move(vertices, faces, target - vertices, pairs)
+                guarded += g
+            vertices = target
+    found = _facets(placed.vertices, faces, facets)
+    estimate = None
+    if auto:
+        # measured on the finished shape: rounded cube edges would widen the edge-on profiles
+        finished = _finisher(found, faces, pairs, None)(vertices)[0]
+        estimate = _estimate_blur(placed.near, finished, smoothed_normals(finished, faces, normal_smoothing), components,
+                                  scores, half_width, distance)
+        blur = (estimate.lateral, 0.0) if estimate is not None else None
+    vertices, n_facets, sharpened, g = _finisher(found, faces, pairs, blur)(vertices)
+    guarded += g
+    errors = _offset_errors(placed.near, vertices, smoothed_normals(vertices, faces, normal_smoothing), components,
+                            placed.levels, scores, placed.widths, half_width, distance)
     vertices, untangled = untangle(vertices, faces, unfolded, plain)
-    start = mesh.vertices.astype(np.float64)
-    moved_total = np.einsum("ij,ij->i", vertices - start, vertex_normals(start, faces))
+    original = mesh.vertices.astype(np.float64)
+    moved_total = np.einsum("ij,ij->i", vertices - original, vertex_normals(original, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
                   dict(mesh.face_scalars))
-    if near.moved(vertices) > RESELECT:
-        near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-    levels = fixed if fixed is not None else plateaus(near.band(vertices, vertex_normals(vertices, faces), reach,
-                                                                distance), near.atoms, components, n_comp, species,
-                                                      plateau_window, plateau_prior)
     stats = {"mean": float(moved_total.mean()) if n else 0.0,
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
-             "last_step_max": history[-1] if history else 0.0}
-    return RefineResult(out, levels, stats, it, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
+             "last_step_max": placed.history[-1] if placed.history else 0.0}
+    return RefineResult(out, placed.levels, stats, placed.iterations, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
                         int(intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
-                        history, tuple(blur) if blur is not None else (0.0, 0.0), len(found), sharpened)
+                        placed.history, tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened,
+                        estimate, selection, placed.widths, errors)

@@ -1,0 +1,181 @@
+"""How smooth each object is, chosen from ions it was not fitted to: two-fold cross-validation.
+
+How many manifold harmonics (:mod:`apt_filters.refine.spectral`) a refined object's shape deserves
+depends on how many ions describe it and on the shape: a 3 nm sphere's ions support its centre, its
+radius and perhaps an ellipsoid (4-9 modes), a cube's edges need 16 to all of them. No fixed smoothing
+suits both, and a prior on the shape is what the truth-first rule forbids, so each object's cut-off is
+chosen by how well the surface predicts ions that did not place it.
+
+Method
+------
+The ions are split in two (even and odd rows, as the cross-fitted plateaus of
+:func:`~apt_filters.refine.surface.refine_surface` are); each half has placed its own surface. For each
+candidate number of modes ``k`` and for the refined shape as it is (``k = 0``), every eligible object of
+each half's surface is low-passed to ``k`` modes and finished as the final surface is (blur correction,
+facets); the OTHER half's ions within 2 nm of it are then scored: each ion's score fraction against the
+object's error-function step (its plateaus, its measured profile width) at the ion's signed distance to
+that candidate, squared and weighted by the ion's atoms. The ``k`` whose two held-out sums are smallest
+is the object's, or rather the fewest modes whose loss is within one standard error of the smallest
+(the one-standard-error rule of cross-validation: two candidates the ions cannot tell apart go to the
+smoother, since the loss is itself noisy). Since the held-out ions are independent of the surface they score, the expected
+loss is a constant plus ``sum_i m'(d_i)^2 delta_i^2``, ``delta`` the candidate's distance to the true
+interface where ion ``i`` is: an information-weighted mean squared error of the shape, minimised
+without knowing the truth.
+
+Eligible objects are closed (an open interface meets the specimen edge, where its rim must stay) with
+both plateaus measured. On the gamma-prime specimen (seeds 1-3) spheres of 3 nm chose 4-9 modes and cubes
+16, 36 or all; the spheres' mean distance to the truth went from 0.15-0.19 to 0.08-0.12 nm and their area
+errors from +2-8 % to within their volume's (benchmarks/results_refine.md, session 6).
+
+Cost: per half, one eigensolve per eligible object and one finish and band per candidate; memory: the
+held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 64``
+float64 of harmonics per object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.special import erfc
+
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+from apt_filters.refine.band import NearIons, vertex_normals
+from apt_filters.refine.composition import ObjectScores
+from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
+from apt_filters.voxel import ConcentrationBasis
+
+CANDIDATES = (4, 9, 16, 25, 36, 64)
+"""Numbers of modes tried: complete spherical-harmonic degrees 1-5 and 7 on a sphere."""
+ONE_SE = 1.0
+"""Standard errors within which the smoothest candidate is preferred to the best (the one-standard-error rule)."""
+SCORED = 2.0
+"""nm from the unsmoothed half surface within which held-out ions are scored (the profile's reach)."""
+
+
+@dataclass
+class ModeSelection:
+    """The modes chosen per object and the held-out losses behind the choice.
+
+    Attributes
+    ----------
+    modes : dict[int, int]
+        Component -> modes kept (0: the refined shape as it is). Ineligible objects are absent.
+    candidates : tuple of int
+        The ``k`` tried, in the order of ``losses``' columns (then 0).
+    losses : (c, len(candidates) + 1) float64
+        Held-out loss of each candidate minus that of the shape as it is (atoms; negative: better),
+        summed over both folds; NaN for ineligible objects or candidates with more modes than vertices.
+    """
+
+    modes: dict[int, int]
+    candidates: tuple[int, ...]
+    losses: np.ndarray
+
+
+def object_harmonics(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, k: int
+                     ) -> dict[int, tuple[np.ndarray, Harmonics]]:
+    """Component -> (its vertex indices, its ``k`` lowest harmonics) for each of ``objects``."""
+    out = {}
+    for c in objects:
+        idx = np.flatnonzero(components == c)
+        local = np.full(len(vertices), -1, dtype=np.int64)
+        local[idx] = np.arange(len(idx))
+        mine = faces[components[faces[:, 0]] == c]
+        out[c] = (idx, harmonics(vertices[idx], local[mine], k))
+    return out
+
+
+def apply_modes(vertices: np.ndarray, bases: dict[int, tuple[np.ndarray, Harmonics]], modes: dict[int, int]
+                ) -> np.ndarray:
+    """(n, 3) ``vertices`` with each object ``c`` of ``modes`` low-passed to about ``modes[c]`` modes (0: as it
+    is), cut at the nearest gap of its spectrum (:meth:`~apt_filters.refine.spectral.Harmonics.cut`)."""
+    out = vertices.copy()
+    for c, k in modes.items():
+        if k:
+            idx, basis = bases[c]
+            out[idx] = low_pass(vertices[idx], basis, basis.cut(k))
+    return out
+
+
+def basis_size(k: int) -> int:
+    """Harmonics to compute for a cut near ``k`` modes (the gap search looks a quarter beyond it)."""
+    return int(1.25 * k) + 2
+
+
+def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
+                 halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis, scores: ObjectScores,
+                 widths: np.ndarray, finisher: Callable[[np.ndarray], Callable],
+                 candidates: tuple[int, ...] = CANDIDATES) -> ModeSelection:
+    """Each object's number of modes by two-fold cross-validation (module docstring).
+
+    Parameters
+    ----------
+    fits : two (n, 3) float64 arrays
+        The surfaces each half of the ions placed (same ``faces``), before finishing.
+    faces : (m, 3) int
+    components : (n,) int
+        Object of each vertex.
+    objects : list of int
+        Eligible objects.
+    halves : two IonTable
+        The ions of each half, in the order of ``fits``.
+    ranges, basis
+        Ranging and concentration basis of the profiles.
+    scores : ObjectScores
+        Each object's score weights and plateau levels.
+    widths : (c,) float64, nm
+        Each object's profile width (error-function sigma).
+    finisher : callable
+        ``finisher(fit)(vertices)[0]``: the vertices after what follows the low-pass on the final surface
+        (blur, facets), for a half whose surface before the low-pass is ``fit``.
+    candidates : tuple of int
+    """
+    n_comp = len(scores.usable)
+    columns = list(candidates) + [0]
+    m = len(columns)
+    # per object: sums and the Gram matrix of the per-ion losses, for the losses and their differences' errors
+    sums, gram, count = np.zeros((n_comp, m)), np.zeros((n_comp, m, m)), np.zeros(n_comp)
+    missing = np.zeros((n_comp, m), dtype=bool)
+    top = basis_size(max(candidates))
+    for k, fit in enumerate(fits):
+        bases = object_harmonics(fit, faces, components, objects, top)
+        finish = finisher(fit)
+        held = NearIons.select(halves[1 - k], ranges, basis, fit, faces, SCORED + 1.0)
+        start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
+        keep = np.abs(start.distance) < SCORED
+        rows, comp = start.index[keep], components[start.vertex[keep]]
+        score, total = scores.fraction(held.atoms.atoms[rows], comp)
+        ok = (total > 0) & np.isin(comp, objects)
+        rows, comp, fraction, total = rows[ok], comp[ok], score[ok] / total[ok], total[ok]
+        lo, hi = scores.outside[comp], scores.inside[comp]
+        sigma = np.sqrt(2) * widths[comp]
+        per_ion = np.empty((len(rows), m))
+        for j, modes in enumerate(columns):
+            trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
+            missing[[c for c in objects if c not in trial and modes], j] = True
+            vertices = finish(apply_modes(fit, bases, trial))[0]
+            band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
+            distance = np.full(len(held.positions), SCORED + 1.0)
+            distance[band.index] = band.distance
+            model = lo + (hi - lo) * 0.5 * erfc(distance[rows] / sigma)
+            per_ion[:, j] = total * (fraction - model) ** 2
+        for c in objects:
+            mine = per_ion[comp == c]
+            sums[c] += mine.sum(axis=0)
+            gram[c] += mine.T @ mine
+            count[c] += len(mine)
+    losses = np.full((n_comp, m), np.nan)
+    chosen = {}
+    for c in objects:
+        loss = np.where(missing[c], np.inf, sums[c])
+        best = int(np.argmin(loss))
+        # standard error of each candidate's loss minus the best one's (sum over ions of the difference)
+        diff_sq = np.diag(gram[c]) + gram[c][best, best] - 2 * gram[c][:, best]
+        se = np.sqrt(np.maximum(diff_sq - (sums[c] - sums[c][best]) ** 2 / max(count[c], 1.0), 0.0))
+        # the smoothest candidate within one standard error of the best (columns run smooth to rough)
+        chosen[c] = columns[int(np.flatnonzero(loss <= loss[best] + ONE_SE * se)[0])]
+        losses[c] = np.where(missing[c], np.nan, sums[c] - sums[c][-1])
+    return ModeSelection(chosen, tuple(candidates), losses)

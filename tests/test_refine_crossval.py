@@ -1,0 +1,83 @@
+"""Each object's smoothness chosen from held-out ions (issue 9), against the truth of synthetic specimens.
+
+The cross-validation (``apt_filters.refine.crossval``) never sees the truth; here every candidate it could
+have chosen is compared with the true surface, and its choice must be (nearly) the best of them.
+"""
+
+import numpy as np
+import pytest
+
+from apt_filters.contour import marching_cubes
+from apt_filters.refine import (counting_floor, ion_atoms, match_objects, refine_surface, remove_specks,
+                                split_components, surface_error)
+from apt_filters.refine.band import vertex_components
+from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
+from apt_filters.refine.spectral import low_pass
+from apt_filters.synth import generate, preset
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+
+NO_B = ConcentrationBasis(exclude=("B",))
+
+
+@pytest.fixture(scope="module", params=[1, 2])
+def small(request):
+    """The ``small`` preset (a rotated 6 nm cube, a 3 nm sphere, a layer; gamma-prime statistics) and its start."""
+    sp = generate(preset("small"), seed=request.param)
+    fields = voxelize(sp.ions, sp.ranges)
+    c = fields.concentration("Al", NO_B).dense()
+    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin,
+                                         mask=inside_mask(fields).dense()))[0]
+    return sp, start
+
+
+def test_the_modes_held_out_ions_choose_are_the_closest_to_the_true_sphere(small):
+    sp, start = small
+    chosen = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B)
+    # the same placement without the selection, finishing or blur: every candidate low-passed from it
+    placed = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, select_modes=False, facets=False, blur=None).mesh
+    sphere = next(i for i, f in enumerate(sp.truth["features"]) if f["name"].startswith("sphere"))
+    tf, sdf = sp.truth["features"][sphere], sp.feature_sdf(sphere)
+    parts = split_components(placed)
+    component = match_objects(parts, [sdf])[0]
+    bases = object_harmonics(placed.vertices, placed.faces, vertex_components(placed.faces, placed.n_vertices),
+                             [component], basis_size(max(CANDIDATES)))
+    idx, basis = bases[component]
+
+    def truth_error(vertices):
+        mesh = type(placed)(vertices, placed.faces)
+        part = split_components(mesh)[component]
+        return surface_error(part, sdf, sp.meshes[sphere], tf["volume_nm3"], tf["area_nm2"])
+
+    errors = {}
+    for k in CANDIDATES:
+        v = placed.vertices.copy()
+        v[idx] = low_pass(placed.vertices[idx], basis, basis.cut(k))
+        errors[k] = truth_error(v)
+    errors[0] = truth_error(placed.vertices)
+    k = chosen.modes.modes[component]
+    best = min(e.mean_distance for e in errors.values())
+    # the choice is within 15 % (+0.01 nm) of the best candidate's mean distance to the truth, and better than
+    # keeping the refined shape; measured: the sphere keeps 4-9 modes, 0.07-0.09 nm against 0.14-0.16 as refined
+    assert errors[k].mean_distance <= 1.15 * best + 0.01, (k, {m: round(e.mean_distance, 3) for m, e in errors.items()})
+    assert errors[k].mean_distance < 0.8 * errors[0].mean_distance
+    assert abs(errors[k].area_error) < abs(errors[0].area_error) + 0.01
+    # the final sphere (low-passed, blur-corrected) against the truth
+    final = split_components(chosen.mesh)[match_objects(split_components(chosen.mesh), [sdf])[0]]
+    err = surface_error(final, sdf, sp.meshes[sphere], tf["volume_nm3"], tf["area_nm2"])
+    assert err.mean_distance < 0.12 and err.hausdorff < 0.6
+
+
+def test_the_offset_errors_the_refinement_reports_match_the_counting_floor(small):
+    """The standard error each object gets from its own ions (``RefineResult.offset_errors``: its score profile,
+    plateaus and width as measured) against the Cramér-Rao floor computed with the truth (``counting_floor``:
+    all element profiles, one width pooled over the objects): the two models differ, so they agree to ~30 %
+    rather than the data's being above the floor (measured: 0.93-1.2 of it)."""
+    sp, start = small
+    result = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B)
+    feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
+    atoms = ion_atoms(sp.ions, sp.ranges, NO_B).atoms
+    floor = counting_floor([sp.feature_sdf(i) for i in feats], [sp.spec.features[i].shape.level_area for i in feats],
+                           [sp.truth["features"][i]["volume_nm3"] for i in feats], sp.ions.positions, atoms)
+    match = match_objects(split_components(result.mesh), [sp.feature_sdf(i) for i in feats])
+    for fl, m in zip(floor, match):
+        assert 0.75 * fl.offset < result.offset_errors[m] < 1.3 * fl.offset, (fl.offset, result.offset_errors[m])
