@@ -30,7 +30,9 @@ def build_config(args: argparse.Namespace):
     overrides = {("voxel", "size"): args.voxel, ("voxel", "kernel"): args.kernel, ("voxel", "exclude"): args.exclude,
                  ("contour", "method"): args.method, ("remesh", "method"): args.remesh,
                  ("analysis", "efficiency"): args.efficiency, ("refine", "blur"): args.blur,
-                 ("refine", "cross_fit"): args.cross_fit or None, ("refine", "facets"): False if args.no_facets else None}
+                 ("refine", "cross_fit"): False if args.no_cross_fit else None,
+                 ("refine", "select_modes"): False if args.no_mode_selection else None,
+                 ("refine", "facets"): False if args.no_facets else None}
     for (section, key), value in overrides.items():
         if value is not None:
             setattr(getattr(config, section), key, value)
@@ -70,8 +72,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")
     p.add_argument("--efficiency", type=float, help="detection efficiency (default 0.5)")
     p.add_argument("--blur", type=float, nargs=2, metavar=("LATERAL", "DEPTH"),
-                   help="reconstruction blur sigmas in nm whose curvature bias the refinement undoes")
-    p.add_argument("--cross-fit", action="store_true", help="refinement plateaus cross-fitted on two halves of the ions")
+                   help="reconstruction blur sigmas in nm whose curvature bias the refinement undoes "
+                        "(default: lateral estimated from the ions, depth 0; 0 0: no correction)")
+    p.add_argument("--no-cross-fit", action="store_true",
+                   help="refinement plateaus against the surface the same ions placed (faster, biased)")
+    p.add_argument("--no-mode-selection", action="store_true",
+                   help="keep each object's refined shape (no cross-validated low-pass)")
     p.add_argument("--no-facets", action="store_true", help="keep edges as refined (no facet sharpening)")
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
     loud = p.add_mutually_exclusive_group()

@@ -60,13 +60,27 @@ class SurfaceResult:
     stats: dict = field(default_factory=dict)
 
 
+def _counting_errors(mesh, offset_errors) -> list[dict]:
+    """Per refined object: the counting-statistics standard error of its mean offset and, if closed, of its volume."""
+    from apt_filters.refine import split_components
+
+    out = []
+    for c, (e, part) in enumerate(zip(offset_errors, split_components(mesh))):
+        if np.isfinite(e):
+            closed = len(part.boundary_edges()) == 0  # an open interface encloses no volume
+            out.append({"component": c, "offset_se_nm": float(e), "area_nm2": part.area(),
+                        "volume_nm3": part.signed_volume() if closed else None,
+                        "volume_se_nm3": float(e) * part.area() if closed else None})
+    return out
+
+
 def _check_config(config: PipelineConfig) -> None:
     if not config.input.ions or not config.input.ranges:
         raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
     if not config.surface:
         raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
     if len(config.refine.blur) not in (0, 2) or any(b < 0 for b in config.refine.blur):
-        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty")
+        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)")
     for s in config.surface:
         if s.species and not 0 < s.iso < 1:
             raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
@@ -137,14 +151,22 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                     mesh, specks = remove_specks(mesh, config.refine.min_volume, config.refine.min_area)
                     refined = refine_surface(mesh, ions, ranges, surface.species, basis,
                                              iterations=config.refine.iterations, facets=config.refine.facets,
-                                             blur=tuple(config.refine.blur) or None,
-                                             cross_fit=config.refine.cross_fit)
+                                             blur=tuple(config.refine.blur) or "auto",
+                                             cross_fit=config.refine.cross_fit,
+                                             select_modes=config.refine.select_modes)
                     mesh = refined.mesh
+                    estimate = refined.blur_estimate
                     refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
                                     "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
                                     "self_intersections": refined.self_intersections, "facets": refined.facets,
                                     "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),
-                                    "cross_fit": config.refine.cross_fit}
+                                    "blur_estimate": None if estimate is None else
+                                    {"lateral_nm": estimate.lateral, "slope_nm2": estimate.slope,
+                                     "slope_se_nm2": estimate.slope_se},
+                                    "cross_fit": config.refine.cross_fit,
+                                    "modes": None if refined.modes is None else
+                                    {str(c): k for c, k in sorted(refined.modes.modes.items())},
+                                    "counting_errors": _counting_errors(mesh, refined.offset_errors)}
                     s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
                                  f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
             else:
