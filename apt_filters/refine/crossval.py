@@ -28,7 +28,7 @@ both plateaus measured. On the gamma-prime specimen (seeds 1-3) spheres of 3 nm 
 errors from +2-8 % to within their volume's (benchmarks/results_refine.md, session 6).
 
 Cost: per half, one eigensolve per eligible object and one finish and band per candidate; memory: the
-held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 64``
+held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 47``
 float64 of harmonics per object.
 """
 
@@ -47,8 +47,10 @@ from apt_filters.refine.composition import ObjectScores
 from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
 from apt_filters.voxel import ConcentrationBasis
 
-CANDIDATES = (4, 9, 16, 25, 36, 64)
-"""Numbers of modes tried: complete spherical-harmonic degrees 1-5 and 7 on a sphere."""
+CANDIDATES = (4, 9, 16, 25, 36)
+"""Numbers of modes tried: complete spherical-harmonic degrees 1-5 on a sphere. 64 was tried too and chosen
+for none of 32 gamma-prime precipitates (seeds 1-8); its 82-mode eigensolves took 12 of the 72 s the
+refinement of the 10M-ion ``many`` specimen (47 objects) took."""
 ONE_SE = 1.0
 """Standard errors within which the smoothest candidate is preferred to the best (the one-standard-error rule)."""
 SCORED = 2.0

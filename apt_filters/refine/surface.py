@@ -37,7 +37,7 @@ After the iterations (each step can be switched off):
 
 5. Each closed object's smoothness (``select_modes``, :mod:`apt_filters.refine.crossval`): the two half
    surfaces of the cross-fit, low-passed in their manifold harmonics (:mod:`apt_filters.refine.spectral`)
-   to 4-64 modes and finished as below, are scored on the other half's ions; the object keeps the
+   to 4-36 modes and finished as below, are scored on the other half's ions; the object keeps the
    fewest modes within one standard error of the best. A 3 nm sphere keeps 4-9 (its noise and the
    start's grid pattern at degrees 2-8 go), a cube more or its refined shape.
 6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
