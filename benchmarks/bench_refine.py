@@ -152,7 +152,8 @@ def table(rows_by_pipe: dict, specks: dict, times: dict) -> str:
             if not r["found"]:
                 lines.append(f"| {pipe} | {r['name']} | not found |" + " |" * 12)
                 continue
-            lines.append(f"| {pipe} | {r['name']} | {100 * r['volume']:+.1f}% | {r['z']:+.1f} | {100 * r['area']:+.1f}% | "
+            lines.append(f"| {pipe} | {r['name']} | {100 * r['volume']:+.1f}% | {r['z']:+.1f} | "
+                         f"{100 * r['area']:+.1f}% | "
                          f"{r['mean']:.3f} | {r['hausdorff']:.2f} | {100 * r['excess']:+.1f}% | "
                          f"{100 * r['excess_count']:+.1f}% | {r['plateau_in']:+.2f} | {r['plateau_out']:+.2f} | "
                          f"{r['sign_errors']} | {r['folds']} | {100 * r['floor']:.1f}% |")
@@ -186,9 +187,10 @@ def summary(all_rows: dict) -> str:
             volume = np.array([r["volume"] for r in rows])
             z = np.array([r["z"] for r in rows])
             floor = np.mean([r["floor"] for r in rows])
-            lines.append(f"| {pipe} | {label} ({len(rows)}) | " + " | ".join(cells) + f" | {100 * volume.mean():+.2f}% | "
-                         f"{np.sqrt(np.mean(z ** 2)):.2f} | {np.sum(np.abs(volume) <= 0.05)} of {len(rows)} | "
-                         f"{100 * floor:.1f}% | {sum(r['sign_errors'] for r in rows)} | {sum(r['folds'] for r in rows)} |")
+            lines.append(f"| {pipe} | {label} ({len(rows)}) | " + " | ".join(cells)
+                         + f" | {100 * volume.mean():+.2f}% | {np.sqrt(np.mean(z ** 2)):.2f} | "
+                         f"{np.sum(np.abs(volume) <= 0.05)} of {len(rows)} | {100 * floor:.1f}% | "
+                         f"{sum(r['sign_errors'] for r in rows)} | {sum(r['folds'] for r in rows)} |")
     return "\n".join(lines)
 
 

@@ -126,7 +126,8 @@ def test_a_face_rounder_than_its_opposite_one_is_found_and_corners_are_rebuilt()
     corners = corner_steps(rims, mesh.faces, facets)
     assert np.count_nonzero(corners.any(axis=1)) == 8
     sharp = rims + corners
-    true_corners = box.center + (np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T * box.size / 2) @ axes
+    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+    true_corners = box.center + (signs * box.size / 2) @ axes
     nearest = np.min(np.linalg.norm(sharp[None] - true_corners[:, None], axis=2), axis=1)
     assert nearest.max() < 0.1
     before = surface_error(type(mesh)(rims, mesh.faces), box.sdf, box.mesh(0.2), box.volume(), box.area())

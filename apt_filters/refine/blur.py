@@ -157,7 +157,8 @@ def _step_width(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, half_wi
     mean = np.divide(np.bincount(idx[ok], weights=(weight * u)[ok], minlength=len(edges) - 1), n,
                      out=np.zeros(len(n)), where=n > 0)
     centre, use = 0.5 * (edges[1:] + edges[:-1]), n > 0
-    # binomial-like variance of a bin mean: u (1 - u) / n, floored so that plateau bins keep some weight
+    # every bin weighed by its atoms (the bound u (1 - u) <= 1/4 of a fraction's variance): plateau bins,
+    # whose variance is smaller, would otherwise outweigh the step
     se = np.sqrt(0.25 / np.maximum(n, 1.0))
     fit = least_squares(lambda p: ((0.5 * erfc((centre - p[0]) / (np.sqrt(2) * abs(p[1]) + 1e-9)) - mean) / se)[use],
                         [0.0, 0.3])
@@ -199,7 +200,9 @@ def lateral_blur(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, nz2: n
         if sel.sum() < min_ions:
             continue
         w, e = _step_width(distance[sel], u[sel], weight[sel], half_width, bin_width)
-        widths.append(w), errors.append(e), means.append(float(tilt[sel].mean()))
+        widths.append(w)
+        errors.append(e)
+        means.append(float(tilt[sel].mean()))
     if len(widths) < 2 or max(means) - min(means) < 0.5:
         return None
     widths, errors, means = map(np.asarray, (widths, errors, means))

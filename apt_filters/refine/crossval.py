@@ -17,8 +17,8 @@ object's error-function step (its plateaus, its measured profile width) at the i
 that candidate, squared and weighted by the ion's atoms. The ``k`` whose two held-out sums are smallest
 is the object's, or rather the fewest modes whose loss is within one standard error of the smallest
 (the one-standard-error rule of cross-validation: two candidates the ions cannot tell apart go to the
-smoother, since the loss is itself noisy). Since the held-out ions are independent of the surface they score, the expected
-loss is a constant plus ``sum_i m'(d_i)^2 delta_i^2``, ``delta`` the candidate's distance to the true
+smoother, since the loss is itself noisy). Since the held-out ions are independent of the surface they
+score, the expected loss is a constant plus ``sum_i m'(d_i)^2 delta_i^2``, ``delta`` the candidate's distance to the true
 interface where ion ``i`` is: an information-weighted mean squared error of the shape, minimised
 without knowing the truth.
 
@@ -108,9 +108,9 @@ def basis_size(k: int) -> int:
 
 
 def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
-                 halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis, scores: ObjectScores,
-                 widths: np.ndarray, finisher: Callable[[np.ndarray], Callable],
-                 candidates: tuple[int, ...] = CANDIDATES) -> ModeSelection:
+                          halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis,
+                          scores: ObjectScores, widths: np.ndarray, finisher: Callable[[np.ndarray], Callable],
+                          candidates: tuple[int, ...] = CANDIDATES) -> ModeSelection:
     """Each object's number of modes by two-fold cross-validation (module docstring).
 
     Parameters

@@ -234,7 +234,6 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
     return step, normals
 
 
-
 def corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], reach: float = 2.5,
                  max_move: float = 1.5, slack: float = 0.1) -> np.ndarray:
     """(n, 3) moves that put one vertex on each convex corner of an object's facets (module docstring, step 3).

@@ -298,9 +298,9 @@ class _Placed:
     iterations: int
 
 
-def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMesh, np.ndarray, np.ndarray, csr_matrix]:
-    """Subdivided input, its unfolded and relaxed vertices (the iterations' start; a copy for :func:`untangle` to
-    fall back on), the umbrella operator."""
+def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMesh, np.ndarray, csr_matrix]:
+    """Subdivided input, its unfolded and relaxed vertices (the iterations' start, and what :func:`untangle`
+    falls back on), the umbrella operator."""
     for _ in range(subdivisions):
         mesh = subdivide(mesh)
     vertices, faces = mesh.vertices.astype(np.float64).copy(), mesh.faces
@@ -313,7 +313,7 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
         lap = plain @ vertices - vertices
         lap -= np.einsum("ij,ij->i", lap, nn)[:, None] * nn
         vertices, _ = guarded_move(vertices, faces, 0.5 * lap, pairs)
-    return mesh, vertices, vertices.copy(), plain
+    return mesh, vertices, plain
 
 
 def _place(vertices: np.ndarray, faces: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
@@ -647,7 +647,7 @@ def refine_surface(
                     plateau_window=plateau_window, plateau_prior=plateau_prior, distance=distance,
                     normal_smoothing=normal_smoothing, full_steps=full_steps, crease_angle=crease_angle,
                     crease_smoothing=crease_smoothing)
-    mesh, start, unfolded, plain = _prepare(mesh, subdivisions, relax_start)
+    mesh, start, plain = _prepare(mesh, subdivisions, relax_start)
     faces = mesh.faces
     n = len(start)
     components = vertex_components(faces, n)
@@ -688,14 +688,14 @@ def refine_surface(
     if auto:
         # measured on the finished shape: rounded cube edges would widen the edge-on profiles
         finished = _finisher(found, faces, pairs, None)(vertices)[0]
-        estimate = _estimate_blur(placed.near, finished, smoothed_normals(finished, faces, normal_smoothing), components,
-                                  scores, half_width, distance)
+        estimate = _estimate_blur(placed.near, finished, smoothed_normals(finished, faces, normal_smoothing),
+                                  components, scores, half_width, distance)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     vertices, n_facets, sharpened, g = _finisher(found, faces, pairs, blur)(vertices)
     guarded += g
     errors = _offset_errors(placed.near, vertices, smoothed_normals(vertices, faces, normal_smoothing), components,
                             placed.levels, scores, placed.widths, half_width, distance)
-    vertices, untangled = untangle(vertices, faces, unfolded, plain)
+    vertices, untangled = untangle(vertices, faces, start, plain)
     original = mesh.vertices.astype(np.float64)
     moved_total = np.einsum("ij,ij->i", vertices - original, vertex_normals(original, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
