@@ -2,9 +2,10 @@
 
 How many manifold harmonics (:mod:`apt_filters.refine.spectral`) a refined object's shape deserves
 depends on how many ions describe it and on the shape: a 3 nm sphere's ions support its centre, its
-radius and perhaps an ellipsoid (4-9 modes), a cube's edges need 16 to all of them. No fixed smoothing
-suits both, and a prior on the shape is what the truth-first rule forbids, so each object's cut-off is
-chosen by how well the surface predicts ions that did not place it.
+radius and perhaps an ellipsoid (4-9 modes); an elongated object needs more (an ellipsoid of axes 2:3:4
+about 36 to keep its extents to 1 %); a cube's edges need many more, unless the facets rebuild them after
+the low-pass. No fixed smoothing suits all, and a prior on the shape is what the truth-first rule
+forbids, so each object's cut-off is chosen by how well the surface predicts ions that did not place it.
 
 Method
 ------
@@ -23,9 +24,10 @@ interface where ion ``i`` is: an information-weighted mean squared error of the 
 without knowing the truth.
 
 Eligible objects are closed (an open interface meets the specimen edge, where its rim must stay) with
-both plateaus measured. On the gamma-prime specimen (seeds 1-3) spheres of 3 nm chose 4-9 modes and cubes
-16, 36 or all; the spheres' mean distance to the truth went from 0.15-0.19 to 0.08-0.12 nm and their area
-errors from +2-8 % to within their volume's (benchmarks/results_refine.md, session 6).
+both plateaus measured. On the gamma-prime specimen (seeds 1-8) the 3 nm spheres chose 4 modes (13 of 16)
+or 9, the cubes 4 (9 of 16) to 36, their edges and corners then rebuilt by the facets; the spheres' mean
+distance to the truth went from 0.15-0.20 to 0.08-0.13 nm and their area errors from +2-8 % to within
+their volume's (benchmarks/results_refine.md, session 6).
 
 Cost: per half, one eigensolve per eligible object and one finish and band per candidate; memory: the
 held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 47``

@@ -39,7 +39,7 @@ After the iterations (each step can be switched off):
    surfaces of the cross-fit, low-passed in their manifold harmonics (:mod:`apt_filters.refine.spectral`)
    to 4-36 modes and finished as below, are scored on the other half's ions; the object keeps the
    fewest modes within one standard error of the best. A 3 nm sphere keeps 4-9 (its noise and the
-   start's grid pattern at degrees 2-8 go), a cube more or its refined shape.
+   start's grid pattern at degrees 2-8 go), a cube 4-36 (the facets then rebuild its edges).
 6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
