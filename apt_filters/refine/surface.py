@@ -149,8 +149,8 @@ class RefineResult:
     offset_errors : (c,) float64, nm
         Counting-statistics standard error of each object's mean offset along its normals, from the
         Fisher information of its score profile (NaN for objects without both plateaus); times the
-        object's area it is that of its volume. On the gamma-prime specimen 0.037-0.040 nm for a 3 nm
-        sphere (3.7-4.0 % of its volume), against the Cramér-Rao floor of all the element profiles with
+        object's area it is that of its volume. On the gamma-prime specimen 0.035-0.041 nm for a 3 nm
+        sphere (3.5-4.1 % of its volume), against the Cramér-Rao floor of all the element profiles with
         the truth known, 0.036 nm (:func:`~apt_filters.refine.evaluate.counting_floor`).
     """
 
