@@ -12,11 +12,11 @@ spherical harmonics on a sphere, whose coordinates lie in the first four (degree
 the first ``k`` coefficients of the coordinates (:func:`low_pass`) removes everything shorter than the
 ``k``-th wavelength without shrinking what is kept (unlike Laplacian smoothing of the positions, which
 shrinks a sphere at every pass). How many modes the ions support differs per object (a 3 nm sphere: 4-9;
-a cube, whose edges need many more, 16 to all), so :mod:`apt_filters.refine.crossval` chooses ``k`` per
-object from held-out ions.
+an elongated object more; a cube 4-36 when the facets rebuild its edges afterwards), so
+:mod:`apt_filters.refine.crossval` chooses ``k`` per object from held-out ions.
 
 Cost: one shift-inverted sparse eigensolve per object, ``k`` modes (``scipy.sparse.linalg.eigsh``);
-memory ``n x k`` float64 (an object of 1,500 vertices and 64 modes: 0.8 MB).
+memory ``n x k`` float64 (an object of 1,500 vertices and 47 modes: 0.6 MB).
 """
 
 from __future__ import annotations

@@ -336,7 +336,6 @@ def _place(vertices: np.ndarray, faces: np.ndarray, ions: IonTable, ranges: Rang
     pairs_near = Pairs.find(vertices, components, pool_radius)
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
-    normals = vertex_normals(vertices, faces)
     it = 0
     for it in range(1, iterations + 1):
         normals = vertex_normals(vertices, faces)
