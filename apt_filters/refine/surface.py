@@ -45,8 +45,9 @@ After the iterations (each step can be switched off):
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
    dependence).
 7. Sharp edges and corners (:mod:`apt_filters.refine.facets`, ``facets``): where planar facets of an
-   object are found (on the surface as the iterations left it), the rounded rims between them move onto
-   the envelope of the facets' planes and one vertex onto each corner.
+   object are found (on the surface as the iterations left it), and refitted to its ions where they close
+   it (a blurred convex polyhedron, opposite faces parallel), the rounded rims between them move onto
+   the envelope of the facets' planes, one vertex onto each corner and a row of vertices along each edge.
 
 Every move is guarded: a face whose normal would turn by more than 90° in one move, or an
 edge whose two faces would fold (normals more than 120° apart, :func:`folded_pairs`), halves the
@@ -74,13 +75,13 @@ from apt_filters.contour.topology import face_pairs, folded_pairs, unit_normals
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import (NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
+from apt_filters.refine.band import (Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size, cross_validated_modes,
                                         object_harmonics)
-from apt_filters.refine.facets import corner_steps, facet_steps, find_facets
+from apt_filters.refine.facets import closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
 from apt_filters.refine.levels import PLATEAU_PRIOR, ObjectLevels, levels_from_sums, plateau_sums, plateaus
@@ -424,18 +425,48 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, halves: list[Io
     return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), elements, species, prior)
 
 
-def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
-                   scores: ObjectScores, half_width: float, distance: str) -> BlurEstimate | None:
-    """:func:`~apt_filters.refine.blur.lateral_blur` from the ions ``near`` a surface."""
+def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+                scores: ObjectScores, half_width: float,
+                distance: str) -> tuple[np.ndarray, Band, np.ndarray, np.ndarray]:
+    """The ions within ``half_width`` of a surface with a usable object: (which of the band, the band, their
+    normalised scores ``u`` (0 outside, 1 inside) and atoms)."""
     band = near.band(vertices, normals, half_width, distance)
     comp = components[band.vertex]
     use = scores.usable[comp] & (np.abs(scores.inside - scores.outside)[comp] > 0)
     score, total = scores.fraction(near.atoms.atoms[band.index[use]], comp[use])
-    ok = total > 0
-    comp = comp[use][ok]
-    u = (score[ok] / total[ok] - scores.outside[comp]) / (scores.inside - scores.outside)[comp]
-    nz = normals[band.vertex[use][ok], 2]
-    return lateral_blur(band.distance[use][ok], u, total[ok], nz ** 2, half_width=half_width)
+    keep = np.flatnonzero(use)[total > 0]
+    comp, score, total = comp[keep], score[total > 0], total[total > 0]
+    u = (score / total - scores.outside[comp]) / (scores.inside - scores.outside)[comp]
+    return keep, band, u, total
+
+
+def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+                   scores: ObjectScores, half_width: float, distance: str) -> BlurEstimate | None:
+    """:func:`~apt_filters.refine.blur.lateral_blur` from the ions ``near`` a surface."""
+    keep, band, u, total = _normalised(near, vertices, normals, components, scores, half_width, distance)
+    nz = normals[band.vertex[keep], 2]
+    return lateral_blur(band.distance[keep], u, total, nz ** 2, half_width=half_width)
+
+
+def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores: ObjectScores, half_width: float,
+                   distance: str, cap: float = 45.0) -> list:
+    """The facets ``found`` on ``placed``, those of each object they close refitted to its ions
+    (:func:`~apt_filters.refine.facets.fit_to_ions`): the ions whose nearest vertex's normal lies within ``cap``
+    degrees of one of the object's facets (an edge's ions, ~45° from both faces, count; a corner's few do not)."""
+    keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
+                                       half_width, distance)
+    vertex = band.vertex[keep]
+    out = []
+    for c in sorted({f.component for f in found}):
+        mine = [f for f in found if f.component == c]
+        if not closes(mine):
+            out += mine
+            continue
+        normals = np.array([f.normal for f in mine])
+        sel = (components[vertex] == c) & ((placed.normals[vertex] @ normals.T).max(axis=1) > np.cos(np.radians(cap)))
+        out += fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
+                           float(placed.widths[c]))
+    return out
 
 
 def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -490,7 +521,7 @@ def _finisher(found: list, faces: np.ndarray, pairs: np.ndarray, blur: tuple[flo
         if found:
             step, along = facet_steps(vertices, faces, found)
             vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
-            corners = corner_steps(vertices, faces, found)
+            corners = edge_and_corner_steps(vertices, faces, found)
             vertices, g2 = guarded_move(vertices, faces, corners, pairs)
             guarded += g + g2
             sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
@@ -614,7 +645,8 @@ def refine_surface(
         orientations do not allow an estimate); None or zeros: no correction.
     facets : bool
         Rebuild sharp edges and corners where planar facets of an object meet
-        (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched).
+        (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched). The
+        planes of an object they close are fitted to its ions (:func:`~apt_filters.refine.facets.fit_to_ions`).
     cross_fit : bool
         Measure the plateaus the refinement uses on ions that did not place the surface they are
         measured against: the ions are split in two (even and odd rows), each half places its own
@@ -683,6 +715,8 @@ def refine_surface(
                 guarded += g
             vertices = target
     found = _facets(placed.vertices, faces, facets)
+    if found:
+        found = _fitted_facets(found, placed, components, scores, half_width, distance)
     estimate = None
     if auto:
         # measured on the finished shape: rounded cube edges would widen the edge-on profiles
