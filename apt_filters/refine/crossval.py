@@ -111,7 +111,7 @@ def basis_size(k: int) -> int:
 
 def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
                           halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis,
-                          scores: ObjectScores, widths: np.ndarray, finisher: Callable[[np.ndarray], Callable],
+                          scores: ObjectScores, widths: np.ndarray, finisher: Callable[[int], Callable],
                           candidates: tuple[int, ...] = CANDIDATES) -> ModeSelection:
     """Each object's number of modes by two-fold cross-validation (module docstring).
 
@@ -133,8 +133,8 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     widths : (c,) float64, nm
         Each object's profile width (error-function sigma).
     finisher : callable
-        ``finisher(fit)(vertices)[0]``: the vertices after what follows the low-pass on the final surface
-        (blur, facets), for a half whose surface before the low-pass is ``fit``.
+        ``finisher(k)(vertices)[0]``: the vertices after what follows the low-pass on the final surface
+        (blur, facets), for the surface half ``k`` placed (``fits[k]`` before the low-pass).
     candidates : tuple of int
     """
     n_comp = len(scores.usable)
@@ -146,7 +146,7 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     top = basis_size(max(candidates))
     for k, fit in enumerate(fits):
         bases = object_harmonics(fit, faces, components, objects, top)
-        finish = finisher(fit)
+        finish = finisher(k)
         held = NearIons.select(halves[1 - k], ranges, basis, fit, faces, SCORED + 1.0)
         start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
         keep = np.abs(start.distance) < SCORED

@@ -506,7 +506,7 @@ def _finisher(found: list, faces: np.ndarray, pairs: np.ndarray, blur: tuple[flo
     """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
     of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened).
 
-    The facets are found (:func:`_facets`) on the surface as the iterations left it, not on its low-passed copy:
+    The facets are found (:func:`_placed_facets`) on the surface as the iterations left it, not on its low-passed copy:
     its faces are flat where the copy's are curved, and planes fitted to curved faces tilted by up to 12°
     (cubes of gamma-prime seeds 6 and 8, which then stood out by ~1 nm at a corner).
     """
@@ -530,9 +530,12 @@ def _finisher(found: list, faces: np.ndarray, pairs: np.ndarray, blur: tuple[flo
     return finish
 
 
-def _facets(reference: np.ndarray, faces: np.ndarray, facets: bool) -> list:
-    """The facets of ``reference`` (the surface as the iterations left it), none if switched off."""
-    return find_facets(reference, faces) if facets else []
+def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
+                   half_width: float, distance: str) -> list:
+    """The facets of a surface as the iterations left it (none if switched off), fitted to its ions where they
+    close an object (:func:`_fitted_facets`)."""
+    found = find_facets(placed.vertices, faces) if facets else []
+    return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
 
 
 def refine_surface(
@@ -702,8 +705,9 @@ def refine_surface(
         # candidates are finished with the blur given, or without one while it is still to be estimated
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, halves, ranges,
                                           basis, scores, placed.widths,
-                                          lambda fit: _finisher(_facets(fit, faces, facets), faces, pairs,
-                                                                None if auto else blur))
+                                          lambda k: _finisher(_placed_facets(fits[k], faces, components, scores,
+                                                                             facets, half_width, distance),
+                                                              faces, pairs, None if auto else blur))
         kept = {c: k for c, k in selection.modes.items() if k}
         if kept:
             bases = object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
@@ -714,9 +718,7 @@ def refine_surface(
                 target, g = guarded_move(vertices, faces, target - vertices, pairs)
                 guarded += g
             vertices = target
-    found = _facets(placed.vertices, faces, facets)
-    if found:
-        found = _fitted_facets(found, placed, components, scores, half_width, distance)
+    found = _placed_facets(placed, faces, components, scores, facets, half_width, distance)
     estimate = None
     if auto:
         # measured on the finished shape: rounded cube edges would widen the edge-on profiles
