@@ -58,8 +58,8 @@ def test_refined_volumes_are_unbiased_and_at_the_counting_floor(rows):
     floor = np.array([r["floor"] for r in refined])
     # each object within the issue's 5 % or three standard deviations of its floor (3 nm spheres: 11 %)
     assert np.all(np.abs(volume) <= np.maximum(0.05, 3 * floor)), volume
-    # no bias beyond the mean's own noise (~0.9 % for 12 objects), errors ~ the floor (measured: mean -1.1 %,
-    # rms z 1.3; the AP Suite-style -31 %, rms z 11)
+    # no bias beyond the mean's own noise (~0.9 % for 12 objects), errors ~ the floor (measured: mean -0.8 %,
+    # rms z 1.05; the AP Suite-style -31 %, rms z 11)
     assert abs(volume.mean()) < 0.025
     assert np.sqrt(np.mean(z ** 2)) < 2.0
 
@@ -70,14 +70,14 @@ def test_refined_areas_distances_and_excess_against_the_truth(rows):
     area = np.abs([r["area"] for r in refined])
     mean = np.array([r["mean"] for r in refined])
     hausdorff = np.array([r["hausdorff"] for r in refined])
-    # issue: area within 5 % each (measured: 11 of 12, worst -5.6 %, a 7 nm cube with a rounded edge; mean 2.6 %)
-    assert np.sum(area > 0.05) <= 1 and area.max() < 0.065 and area.mean() < 0.035
-    # issue: mean distance <= 0.15 nm each (measured 0.076-0.149 nm, mean 0.11), Hausdorff <= 0.8 nm (measured
-    # 0.25-0.92 nm, mean 0.50: cube corners and edges)
-    assert mean.max() < 0.17 and mean.mean() < 0.13
-    assert hausdorff.max() < 1.05 and hausdorff.mean() < 0.6
+    # issue: area within 5 % each (measured: worst 3.8 %, mean 1.9 %)
+    assert area.max() <= 0.05 and area.mean() < 0.03
+    # issue: mean distance <= 0.15 nm each (measured 0.062-0.117 nm, mean 0.085), Hausdorff <= 0.8 nm (measured
+    # 0.25-0.76 nm, mean 0.47: a sampled maximum, given 0.05 nm for another machine's rounding)
+    assert mean.max() <= 0.15 and mean.mean() < 0.11
+    assert hausdorff.max() < 0.85 and hausdorff.mean() < 0.55
     # B excess per the refined area (issue: 5 %): the TRUE surfaces give up to 15 % on a 3 nm sphere (its
-    # ~240 excess ions); measured up to 13 %, mean 6 %, against the AP Suite-style +19 % mean
+    # ~240 excess ions); measured up to 16 %, mean 6 %, against the AP Suite-style +19 % mean
     excess = np.array([r["excess"] for r in refined])
     assert abs(excess.mean()) < 0.04 and np.abs(excess).max() < 0.2
     # outside plateaus within 1 at.% each; inside ones are counting-limited (~1000 atoms in a sphere's core)

@@ -10,7 +10,7 @@ it by 30-45% in volume). This step
 - moves every vertex along its normal to where the ions' local composition profile crosses the
   midpoint of its object's plateaus (cross-fitted on two halves of the ions), regularised and fold-free,
   low-passes each closed object to the harmonics held-out ions choose, undoes the blur's curvature
-  bias and rebuilds faceted edges (:func:`refine_surface`),
+  bias and rebuilds faceted edges on planes fitted to the ions (:func:`refine_surface`),
 - gives the interfacial excess per object over its own area (:func:`object_excess`),
 - and, for synthetic specimens, the counting floor no method can beat (:func:`counting_floor`).
 
@@ -24,9 +24,10 @@ Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
     excess = object_excess(result.mesh, ions, ranges, "B")  # per object, over its refined area
 
 On the gamma-prime specimen (8 seeds, 32 precipitates) this takes volumes from -32% (AP Suite-style,
-mean abs) to 3.1% (signed -0.7%, near the counting floor: 3.6% for a 3 nm sphere), mean distance to
-the true surface from 0.42 to 0.12 nm, Hausdorff from 1.5 to 0.54 nm, area errors from 23% to 2.3%, with
-no folds, self-intersections or proxigram sign errors (benchmarks/results_refine.md, docs/refine.md).
+mean abs) to 3.0% (signed -0.5%, at the counting floor: 3.6% for a 3 nm sphere, rms error 1.14 floors),
+mean distance to the true surface from 0.42 to 0.09 nm, Hausdorff from 1.5 to 0.47 nm, area errors from
+23% to 2.0% (every object within 5%), with no folds, self-intersections or proxigram sign errors
+(benchmarks/results_refine.md, docs/refine.md).
 """
 
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
