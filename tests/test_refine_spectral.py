@@ -225,6 +225,13 @@ def test_facet_planes_fitted_to_the_ions_of_a_blurred_cube():
             rms[pairs].append(_plane_errors(box, fit_to_ions(start, p, u, np.ones(len(p)), 0.3, pairs=pairs))[0])
     paired, alone = (np.sqrt(np.mean(np.square(rms[k]))) for k in (True, False))
     assert paired < 0.8 * alone, (paired, alone)
+    # too few ions to fit, or ions of something else (a cube turned by 45° about z): the planes as given
+    same = lambda fitted: all(a is b for a, b in zip(fitted, start))  # noqa: E731
+    assert same(fit_to_ions(start, p[:1000], u[:1000], np.ones(1000), 0.3))
+    turn = np.array([[np.cos(np.pi / 4), -np.sin(np.pi / 4), 0], [np.sin(np.pi / 4), np.cos(np.pi / 4), 0], [0, 0, 1]])
+    moved = (p - box.center) @ turn.T + box.center
+    assert same(fit_to_ions(start, moved, u, np.ones(len(p)), 0.3))
+    assert not same(fit_to_ions(start, p, u, np.ones(len(p)), 0.3))
 
 
 def test_only_facets_that_close_an_object_are_fitted_jointly():

@@ -337,7 +337,7 @@ def closes(facets: list[Facet], margin: float = 0.25) -> bool:
 
 def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float,
                 pairs: bool = True, cap: float = 20.0, iterations: int = 10, max_step: float = 0.2,
-                tolerance: float = 1e-5) -> list[Facet]:
+                tolerance: float = 1e-5, min_ions: int = 200) -> list[Facet]:
     """The planes of one closed polyhedral object refitted jointly to its ions (module docstring, step 1b).
 
     The model of an ion's normalised score at ``x`` is the intersection of the blurred half-spaces,
@@ -366,14 +366,20 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     iterations, max_step, tolerance
         At most ``iterations`` Gauss-Newton steps, each parameter clamped to ``max_step`` (radians of
         tilt, nm of offset) per step; stop when no parameter moves more than ``tolerance``.
+    min_ions : int
+        Fewest ions per plane to fit at all.
 
     Returns
     -------
     list of Facet
         The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices).
+        the vertices); the facets as given if there are too few ions, or if a fitted plane has turned by
+        more than ``cap`` from its start (out of the cone its facet was found in: the fit has found
+        something else).
     """
     m = len(facets)
+    if len(positions) < min_ions * m:
+        return list(facets)
     centre = positions.mean(axis=0)
     n0 = np.array([f.normal for f in facets])
     # each plane's point nearest the centre: its offset stays put when its normal is averaged with a partner's
@@ -421,5 +427,7 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         if np.abs(free).max() < tolerance:
             break
     normals = planes(params)
+    if np.any(np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(np.radians(cap))):
+        return list(facets)
     return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2]), f.vertices, f.core, f.area,
                   f.rms) for k, f in enumerate(facets)]
