@@ -5,7 +5,7 @@
 - ``apt_filters.refine.blur.lateral_blur``: the orientation dependence of a profile's width gives
   ``sigma_lat^2 - sigma_depth^2``;
 - ``apt_filters.refine.facets``: a face rounder than its opposite one is still found; corners and edges are
-  rebuilt.
+  rebuilt; a blurred cube's planes are fitted to its ions, jointly and only where its facets close it.
 """
 
 import numpy as np
