@@ -36,8 +36,9 @@ Method
    corner ~0.9 nm in). Where three facets of an object meet in a point that lies near all three and
    inside the object's other planes, the vertex nearest that point moves onto it; along each edge, the
    vertices nearest to points one mesh edge apart move onto it. Corners: gamma-prime seeds 1, 2, 5, 6, 8
-   (10 cubes), area 2.9 -> 2.3 % mean abs. Edges, with the planes from the ions, seeds 1-8 (16 cubes):
-   the mesh's area, which fell 1.5-3.7 % short of its own fitted polyhedron's, falls 0-2 % short.
+   (10 cubes), area 2.9 -> 2.3 % mean abs. Edges, with the planes from the ions:
+   the mesh's area fell 1.3-3.7 % short of its own fitted polyhedron's without the rows (seeds 1, 2, 3, 6),
+   and lies between 1.1 % over and 2.0 % short of it with them (seeds 1-8).
 
 A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
 the specimen edge is not a polyhedron). This is a prior: edges where found planar facets
