@@ -39,11 +39,11 @@ from apt_filters.refine.recontour import merge, recontour
 from apt_filters.refine.specks import Specks, remove_specks
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.surface import RefineResult, guarded_move, refine_surface
-from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
+from apt_filters.refine.untangle import unfold, untangle
 
 __all__ = [
     "CountingFloor", "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError",
     "contrast_weights", "counting_floor",
-    "guarded_move", "intersecting_faces", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
+    "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
 ]

@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from apt_filters.contour.topology import face_pairs, folded_pairs, unit_normals
+from apt_filters.contour.topology import face_pairs, folded_pairs, self_intersecting_faces, unit_normals
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
@@ -83,7 +83,7 @@ from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size,
                                         object_harmonics)
 from apt_filters.refine.facets import closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
 from apt_filters.refine.subdivide import subdivide
-from apt_filters.refine.untangle import intersecting_faces, unfold, untangle
+from apt_filters.refine.untangle import unfold, untangle
 from apt_filters.refine.levels import PLATEAU_PRIOR, ObjectLevels, levels_from_sums, plateau_sums, plateaus
 from apt_filters.voxel import ConcentrationBasis
 
@@ -740,6 +740,6 @@ def refine_surface(
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
              "last_step_max": placed.history[-1] if placed.history else 0.0}
     return RefineResult(out, placed.levels, stats, placed.iterations, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
-                        int(intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
+                        int(self_intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
                         placed.history, tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened,
                         estimate, selection, placed.widths, errors)
