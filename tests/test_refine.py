@@ -11,6 +11,7 @@ from scipy.special import erfc
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.topology import folded_pairs
 from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.refine import (contrast_weights, guarded_move, ion_atoms, match_objects,
@@ -160,6 +161,40 @@ def test_refined_surface_is_closer_to_the_truth_than_the_ap_suite_style_one(smal
     # excess over both objects per their summed area: the AP surface's small area inflates it
     assert pooled_excess_per_area(before) > 0.1
     assert abs(pooled_excess_per_area(after)) < 0.1
+
+
+def test_untangle_leaves_separated_coplanar_faces_alone_and_separates_crossing_ones():
+    import pymeshlab
+
+    from apt_filters.refine import untangle
+    from apt_filters.refine.band import adjacency
+    from apt_filters.refine.surface import umbrella
+
+    # Two faces of a cube's facet (gamma-prime seed 3) projected onto its fitted plane, 0.19 nm apart in it:
+    # pymeshlab's test flags both, and smoothing them had moved cube vertices by up to 0.77 nm.
+    a = [[3.303110757902604, 1.8138085489627962, -28.814136460082466],
+         [2.854973480140435, 1.957156180909062, -28.75454022456995],
+         [3.167201877675362, 1.2779624388377138, -28.571494176911013]]
+    b = [[2.5214263782288024, 1.5241596825125905, -28.500977014031715],
+         [2.8626399789984016, 1.3946267970172506, -28.538450842869587],
+         [2.4068362023782663, 2.1005038128553277, -28.694943989057435]]
+    vertices, faces = np.array(a + b), np.array([[0, 1, 2], [3, 4, 5]])
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    assert ms.current_mesh().face_selection_array().all()
+    plain = umbrella(adjacency(faces, 6))
+    out, rounds = untangle(vertices, faces, vertices.copy(), plain)
+    assert rounds == 0 and np.array_equal(out, vertices)
+    # b pushed through a's middle along a's normal: crossing, separated again (back to where it was)
+    normal = np.cross(vertices[1] - vertices[0], vertices[2] - vertices[0])
+    normal /= np.linalg.norm(normal)
+    through = vertices.copy()
+    through[3:] += vertices[:3].mean(axis=0) - vertices[3:].mean(axis=0) + 0.35 * normal
+    through[3] -= 0.6 * normal
+    assert self_intersections(TriMesh(through, faces)) == 1
+    out, rounds = untangle(through, faces, vertices, plain)
+    assert rounds > 0 and self_intersections(TriMesh(out, faces)) == 0
 
 
 def test_refined_surface_has_no_folds_no_intersections_and_right_signs(small_run):
