@@ -739,7 +739,8 @@ def refine_surface(
              "rms": float(np.sqrt(np.mean(moved_total ** 2))) if n else 0.0,
              "max_abs": float(np.abs(moved_total).max()) if n else 0.0,
              "last_step_max": placed.history[-1] if placed.history else 0.0}
+    crossing = int(self_intersecting_faces(vertices, faces).sum())
     return RefineResult(out, placed.levels, stats, placed.iterations, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
-                        int(self_intersecting_faces(vertices, faces).sum()), guarded, untangled, score, basis.describe(),
-                        placed.history, tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened,
-                        estimate, selection, placed.widths, errors)
+                        crossing, guarded, untangled, score, basis.describe(), placed.history,
+                        tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened, estimate, selection,
+                        placed.widths, errors)
