@@ -23,9 +23,7 @@ Method
    the 16 cubes of gamma-prime seeds 1-8 they were tilted by 4.1° on average (up to 14°, a 6 nm cube's
    face, which put its corner 0.9 nm out). Each face alone fixes its tilt only to ~5° (the scores of its
    ~2000 core ions, bootstrapped); the joint fit adds the edges' ions, and the pairing each face's
-   opposite one, which is what brought the tilts to 2.0° on average (4.1° at most). Where the fit fails
-   it is tried again without the facet of least area while the rest still close the object (a face
-   bent in two, e.g.); a spurious facet the fit does not reject (one 15° off a face) is not caught.
+   opposite one, which is what brought the tilts to 2.0° on average (4.1° at most).
 2. **Rims.** A vertex outside every facet moves along its normal onto the envelope of the
    facets' planes near it (within ``reach`` nm): inside all of them (a convex rim) to where its ray
    first leaves their intersection, outside all of them (a concave fillet) to where it enters their
@@ -376,31 +374,13 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     -------
     list of Facet
         The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices). Where the fit fails (a plane turns by more than ``cap`` from its start, out of the
-        cone its facet was found in, or fewer than ``min_ions`` ions per plane), it is tried again without
-        the facet of least area as long as the rest still close the object: a face bent by the smoothing
-        can come out as two facets ~25° apart, which the joint model cannot tell apart (a 6 nm cube of
-        gamma-prime seed 8, in a run with the ions' cell grid aligned differently, kept its vertices'
-        planes: 0.14 nm mean distance instead of 0.08). If no such subset fits, the facets as given.
+        the vertices); the facets as given if there are too few ions, or if a fitted plane has turned by
+        more than ``cap`` from its start (out of the cone its facet was found in: the fit has found
+        something else).
     """
-    subset = list(facets)
-    while True:
-        fitted = _joint_fit(subset, positions, u, weight, width, pairs, cap, iterations, max_step, tolerance,
-                            min_ions)
-        if fitted is not None:
-            return fitted
-        subset = sorted(subset, key=lambda f: f.area)[1:]
-        if not closes(subset):
-            return list(facets)
-
-
-def _joint_fit(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float,
-               pairs: bool, cap: float, iterations: int, max_step: float, tolerance: float,
-               min_ions: int) -> list[Facet] | None:
-    """:func:`fit_to_ions` of exactly these facets; None where it fails."""
     m = len(facets)
     if len(positions) < min_ions * m:
-        return None
+        return list(facets)
     centre = positions.mean(axis=0)
     n0 = np.array([f.normal for f in facets])
     # each plane's point nearest the centre: its offset stays put when its normal is averaged with a partner's
@@ -449,6 +429,6 @@ def _joint_fit(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weight
             break
     normals = planes(params)
     if np.any(np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(np.radians(cap))):
-        return None
+        return list(facets)
     return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2]), f.vertices, f.core, f.area,
                   f.rms) for k, f in enumerate(facets)]
