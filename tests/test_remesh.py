@@ -8,7 +8,7 @@ from apt_filters.contour.metrics import face_quality
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import cvt, extract, quality, remesh, repair
+from apt_filters.remesh import cvt, extract, optimize, quality, remesh, repair
 from apt_filters.remesh.sampling import refine
 from benchmarks import remesh_shapes as shapes
 
@@ -175,6 +175,30 @@ def test_cell_bordered_by_two_cells_is_dissolved():
     out = TriMesh(gens.positions, repair.repair(gens.positions, dual, no, no))
     assert quality.topology(out) == quality.Topology(components=1, boundary_loops=0, genus=0,
                                                      non_manifold_edges=0, non_manifold_vertices=0)
+
+
+def test_cap_of_three_curve_generators_is_flipped_and_the_curve_kept():
+    # extraction joined three consecutive generators of one straight feature curve into a triangle of zero
+    # area (a remesh of a refined cube: 0.21 and 0.14 nm apart on a line); flips skip edges between pinned
+    # vertices and curve vertices only slide along their line, so nothing after it mended it
+    vertices = np.array([[0.0, 0.0, 0.0], [0.21, 0.0, 0.0], [0.35, 0.0, 0.0],  # a, b, c on the curve
+                         [0.2, 0.3, 0.0], [0.1, -0.3, 0.0], [0.3, -0.3, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 1], [1, 4, 5], [1, 5, 2]])
+    pinned = np.array([True, True, True, False, False, False])
+    before = TriMesh(vertices, faces)
+    assert face_quality(before)[0].min() < 1e-6  # the cap
+
+    out = TriMesh(vertices, optimize.flip_caps(vertices, faces, pinned))
+    assert face_quality(out)[0].min() > 20  # degrees
+    assert np.isclose(out.area(), before.area())
+    assert (out.face_normals()[:, 2] > 0.99).all()  # same side up: no face turned over
+    edges = {tuple(sorted(e)) for e in out.edges().tolist()}
+    assert {(0, 1), (1, 2)} <= edges and (0, 2) not in edges  # the curve runs a-b-c, the cap's long edge is gone
+    assert quality.topology(out) == quality.topology(before)
+    # a free apex is left to the optimiser, which moves it
+    free = pinned.copy()
+    free[1] = False
+    assert np.array_equal(optimize.flip_caps(vertices, faces, free), faces)
 
 
 def test_vertex_count_target():

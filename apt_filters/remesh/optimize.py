@@ -60,10 +60,16 @@ def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, keys: np.nd
     mean = n1 + n2
     ok = (np.einsum("ij,ij->i", m1, mean) > 0.5) & (np.einsum("ij,ij->i", m2, mean) > 0.5) & (c != d) \
         & flat & ~fixed_edge(a, b)
+    return idx[ok & _absent(keys, n, c, d)]
+
+
+def _absent(keys: np.ndarray, n: int, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(k,) bool: no edge c-d yet (``keys``, ``n`` from :func:`_interior_edges`); a flip must not duplicate one."""
+    ok = np.ones(len(c), bool)
     for key in (c * n + d, d * n + c):  # an existing edge c-d has a half-edge one way or the other
         pos = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
         ok &= keys[pos] != key
-    return idx[ok]
+    return ok
 
 
 def _apply_independent(faces: np.ndarray, n: int, edge: tuple, idx: np.ndarray, gain: np.ndarray,
@@ -109,14 +115,46 @@ def delaunay_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, max_dihed
     """Apply one independent set of Delaunay flips (the two angles opposite an edge sum to more than 180°)."""
     edge, keys, n = _interior_edges(faces)
     a, b, c, d = edge[:4]
-
-    def angle(apex, p, q):
-        u, v = vertices[p] - vertices[apex], vertices[q] - vertices[apex]
-        return np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ij,ij->i", u, v))
-
-    excess = angle(c, a, b) + angle(d, a, b) - np.pi
+    excess = _angle(vertices, c, a, b) + _angle(vertices, d, a, b) - np.pi
     idx = _flippable(vertices, faces, edge, keys, n, np.flatnonzero(excess > 1e-6), fixed_edge, max_dihedral)
     return _apply_independent(faces, len(vertices), edge, idx, excess[idx], seed)
+
+
+def _angle(vertices: np.ndarray, apex: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(k,) angle (radians) at vertices ``apex`` of the triangles (apex, p, q)."""
+    u, v = vertices[p] - vertices[apex], vertices[q] - vertices[apex]
+    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ij,ij->i", u, v))
+
+
+def flip_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_angle: float = 150.0,
+              rounds: int = 4) -> np.ndarray:
+    """Flip the long edge of every cap made of three pinned vertices (an angle over ``max_angle`` degrees).
+
+    Extraction can join three consecutive generators of one straight feature curve into a triangle
+    of zero area (a cell squeezed between its two neighbours on the curve: on a refined cube,
+    corners 0.14 and 0.21 nm apart on a line). The flips and moves after it cannot mend it: edges
+    between pinned vertices are taken for feature edges and never flipped, and curve vertices only
+    slide along their line. The long edge of such a cap is not a feature edge (the curve runs
+    through the apex), so flipping it splits the neighbouring triangle at the apex and keeps the
+    curve. Returns the new faces.
+    """
+    for r in range(rounds):
+        edge, keys, n = _interior_edges(faces)
+        a, b, c, d, f1, f2 = edge
+        at_c, at_d = _angle(vertices, c, a, b), _angle(vertices, d, a, b)
+        limit = np.radians(max_angle)
+        cap = pinned[a] & pinned[b] & ((pinned[c] & (at_c > limit)) | (pinned[d] & (at_d > limit)))
+        # the new faces (c, a, d) and (d, b, c) split the other face at the apex: they keep its normal
+        other = np.where(at_c > at_d, f2, f1)
+        normal = _face_normals(vertices, faces[other[cap]])
+        ca, cb = (_face_normals(vertices, np.stack(t, 1)[cap]) for t in ((c, a, d), (d, b, c)))
+        idx = np.flatnonzero(cap)
+        ok = (np.einsum("ij,ij->i", ca, normal) > 0.5) & (np.einsum("ij,ij->i", cb, normal) > 0.5)
+        idx = idx[ok & (c[idx] != d[idx]) & _absent(keys, n, c[idx], d[idx])]
+        faces, flipped = _apply_independent(faces, len(vertices), edge, idx, np.maximum(at_c, at_d)[idx], seed=r)
+        if flipped == 0:
+            break
+    return faces
 
 
 def relax(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project) -> np.ndarray:

@@ -154,7 +154,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
                                    lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     mark("connect")
-    faces = repair.repair(gens.positions, faces, on_boundary, pinned)
+    faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned), pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     mark("repair")
