@@ -201,6 +201,25 @@ def test_cap_of_three_curve_generators_is_flipped_and_the_curve_kept():
     assert np.array_equal(optimize.flip_caps(vertices, faces, free), faces)
 
 
+def test_flips_make_no_sliver_along_a_curve():
+    # a curve's middle vertex 0.1 nm off the line of its neighbours: the Delaunay flip of its edge to the
+    # patch vertex would join the three into one face; once they slide along their straight curve that face
+    # has zero area (gamma-prime seed 3's start remeshed at 0.5 nm, adaptive: two such, angles of 180 degrees)
+    vertices = np.array([[0.0, 0.0, 0.0], [0.17, -0.1, 0.0], [0.34, 0.0, 0.0], [0.17, 0.3, 0.0]])
+    faces = np.array([[0, 1, 3], [1, 2, 3]])
+    pinned = np.array([True, True, True, False])
+
+    def fixed(a, b):
+        return pinned[a] & pinned[b]
+
+    def sliver(p, q, r):  # the curve's three vertices
+        return pinned[p] & pinned[q] & pinned[r]
+
+    assert optimize.delaunay_pass(vertices, faces, fixed, sliver=sliver)[1] == 0
+    flipped, count = optimize.delaunay_pass(vertices, faces, fixed)  # the flip that would be made
+    assert count == 1 and {tuple(sorted(f)) for f in flipped.tolist()} == {(0, 1, 2), (0, 2, 3)}
+
+
 def test_vertex_count_target():
     mesh = shapes.sphere(8.0)
     result = remesh(mesh, n_vertices=500, max_iter=10)

@@ -48,10 +48,12 @@ def _face_normals(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
 
 
 def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, keys: np.ndarray, n: int, idx: np.ndarray,
-               fixed_edge, max_dihedral: float) -> np.ndarray:
+               fixed_edge, max_dihedral: float, sliver=None) -> np.ndarray:
     """The edges ``idx`` that may be flipped: flat enough, not fixed, the new faces not folded, c-d new.
 
-    Only the edges that passed the cheap test of the caller are looked at geometrically.
+    Nor may a new face be one that ``sliver(p, q, r)`` -> bool array forbids (three vertices along one
+    feature curve, which come to lie on one line as they slide along it). Only the edges that passed
+    the cheap test of the caller are looked at geometrically.
     """
     a, b, c, d, f1, f2 = (x[idx] for x in edge)
     n1, n2 = _face_normals(vertices, faces[f1]), _face_normals(vertices, faces[f2])
@@ -60,6 +62,8 @@ def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, keys: np.nd
     mean = n1 + n2
     ok = (np.einsum("ij,ij->i", m1, mean) > 0.5) & (np.einsum("ij,ij->i", m2, mean) > 0.5) & (c != d) \
         & flat & ~fixed_edge(a, b)
+    if sliver is not None:
+        ok &= ~sliver(c, a, d) & ~sliver(d, b, c)
     return idx[ok & _absent(keys, n, c, d)]
 
 
@@ -92,11 +96,12 @@ def _apply_independent(faces: np.ndarray, n: int, edge: tuple, idx: np.ndarray, 
 
 
 def flip_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, target: np.ndarray,
-              max_dihedral: float = 20.0, seed: int = 0) -> tuple[np.ndarray, int]:
+              max_dihedral: float = 20.0, seed: int = 0, sliver=None) -> tuple[np.ndarray, int]:
     """Apply one independent set of valence-reducing flips; returns new faces and the flip count.
 
     ``fixed_edge(a, b)`` -> bool array marks edges that must stay (feature curves); ``target``
-    (v,) is the ideal valence of each vertex (6 inside, 4 on the boundary).
+    (v,) is the ideal valence of each vertex (6 inside, 4 on the boundary); ``sliver(p, q, r)`` -> bool
+    array marks faces no flip may make.
     """
     edge, keys, n = _interior_edges(faces)
     a, b, c, d = edge[:4]
@@ -106,17 +111,18 @@ def flip_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, target: np.nd
     after = np.abs(val[a] - 1 - target[a]) + np.abs(val[b] - 1 - target[b]) + np.abs(val[c] + 1 - target[c]) \
         + np.abs(val[d] + 1 - target[d])
     idx = np.flatnonzero((after < before) & (val[a] > 3) & (val[b] > 3))
-    idx = _flippable(vertices, faces, edge, keys, n, idx, fixed_edge, max_dihedral)
+    idx = _flippable(vertices, faces, edge, keys, n, idx, fixed_edge, max_dihedral, sliver)
     return _apply_independent(faces, len(vertices), edge, idx, (before - after)[idx], seed)
 
 
 def delaunay_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, max_dihedral: float = 20.0,
-                  seed: int = 0) -> tuple[np.ndarray, int]:
+                  seed: int = 0, sliver=None) -> tuple[np.ndarray, int]:
     """Apply one independent set of Delaunay flips (the two angles opposite an edge sum to more than 180°)."""
     edge, keys, n = _interior_edges(faces)
     a, b, c, d = edge[:4]
     excess = _angle(vertices, c, a, b) + _angle(vertices, d, a, b) - np.pi
-    idx = _flippable(vertices, faces, edge, keys, n, np.flatnonzero(excess > 1e-6), fixed_edge, max_dihedral)
+    idx = _flippable(vertices, faces, edge, keys, n, np.flatnonzero(excess > 1e-6), fixed_edge, max_dihedral,
+                     sliver)
     return _apply_independent(faces, len(vertices), edge, idx, excess[idx], seed)
 
 
