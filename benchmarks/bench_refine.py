@@ -216,7 +216,9 @@ def main(argv=None) -> int:
               f"{r.iterations} iterations, displacement mean {r.displacement['mean']:+.3f} rms "
               f"{r.displacement['rms']:.3f} max {r.displacement['max_abs']:.2f} nm, fold guard {r.guarded} vertices, "
               f"untangle rounds {r.untangle_rounds}, self-intersections {r.self_intersections}; lateral blur "
-              f"{r.blur[0]:.3f} nm (estimated), modes kept per object {r.modes.modes if r.modes else None}\n")
+              f"{r.blur[0]:.3f} nm (estimated from the "
+              f"{r.blur_estimate.source if r.blur_estimate else 'ions: none'}), "
+              f"modes kept per object {r.modes.modes if r.modes else None}\n")
         print(table(rows, {p: runs[p][1] for p in PIPELINES}, {p: runs[p][2] for p in PIPELINES}))
         print()
         for p in PIPELINES:

@@ -75,8 +75,9 @@ class RefineConfig:
     blur: list[float] = field(default_factory=list)
     """[lateral, depth] reconstruction blur sigmas in nm whose curvature bias is undone (a 3 nm sphere
     comes out ~2 % small under 0.3 / 0.1 nm). Empty: the lateral sigma is estimated from the ions (the
-    profile width's dependence on the surface orientation; depth taken as 0; no correction where one
-    flat interface gives no estimate). [0, 0]: no correction."""
+    profile width's dependence on the surface orientation, of the peak of the species ``voxel.exclude``
+    leaves out where they peak at the surface, else of the score's step; depth taken as 0; no correction
+    where one flat interface gives no estimate). [0, 0]: no correction."""
     cross_fit: bool = True
     """Plateaus from each half of the ions against the other half's surface (no self-selection: the
     inside plateau read +0.35 at.% high against the surface the same ions placed); also gives the

@@ -162,7 +162,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                     "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),
                                     "blur_estimate": None if estimate is None else
                                     {"lateral_nm": estimate.lateral, "slope_nm2": estimate.slope,
-                                     "slope_se_nm2": estimate.slope_se},
+                                     "slope_se_nm2": estimate.slope_se, "source": estimate.source},
                                     "cross_fit": config.refine.cross_fit,
                                     "modes": None if refined.modes is None else
                                     {str(c): k for c, k in sorted(refined.modes.modes.items())},

@@ -27,6 +27,14 @@ correction uses ``Sigma = diag(s, s, 0)``: on the gamma-prime specimen (0.3 / 0.
 the lateral variance and leaves out the depth part (0.003 nm on a 3 nm sphere). A flat interface (all
 normals alike) gives no estimate and no correction; ``refine_surface(blur=(lateral, depth))`` sets a
 known blur instead.
+
+A segregant in a thin layer at the interface is a sharper marker of the same slope: its fraction's peak
+has ``s(n)^2 = t^2 + noise^2 + sigma_n^2`` (``t`` the layer's own width), and a peak's width is read far
+more precisely than a step's at a 10-point contrast. On gamma-prime seeds 1-8 (B in a 0.25 nm shell)
+the slope from the B peak scattered 0.056-0.104 nm² (sd 0.015), the step's -0.075-0.143 nm² (sd 0.065),
+truth 0.08. :func:`peak_blur` fits it (Poisson likelihood of the marker's counts per bin); it assumes
+the layer's own width does not depend on the interface's orientation, as the step's estimate assumes of
+the interface's.
 """
 
 from __future__ import annotations
@@ -132,9 +140,12 @@ class BlurEstimate:
     slope_se : float, nm²
         Its standard error (from the widths' fit errors).
     widths : (classes,) float64, nm
-        Error-function width of the pooled profile per class of ``1 - n_z^2``.
+        Width of the pooled profile per class of ``1 - n_z^2``: the error-function width of the step, or
+        the Gaussian sigma of the marker's peak.
     tilt : (classes,) float64
         Mean ``1 - n_z^2`` of each class.
+    source : str
+        What was read: ``"step"`` (the score's profile) or ``"peak of X"`` (a segregant's, :func:`peak_blur`).
     """
 
     lateral: float
@@ -142,6 +153,7 @@ class BlurEstimate:
     slope_se: float
     widths: np.ndarray
     tilt: np.ndarray
+    source: str = "step"
 
 
 def _step_width(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, half_width: float,
@@ -191,6 +203,48 @@ def lateral_blur(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, nz2: n
     -------
     BlurEstimate or None
     """
+    def width(sel):
+        return _step_width(distance[sel], u[sel], weight[sel], half_width, bin_width)
+
+    return _by_tilt(distance, nz2, width, classes, half_width, min_ions, "step")
+
+
+def peak_blur(distance: np.ndarray, marker: np.ndarray, total: np.ndarray, nz2: np.ndarray, name: str = "marker",
+              classes: int = 4, half_width: float = 1.5, bin_width: float = 0.1, min_ions: int = 2000,
+              significance: float = 5.0) -> BlurEstimate | None:
+    """Lateral blur sigma from the width of a segregant's peak against the surface orientation (module docstring).
+
+    Parameters
+    ----------
+    distance : (b,) float64, nm
+        Ions' signed distances to the surface.
+    marker : (b,) float64
+        Atoms of the segregant per ion.
+    total : (b,) float64
+        Atoms per ion (the segregant's included: its fraction is ``marker / total``).
+    nz2 : (b,) float64
+        Squared z component of the unit normal where each ion is.
+    name : str
+        The segregant, for :attr:`BlurEstimate.source`.
+    significance : float
+        Standard errors by which a class's peak must stand above its background to count.
+    classes, half_width, bin_width, min_ions
+        As in :func:`lateral_blur`.
+
+    Returns
+    -------
+    BlurEstimate or None
+        None where fewer than two classes, at least half the tilt range apart, hold a significant peak.
+    """
+    def width(sel):
+        return _peak_width(distance[sel], marker[sel], total[sel], half_width, bin_width, significance)
+
+    return _by_tilt(distance, nz2, width, classes, half_width, min_ions, f"peak of {name}")
+
+
+def _by_tilt(distance: np.ndarray, nz2: np.ndarray, width, classes: int, half_width: float, min_ions: int,
+             source: str) -> BlurEstimate | None:
+    """The slope of ``width(sel)^2`` against ``1 - n_z^2`` over classes of the tilt (``width`` -> (w, se) or None)."""
     tilt = 1 - np.clip(nz2, 0.0, 1.0)
     label = np.minimum((tilt * classes).astype(np.int64), classes - 1)
     near = np.abs(distance) <= half_width
@@ -199,9 +253,11 @@ def lateral_blur(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, nz2: n
         sel = near & (label == k)
         if sel.sum() < min_ions:
             continue
-        w, e = _step_width(distance[sel], u[sel], weight[sel], half_width, bin_width)
-        widths.append(w)
-        errors.append(e)
+        found = width(sel)
+        if found is None:
+            continue
+        widths.append(found[0])
+        errors.append(found[1])
         means.append(float(tilt[sel].mean()))
     if len(widths) < 2 or max(means) - min(means) < 0.5:
         return None
@@ -211,4 +267,39 @@ def lateral_blur(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, nz2: n
     coef, *_ = np.linalg.lstsq(design, y / sy, rcond=None)
     cov = np.linalg.pinv(design.T @ design)
     slope = float(coef[1])
-    return BlurEstimate(float(np.sqrt(max(slope, 0.0))), slope, float(np.sqrt(cov[1, 1])), widths, means)
+    return BlurEstimate(float(np.sqrt(max(slope, 0.0))), slope, float(np.sqrt(cov[1, 1])), widths, means, source)
+
+
+def _peak_width(distance: np.ndarray, marker: np.ndarray, total: np.ndarray, half_width: float, bin_width: float,
+                significance: float) -> tuple[float, float] | None:
+    """Gaussian sigma (nm) and its standard error of the peak in the marker's binned fraction; None without one.
+
+    The marker's atoms per bin are Poisson with mean ``n (b + a exp(-(d - mu)^2 / 2 w^2))`` (``n`` the bin's
+    atoms); the fit minimises the deviance, the standard errors are those of its Fisher information.
+    """
+    from scipy.optimize import least_squares
+
+    edges = np.arange(-half_width, half_width + 1e-9, bin_width)
+    idx = np.digitize(distance, edges) - 1
+    ok = (idx >= 0) & (idx < len(edges) - 1)
+    n = np.bincount(idx[ok], weights=total[ok], minlength=len(edges) - 1)
+    k = np.bincount(idx[ok], weights=marker[ok], minlength=len(edges) - 1)
+    centre = 0.5 * (edges[1:] + edges[:-1])
+    if k.sum() <= 0:
+        return None
+
+    def mean(p):
+        return n * (abs(p[0]) + abs(p[1]) * np.exp(-0.5 * ((centre - p[2]) / p[3]) ** 2)) + 1e-12
+
+    def deviance(p):
+        lam = mean(p)
+        return np.sign(k - lam) * np.sqrt(2 * np.maximum(lam - k + k * np.log(np.maximum(k, 1e-12) / lam), 0.0))
+
+    fraction = k / np.maximum(n, 1e-12)
+    background = float(np.median(np.concatenate([fraction[:3], fraction[-3:]])))
+    fit = least_squares(deviance, [background, max(float(fraction.max()) - background, 1e-6), 0.0, 0.3])
+    cov = np.linalg.pinv(fit.jac.T @ fit.jac)
+    amplitude_se = np.sqrt(max(cov[1, 1], 0.0))
+    if not abs(fit.x[1]) > significance * amplitude_se or abs(fit.x[2]) > 0.5 * half_width:
+        return None
+    return abs(float(fit.x[3])), float(np.sqrt(max(cov[3, 3], 0.0)))

@@ -43,7 +43,8 @@ After the iterations (each step can be switched off):
 6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
-   dependence).
+   dependence): the peak of the species left out of the basis where they peak at the surface (segregants:
+   a quarter of the scatter), else the score's step.
 7. Sharp edges and corners (:mod:`apt_filters.refine.facets`, ``facets``): where planar facets of an
    object are found (on the surface as the iterations left it), and refitted to its ions where they close
    it (a blurred convex polyhedron, opposite faces parallel), the rounded rims between them move onto
@@ -77,7 +78,7 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import (Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
                                     vertex_normals)
-from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, smoothed_normals
+from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size, cross_validated_modes,
                                         object_harmonics)
@@ -448,6 +449,26 @@ def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
     return lateral_blur(band.distance[keep], u, total, nz ** 2, half_width=half_width)
 
 
+def _segregant_blur(ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray,
+                    faces: np.ndarray, normals: np.ndarray, components: np.ndarray, scores: ObjectScores,
+                    half_width: float, distance: str) -> BlurEstimate | None:
+    """:func:`~apt_filters.refine.blur.peak_blur` from the ranged species left out of ``basis`` (segregants, by
+    the basis's own account), pooled, around the objects with both plateaus; None without a peak.
+
+    Reads the ions once more (chunked) for those within ``half_width`` + 1 nm, with all their species.
+    """
+    left_out = [e for e in basis.exclude if e in ranges.elements]
+    if not left_out:
+        return None
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), vertices, faces, half_width + 1.0)
+    band = near.band(vertices, normals, half_width, distance)
+    use = scores.usable[components[band.vertex]]
+    atoms = near.atoms.atoms[band.index[use]].astype(np.float64)
+    marker = atoms[:, [near.atoms.elements.index(e) for e in left_out]].sum(axis=1)
+    return peak_blur(band.distance[use], marker, atoms.sum(axis=1), normals[band.vertex[use], 2] ** 2,
+                     "+".join(left_out), half_width=half_width)
+
+
 def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores: ObjectScores, half_width: float,
                    distance: str, cap: float = 45.0) -> list:
     """The facets ``found`` on ``placed``, those of each object they close refitted to its ions
@@ -643,9 +664,11 @@ def refine_surface(
     blur : (lateral, depth) float nm, "auto" or None
         Reconstruction blur whose curvature bias is undone after the iterations
         (:mod:`apt_filters.refine.blur`: each vertex moves out by ``(1/2) tr(Sigma S)``). ``"auto"``
-        (default): the lateral sigma estimated from the profile width's orientation dependence
-        (:func:`~apt_filters.refine.blur.lateral_blur`, depth taken as 0; no correction where the
-        orientations do not allow an estimate); None or zeros: no correction.
+        (default): the lateral sigma estimated from the profile width's orientation dependence, depth
+        taken as 0: of the peak of the ranged species ``basis`` leaves out, pooled, where they peak at the
+        surface (:func:`~apt_filters.refine.blur.peak_blur`; a segregant layer marks the blur with a
+        quarter of the scatter), else of the score's step (:func:`~apt_filters.refine.blur.lateral_blur`); no
+        correction where the orientations do not allow an estimate. None or zeros: no correction.
     facets : bool
         Rebuild sharp edges and corners where planar facets of an object meet
         (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched). The
@@ -723,8 +746,10 @@ def refine_surface(
     if auto:
         # measured on the finished shape: rounded cube edges would widen the edge-on profiles
         finished = _finisher(found, faces, pairs, None)(vertices)[0]
-        estimate = _estimate_blur(placed.near, finished, smoothed_normals(finished, faces, normal_smoothing),
-                                  components, scores, half_width, distance)
+        along = smoothed_normals(finished, faces, normal_smoothing)
+        estimate = (_segregant_blur(ions, ranges, basis, finished, faces, along, components, scores, half_width,
+                                    distance)
+                    or _estimate_blur(placed.near, finished, along, components, scores, half_width, distance))
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     vertices, n_facets, sharpened, g = _finisher(found, faces, pairs, blur)(vertices)
     guarded += g
