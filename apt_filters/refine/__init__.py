@@ -24,9 +24,9 @@ Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
     excess = object_excess(result.mesh, ions, ranges, "B")  # per object, over its refined area
 
 On the gamma-prime specimen (8 seeds, 32 precipitates) this takes volumes from -32% (AP Suite-style,
-mean abs) to 2.9% (signed -0.3%, at the counting floor: 3.6% for a 3 nm sphere, rms error 1.14 floors),
+mean abs) to 2.8% (signed -0.2%, at the counting floor: 3.6% for a 3 nm sphere, rms error 1.10 floors),
 mean distance to the true surface from 0.42 to 0.09 nm, Hausdorff from 1.5 to 0.43 nm, area errors from
-23% to 2.0% (every object within 5%), with no folds, self-intersections or proxigram sign errors
+23% to 1.9% (every object within 5%), with no folds, self-intersections or proxigram sign errors
 (benchmarks/results_refine.md, docs/refine.md).
 """
 
