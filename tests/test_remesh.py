@@ -9,6 +9,7 @@ from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import cvt, extract, optimize, quality, remesh, repair
+from apt_filters.remesh.remesh import curve_slivers
 from apt_filters.remesh.sampling import refine
 from benchmarks import remesh_shapes as shapes
 
@@ -218,6 +219,12 @@ def test_flips_make_no_sliver_along_a_curve():
     assert optimize.delaunay_pass(vertices, faces, fixed, sliver=sliver)[1] == 0
     flipped, count = optimize.delaunay_pass(vertices, faces, fixed)  # the flip that would be made
     assert count == 1 and {tuple(sorted(f)) for f in flipped.tolist()} == {(0, 1, 2), (0, 2, 3)}
+    # the remesher's rule: three of one curve, or a corner and two of one curve; not two curves at a corner
+    kind = np.array([cvt.CURVE, cvt.CURVE, cvt.CURVE, cvt.CORNER, cvt.CURVE, cvt.PATCH])
+    owner = np.array([4, 4, 4, 0, 5, 0])
+    rule = curve_slivers(kind, owner)
+    tris = np.array([[0, 1, 2], [3, 0, 1], [3, 0, 4], [0, 1, 5], [0, 1, 4]])
+    assert rule(*tris.T).tolist() == [True, True, False, False, False]
 
 
 def test_vertex_count_target():

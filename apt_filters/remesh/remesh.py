@@ -195,14 +195,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     def fixed(a, b):
         return pinned[a] & pinned[b]
 
-    line = np.where(kind == cvt.CURVE, owner, -1)
-
-    def sliver(p, q, r):
-        # pinned vertices along one curve (or a corner and two of a curve): sliding along it puts them on one line
-        ids = np.stack([line[p], line[q], line[r]], axis=1)
-        on = ids >= 0
-        same = np.where(on, ids, -1).max(axis=1) == np.where(on, ids, np.iinfo(ids.dtype).max).min(axis=1)
-        return pinned[p] & pinned[q] & pinned[r] & (on.sum(axis=1) >= 2) & same
+    sliver = curve_slivers(kind, owner)
 
     def project(points, ids):
         out = points.copy()
@@ -230,6 +223,22 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
             break
     vertices = optimize.relax(vertices, faces, movable, project)
     return optimize.improve_angles(vertices, faces, movable, project), faces
+
+
+def curve_slivers(kind: np.ndarray, owner: np.ndarray):
+    """``sliver(p, q, r)`` -> (k,) bool: faces of three vertices along one feature curve (three of its
+    generators, or a corner and two of them), which a flip must not make: sliding along a straight curve
+    puts them on one line. ``kind``, ``owner``: (v,) per vertex, as :class:`~apt_filters.remesh.cvt.Generators`."""
+    pinned = kind != cvt.PATCH
+    line = np.where(kind == cvt.CURVE, owner, -1)
+
+    def sliver(p, q, r):
+        ids = np.stack([line[p], line[q], line[r]], axis=1)
+        on = ids >= 0
+        same = np.where(on, ids, -1).max(axis=1) == np.where(on, ids, np.iinfo(ids.dtype).max).min(axis=1)
+        return pinned[p] & pinned[q] & pinned[r] & (on.sum(axis=1) >= 2) & same
+
+    return sliver
 
 
 def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
