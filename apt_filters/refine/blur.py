@@ -32,9 +32,9 @@ A segregant in a thin layer at the interface is a sharper marker of the same slo
 has ``s(n)^2 = t^2 + noise^2 + sigma_n^2`` (``t`` the layer's own width), and a peak's width is read far
 more precisely than a step's at a 10-point contrast. On gamma-prime seeds 1-8 (B in a 0.25 nm shell)
 the slope from the B peak scattered 0.056-0.104 nm² (sd 0.015), the step's -0.075-0.143 nm² (sd 0.065),
-truth 0.08. :func:`peak_blur` fits it (Poisson likelihood of the marker's counts per bin); it assumes
-the layer's own width does not depend on the interface's orientation, as the step's estimate assumes of
-the interface's.
+truth 0.08. :func:`peak_blur` fits it (:func:`~apt_filters.refine.peak.fit_peak`: Poisson likelihood of
+the marker's counts per bin); it assumes the layer's own width does not depend on the interface's
+orientation, as the step's estimate assumes of the interface's.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ import numpy as np
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.refine.band import adjacency, vertex_normals
+from apt_filters.refine.peak import fit_peak
 
 
 def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -237,7 +238,10 @@ def peak_blur(distance: np.ndarray, marker: np.ndarray, total: np.ndarray, nz2: 
         None where fewer than two classes, at least half the tilt range apart, hold a significant peak.
     """
     def width(sel):
-        return _peak_width(distance[sel], marker[sel], total[sel], half_width, bin_width, significance)
+        peak = fit_peak(distance[sel], marker[sel], total[sel], half_width, bin_width)
+        if peak is None or not peak.significant(significance, half_width):
+            return None
+        return peak.width, float(peak.se[3])
 
     return _by_tilt(distance, nz2, width, classes, half_width, min_ions, f"peak of {name}")
 
@@ -268,38 +272,3 @@ def _by_tilt(distance: np.ndarray, nz2: np.ndarray, width, classes: int, half_wi
     cov = np.linalg.pinv(design.T @ design)
     slope = float(coef[1])
     return BlurEstimate(float(np.sqrt(max(slope, 0.0))), slope, float(np.sqrt(cov[1, 1])), widths, means, source)
-
-
-def _peak_width(distance: np.ndarray, marker: np.ndarray, total: np.ndarray, half_width: float, bin_width: float,
-                significance: float) -> tuple[float, float] | None:
-    """Gaussian sigma (nm) and its standard error of the peak in the marker's binned fraction; None without one.
-
-    The marker's atoms per bin are Poisson with mean ``n (b + a exp(-(d - mu)^2 / 2 w^2))`` (``n`` the bin's
-    atoms); the fit minimises the deviance, the standard errors are those of its Fisher information.
-    """
-    from scipy.optimize import least_squares
-
-    edges = np.arange(-half_width, half_width + 1e-9, bin_width)
-    idx = np.digitize(distance, edges) - 1
-    ok = (idx >= 0) & (idx < len(edges) - 1)
-    n = np.bincount(idx[ok], weights=total[ok], minlength=len(edges) - 1)
-    k = np.bincount(idx[ok], weights=marker[ok], minlength=len(edges) - 1)
-    centre = 0.5 * (edges[1:] + edges[:-1])
-    if k.sum() <= 0:
-        return None
-
-    def mean(p):
-        return n * (abs(p[0]) + abs(p[1]) * np.exp(-0.5 * ((centre - p[2]) / p[3]) ** 2)) + 1e-12
-
-    def deviance(p):
-        lam = mean(p)
-        return np.sign(k - lam) * np.sqrt(2 * np.maximum(lam - k + k * np.log(np.maximum(k, 1e-12) / lam), 0.0))
-
-    fraction = k / np.maximum(n, 1e-12)
-    background = float(np.median(np.concatenate([fraction[:3], fraction[-3:]])))
-    fit = least_squares(deviance, [background, max(float(fraction.max()) - background, 1e-6), 0.0, 0.3])
-    cov = np.linalg.pinv(fit.jac.T @ fit.jac)
-    amplitude_se = np.sqrt(max(cov[1, 1], 0.0))
-    if not abs(fit.x[1]) > significance * amplitude_se or abs(fit.x[2]) > 0.5 * half_width:
-        return None
-    return abs(float(fit.x[3])), float(np.sqrt(max(cov[3, 3], 0.0)))
