@@ -44,6 +44,9 @@ def test_demo_runs_the_pipeline_then_reuses_the_specimen(tmp_path, capsys, monke
     assert "ions" in first and "bounding box" in first and "wrote" in first
     assert "volume/true" in first and "cube 6 nm" in first and "sphere 3 nm" in first
     assert (out / "run" / "report.html").is_file() and (out / "run" / "meshes" / "Al15.ply").is_file()
+    # B, left out of the basis, marks both precipitates' interfaces (refine.marker): reported per object
+    mark = json.loads((out / "run" / "report.json").read_text())["surfaces"][0]["mesh"]["refine"]["marker"]
+    assert mark["species"] == "B" and mark["objects_moved"] >= 2 and abs(mark["layer_offset_nm"]) < 0.1
     pos = (out / "specimen" / "specimen.pos").read_bytes()
     assert demo_specimen(out / "specimen")[1], "the same seed reuses the specimen"
     assert (out / "specimen" / "specimen.pos").read_bytes() == pos

@@ -32,7 +32,8 @@ def build_config(args: argparse.Namespace):
                  ("analysis", "efficiency"): args.efficiency, ("refine", "blur"): args.blur,
                  ("refine", "cross_fit"): False if args.no_cross_fit else None,
                  ("refine", "select_modes"): False if args.no_mode_selection else None,
-                 ("refine", "facets"): False if args.no_facets else None}
+                 ("refine", "facets"): False if args.no_facets else None,
+                 ("refine", "marker"): False if args.no_marker else None}
     for (section, key), value in overrides.items():
         if value is not None:
             setattr(getattr(config, section), key, value)
@@ -79,6 +80,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-mode-selection", action="store_true",
                    help="keep each object's refined shape (no cross-validated low-pass)")
     p.add_argument("--no-facets", action="store_true", help="keep edges as refined (no facet sharpening)")
+    p.add_argument("--no-marker", action="store_true",
+                   help="place objects by their step alone, not also by the peak of the excluded segregants")
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
     loud = p.add_mutually_exclusive_group()
     loud.add_argument("--quiet", "-q", action="store_true", help="no step summaries")

@@ -86,6 +86,11 @@ class RefineConfig:
     """Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
     (two-fold cross-validation on the cross-fit's halves): 3 nm spheres keep 4-9, cubes 4-36. Gamma-prime
     seeds 1-8: mean distance to the truth 0.16 -> 0.12 nm, worst area error 7.9 -> 5.6 % (needs cross_fit)."""
+    marker: bool = True
+    """Where the species ``voxel.exclude`` leaves out (segregants) peak at an object's surface, read its
+    mean offset off that peak too and move it by the combination with the step's (the layer's common
+    offset from the midpoint fitted over the objects; needs two objects). Gamma-prime seeds 1-8: volume
+    errors 2.8 -> 1.8 % mean abs, 25 -> 31 of 32 precipitates within 5 %."""
 
 
 @dataclass

@@ -74,6 +74,22 @@ def _counting_errors(mesh, offset_errors) -> list[dict]:
     return out
 
 
+def _finite(values) -> list:
+    """Floats for JSON, which has no NaN: None where not finite."""
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+def _marker(marks) -> dict | None:
+    """The segregant's mark in report.json: each object's peak centre, the layer's offset and the moves (nm)."""
+    if marks is None:
+        return None
+    return {"species": marks.name, "objects_moved": marks.marked,
+            "layer_offset_nm": _finite([marks.layer_offset])[0],
+            "layer_offset_se_nm": _finite([marks.layer_offset_se])[0],
+            "peak_centre_nm": _finite(marks.centre), "peak_centre_se_nm": _finite(marks.centre_se),
+            "shift_nm": _finite(marks.shift)}
+
+
 def _check_config(config: PipelineConfig) -> None:
     if not config.input.ions or not config.input.ranges:
         raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
@@ -153,7 +169,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                              iterations=config.refine.iterations, facets=config.refine.facets,
                                              blur=tuple(config.refine.blur) or "auto",
                                              cross_fit=config.refine.cross_fit,
-                                             select_modes=config.refine.select_modes)
+                                             select_modes=config.refine.select_modes,
+                                             marker=config.refine.marker)
                     mesh = refined.mesh
                     estimate = refined.blur_estimate
                     refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
@@ -166,6 +183,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                     "cross_fit": config.refine.cross_fit,
                                     "modes": None if refined.modes is None else
                                     {str(c): k for c, k in sorted(refined.modes.modes.items())},
+                                    "marker": _marker(refined.marker),
                                     "counting_errors": _counting_errors(mesh, refined.offset_errors)}
                     s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
                                  f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")

@@ -10,7 +10,8 @@ it by 30-45% in volume). This step
 - moves every vertex along its normal to where the ions' local composition profile crosses the
   midpoint of its object's plateaus (cross-fitted on two halves of the ions), regularised and fold-free,
   low-passes each closed object to the harmonics held-out ions choose, undoes the blur's curvature
-  bias and rebuilds faceted edges on planes fitted to the ions (:func:`refine_surface`),
+  bias, places each object by the peak of a segregant left out of the basis as well (:mod:`.marker`)
+  and rebuilds faceted edges on planes fitted to the ions (:func:`refine_surface`),
 - gives the interfacial excess per object over its own area (:func:`object_excess`),
 - and, for synthetic specimens, the counting floor no method can beat (:func:`counting_floor`).
 
@@ -24,10 +25,10 @@ Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
     excess = object_excess(result.mesh, ions, ranges, "B")  # per object, over its refined area
 
 On the gamma-prime specimen (8 seeds, 32 precipitates) this takes volumes from -32% (AP Suite-style,
-mean abs) to 2.8% (signed -0.2%, at the counting floor: 3.6% for a 3 nm sphere, rms error 1.10 floors),
-mean distance to the true surface from 0.42 to 0.09 nm, Hausdorff from 1.5 to 0.43 nm, area errors from
-23% to 1.9% (every object within 5%), with no folds, self-intersections or proxigram sign errors
-(benchmarks/results_refine.md, docs/refine.md).
+mean abs) to 1.8% (signed +0.3%, 31 of 32 within 5%, at the counting floor: 2.4% for a 3 nm sphere, rms
+error 1.01 floors), mean distance to the true surface from 0.42 to 0.09 nm, Hausdorff from 1.5 to 0.43 nm
+(every object within 0.8 nm), area errors from 23% to 1.3% (every object within 5%), with no folds,
+self-intersections or proxigram sign errors (benchmarks/results_refine.md, docs/refine.md).
 """
 
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
@@ -35,6 +36,7 @@ from apt_filters.refine.evaluate import (CountingFloor, SurfaceError, counting_f
                                         surface_error)
 from apt_filters.refine.excess import ObjectExcess, object_excess
 from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
+from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.recontour import merge, recontour
 from apt_filters.refine.specks import Specks, remove_specks
 from apt_filters.refine.subdivide import subdivide
@@ -42,8 +44,8 @@ from apt_filters.refine.surface import RefineResult, guarded_move, refine_surfac
 from apt_filters.refine.untangle import unfold, untangle
 
 __all__ = [
-    "CountingFloor", "IonAtoms", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "SurfaceError",
-    "contrast_weights", "counting_floor",
+    "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks",
+    "SurfaceError", "contrast_weights", "counting_floor", "marker_offsets",
     "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
 ]
