@@ -103,11 +103,14 @@ def sign_errors(mesh, part_faces, points) -> int:
 
 
 def floors(sp) -> list:
-    """Counting floor (:func:`counting_floor`) of each true precipitate, B out of the basis."""
+    """Counting floor (:func:`counting_floor`) of each true precipitate, B out of the basis and marking the
+    interface (as the refinement reads it, ``marker``)."""
     feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
+    everything = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
     atoms = ion_atoms(sp.ions, sp.ranges, NO_B).atoms
     return counting_floor([sp.feature_sdf(i) for i in feats], [sp.spec.features[i].shape.level_area for i in feats],
-                          [sp.truth["features"][i]["volume_nm3"] for i in feats], sp.ions.positions, atoms)
+                          [sp.truth["features"][i]["volume_nm3"] for i in feats], sp.ions.positions, atoms,
+                          marker=everything.atoms[:, everything.elements.index(SOLUTE)])
 
 
 def evaluate(sp, mesh, seed: int, floor: list | None = None) -> list[dict]:

@@ -6,12 +6,13 @@ against the truth the synth package writes.
 
 The issue's per-object targets (volume and area within 5 %, mean distance <= 0.15 nm, Hausdorff <= 0.8 nm,
 excess within 5 %, plateaus within 1 at.%) meet the counting statistics of this specimen: the Cramér-Rao
-floor of a 3 nm sphere's volume is 3.6 % (one standard deviation: no method can do better, and 17 % of
-unbiased estimates fall outside +-5 %), of the cubes' 1.9-2.7 % (:func:`~apt_filters.refine.counting_floor`).
-So the volume is held to 5 % or three standard deviations of its floor, whichever is larger, and the
-method's bias and efficiency are tested over the 12 objects. Area, mean distance and Hausdorff are held to
-the issue's own figures on every object; excess and the inside plateau to what these seeds reach with a
-margin, the issue's figures beside them.
+floor of a 3 nm sphere's volume is 2.4 % (one standard deviation, from its Al / Cr step and its B shell, the
+shell's offset from the midpoint fitted over the four precipitates: no method can do better, and 4 % of
+unbiased estimates fall outside +-5 %), of the cubes' 1.5-2.0 % (:func:`~apt_filters.refine.counting_floor`).
+So each volume is held to 5 % or three standard deviations of its floor, whichever is larger, 11 of the 12 to
+the issue's 5 %, and the method's bias and efficiency are tested over the 12 objects. Area, mean distance
+and Hausdorff are held to the issue's own figures on every object; excess and the inside plateau to what
+these seeds reach with a margin, the issue's figures beside them.
 """
 
 import numpy as np
@@ -26,8 +27,8 @@ from benchmarks.bench_refine import NO_B, SPECIES, contour, evaluate, floors, is
 @pytest.fixture(scope="module")
 def rows():
     """Per precipitate of seeds 1-3: (AP Suite-style row, refined row), rows of ``bench_refine.evaluate``; the
-    specks removed and the blur estimate of each seed."""
-    out, specks, blurs = [], [], []
+    specks removed, the blur estimate and the B marker of each seed."""
+    out, specks, blurs, marks = [], [], [], []
     for seed in (1, 2, 3):
         sp = generate(preset("gamma-prime"), seed=seed)
         fields = voxelize(sp.ions, sp.ranges)
@@ -37,8 +38,9 @@ def rows():
         specks.append(removed.count)
         result = refine_surface(start, sp.ions, sp.ranges, SPECIES, NO_B)
         blurs.append(result.blur_estimate)
+        marks.append(result.marker)
         out += list(zip(evaluate(sp, remove_specks(ap)[0], seed, floor), evaluate(sp, result.mesh, seed, floor)))
-    return out, specks, blurs
+    return out, specks, blurs, marks
 
 
 def test_the_ap_suite_style_surfaces_miss_the_truth(rows):
@@ -59,29 +61,32 @@ def test_refined_volumes_are_unbiased_and_at_the_counting_floor(rows):
     volume = np.array([r["volume"] for r in refined])
     z = np.array([r["z"] for r in refined])
     floor = np.array([r["floor"] for r in refined])
-    # each object within the issue's 5 % or three standard deviations of its floor (3 nm spheres: 11 %)
+    # each object within the issue's 5 % or three standard deviations of its floor (3 nm spheres: 7.3 %), and 11
+    # of the 12 within 5 % (measured: 11, worst +5.4 %, a 3 nm sphere of seed 1 at 2.2 floors; seeds 1-8: 31 of 32)
     assert np.all(np.abs(volume) <= np.maximum(0.05, 3 * floor)), volume
-    # no bias beyond the mean's own noise (~0.9 % for 12 objects), errors ~ the floor (measured: mean -0.6 %,
-    # rms z 1.01; the AP Suite-style -31 %, rms z 11)
-    assert abs(volume.mean()) < 0.025
-    assert np.sqrt(np.mean(z ** 2)) < 1.5
+    assert np.sum(np.abs(volume) <= 0.05) >= 11, volume
+    # no bias beyond the mean's own noise (~0.7 % for 12 objects), errors at the floor (measured: mean -0.2 %,
+    # rms z 1.13; placed by the Al / Cr step alone, without the B marker, 1.43; the AP Suite-style 15)
+    assert abs(volume.mean()) < 0.02
+    assert np.sqrt(np.mean(z ** 2)) < 1.3
 
 
 def test_refined_areas_distances_and_excess_against_the_truth(rows):
-    pairs, specks, _ = rows
+    pairs, specks, _, _ = rows
     refined = [r for _, r in pairs]
     area = np.abs([r["area"] for r in refined])
     mean = np.array([r["mean"] for r in refined])
     hausdorff = np.array([r["hausdorff"] for r in refined])
-    # issue: area within 5 % each (measured: worst 3.3 %, mean 1.7 %; with the step's blur estimate (session 8)
-    # 3.1 %, unchanged in the full suite's process and with the start's vertices moved by 1e-12 nm: 3.0-3.1 %)
+    # issue: area within 5 % each (measured: worst 4.3 %, seed 1's sphere that the B marker moved out with its
+    # volume, mean 1.3 %; by the step alone worst 3.3 %, mean 1.7 %, and 3.0-3.1 % with the start's vertices
+    # moved by 1e-12 nm, session 8)
     assert area.max() <= 0.05 and area.mean() < 0.03
-    # issue: mean distance <= 0.15 nm each (measured 0.065-0.118 nm, mean 0.084), Hausdorff <= 0.8 nm (measured
+    # issue: mean distance <= 0.15 nm each (measured 0.065-0.111 nm, mean 0.083), Hausdorff <= 0.8 nm (measured
     # 0.26-0.63 nm, mean 0.38)
     assert mean.max() <= 0.15 and mean.mean() < 0.11
     assert hausdorff.max() <= 0.8 and hausdorff.mean() < 0.5
     # B excess per the refined area (issue: 5 %): the TRUE surfaces give up to 15 % on a 3 nm sphere (its
-    # ~240 excess ions); measured up to 16 %, mean 6 %, against the AP Suite-style +19 % mean
+    # ~240 excess ions); measured up to 14 %, mean 6 %, against the AP Suite-style +19 % mean
     excess = np.array([r["excess"] for r in refined])
     assert abs(excess.mean()) < 0.04 and np.abs(excess).max() < 0.2
     # outside plateaus within 1 at.% each; inside ones are counting-limited (~1000 atoms in a sphere's core)
@@ -98,3 +103,13 @@ def test_the_blur_is_read_off_the_segregant_shell(rows):
     # truth: sigma_lat^2 - sigma_depth^2 = 0.3^2 - 0.1^2 = 0.08 nm²; the peak's slope scattered 0.015 nm² (sd)
     # over seeds 1-8, the step's 0.065 (-0.075 on seed 5, which then had no correction)
     assert all(abs(b.slope - 0.08) < 0.04 for b in blurs), [b.slope for b in blurs]
+
+
+def test_the_b_shell_marks_every_precipitate(rows):
+    """B peaks at every interface: each precipitate is placed by its B peak too, and the shell's fitted offset from
+    the Al / Cr midpoint is the truth's (centred: 0, up to the blur's second-order effects, ~-0.02 nm measured
+    against the true surfaces) within its standard error."""
+    for mark in rows[3]:
+        assert mark.name == "B" and mark.marked == 4
+        assert abs(mark.layer_offset) < 3 * mark.layer_offset_se + 0.02, (mark.layer_offset, mark.layer_offset_se)
+        assert np.all(np.abs(mark.shift) < 0.1)  # measured up to 0.03 nm

@@ -18,6 +18,8 @@ import numpy as np
 
 from apt_filters.contour.metrics import point_to_mesh_distance, sample_mesh
 from apt_filters.core.mesh import TriMesh
+from apt_filters.refine.marker import combined_offset_errors
+from apt_filters.refine.peak import fit_peak
 
 
 @dataclass
@@ -103,7 +105,7 @@ class CountingFloor:
 def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
                    level_areas: Sequence[Callable[[np.ndarray], np.ndarray]], volumes: Sequence[float],
                    positions: np.ndarray, atoms: np.ndarray, reach: float = 2.0,
-                   bin_width: float = 0.05) -> list[CountingFloor]:
+                   bin_width: float = 0.05, marker: np.ndarray | None = None) -> list[CountingFloor]:
     """Cramér-Rao floor of each object's offset, volume and area from its ions and the true profile.
 
     The profile of each basis element's fraction against the true signed distance ``d``, pooled over
@@ -113,6 +115,15 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
     not there). Each atom within ``reach`` nm of an object carries the Fisher information
     ``sum_k f_k'(d)^2 / f_k(d)`` about a shift of the object's surface, and the bound is one over the
     square root of their sum.
+
+    With a ``marker`` (a segregant left out of the basis, whose layer marks the interface:
+    :mod:`apt_filters.refine.marker`), its peak against the true distance, pooled likewise, is fitted by a
+    Gaussian over a background (:func:`~apt_filters.refine.peak.fit_peak`), and each ion adds
+    ``m'(d)^2 / (m (1 - m))`` per atom (``m`` the marker's fraction of all the atoms: whether an atom is the
+    marker, then which basis element it is if not, so the two informations are independent). The layer's
+    offset from the midpoint is one unknown shared by the objects given, as the refinement fits it, so the
+    bound is :func:`~apt_filters.refine.marker.combined_offset_errors` of the two (a single object gains
+    nothing from its marker).
 
     Parameters
     ----------
@@ -126,6 +137,8 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
     atoms : (N, k) float
         Atoms of each basis element per ion (:func:`~apt_filters.refine.composition.ion_atoms`).
     reach, bin_width : float, nm
+    marker : (N,) float, optional
+        Atoms of the marker per ion (none of them in ``atoms``).
     """
     from scipy.optimize import least_squares
     from scipy.special import erfc
@@ -134,16 +147,17 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
     edges = np.arange(-reach, reach + 1e-9, bin_width)
     n_bins = len(edges) - 1
     centre = 0.5 * (edges[1:] + edges[:-1])
+    marker = np.zeros(len(positions)) if marker is None else np.asarray(marker, dtype=np.float64)
     near = []
     counts, totals = np.zeros((n_bins, atoms.shape[1])), np.zeros(n_bins)
     for sdf in sdfs:
         d = sdf(positions)
-        rows = np.flatnonzero((np.abs(d) < reach) & (atoms.sum(axis=1) > 0))
+        rows = np.flatnonzero((np.abs(d) < reach) & (atoms.sum(axis=1) + marker > 0))
         a = np.asarray(atoms[rows], dtype=np.float64)
         b = np.minimum(((d[rows] + reach) / bin_width).astype(np.int64), n_bins - 1)
         np.add.at(counts, b, a)
         np.add.at(totals, b, a.sum(axis=1))
-        near.append((d[rows], a))
+        near.append((d[rows], a, marker[rows]))
     fraction = counts / np.maximum(totals, 1.0)[:, None]
     inside = counts[centre < -1.0].sum(axis=0) / max(totals[centre < -1.0].sum(), 1.0)
     outside = counts[centre > 1.0].sum(axis=0) / max(totals[centre > 1.0].sum(), 1.0)
@@ -154,12 +168,22 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
 
     fit = least_squares(lambda p: ((model(p, centre) - fraction) * weight).ravel(), [0.0, 0.3])
     c, s = fit.x[0], abs(fit.x[1])
-    out = []
-    for (d, a), level_area, volume in zip(near, level_areas, volumes):
+    pooled = [np.concatenate(x) for x in zip(*near)] if near else None
+    peak = fit_peak(pooled[0], pooled[2], pooled[1].sum(axis=1) + pooled[2], reach) if near and marker.any() else None
+    step, mark = np.zeros(len(near)), np.zeros(len(near))
+    for k, (d, a, m) in enumerate(near):
         f = model(fit.x, d)
         slope = -(inside - outside) * np.exp(-0.5 * ((d[:, None] - c) / s) ** 2) / (np.sqrt(2 * np.pi) * s)
-        info = np.sum(a.sum(axis=1) * np.sum(np.divide(slope ** 2, f, out=np.zeros_like(f), where=f > 0), axis=1))
-        offset = 1.0 / np.sqrt(max(float(info), 1e-300))
+        step[k] = np.sum(a.sum(axis=1) * np.sum(np.divide(slope ** 2, f, out=np.zeros_like(f), where=f > 0), axis=1))
+        if peak is not None:
+            bump = peak.amplitude * np.exp(-0.5 * ((d - peak.centre) / peak.width) ** 2)
+            mf = peak.background + bump
+            mark[k] = np.sum((a.sum(axis=1) + m) * (bump * (d - peak.centre) / peak.width ** 2) ** 2 / (mf * (1 - mf)))
+    offsets = 1.0 / np.sqrt(np.maximum(step, 1e-300))
+    if len(near) > 1 and mark.all():
+        offsets = combined_offset_errors(offsets, 1.0 / np.sqrt(mark))
+    out = []
+    for (d, _, _), offset, level_area, volume in zip(near, offsets, level_areas, volumes):
         area = float(level_area(np.zeros(1))[0])
         growth = float(np.diff(level_area(np.array([-bin_width, bin_width])))[0] / (2 * bin_width))
         out.append(CountingFloor(offset, area * offset / volume, abs(growth) * offset / area, len(d)))
