@@ -723,8 +723,8 @@ def refine_surface(
         Where the ranged species ``basis`` leaves out (segregants) peak at an object's surface, read its mean
         offset off that peak too and move it by the combination with the step's
         (:mod:`apt_filters.refine.marker`; the layer's common offset from the midpoint is fitted over the
-        objects, so it needs two objects at least). Gamma-prime seeds 1-8: every precipitate's volume within
-        5 % of the truth (25 of 32 without).
+        objects, so it needs two objects at least). Gamma-prime seeds 1-8: 31 of 32 precipitates' volumes
+        within 5 % of the truth (25 without), mean abs error 2.8 -> 1.8 %.
 
     Returns
     -------
