@@ -13,7 +13,10 @@ Method
    A mode is a facet when that cone holds at least ``share`` of the object's area *and* ``min_area``
    nm² in absolute terms: on a sphere every 20° cone holds 3 % of the area (6-7 % with the refined
    surface's noise), and a 3 nm sphere's most crowded cone held 7-8 nm², a 6-7 nm cube's faces 14-32 nm²
-   (gamma-prime seeds 1-3). The facet's plane is fitted (area-weighted, least squares) to the connected
+   (gamma-prime seeds 1-3). A 5 nm cube's faces hold only 7-15 nm² (the `many` specimen), so an object with
+   fewer than two facets is searched again down to ``closed_area`` = 8 nm², and those modes count only if
+   they close it (:func:`closes`): a cube's six do, a sphere's few noisy cones or a rod's strips round its
+   axis do not. The facet's plane is fitted (area-weighted, least squares) to the connected
    part of the vertices within ``fit_cap`` degrees of the mode: the wider cone takes in the start of
    the rounded rims, which balances the faces' slight pillowing (their centres stand out from their rims).
    **1b. Planes from the ions** (:func:`fit_to_ions`). Where an object's facets close it (:func:`closes`,
@@ -107,6 +110,42 @@ def _mode(nn: np.ndarray, aa: np.ndarray, free: np.ndarray, start: np.ndarray, d
     return mode
 
 
+def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area: float, opposite: float) -> list:
+    """One object's facet modes, as (mode, detected, fit_from, area in the cone) (:func:`find_facets`, step 1)."""
+    total = aa.sum()
+    free = np.ones(len(nn), dtype=bool)
+    mine, weak = [], []  # (mode, detected, fit_from, area in the cone) of modes above / below min_area
+    while free.any():
+        cand = np.flatnonzero(free)[:: max(1, int(free.sum()) // MAX_CANDIDATES)]
+        held = (nn[cand] @ nn[free].T > detect) @ aa[free]
+        if held.max() < share * total:
+            break
+        mode = _mode(nn, aa, free, nn[cand[np.argmax(held)]], detect)
+        detected = free & (nn @ mode > detect)
+        found = aa[detected].sum()
+        if found < share * total:
+            break
+        fit_from = free.copy()  # later facets do not fit to earlier ones' cones
+        free &= ~detected
+        (mine if found >= min_area else weak).append((mode, detected, fit_from, found))
+    if len(mine) >= 2:
+        # a mode opposite a facet needs less (``opposite``), whether the search above met it (weak) or
+        # not (searched for from the facet's antipode among the vertices left)
+        for mode in [m[0] for m in mine]:
+            if any(m[0] @ -mode > detect for m in mine):
+                continue
+            pick = [m for m in weak if m[0] @ -mode > detect]
+            if not pick:
+                anti = _mode(nn, aa, free, -mode, detect)
+                detected = free & (nn @ anti > detect)
+                if anti @ -mode > detect:
+                    pick = [(anti, detected, free.copy(), aa[detected].sum())]
+                    free &= ~detected
+            if pick and pick[0][3] >= opposite * max(min_area, share * total):
+                mine.append(pick[0])
+    return mine
+
+
 def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndarray, fit_from: np.ndarray,
          detected: np.ndarray, mode: np.ndarray, fit: float, component: int, found: float) -> Facet:
     """The plane of a facet: least squares over the connected part of ``fit_from`` within ``fit`` of ``mode``."""
@@ -123,7 +162,8 @@ def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndar
 
 
 def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_cap: float = 40.0,
-                share: float = 0.06, min_area: float = 12.0, smooth: int = 5, opposite: float = 0.5) -> list[Facet]:
+                share: float = 0.06, min_area: float = 12.0, smooth: int = 5, opposite: float = 0.5,
+                closed_area: float = 8.0) -> list[Facet]:
     """Planar facets of every object of a closed or open surface (method: module docstring, step 1).
 
     Parameters
@@ -144,6 +184,13 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         gamma-prime cuboids, any centrosymmetric habit), and a face that the start left rounder than its
         opposite one then still counts (a 6 nm cube's face held 8.7 nm² within 20° where its opposite
         held 16; gamma-prime seed 6).
+    closed_area : float, nm²
+        Of an object with fewer than two facets at ``min_area``, modes down to this area count where they,
+        with their opposites, close it (:func:`closes`): the faces of a small cube (5 nm: 7-15 nm² each on
+        the `many` specimen, which kept its edges rounded at 12). A cylinder's strips of normals, which hold
+        as much on a 1.5 nm rod, lie on one plane, and a 2.5-3 nm sphere's noisy cones held at most 7.8 nm²
+        and at most three of them 7 nm² or more, so neither closes (measured: no facet moved on the
+        `default` preset's seeds 0-4 or gamma-prime's 1-8 between 12 and 8).
 
     Returns
     -------
@@ -165,37 +212,11 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
     for c in np.setdiff1d(np.unique(components[components >= 0]), open_components):
         idx = np.flatnonzero(components == c)
         nn, aa = normals[idx], area[idx]
-        total = aa.sum()
-        free = np.ones(len(idx), dtype=bool)
-        mine, weak = [], []  # (mode, detected, fit_from, area in the cone) of modes above / below min_area
-        while free.any():
-            cand = np.flatnonzero(free)[:: max(1, int(free.sum()) // MAX_CANDIDATES)]
-            held = (nn[cand] @ nn[free].T > detect) @ aa[free]
-            if held.max() < share * total:
-                break
-            mode = _mode(nn, aa, free, nn[cand[np.argmax(held)]], detect)
-            detected = free & (nn @ mode > detect)
-            found = aa[detected].sum()
-            if found < share * total:
-                break
-            fit_from = free.copy()  # later facets do not fit to earlier ones' cones
-            free &= ~detected
-            (mine if found >= min_area else weak).append((mode, detected, fit_from, found))
-        if len(mine) >= 2:
-            # a mode opposite a facet needs less (``opposite``), whether the search above met it (weak) or
-            # not (searched for from the facet's antipode among the vertices left)
-            for mode in [m[0] for m in mine]:
-                if any(m[0] @ -mode > detect for m in mine):
-                    continue
-                pick = [m for m in weak if m[0] @ -mode > detect]
-                if not pick:
-                    anti = _mode(nn, aa, free, -mode, detect)
-                    detected = free & (nn @ anti > detect)
-                    if anti @ -mode > detect:
-                        pick = [(anti, detected, free.copy(), aa[detected].sum())]
-                        free &= ~detected
-                if pick and pick[0][3] >= opposite * max(min_area, share * total):
-                    mine.append(pick[0])
+        mine = _modes(nn, aa, detect, share, min_area, opposite)
+        if len(mine) < 2:
+            small = _modes(nn, aa, detect, share, closed_area, opposite)
+            if _normals_close(np.array([m[0] for m in small])):
+                mine = small
         out += [_fit(vertices, adj, idx, nn, aa, fit_from, detected, mode, fit, int(c), found)
                 for mode, detected, fit_from, found in mine]
     return out
@@ -327,10 +348,15 @@ def closes(facets: list[Facet], margin: float = 0.25) -> bool:
     facet has its other five normals' hull pass through (within a few degrees of tilt, near) the origin,
     and its ions past the missing face would pull the neighbouring planes.
     """
-    if len(facets) < 4:
+    return _normals_close(np.array([f.normal for f in facets]), margin)
+
+
+def _normals_close(normals: np.ndarray, margin: float = 0.25) -> bool:
+    """Whether the hull of unit ``normals`` (k, 3) holds the origin at least ``margin`` inside (:func:`closes`)."""
+    if len(normals) < 4:
         return False
     try:
-        hull = ConvexHull(np.array([f.normal for f in facets]))
+        hull = ConvexHull(normals)
     except QhullError:  # normals on one plane
         return False
     return bool(np.all(hull.equations[:, 3] < -margin))
