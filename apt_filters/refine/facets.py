@@ -13,10 +13,10 @@ Method
    A mode is a facet when that cone holds at least ``share`` of the object's area *and* ``min_area``
    nm² in absolute terms: on a sphere every 20° cone holds 3 % of the area (6-7 % with the refined
    surface's noise), and a 3 nm sphere's most crowded cone held 7-8 nm², a 6-7 nm cube's faces 14-32 nm²
-   (gamma-prime seeds 1-3). A 5 nm cube's faces hold only 7-15 nm² (the `many` specimen), so an object with
-   fewer than two facets is searched again down to ``closed_area`` = 8 nm², and those modes count only if
-   they close it (:func:`closes`): a cube's six do, a sphere's few noisy cones or a rod's strips round its
-   axis do not. The facet's plane is fitted (area-weighted, least squares) to the connected
+   (gamma-prime seeds 1-3). A 5 nm cube's faces hold only 7-15 nm² (the `many` specimen), so an object
+   whose facets do not close it is searched again down to ``closed_area`` = 8 nm², and those modes count
+   only if they close it (:func:`closes`): a cube's six do, a sphere's few noisy cones or a rod's strips
+   round its axis do not. The facet's plane is fitted (area-weighted, least squares) to the connected
    part of the vertices within ``fit_cap`` degrees of the mode: the wider cone takes in the start of
    the rounded rims, which balances the faces' slight pillowing (their centres stand out from their rims).
    **1b. Planes from the ions** (:func:`fit_to_ions`). Where an object's facets close it (:func:`closes`,
@@ -189,7 +189,7 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         opposite one then still counts (a 6 nm cube's face held 8.7 nm² within 20° where its opposite
         held 16; gamma-prime seed 6).
     closed_area : float, nm²
-        Of an object with fewer than two facets at ``min_area``, modes down to this area count where they,
+        Of an object whose facets at ``min_area`` do not close it, modes down to this area count where they,
         with their opposites, close it (:func:`closes`): the faces of a small cube (5 nm: 7-15 nm² each on
         the `many` specimen, which kept its edges rounded at 12). A cylinder's strips of normals, which hold
         as much on a 1.5 nm rod, lie on one plane, and a 2.5-3 nm sphere's noisy cones held at most 7.8 nm²
@@ -217,7 +217,7 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         idx = np.flatnonzero(components == c)
         nn, aa = normals[idx], area[idx]
         mine = _modes(nn, aa, detect, share, min_area, opposite)
-        if len(mine) < 2:
+        if not _normals_close(np.array([m[0] for m in mine])):
             small = _modes(nn, aa, detect, share, closed_area, opposite)
             if _normals_close(np.array([m[0] for m in small])):
                 mine = small
