@@ -52,6 +52,8 @@ def fit_peak(distance: np.ndarray, marker: np.ndarray, total: np.ndarray, half_w
         Atoms of the marker per ion.
     total : (b,) float64
         Atoms per ion, the marker's included.
+    half_width, bin_width : float, nm
+        Profile range (ions farther out are left out) and bin size.
 
     Returns
     -------
