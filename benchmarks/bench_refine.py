@@ -4,9 +4,10 @@
 
 Each seed generates the specimen (default ``gamma-prime``: tip, efficiency 0.5, blur 0.3/0.1 nm,
 cubes of 7 and 6 nm and two spheres of 3 nm, Al 0.20 inside / 0.10 outside, B shell), voxelizes
-it once per basis (1 nm voxels, gaussian (3, 3, 1.5) nm, density mask) and runs four pipelines
-on the same ions:
+it once per basis (1 nm voxels, gaussian (3, 3, 1.5) nm, density mask) and runs five pipelines
+on the same ions, beside the true surfaces measured like them:
 
+``true``    The specimen's true surfaces (its meshes): what the estimators below give with no surface error.
 ``AP``      AP Suite-style: all ranged species in the denominator, marching cubes at Al = 15 at.%.
 ``basis``   Same with B (the segregant) left out of the denominator.
 ``iso``     ``basis`` contoured again per object at its own plateaus' midpoint (:func:`per_object_iso`).
@@ -24,7 +25,11 @@ signed distance to the surface, ``apt_filters.analysis.distance``, disagrees wit
 inside test), folded triangle pairs; per run the specks and the time of each pipeline. ``floor``: the
 counting-statistics floor of the object's volume (:func:`~apt_filters.refine.evaluate.counting_floor`,
 the Cramér-Rao bound of its size from its ions with the true profile known: no method can have a smaller
-standard deviation), and ``z``, the volume error in units of it.
+standard deviation), and ``z``, the volume error in units of it. ``counted``: the B excess and the Al
+inside plateau that the object's own ions hold against its true surface and true plateaus
+(:func:`~apt_filters.refine.evaluate.counted_truth`): their errors against the model are counting noise
+that every method inherits, and ``beyond counting`` is a pipeline's error against them (the excess as the
+ratio of the two, the plateau as the difference).
 """
 
 from __future__ import annotations
@@ -37,15 +42,15 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.topology import folded_pairs
 from apt_filters.core.deps import open3d
-from apt_filters.refine import (ion_atoms, match_objects, object_excess, object_levels, per_object_iso, recontour,
-                                refine_surface, remove_specks, split_components, surface_error)
-from apt_filters.refine.evaluate import counting_floor
+from apt_filters.refine import (ion_atoms, match_objects, merge, object_excess, object_levels, per_object_iso,
+                                recontour, refine_surface, remove_specks, split_components, surface_error)
+from apt_filters.refine.evaluate import counted_truth, counting_floor
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
 ISO = 0.15
 SPECIES, SOLUTE = "Al", "B"
-PIPELINES = ("AP", "basis", "iso", "s5", "refined")
+PIPELINES = ("true", "AP", "basis", "iso", "s5", "refined")
 NO_B = ConcentrationBasis(exclude=(SOLUTE,))
 
 
@@ -66,7 +71,7 @@ def iso_start(sp, fields, basis_surface):
 
 def run_pipelines(sp, fields) -> dict:
     """Mesh, specks and seconds of each pipeline (voxelization shared, timed once into AP)."""
-    out = {}
+    out = {"true": (merge([m for m, f in zip(sp.meshes, sp.truth["features"]) if f["bounded"]]), 0, 0.0)}
     t = time.perf_counter()
     _, _, mesh = contour(fields, ConcentrationBasis())
     out["AP"] = (mesh, remove_specks(mesh)[1].count, time.perf_counter() - t)
@@ -113,53 +118,74 @@ def floors(sp) -> list:
                           marker=everything.atoms[:, everything.elements.index(SOLUTE)])
 
 
-def evaluate(sp, mesh, seed: int, floor: list | None = None) -> list[dict]:
+def counted(sp) -> list[dict]:
+    """Per true precipitate: the B excess (relative) and Al inside plateau (at.%) errors against the model of
+    :func:`counted_truth` on its own ions (all species in the basis, as ``evaluate`` measures them)."""
+    atoms = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
+    kb, kal = atoms.elements.index(SOLUTE), atoms.elements.index(SPECIES)
+    out = []
+    for i, tf in enumerate(sp.truth["features"]):
+        if tf["bounded"]:
+            plateau = [np.array([tf[side].get(e, 0.0) for e in atoms.elements])
+                       for side in ("composition_inside", "composition_outside")]
+            c = counted_truth(sp.feature_sdf(i), sp.ions.positions, atoms.atoms, *plateau)
+            out.append({"excess": c.excess_ions[kb] / tf["excess"][SOLUTE]["excess_ions"] - 1,
+                        "plateau_in": 100 * (c.inside[kal] - plateau[0][kal])})
+    return out
+
+
+def evaluate(sp, mesh, seed: int, floor: list | None = None, count: list | None = None) -> list[dict]:
     """Per true precipitate: the figures of the module docstring."""
     feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
     floor = floors(sp) if floor is None else floor
+    count = counted(sp) if count is None else count
     clean, _ = remove_specks(mesh)
     parts = split_components(clean)
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
-    excess = object_excess(clean, sp.ions, sp.ranges, SOLUTE)
+    excess_all = object_excess(clean, sp.ions, sp.ranges, SOLUTE)
     levels = object_levels(clean, sp.ions, sp.ranges, SPECIES, prior=0.0)
     k = levels[0].elements.index(SPECIES) if levels else 0
     pos = sp.ions.positions.astype(np.float64)
     rows = []
-    for fi, m, fl in zip(feats, match, floor):
+    for fi, m, fl, co in zip(feats, match, floor, count):
         tf = sp.truth["features"][fi]
         if m is None:
             rows.append({"name": tf["name"], "found": False})
             continue
         err = surface_error(parts[m], sp.feature_sdf(fi), sp.meshes[fi], tf["volume_nm3"], tf["area_nm2"], seed=seed)
         near = pos[np.abs(sp.feature_sdf(fi)(pos)) < 2.0]
+        excess = excess_all[m].ions_per_nm2 / tf["excess"][SOLUTE]["ions_per_nm2"] - 1
+        plateau_in = 100 * (levels[m].inside[k] - tf["composition_inside"][SPECIES])
         rows.append({
             "name": tf["name"], "found": True, "volume": err.volume_error, "area": err.area_error,
             "mean": err.mean_distance, "hausdorff": err.hausdorff,
-            "excess": excess[m].ions_per_nm2 / tf["excess"][SOLUTE]["ions_per_nm2"] - 1,
-            "excess_count": excess[m].excess_ions / tf["excess"][SOLUTE]["excess_ions"] - 1,
-            "plateau_in": 100 * (levels[m].inside[k] - tf["composition_inside"][SPECIES]),
+            "excess": excess, "excess_count": excess_all[m].excess_ions / tf["excess"][SOLUTE]["excess_ions"] - 1,
+            "plateau_in": plateau_in,
             "plateau_out": 100 * (levels[m].outside[k] - tf["composition_outside"][SPECIES]),
             "sign_errors": sign_errors(clean, parts[m].faces, near),
             "folds": len(folded_pairs(parts[m].vertices, parts[m].faces)),
             "floor": fl.volume, "z": err.volume_error / fl.volume,
+            "excess_counted": co["excess"], "plateau_in_counted": co["plateau_in"],
+            "excess_beyond": (1 + excess) / (1 + co["excess"]) - 1, "plateau_in_beyond": plateau_in - co["plateau_in"],
         })
     return rows
 
 
 def table(rows_by_pipe: dict, specks: dict, times: dict) -> str:
     head = ("| pipeline | object | volume | z | area | mean d (nm) | Hausdorff (nm) | B excess/area | excess count "
-            "| Al in (at.%) | Al out (at.%) | sign err | folds | floor (volume, 1 sd) |")
-    lines = [head, "|" + "---|" * 14]
+            "| Al in (at.%) | Al out (at.%) | sign err | folds | floor (volume, 1 sd) | counted: B excess, Al in |")
+    lines = [head, "|" + "---|" * 15]
     for pipe in PIPELINES:
         for r in rows_by_pipe[pipe]:
             if not r["found"]:
-                lines.append(f"| {pipe} | {r['name']} | not found |" + " |" * 12)
+                lines.append(f"| {pipe} | {r['name']} | not found |" + " |" * 13)
                 continue
             lines.append(f"| {pipe} | {r['name']} | {100 * r['volume']:+.1f}% | {r['z']:+.1f} | "
                          f"{100 * r['area']:+.1f}% | "
                          f"{r['mean']:.3f} | {r['hausdorff']:.2f} | {100 * r['excess']:+.1f}% | "
                          f"{100 * r['excess_count']:+.1f}% | {r['plateau_in']:+.2f} | {r['plateau_out']:+.2f} | "
-                         f"{r['sign_errors']} | {r['folds']} | {100 * r['floor']:.1f}% |")
+                         f"{r['sign_errors']} | {r['folds']} | {100 * r['floor']:.1f}% | "
+                         f"{100 * r['excess_counted']:+.1f}%, {r['plateau_in_counted']:+.2f} |")
     lines.append("")
     lines.append("| pipeline | specks (removed by the rule) | seconds (after voxelization) |")
     lines.append("|---|---|---|")
@@ -194,6 +220,28 @@ def summary(all_rows: dict) -> str:
                          + f" | {100 * volume.mean():+.2f}% | {np.sqrt(np.mean(z ** 2)):.2f} | "
                          f"{np.sum(np.abs(volume) <= 0.05)} of {len(rows)} | {100 * floor:.1f}% | "
                          f"{sum(r['sign_errors'] for r in rows)} | {sum(r['folds'] for r in rows)} |")
+    return "\n".join(lines + ["", counting_summary(all_rows)])
+
+
+def counting_summary(all_rows: dict) -> str:
+    """The B excess (issue target +-5 %) and Al inside plateau (1 at.%) of each object against the model, for the
+    counted truth (the objects' own ions in their true frames) and each pipeline, and the pipelines' errors
+    beyond that count: worst / mean abs, and how many objects are within the target."""
+    def cells(rows, excess, plateau):
+        e, p = 100 * np.abs([r[excess] for r in rows]), np.abs([r[plateau] for r in rows])
+        return (f"{e.max():.2f} / {e.mean():.2f}% | {np.sum(e <= 5)} of {len(rows)} | "
+                f"{p.max():.2f} / {p.mean():.2f} at.% | {np.sum(p <= 1)} of {len(rows)}")
+
+    lines = ["| against | objects | B excess worst / mean abs | within 5 % | Al inside worst / mean abs | within 1 at.% |",
+             "|---|---|---|---|---|---|"]
+    found = [r for r in all_rows["true"] if r["found"]]
+    lines.append(f"| model: counted truth (own ions, true surfaces and plateaus) | {len(found)} | "
+                 + cells(found, "excess_counted", "plateau_in_counted") + " |")
+    for pipe in PIPELINES:
+        found = [r for r in all_rows[pipe] if r["found"]]
+        lines.append(f"| model: {pipe} | {len(found)} | " + cells(found, "excess", "plateau_in") + " |")
+        lines.append(f"| counted truth: {pipe} | {len(found)} | " + cells(found, "excess_beyond", "plateau_in_beyond")
+                     + " |")
     return "\n".join(lines)
 
 
@@ -212,8 +260,8 @@ def main(argv=None) -> int:
         fields = voxelize(sp.ions, sp.ranges)
         t_vox = time.perf_counter() - t
         runs = run_pipelines(sp, fields)
-        floor = floors(sp)
-        rows = {p: evaluate(sp, runs[p][0], seed, floor) for p in PIPELINES}
+        floor, count = floors(sp), counted(sp)
+        rows = {p: evaluate(sp, runs[p][0], seed, floor, count) for p in PIPELINES}
         r = runs["result"]
         print(f"## {args.preset}, seed {seed}: {len(sp.ions):,} ions, voxelization {t_vox:.1f} s; refinement "
               f"{r.iterations} iterations, displacement mean {r.displacement['mean']:+.3f} rms "

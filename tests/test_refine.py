@@ -14,7 +14,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import (contrast_weights, guarded_move, ion_atoms, match_objects,
+from apt_filters.refine import (contrast_weights, counted_truth, guarded_move, ion_atoms, match_objects,
                                 merge, object_excess, object_levels, per_object_iso, refine_surface,
                                 remove_specks, split_components, subdivide, surface_error)
 from apt_filters.refine.surface import equal_area_offset, matched_offset, profile_width
@@ -99,6 +99,21 @@ def test_ion_atoms_decomposes_molecules_and_leaves_out_the_basis_exclusions():
     assert atoms.atoms.tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 2], [0, 0, 0]]
     with pytest.raises(AptFiltersError, match="Xe"):
         ion_atoms(ions, ranges, ConcentrationBasis(exclude=("Xe",)))
+
+
+def test_counted_truth_counts_the_excess_and_plateaus_against_the_true_surface():
+    """Slabs of ten ions each at x = -2, -1, +1, +2 and +5 nm of the surface x = 0 (outward +x), element B among A:
+    the band |x| <= 1.5 holds 5 + 3 B against 0.2 x 10 + 0.1 x 10 expected from the true plateaus (excess 5, A -5);
+    windows 1.5-3 nm: 2 and 1 B of 10; the slab at +5 nm is in neither."""
+    x = np.repeat([-2.0, -1.0, 1.0, 2.0, 5.0], 10)
+    is_b = np.concatenate([np.arange(10) < n for n in (2, 5, 3, 1, 10)])
+    atoms = np.stack([~is_b, is_b], axis=1).astype(np.float64)
+    positions = np.column_stack([x, np.full_like(x, 7.0), np.full_like(x, -3.0)])
+    c = counted_truth(lambda p: p[:, 0], positions, atoms, np.array([0.8, 0.2]), np.array([0.9, 0.1]),
+                      half_width=1.5, window=(1.5, 3.0))
+    assert c.excess_ions == pytest.approx([-5.0, 5.0])
+    assert c.inside == pytest.approx([0.8, 0.2]) and c.outside == pytest.approx([0.9, 0.1])
+    assert (c.n_inside, c.n_outside) == (10.0, 10.0)
 
 
 def test_contrast_weights_score_higher_inside():

@@ -12,7 +12,10 @@ unbiased estimates fall outside +-5 %), of the cubes' 1.5-2.0 % (:func:`~apt_fil
 So each volume is held to 5 % or three standard deviations of its floor, whichever is larger, 11 of the 12 to
 the issue's 5 %, and the method's bias and efficiency are tested over the 12 objects. Area, mean distance
 and Hausdorff are held to the issue's own figures on every object; excess and the inside plateau to what
-these seeds reach with a margin, the issue's figures beside them.
+these seeds reach with a margin, the issue's figures beside them. Those two targets sit below this specimen's
+counting: its objects' own ions, counted in their true frames against the true plateaus
+(:func:`~apt_filters.refine.counted_truth`), miss the model's excess by up to 13 % and its inside plateau by up
+to 2.1 at.% (seeds 1-8; 12 and 7 of 32 objects outside the targets), so they are also held against that count.
 """
 
 import numpy as np
@@ -21,7 +24,7 @@ import pytest
 from apt_filters.refine import refine_surface, remove_specks
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, voxelize
-from benchmarks.bench_refine import NO_B, SPECIES, contour, evaluate, floors, iso_start
+from benchmarks.bench_refine import NO_B, SPECIES, contour, counted, evaluate, floors, iso_start
 
 
 @pytest.fixture(scope="module")
@@ -32,14 +35,15 @@ def rows():
     for seed in (1, 2, 3):
         sp = generate(preset("gamma-prime"), seed=seed)
         fields = voxelize(sp.ions, sp.ranges)
-        floor = floors(sp)
+        floor, count = floors(sp), counted(sp)
         ap = contour(fields, ConcentrationBasis())[2]
         start, removed = iso_start(sp, fields, contour(fields, NO_B)[2])
         specks.append(removed.count)
         result = refine_surface(start, sp.ions, sp.ranges, SPECIES, NO_B)
         blurs.append(result.blur_estimate)
         marks.append(result.marker)
-        out += list(zip(evaluate(sp, remove_specks(ap)[0], seed, floor), evaluate(sp, result.mesh, seed, floor)))
+        out += list(zip(evaluate(sp, remove_specks(ap)[0], seed, floor, count),
+                        evaluate(sp, result.mesh, seed, floor, count)))
     return out, specks, blurs, marks
 
 
@@ -94,6 +98,19 @@ def test_refined_areas_distances_and_excess_against_the_truth(rows):
     assert np.mean([abs(r["plateau_in"]) for r in refined]) < 1.0
     assert sum(r["sign_errors"] for r in refined) == 0 and sum(r["folds"] for r in refined) == 0
     assert all(0 <= n <= 6 for n in specks)  # removed by the stated rule (docs/refine.md), reported
+
+
+def test_refined_excess_and_plateaus_against_what_the_ions_hold(rows):
+    """Against the objects' own ions counted in their true frames (``counted``), the errors left are the method's."""
+    pairs = rows[0]
+    refined = [r for _, r in pairs]
+    # the issue's 1 at.% on every object (measured: worst 0.81, mean abs 0.24 at.%; seeds 1-8 the same worst)
+    assert max(abs(r["plateau_in_beyond"]) for r in refined) <= 1.0
+    # B excess per area: the plateaus the estimator must take from the same few ions and the areas' errors
+    # (measured: worst 6.9 %, mean abs 2.4 %; the true surfaces 2.9 / 1.8 %; the AP Suite-style +21 % mean)
+    excess = np.array([r["excess_beyond"] for r in refined])
+    assert np.abs(excess).max() < 0.1 and np.abs(excess).mean() < 0.04
+    assert np.mean([a["excess_beyond"] for a, _ in pairs]) > 0.15
 
 
 def test_the_blur_is_read_off_the_segregant_shell(rows):

@@ -32,8 +32,8 @@ self-intersections or proxigram sign errors (benchmarks/results_refine.md, docs/
 """
 
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
-from apt_filters.refine.evaluate import (CountingFloor, SurfaceError, counting_floor, match_objects, split_components,
-                                        surface_error)
+from apt_filters.refine.evaluate import (CountedTruth, CountingFloor, SurfaceError, counted_truth, counting_floor,
+                                        match_objects, split_components, surface_error)
 from apt_filters.refine.excess import ObjectExcess, object_excess
 from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
@@ -44,8 +44,8 @@ from apt_filters.refine.surface import RefineResult, guarded_move, refine_surfac
 from apt_filters.refine.untangle import unfold, untangle
 
 __all__ = [
-    "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks",
-    "SurfaceError", "contrast_weights", "counting_floor", "marker_offsets",
+    "CountedTruth", "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks",
+    "SurfaceError", "contrast_weights", "counted_truth", "counting_floor", "marker_offsets",
     "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
 ]

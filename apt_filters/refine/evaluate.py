@@ -7,6 +7,8 @@ surface, ``|sdf|``, which is exact; true-surface samples to the mesh, exact poin
 :func:`counting_floor` gives what no method can beat on a given set of ions: the Cramér-Rao bound of
 an object's size, i.e. the standard deviation of the best unbiased estimate of a uniform offset of its
 true surface from its ions, and the volume and area errors that offset alone implies.
+:func:`counted_truth` gives the same for composition: the excess and plateaus an object's own ions hold
+in its true frame, whose scatter about the specimen's model values every method inherits.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from apt_filters.contour.metrics import point_to_mesh_distance, sample_mesh
 from apt_filters.core.mesh import TriMesh
+from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.refine.marker import combined_offset_errors
 from apt_filters.refine.peak import fit_peak
 
@@ -188,3 +191,65 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
         growth = float(np.diff(level_area(np.array([-bin_width, bin_width])))[0] / (2 * bin_width))
         out.append(CountingFloor(offset, area * offset / volume, abs(growth) * offset / area, len(d)))
     return out
+
+
+@dataclass
+class CountedTruth:
+    """What one object's own ions hold in its true frame (the figures of a method that knew the true
+    surface and the true plateaus).
+
+    Attributes
+    ----------
+    excess_ions : (k,) float
+        Per basis element: ions within ``half_width`` nm of the true surface minus the true plateau
+        fractions times the atoms on each side of it (the count :func:`~apt_filters.refine.excess.object_excess`
+        estimates).
+    inside, outside : (k,) float
+        Fractions of each basis element between ``window`` nm inside / outside the true surface (the
+        plateaus :func:`~apt_filters.refine.levels.object_levels` estimates).
+    n_inside, n_outside : float
+        Basis atoms in the two windows.
+    """
+
+    excess_ions: np.ndarray
+    inside: np.ndarray
+    outside: np.ndarray
+    n_inside: float
+    n_outside: float
+
+
+def counted_truth(sdf: Callable[[np.ndarray], np.ndarray], positions: np.ndarray, atoms: np.ndarray,
+                  inside: np.ndarray, outside: np.ndarray, half_width: float = 1.5,
+                  window: tuple[float, float] = PLATEAU_WINDOW) -> CountedTruth:
+    """Excess and plateaus of one object counted from its ions against its true surface and plateaus.
+
+    A synthetic specimen's model gives expected values; its ions are one draw, so even this count
+    misses them by the counting noise (a 3 nm sphere's ~240 excess ions: 6-7 %). A method's error
+    against the model is this count's error plus its own.
+
+    Parameters
+    ----------
+    sdf : callable
+        The object's exact SDF (nm, negative inside).
+    positions : (N, 3) float
+        Ion positions (nm).
+    atoms : (N, k) float
+        Atoms of each basis element per ion (:func:`~apt_filters.refine.composition.ion_atoms`).
+    inside, outside : (k,) float
+        The true plateau fractions of the basis elements.
+    half_width : float, nm
+        Band of the excess count, each side of the surface.
+    window : (float, float), nm
+        Distances between which the plateaus are counted, each side.
+    """
+    d = sdf(np.asarray(positions, dtype=np.float64))
+    atoms = np.asarray(atoms, dtype=np.float64)
+    band = np.abs(d) <= half_width
+    totals = atoms.sum(axis=1)
+    expected = (np.asarray(inside) * totals[band & (d < 0)].sum()
+                + np.asarray(outside) * totals[band & (d >= 0)].sum())
+    win_in = (d <= -window[0]) & (d >= -window[1])
+    win_out = (d >= window[0]) & (d <= window[1])
+    n_in, n_out = totals[win_in].sum(), totals[win_out].sum()
+    return CountedTruth(atoms[band].sum(axis=0) - expected, atoms[win_in].sum(axis=0) / max(n_in, 1.0),
+                        atoms[win_out].sum(axis=0) / max(n_out, 1.0), float(n_in), float(n_out))
