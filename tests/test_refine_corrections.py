@@ -165,37 +165,6 @@ def test_the_rest_of_a_face_found_off_its_normal_is_not_a_second_facet():
     assert (modes @ modes.T - 2 * np.eye(6)).max() < np.cos(np.radians(40))
 
 
-def _cone_normals(clusters, rim_area, seed=0, spread=3.0, n=60):
-    """Vertex normals and areas (nm²): ``clusters`` of (direction, area) spread by ``spread`` degrees, plus
-    ``rim_area`` nm² of normals spread evenly over the sphere (a small cube's rounded edges and corners)."""
-    rng = np.random.default_rng(seed)
-    normals = np.concatenate([np.asarray(d, float) + rng.normal(0, np.radians(spread), (n, 3)) for d, _ in clusters]
-                             + [rng.normal(size=(40 * n, 3))])
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    areas = np.concatenate([np.repeat([a / n for _, a in clusters], n), np.full(40 * n, rim_area / (40 * n))])
-    return normals, areas
-
-
-def test_a_cube_whose_third_pair_of_faces_is_weak_is_completed():
-    """A 5 nm cube whose start rounded one pair of faces to ~6 nm² in their 20° cones (`many` seed 0, cube #1: 6.3
-    and 6.6 nm² of 126): the other four faces are two opposite pairs, which do not close it, and the weak pair lies
-    along their normals' cross product. A rod's four strips round its axis (the same areas) have no such pair:
-    its caps hold ~1 nm² along the axis, so it stays open."""
-    from apt_filters.refine.facets import _modes, _normals_close
-
-    detect = np.cos(np.radians(20))
-    # cones: the clusters plus ~2.8 nm² of the rims' normals each
-    strong = [((1, 0, 0), 6.9), ((-1, 0, 0), 6.4), ((0, 1, 0), 5.7), ((0, -1, 0), 6.1)]
-    for seed in range(3):
-        cube = _cone_normals(strong + [((0, 0, 1), 3.5), ((0, 0, -1), 3.2)], 95.0, seed)
-        assert len(_modes(*cube, detect, 0.06, 8.0, 0.5)) == 4
-        modes = np.array([m[0] for m in _modes(*cube, detect, 0.06, 8.0, 0.5, complete=True)])
-        assert len(modes) == 6 and _normals_close(modes)
-        assert np.sort(np.abs(modes[:, 2]))[-2:].min() > np.cos(np.radians(5))
-        rod = _cone_normals(strong, 101.7, seed)
-        assert len(_modes(*rod, detect, 0.06, 8.0, 0.5, complete=True)) == 4
-
-
 def test_a_noisy_sphere_has_no_facets():
     rng = np.random.default_rng(2)
     for r in (2.5, 3.0, 6.0):

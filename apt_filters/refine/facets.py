@@ -16,9 +16,7 @@ Method
    (gamma-prime seeds 1-3). A 5 nm cube's faces hold only 7-15 nm² (the `many` specimen), so an object
    whose facets do not close it is searched again down to ``closed_area`` = 8 nm², and those modes count
    only if they close it (:func:`closes`): a cube's six do, a sphere's few noisy cones or a rod's strips
-   round its axis do not. Modes that still do not close it are completed by faces perpendicular to two of
-   them, down to half that area: a cuboid whose start rounded its third pair of faces to 5-7 nm² (a rod's
-   axis holds ~1 nm², its caps). The facet's plane is fitted (area-weighted, least squares) to the connected
+   round its axis do not. The facet's plane is fitted (area-weighted, least squares) to the connected
    part of the vertices within ``fit_cap`` degrees of the mode: the wider cone takes in the start of
    the rounded rims, which balances the faces' slight pillowing (their centres stand out from their rims).
    **1b. Planes from the ions** (:func:`fit_to_ions`). Where an object's facets close it (:func:`closes`,
@@ -112,12 +110,8 @@ def _mode(nn: np.ndarray, aa: np.ndarray, free: np.ndarray, start: np.ndarray, d
     return mode
 
 
-def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area: float, opposite: float,
-           complete: bool = False) -> list:
-    """One object's facet modes, as (mode, detected, fit_from, area in the cone) (:func:`find_facets`, step 1).
-
-    With ``complete``, modes that do not close the object are completed where that closes it (:func:`_completed`).
-    """
+def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area: float, opposite: float) -> list:
+    """One object's facet modes, as (mode, detected, fit_from, area in the cone) (:func:`find_facets`, step 1)."""
     total = aa.sum()
     free = np.ones(len(nn), dtype=bool)
     mine, weak = [], []  # (mode, detected, fit_from, area in the cone) of modes above / below min_area
@@ -153,35 +147,6 @@ def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area
             if (pick and pick[0][3] >= opposite * max(min_area, share * total)
                     and all(pick[0][0] @ m[0] <= 2 * detect ** 2 - 1 for m in mine)):
                 mine.append(pick[0])
-    if complete and not _normals_close(np.array([m[0] for m in mine])):
-        done = _completed(mine, nn, aa, free, detect, opposite * max(min_area, share * total))
-        if _normals_close(np.array([m[0] for m in done])):
-            return done
-    return mine
-
-
-def _completed(mine: list, nn: np.ndarray, aa: np.ndarray, free: np.ndarray, detect: float, least: float) -> list:
-    """``mine`` with the faces perpendicular to two of its modes that hold at least ``least`` nm² in their cone.
-
-    A cuboid's third pair of faces, when the other two are found: its normals are the cross product of theirs.
-    On a 5 nm cube the start can round one pair down to 5-7 nm² in its cones, below any threshold that
-    keeps noisy spheres out, while the other four faces are found (`many` seed 0, cube #1). Only where the
-    result closes the object does it count (:func:`_modes`).
-    """
-    mine, free = list(mine), free.copy()
-    for a, b in itertools.combinations([m[0] for m in mine], 2):
-        axis = np.cross(a, b)
-        if np.linalg.norm(axis) < np.sin(np.radians(60.0)):
-            continue
-        for want in (axis, -axis):
-            want = want / np.linalg.norm(want)
-            if any(want @ m[0] > 2 * detect ** 2 - 1 for m in mine):
-                continue
-            mode = _mode(nn, aa, free, want, detect)
-            detected = free & (nn @ mode > detect)
-            if mode @ want > detect and aa[detected].sum() >= least:
-                mine.append((mode, detected, free.copy(), aa[detected].sum()))
-                free &= ~detected
     return mine
 
 
@@ -229,8 +194,7 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         the `many` specimen, which kept its edges rounded at 12). A cylinder's strips of normals, which hold
         as much on a 1.5 nm rod, lie on one plane, and a 2.5-3 nm sphere's noisy cones held at most 7.8 nm²
         and at most three of them 7 nm² or more, so neither closes (measured: no facet moved on the
-        `default` preset's seeds 0-4 or gamma-prime's 1-8 between 12 and 8). Where they do not close it, faces
-        perpendicular to two of them count down to ``opposite`` times that area if they then close it.
+        `default` preset's seeds 0-4 or gamma-prime's 1-8 between 12 and 8).
 
     Returns
     -------
@@ -254,7 +218,7 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         nn, aa = normals[idx], area[idx]
         mine = _modes(nn, aa, detect, share, min_area, opposite)
         if not _normals_close(np.array([m[0] for m in mine])):
-            small = _modes(nn, aa, detect, share, closed_area, opposite, complete=True)
+            small = _modes(nn, aa, detect, share, closed_area, opposite)
             if _normals_close(np.array([m[0] for m in small])):
                 mine = small
         out += [_fit(vertices, adj, idx, nn, aa, fit_from, detected, mode, fit, int(c), found)
