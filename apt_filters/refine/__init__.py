@@ -44,8 +44,8 @@ from apt_filters.refine.surface import RefineResult, guarded_move, refine_surfac
 from apt_filters.refine.untangle import unfold, untangle
 
 __all__ = [
-    "CountedTruth", "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks",
-    "SurfaceError", "contrast_weights", "counted_truth", "counting_floor", "marker_offsets",
+    "CountedTruth", "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult",
+    "Specks", "SurfaceError", "contrast_weights", "counted_truth", "counting_floor", "marker_offsets",
     "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
     "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
 ]
