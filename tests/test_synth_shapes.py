@@ -8,7 +8,8 @@ from scipy.spatial import cKDTree
 
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.synth.geometry import Box, Tip
-from apt_filters.synth.shapes import Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Sphere, rotation_matrix
+from apt_filters.synth.shapes import (Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Sphere, rotation_matrix,
+                                      shape_from_params)
 
 SIGMAS = 4.0
 
@@ -170,6 +171,20 @@ def test_custom_shape_matches_the_analytic_one():
     assert custom.area() == pytest.approx(ref.area(), rel=2e-3)
     assert custom.level_area(np.array([-0.5, 0.5])) == pytest.approx(ref.level_area(np.array([-0.5, 0.5])), rel=5e-3)
     assert custom.depth() == pytest.approx(2.0, abs=0.05)
+
+
+def test_shapes_are_rebuilt_from_their_parameters():
+    """truth.json keeps each feature's ``params()`` (JSON numbers): the rebuilt shape has the same SDF."""
+    import json
+
+    p = np.random.default_rng(3).uniform(-8, 8, (5000, 3))
+    for shape in [*SOLIDS.values(), HalfSpace((0, 0, -1), (0.2, -0.3, 1.0))]:
+        again = shape_from_params(json.loads(json.dumps(shape.params())))
+        assert type(again) is type(shape)
+        assert again.sdf(p) == pytest.approx(shape.sdf(p), abs=1e-12)
+    custom = CustomShape(SOLIDS["sphere"].sdf, (-2.0, -5.0, 0.0), (4.0, 1.0, 6.0), name="ball")
+    with pytest.raises(AptFiltersError, match="custom"):
+        shape_from_params(custom.params())
 
 
 def test_bad_shape_parameters_are_clear_errors():

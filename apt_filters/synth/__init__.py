@@ -14,13 +14,14 @@ from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.instruments import DETECTION_EFFICIENCY
 from apt_filters.synth.ply import write_ply
 from apt_filters.synth.presets import PRESETS, preset, with_ions
-from apt_filters.synth.shapes import Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Shape, Sphere, rotation_matrix
+from apt_filters.synth.shapes import (Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Shape, Sphere, rotation_matrix,
+                                      shape_from_params)
 from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec, composition_at
 from apt_filters.synth.spectrum import SpectrumModel
 
 __all__ = [
     "Box", "Capsule", "Cuboid", "CustomShape", "Cylinder", "DETECTION_EFFICIENCY", "Feature", "HalfSpace",
     "PRESETS", "Segregation", "Shape", "Specimen", "SpecimenSpec", "SpectrumModel", "Sphere", "Tip",
-    "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix",
+    "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix", "shape_from_params",
     "summary", "with_ions", "write_ply", "write_specimen",
 ]

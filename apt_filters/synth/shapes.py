@@ -546,3 +546,21 @@ def _box_surface(half: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarr
     allv = np.vstack(verts)
     uniq, inverse = np.unique(np.round(allv, 9), axis=0, return_inverse=True)
     return uniq, inverse.reshape(-1)[np.vstack(faces)]
+
+
+def shape_from_params(params: dict) -> Shape:
+    """The shape that :meth:`Shape.params` describes (a truth.json feature's ``shape``).
+
+    Custom shapes (a callable SDF) cannot be rebuilt from their parameters and raise AptFiltersError.
+    """
+    kind = params.get("kind")
+    if kind == "sphere":
+        return Sphere(params["center"], params["radius"])
+    if kind == "cuboid":
+        return Cuboid(params["center"], params["size"], params["rotation"])
+    if kind in ("capsule", "cylinder"):
+        axial = Capsule if kind == "capsule" else Cylinder
+        return axial(params["center"], params["radius"], params["length"], params["rotation"])
+    if kind == "halfspace":
+        return HalfSpace(params["point"], params["normal"])
+    raise AptFiltersError(f"a {kind!r} shape cannot be rebuilt from its parameters")
