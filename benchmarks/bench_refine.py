@@ -42,6 +42,7 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.topology import folded_pairs
 from apt_filters.core.deps import open3d
+from apt_filters.pipeline.truth import true_plateaus
 from apt_filters.refine import (ion_atoms, match_objects, merge, object_excess, object_levels, per_object_iso,
                                 recontour, refine_surface, remove_specks, split_components, surface_error)
 from apt_filters.refine.evaluate import counted_truth, counting_floor
@@ -126,8 +127,7 @@ def counted(sp) -> list[dict]:
     out = []
     for i, tf in enumerate(sp.truth["features"]):
         if tf["bounded"]:
-            plateau = [np.array([tf[side].get(e, 0.0) for e in atoms.elements])
-                       for side in ("composition_inside", "composition_outside")]
+            plateau = true_plateaus(tf, atoms.elements)
             c = counted_truth(sp.feature_sdf(i), sp.ions.positions, atoms.atoms, *plateau)
             out.append({"excess": c.excess_ions[kb] / tf["excess"][SOLUTE]["excess_ions"] - 1,
                         "plateau_in": 100 * (c.inside[kal] - plateau[0][kal])})

@@ -60,6 +60,28 @@ def test_report_numbers_against_the_truth(small_run):
     assert {o["status"] for o in surface["objects"]} == {"closed"}
 
 
+def test_the_excess_the_ions_hold_is_counted_against_the_true_surfaces(small_run):
+    """``counted_excess_B_ratio``: the run's own ions counted against each feature's shape rebuilt from truth.json
+    equal the count against the generating specimen's exact SDF (the same ions, drawn again from the seed)."""
+    from apt_filters.pipeline.truth import true_plateaus
+    from apt_filters.refine import counted_truth, ion_atoms
+    from apt_filters.synth import generate
+    from apt_filters.voxel import ConcentrationBasis
+
+    _, report, truth = small_run
+    sp = generate(preset("small"), seed=3)
+    atoms = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
+    rows = {row["feature"]: row for row in report["truth"]}
+    for i, feature in enumerate(truth["features"]):
+        if not feature["bounded"]:
+            continue
+        plateaus = true_plateaus(feature, atoms.elements)
+        count = counted_truth(sp.feature_sdf(i), sp.ions.positions, atoms.atoms, *plateaus)
+        expected = count.excess_ions[atoms.elements.index("B")] / feature["excess"]["B"]["excess_ions"]
+        assert rows[feature["name"]]["counted_excess_B_ratio"] == pytest.approx(expected, rel=1e-9)
+        assert abs(expected - 1) < 0.26  # 4 Poisson sd of a 3 nm sphere's ~240 excess B ions
+
+
 def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
     out, report, _ = small_run
     again = tmp_path / "again"

@@ -43,6 +43,10 @@ def test_demo_runs_the_pipeline_then_reuses_the_specimen(tmp_path, capsys, monke
     first = capsys.readouterr().out
     assert "ions" in first and "bounding box" in first and "wrote" in first
     assert "volume/true" in first and "cube 6 nm" in first and "sphere 3 nm" in first
+    # the B excess the ions hold (their count against the true surface and plateaus) beside the measured one:
+    # within 4 Poisson sd of the model's (~240 excess B ions of a 3 nm sphere: 6.5 % each)
+    held = [float(line.split()[-1]) for line in first.splitlines() if line.startswith(("cube 6 nm", "sphere 3 nm"))]
+    assert len(held) == 2 and all(abs(h - 1) < 0.26 for h in held), held
     assert (out / "run" / "report.html").is_file() and (out / "run" / "meshes" / "Al15.ply").is_file()
     # B, left out of the basis, marks both precipitates' interfaces (refine.marker): reported per object
     mark = json.loads((out / "run" / "report.json").read_text())["surfaces"][0]["mesh"]["refine"]["marker"]

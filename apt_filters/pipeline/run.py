@@ -250,9 +250,9 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                "mesh": r.stats, "objects": r.objects, "excess": r.excess} for r in results]
         rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
         if truth is not None:
-            from apt_filters.pipeline.truth import compare_with_truth
+            from apt_filters.pipeline.truth import compare_with_truth, counted_excess
 
-            report["truth"] = compare_with_truth(results, truth)
+            report["truth"] = compare_with_truth(results, truth, counted_excess(truth, ions, ranges))
         report["steps"] = log.as_dicts()
         atomic_write_text(stage / "config.toml", config.to_toml())
         rep.write_json(stage / "report.json", report)
