@@ -82,6 +82,31 @@ def test_the_excess_the_ions_hold_is_counted_against_the_true_surfaces(small_run
         assert abs(expected - 1) < 0.26  # 4 Poisson sd of a 3 nm sphere's ~240 excess B ions
 
 
+def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
+    """A custom shape (a callable SDF) has no parameters to rebuild: no counted excess, and no error."""
+    import numpy as np
+
+    from apt_filters.io.ions import IonTable
+    from apt_filters.io.ranges import Range, RangeTable
+    from apt_filters.pipeline.truth import counted_excess
+    from apt_filters.synth import CustomShape, Sphere
+
+    rng = np.random.default_rng(0)
+    positions = rng.uniform(-6, 6, (20000, 3)).astype(np.float32)
+    radius = np.linalg.norm(positions, axis=1)
+    mz = np.where(np.abs(radius - 3.0) < 0.3, 10.5, 26.5).astype(np.float32)  # B in a shell at r = 3, Al elsewhere
+    ranges = RangeTable([Range(10.0, 11.0, (("B", 1),)), Range(26.0, 27.0, (("Al", 1),))])
+    sphere = Sphere((0, 0, 0), 3.0)
+    custom = CustomShape(sphere.sdf, (-3, -3, -3), (3, 3, 3), name="ball")
+    feature = {"bounded": True, "segregation": [{"species": "B"}], "composition_inside": {"Al": 1.0},
+               "composition_outside": {"Al": 1.0}, "excess": {"B": {"excess_ions": 100.0}}}
+    truth = {"features": [{**feature, "index": 0, "shape": custom.params()},
+                          {**feature, "index": 1, "shape": sphere.params()}]}
+    counted = counted_excess(truth, IonTable(positions, mz), ranges)
+    shell = np.sum(np.abs(radius - 3.0) < 0.3)
+    assert counted == {(1, "B"): pytest.approx(shell / 100.0)}
+
+
 def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
     out, report, _ = small_run
     again = tmp_path / "again"
