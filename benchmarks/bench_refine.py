@@ -42,10 +42,10 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.topology import folded_pairs
 from apt_filters.core.deps import open3d
-from apt_filters.pipeline.truth import true_plateaus
+from apt_filters.pipeline.truth import counted_truths
 from apt_filters.refine import (ion_atoms, match_objects, merge, object_excess, object_levels, per_object_iso,
                                 recontour, refine_surface, remove_specks, split_components, surface_error)
-from apt_filters.refine.evaluate import counted_truth, counting_floor
+from apt_filters.refine.evaluate import counting_floor
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
@@ -121,17 +121,13 @@ def floors(sp) -> list:
 
 def counted(sp) -> list[dict]:
     """Per true precipitate: the B excess (relative) and Al inside plateau (at.%) errors against the model of
-    :func:`counted_truth` on its own ions (all species in the basis, as ``evaluate`` measures them)."""
-    atoms = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
-    kb, kal = atoms.elements.index(SOLUTE), atoms.elements.index(SPECIES)
-    out = []
-    for i, tf in enumerate(sp.truth["features"]):
-        if tf["bounded"]:
-            plateau = true_plateaus(tf, atoms.elements)
-            c = counted_truth(sp.feature_sdf(i), sp.ions.positions, atoms.atoms, *plateau)
-            out.append({"excess": c.excess_ions[kb] / tf["excess"][SOLUTE]["excess_ions"] - 1,
-                        "plateau_in": 100 * (c.inside[kal] - plateau[0][kal])})
-    return out
+    what its own ions hold (:func:`~apt_filters.pipeline.truth.counted_truths`: all species in the basis, as
+    ``evaluate`` measures them)."""
+    elements, counts = counted_truths(sp.truth, sp.ions, sp.ranges)
+    kb, kal = elements.index(SOLUTE), elements.index(SPECIES)
+    return [{"excess": counts[i].excess_ions[kb] / tf["excess"][SOLUTE]["excess_ions"] - 1,
+             "plateau_in": 100 * (counts[i].inside[kal] - tf["composition_inside"][SPECIES])}
+            for i, tf in enumerate(sp.truth["features"]) if tf["bounded"]]
 
 
 def evaluate(sp, mesh, seed: int, floor: list | None = None, count: list | None = None) -> list[dict]:

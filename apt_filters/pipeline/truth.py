@@ -14,7 +14,7 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine import counted_truth, ion_atoms
+from apt_filters.refine import CountedTruth, counted_truth, ion_atoms
 from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.synth import shape_from_params
 from apt_filters.voxel import ConcentrationBasis
@@ -43,8 +43,9 @@ def true_plateaus(feature: dict, elements: list[str]) -> tuple[np.ndarray, np.nd
     return inside, outside
 
 
-def counted_excess(truth: dict, ions: IonTable, ranges: RangeTable) -> dict[tuple[int, str], float]:
-    """(feature index, segregant) -> the excess its ions hold over the model's (ratio), for the bounded features.
+def counted_truths(truth: dict, ions: IonTable, ranges: RangeTable) -> tuple[list[str], dict[int, CountedTruth]]:
+    """The elements, and (feature index) -> what its ions hold (:func:`~apt_filters.refine.evaluate.counted_truth`)
+    for every bounded feature.
 
     Counted in the band |d| <= 1.5 nm of the true surface against the true plateaus (0.75-3 nm), every ranged
     element in the denominator, from the ions within 3.5 nm of each feature's bounding box. Features whose
@@ -57,8 +58,7 @@ def counted_excess(truth: dict, ions: IonTable, ranges: RangeTable) -> dict[tupl
     reach = PLATEAU_WINDOW[1] + 0.5
     out = {}
     for feature in truth["features"]:
-        solutes = [seg["species"] for seg in feature.get("segregation", []) if seg["species"] in atoms.elements]
-        if not feature.get("bounded") or not solutes:
+        if not feature.get("bounded"):
             continue
         try:
             shape = shape_from_params(feature["shape"])
@@ -66,10 +66,22 @@ def counted_excess(truth: dict, ions: IonTable, ranges: RangeTable) -> dict[tupl
             continue
         lo, hi = shape.bounds()
         near = np.flatnonzero(np.all((positions >= lo - reach) & (positions <= hi + reach), axis=1))
-        count = counted_truth(shape.sdf, positions[near], atoms.atoms[near], *true_plateaus(feature, atoms.elements))
-        for solute in solutes:
-            out[(feature["index"], solute)] = _ratio(count.excess_ions[atoms.elements.index(solute)],
-                                                     feature["excess"][solute]["excess_ions"])
+        out[feature["index"]] = counted_truth(shape.sdf, positions[near], atoms.atoms[near],
+                                              *true_plateaus(feature, atoms.elements))
+    return atoms.elements, out
+
+
+def counted_excess(truth: dict, ions: IonTable, ranges: RangeTable) -> dict[tuple[int, str], float]:
+    """(feature index, segregant) -> the excess its ions hold over the model's (ratio), for the bounded features
+    (:func:`counted_truths`)."""
+    elements, counts = counted_truths(truth, ions, ranges)
+    out = {}
+    for feature in truth["features"]:
+        for seg in feature.get("segregation", []):
+            solute = seg["species"]
+            if feature["index"] in counts and solute in elements:
+                out[(feature["index"], solute)] = _ratio(counts[feature["index"]].excess_ions[elements.index(solute)],
+                                                         feature["excess"][solute]["excess_ions"])
     return out
 
 
