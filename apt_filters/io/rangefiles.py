@@ -576,6 +576,8 @@ def relabel(table: RangeTable, pairs: Sequence[str], *, origin: str = "command l
     """
     ranges, notes = list(table.ranges), list(table.notes)
     for pair in pairs:
+        if not isinstance(pair, str):
+            raise InputError(f"relabel {clip(repr(pair), quote=False)}: expected OLD=NEW text, e.g. Cr2O=Ni")
         old, sep, new = (part.strip() for part in pair.partition("="))
         if not sep or not old or not new:
             raise InputError(f"relabel {clip(pair)}: expected OLD=NEW, e.g. Cr2O=Ni")
