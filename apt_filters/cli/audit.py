@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from apt_filters.cli.rangeopts import add_range_options, load_ranges
@@ -46,6 +47,9 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.resolution > 0:
         raise AptFiltersError(f"--resolution must be positive, got {args.resolution:g}")
+    if args.write_ranges and os.path.lexists(args.write_ranges):  # refused before the audit, not after it
+        raise AptFiltersError("exists already; the corrected range file is never written over a file",
+                              args.write_ranges)
     ranges = load_ranges(args.range_file, args.relabel, args.unknown_species)
     result = audit_ranges(read_ions(args.ions), ranges, AuditSettings(resolution=args.resolution))
     print(result.to_json() if args.json else result)
