@@ -19,7 +19,8 @@ from apt_filters.io.readers import ion_format
 from apt_filters.io.summary import IonSummary, summarize
 
 ORDER = 10
-FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "text": "text table"}
+FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "ato": "ATO (LAWATAP / GPM Rouen)",
+                "text": "text table"}
 
 
 def _as_json(path: str, summary: IonSummary, ranges: RangeTable | None) -> dict:
@@ -82,7 +83,7 @@ def register(subparsers) -> None:
         description="Summarise an APT ion file: ion count, bounding box (nm), m/z span (Da) and, with a "
                     "range file, the ranged fraction and the composition by element (at.%; molecular "
                     "ions decomposed into atoms). The file is streamed in chunks.")
-    p.add_argument("file", metavar="FILE", help="ion file: .pos, .epos, .apt (AP Suite APT6), .csv or .txt")
+    p.add_argument("file", metavar="FILE", help="ion file: .pos, .epos, .apt (AP Suite APT6), .ato, .csv or .txt")
     p.add_argument("--range", "-r", dest="range_file", metavar="R",
                    help="range file (.rrng, .rng or .env) for ranged fraction and composition")
     p.add_argument("--json", action="store_true", help="print JSON instead of text (composition as fractions)")
