@@ -1,10 +1,8 @@
-"""Range audit on degenerate or bad input: empty data, corrupt m/z values, unknown elements."""
+"""Range audit on degenerate or bad input: empty data, corrupt m/z values, unknown species."""
 
 import numpy as np
-import pytest
 
 from apt_filters.audit import audit_ranges
-from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ranges import Range, RangeTable
 
 
