@@ -19,6 +19,8 @@ from apt_filters.io.readers import ion_format
 from apt_filters.io.summary import IonSummary, summarize
 
 ORDER = 10
+NOTES_SHOWN = 10
+"""Range-file notes printed in full; the rest are counted."""
 FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "ato": "ATO (LAWATAP / GPM Rouen)",
                 "text": "text table"}
 
@@ -56,7 +58,10 @@ def _as_text(path: str, summary: IonSummary, ranges: RangeTable | None) -> str:
         lines += [
             f"  ranges        {ranges.source}: {len(ranges)} ranges, {len(ranges.ions)} ions, "
             f"{len(ranges.elements)} elements",
-            *(f"  range file    {f'line {n.line}: ' if n.line is not None else ''}{n.message}" for n in ranges.notes),
+            *(f"  range file    {f'line {n.line}: ' if n.line is not None else ''}{n.message}"
+              for n in ranges.notes[:NOTES_SHOWN]),
+            *([f"  range file    ... and {len(ranges.notes) - NOTES_SHOWN} more (apt-filters audit lists them all)"]
+              if len(ranges.notes) > NOTES_SHOWN else []),
             f"  ranged        {summary.ranged:,} ions ({100 * summary.ranged_fraction:.2f} %)",
             "  composition   at.% (molecular ions decomposed into atoms)",
         ]
