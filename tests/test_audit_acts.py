@@ -55,7 +55,7 @@ def test_relabel_on_the_command_line(si_sample, real_si, tmp_path, capsys):
     report = json.loads((out / "report.json").read_text())
     assert 0.09 < _ni_share(report) < 0.11 and "Cr2O" not in json.dumps(report["composition"])
     [note] = [n for n in report["range_file"] if n["kind"] == "relabel"]
-    assert note["message"].startswith("Cr2O relabelled Ni by the configuration: 1 range(s), [57.819, 61.159]")
+    assert note["message"].startswith("Cr2O relabelled Ni ([input] relabel, --relabel): 1 range(s), [57.819, 61.159]")
     assert 'relabel = ["Cr2O=Ni"]' in (out / "config.toml").read_text()
     assert "Cr2O relabelled Ni" in (out / "report.html").read_text()
     assert not any("57.819" in f["message"] for f in report["audit"])

@@ -153,7 +153,7 @@ def test_relabel(tmp_path):
     r = relabel(t, ["Cr2O=Ni"])
     assert r.ions == ["Ni", "Cr"] and r.ranges[0] == Range(57.8, 61.2, (("Ni", 1),), "FF00FF")
     [note] = _notes(r, "relabel")
-    assert "Cr2O relabelled Ni by the command line: 2 range(s), [57.8, 61.2], [28.9, 29.5] Da" in note.message
+    assert "Cr2O relabelled Ni (command line): 2 range(s), [57.8, 61.2], [28.9, 29.5] Da" in note.message
     with pytest.raises(InputError, match="no range is labelled 'Fe'"):
         relabel(t, ["Fe=Ni"])
     with pytest.raises(InputError, match="expected OLD=NEW"):

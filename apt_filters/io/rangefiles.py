@@ -594,6 +594,6 @@ def relabel(table: RangeTable, pairs: Sequence[str], *, origin: str = "command l
         spans = ", ".join(f"[{ranges[k].lower:g}, {ranges[k].upper:g}]" for k in hits[:5])
         more = f" and {len(hits) - 5} more" if len(hits) > 5 else ""
         unknown = "" if all(el in ELEMENTS for el, _ in comp) else " (an unknown species)"
-        notes.append(ReadNote("relabel", None, f"{old} relabelled {ion_name(comp)}{unknown} by the {origin}: "
+        notes.append(ReadNote("relabel", None, f"{old} relabelled {ion_name(comp)}{unknown} ({origin}): "
                                                f"{len(hits)} range(s), {spans}{more} Da"))
     return RangeTable(ranges, source=table.source, notes=notes)

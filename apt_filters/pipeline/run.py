@@ -134,7 +134,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             ions = read_ions(config.input.ions)
             ranges = read_ranges(config.input.ranges, unknown=config.input.unknown_species)
             if config.input.relabel:
-                ranges = relabel(ranges, config.input.relabel, origin="configuration")
+                ranges = relabel(ranges, config.input.relabel, origin="[input] relabel, --relabel")
             report["range_file"] = [dataclasses.asdict(n) for n in ranges.notes]
             summary = summarize(ions, ranges)  # chunk by chunk: no (N,) ranging array kept
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
