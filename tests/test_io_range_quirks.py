@@ -80,6 +80,15 @@ def test_placeholder_and_unknown_species(tmp_path):
         _read(tmp_path, RRNG_HEAD + "Number=1\nRange1=1 2 Xx:1\n")
 
 
+def test_digit_string_names_and_huge_counts(tmp_path):
+    # a name made of digits is an unknown species, not a count; counts are bounded before int64
+    t = _read(tmp_path, RRNG_HEAD + "Number=1\nRange1=1 2 Name:99999999999999999999999\n")
+    assert t.ions == ["99999999999999999999999"] and t.element_matrix().tolist() == [[1]]
+    for count in ("1e20", "999999999999999999", "1001"):
+        with pytest.raises(InputError, match=f"line 7: atom count '{count}' is not a whole number from 0 to 1,000"):
+            _read(tmp_path, RRNG_HEAD + f"Number=1\nRange1=1 2 Si:{count}\n")
+
+
 def test_rrng_column_header_first_line(tmp_path):
     t = _read(tmp_path, "mq1 mq2 volume element color\n" + RRNG_HEAD + "Number=1\nRange1=95.8 96.1 Mo:1\n")
     assert len(t) == 1
@@ -154,6 +163,7 @@ def test_relabel(tmp_path):
     assert r.ions == ["Ni", "Cr"] and r.ranges[0] == Range(57.8, 61.2, (("Ni", 1),), "FF00FF")
     [note] = _notes(r, "relabel")
     assert "Cr2O relabelled Ni (command line): 2 range(s), [57.8, 61.2], [28.9, 29.5] Da" in note.message
+    assert relabel(t, ["OCr2=Ni"]).ions == ["Ni", "Cr"]  # the same atoms, in another order
     with pytest.raises(InputError, match="no range is labelled 'Fe'"):
         relabel(t, ["Fe=Ni"])
     with pytest.raises(InputError, match="expected OLD=NEW"):

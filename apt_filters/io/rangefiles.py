@@ -559,8 +559,9 @@ def relabel(table: RangeTable, pairs: Sequence[str], *, origin: str = "command l
     ----------
     table : RangeTable
     pairs : sequence of str
-        ``OLD=NEW``; OLD must be an ion of the table (``table.ions``), NEW a formula of elements
-        or an unknown species name. Applied in order.
+        ``OLD=NEW``; OLD names an ion of the table (``table.ions``; a formula also matches the same
+        atoms written in another order), NEW is a formula of elements or an unknown species name.
+        Applied in order.
     origin : str
         Where the relabelling comes from, for the notes.
 
@@ -581,7 +582,8 @@ def relabel(table: RangeTable, pairs: Sequence[str], *, origin: str = "command l
         old, sep, new = (part.strip() for part in pair.partition("="))
         if not sep or not old or not new:
             raise InputError(f"relabel {clip(pair)}: expected OLD=NEW, e.g. Cr2O=Ni")
-        hits = [k for k, r in enumerate(ranges) if r.ion == old]
+        atoms = dict(split_formula(old) or ()) if is_formula(old) else None  # "Cr2O" also finds "OCr2"
+        hits = [k for k, r in enumerate(ranges) if r.ion == old or dict(r.composition) == atoms]
         if not hits:
             raise InputError(f"relabel {clip(pair)}: no range is labelled {clip(old)} "
                              f"(species: {clip(', '.join(dict.fromkeys(r.ion for r in ranges)), 200)})", table.source)
