@@ -89,6 +89,16 @@ def test_digit_string_names_and_huge_counts(tmp_path):
             _read(tmp_path, RRNG_HEAD + f"Number=1\nRange1=1 2 Si:{count}\n")
 
 
+def test_colours_are_cosmetic(tmp_path):
+    # a colour is never a reason to refuse a file: 0..255 components scaled, '#' dropped, others left out
+    t = _read(tmp_path, "2 3\nFe\nFe 255 128 0\nO\nO 0 0 7.5\n-------- Fe O\n. 27 28 1 0\n. 15.9 16.1 0 1\n"
+                        ". 31.9 32.1 0 2\n", name="a.rng")
+    assert [r.color for r in t.ranges] == ["FF8000", None, None]
+    assert [n.line for n in _notes(t, "colour")] == [3, 5]
+    t = _read(tmp_path, RRNG_HEAD + "Number=2\nRange1=1 2 Mo:1 Color:#ff0000\nRange2=3 4 C:1 Color:red\n")
+    assert [r.color for r in t.ranges] == ["FF0000", None] and _notes(t, "colour")[0].line == 8
+
+
 def test_rrng_column_header_first_line(tmp_path):
     t = _read(tmp_path, "mq1 mq2 volume element color\n" + RRNG_HEAD + "Number=1\nRange1=95.8 96.1 Mo:1\n")
     assert len(t) == 1

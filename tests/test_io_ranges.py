@@ -149,7 +149,6 @@ RRNG_HEAD = "[Ions]\nNumber=2\nIon1=Fe\nIon2=O\n[Ranges]\n"
     ("a.rrng", RRNG_HEAD + "Number=1\nRange1=27.9 28.1 Fe:1.5\n", "line 7: atom count '1.5'"),
     ("a.rrng", RRNG_HEAD + "Number=2\nRange1=27.9 28.1 Fe:1\n", "line 6: declares Number=2 but lists 1"),
     ("a.rrng", RRNG_HEAD + "Number=1\nRange1=27.9 Fe:1\n", "line 7: upper bound 'Fe:1' is not a finite number"),
-    ("a.rrng", RRNG_HEAD + "Number=1\nRange1=27.9 28.1 Fe:1 Color:red\n", "line 7: colour 'red'"),
     ("a.rrng", RRNG_HEAD + "Number=1\nRange1=27.9 28.1 Vol:0.1\n", "line 7: range 27.9-28.1 lists no atoms"),
     ("a.rrng", RRNG_HEAD + "Number=1\nthis line is broken\n", "line 7: expected 'key=value'"),
     ("a.rrng", RRNG_HEAD + "Number=1\nRange1=27.9 28.1 Fe:1e20\n", "line 7: atom count '1e20' is not a whole number"),
@@ -167,7 +166,6 @@ RRNG_HEAD = "[Ions]\nNumber=2\nIon1=Fe\nIon2=O\n[Ranges]\n"
     ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe O\n. 27 28 1 0 1\n", "line 7: range row has 6 fields"),
     ("a.rng", "2 2\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe O\n. 27 28 1 0\n", "ends after 1 of the 2 declared range rows"),
     ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe Cr\n. 27 28 1 0\n", "line 6: table columns"),
-    ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 2\n-------- Fe O\n. 27 28 1 0\n", "line 5: colour 0 0 2 is outside"),
     ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe O\n. 27 28 0 0\n", "line 7: range 27-28 assigns no ion"),
     ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe O\n. 27 28 1 0\nextra\n", "line 8: unexpected text"),
     ("a.rng", "2 1\nFe\nFe 1 0 0\nO\nO 0 0 1\n-------- Fe O\n. 27 28 1 1\n-- polyatomic\n1 1\nFeO2\nFeO2 1 1 1\n"

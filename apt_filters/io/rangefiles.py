@@ -213,12 +213,20 @@ def _lines(path: str, rd: _Reader) -> list[Line]:
     return [Line(i, line.strip()) for i, line in enumerate(text.splitlines(), 1) if line.strip()]
 
 
-def _rgb(rd: _Reader, tokens: list[str], line: Line) -> str:
-    """``"RRGGBB"`` from three fractions in [0, 1]."""
+def _rgb(rd: _Reader, tokens: list[str], line: Line) -> str | None:
+    """``"RRGGBB"`` from three fractions in [0, 1]; 0..255 components are scaled, others dropped.
+
+    A colour is cosmetic: one outside the scale is noted and left out rather than refused.
+    """
     values = [rd.number(t, line, "colour component") for t in tokens]
-    if any(not 0 <= v <= 1 for v in values):
-        raise rd.fail(line, f"colour {clip(' '.join(tokens), quote=False)} is outside 0..1")
-    return "".join(f"{round(v * 255):02X}" for v in values)
+    if all(0 <= v <= 1 for v in values):
+        return "".join(f"{round(v * 255):02X}" for v in values)
+    shown = clip(" ".join(tokens), quote=False)
+    if all(0 <= v <= 255 and v == int(v) for v in values):
+        rd.note("colour", line.no, f"colour {shown} read as 0..255 components")
+        return "".join(f"{int(v):02X}" for v in values)
+    rd.note("colour", line.no, f"colour {shown} is outside 0..1: left out")
+    return None
 
 
 def _counts_header(rd: _Reader, lines: list[Line], i: int) -> tuple[int, int]:
@@ -248,7 +256,7 @@ def _take(rd: _Reader, lines: list[Line], i: int, n: int, what: str) -> list[Lin
 class _RngTable:
     """One RNG table: its columns and its rows, before molecular names are applied."""
 
-    columns: list[tuple[Composition, str]]  # (composition, colour) per column
+    columns: list[tuple[Composition, str | None]]  # (composition, colour) per column
     rows: list[tuple[Line, float, float, list[int]]]  # (line, lower, upper, counts)
     end: int  # index of the first line after the table
 
@@ -258,7 +266,7 @@ def _rng_table(rd: _Reader, lines: list[Line], i: int, formulas: bool = False) -
     n_ions, n_ranges = _counts_header(rd, lines, i)
     i += 1
     names: list[tuple[str, str]] = []
-    columns: list[tuple[Composition, str]] = []
+    columns: list[tuple[Composition, str | None]] = []
     name_lines = _take(rd, lines, i, 2 * n_ions, "ion name lines")
     for long_line, short_line in zip(name_lines[::2], name_lines[1::2]):
         toks = short_line.tokens
@@ -381,9 +389,10 @@ def _rrng_range(rd: _Reader, line: Line, value: str) -> Range:
         elif low == "name":
             name = val
         elif low in ("color", "colour"):
-            if not _HEX.fullmatch(val):
-                raise rd.fail(line, f"colour {clip(val)} is not RRGGBB hex")
-            colour = val.upper()
+            colour = val.lstrip("#").upper()
+            if not _HEX.fullmatch(colour):
+                rd.note("colour", line.no, f"colour {clip(val)} is not RRGGBB hex: left out")
+                colour = None
         else:
             parts.append((rd.element(key, line), rd.count(val, line)))
     comp = _atoms(rd, combine(parts), line)
@@ -456,7 +465,7 @@ def parse_env(lines: list[Line], rd: _Reader) -> list[tuple[int, Range]]:
                 "'name lower upper volume increment', atomic volumes read as Å³")
         lines = lines[1:]
     n_ions, n_ranges = _counts_header(rd, lines, 0)
-    ions: dict[str, tuple[Composition, str]] = {}
+    ions: dict[str, tuple[Composition, str | None]] = {}
     for line in _take(rd, lines, 1, n_ions, "ion lines"):
         toks = line.tokens
         if len(toks) != 4:

@@ -28,7 +28,7 @@ class ReadNote:
     Attributes
     ----------
     kind : str
-        ``encoding``, ``layout``, ``header_line``, ``decimal_comma``, ``duplicate_index``,
+        ``encoding``, ``layout``, ``header_line``, ``decimal_comma``, ``colour``, ``duplicate_index``,
         ``duplicate_range``, ``merged_overlap``, ``unknown_species``, ``extra_ranges`` or ``relabel``
         (see docs/io.md, "Reading policy").
     line : int or None
