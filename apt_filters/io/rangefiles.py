@@ -133,7 +133,7 @@ class _Reader:
         if self.commas:
             lines = sorted(set(self.commas))
             self.note("decimal_comma", lines[0], f"decimal commas read as decimal points ({len(self.commas)} numbers "
-                      f"on {len(lines)} lines, first line {lines[0]})")
+                      f"on {len(lines)} line{'s' if len(lines) > 1 else ''}, first line {lines[0]})")
         used = {el for _, r in items for el, _ in r.composition}
         for text, no in self.unknown.items():
             if text not in used:  # an RNG column no range uses
