@@ -93,6 +93,10 @@ def main() -> None:
     total = time.perf_counter() - start
     slow, slow_name = stats["slowest"]
     lines = ["# benchmarks/fuzz_ranges.py results", "",
+             "<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
+             f"| ranges | fuzz: {stats['files']:,} generated range files through the CLI (target: no traceback, "
+             f"none over {LIMIT_S:g} s) | {len(stats['broken'])} broken, slowest {slow:.1f} s | - | - |",
+             "<!-- /summary -->", "",
              f"## Fuzz campaign: {stats['files']:,} generated range files through `apt-filters info`", "",
              "RRNG, RNG, ENV and GPM ENV files from tests/rangefile_gen.py (up to 300 ranges, quirks, line damage, "
              f"five encodings), derandomized; {total:.0f} s in all on a shared 2-core machine", "",
