@@ -20,7 +20,7 @@ from pathlib import Path
 from apt_filters.core.atomic import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["io", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline"]
+ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline"]
 
 
 def machine() -> str:

@@ -1,10 +1,8 @@
-"""Range audit on degenerate or bad input: empty data, corrupt m/z values, unknown elements."""
+"""Range audit on degenerate or bad input: empty data, corrupt m/z values, unknown species."""
 
 import numpy as np
-import pytest
 
 from apt_filters.audit import audit_ranges
-from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ranges import Range, RangeTable
 
 
@@ -27,6 +25,10 @@ def test_range_on_empty_spectrum_is_background_only():
     assert [(f.kind, f.range) for f in result.flagged] == [("background_only", 0)]
 
 
-def test_unknown_element_names_the_range_file():
-    with pytest.raises(AptFiltersError, match=r"^a\.rrng: unknown element 'Xx'"):
-        audit_ranges(np.ones(10, np.float32), RangeTable([Range(10, 11, (("Xx", 1),))], source="a.rrng"))
+def test_unknown_species_is_reported_not_fitted():
+    # a name that is not a formula (an unidentified peak) has no isotope pattern to check
+    mz = np.random.default_rng(0).normal(10.5, 0.01, 500).astype(np.float32)
+    result = audit_ranges(mz, RangeTable([Range(10, 11, (("Xx", 1),))], source="a.rrng"))
+    [finding] = [f for f in result.findings if f.range == 0]
+    assert finding.kind == "unknown_label" and finding.severity == "warning"
+    assert "Xx [10, 11] Da: Xx is not a chemical formula" in finding.message

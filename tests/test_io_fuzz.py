@@ -40,7 +40,7 @@ def _read_all_chunks(path):
 
 
 @FUZZ
-@given(data=st.binary(max_size=400), ext=st.sampled_from(["pos", "epos", "csv", "txt", "apt"]))
+@given(data=st.binary(max_size=400), ext=st.sampled_from(["pos", "epos", "csv", "txt", "apt", "ato"]))
 def test_random_bytes_ion_files(fuzz_dir, data, ext):
     path = fuzz_dir / f"f.{ext}"
     path.write_bytes(data)

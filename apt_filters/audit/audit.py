@@ -15,7 +15,11 @@ The audit never changes the ranges. It
    are left out of a last refit and reported as unexplained;
 4. reports, per range, the share of its ions that belongs to other species than its label (a
    wrong label names the best-fitting species), plus overlapping ranges, ranges on background
-   only, isotopes of ranged species without a range, and peaks no range covers.
+   only, isotopes of ranged species without a range, and peaks no range covers;
+5. reports what the range-file reader met and did (:attr:`RangeTable.notes`: decimal commas,
+   merged duplicates, unknown species...), each with its line.
+
+:func:`~apt_filters.audit.fix.corrected_ranges` turns the findings into a corrected range file.
 """
 
 from __future__ import annotations
@@ -33,10 +37,14 @@ from apt_filters.audit.model import (CandidatePool, Fit, Species, Windows, exces
                                     make_species, refit_without)
 from apt_filters.audit.spectrum import Spectrum, build_spectrum, find_peaks
 from apt_filters.core.errors import AptFiltersError
+from apt_filters.io.formula import ELEMENTS
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 
 SEVERITIES = ("error", "warning", "info")
+NOTE_SEVERITY = {"duplicate_index": "warning", "merged_overlap": "warning", "unknown_species": "warning",
+                 "extra_ranges": "warning"}
+"""Severity of each kind of reading note (:class:`~apt_filters.io.ranges.ReadNote`); the others are info."""
 
 
 @dataclass(frozen=True)
@@ -94,9 +102,11 @@ class Finding:
     severity : "error", "warning" or "info"
     kind : str
         ``overlap``, ``mislabelled``, ``foreign_species``, ``shared_peak``, ``label_not_in_range``,
-        ``unexplained_counts``, ``background_only``, ``missing_isotope`` or ``uncovered_peak``.
+        ``unknown_label``, ``unexplained_counts``, ``background_only``, ``missing_isotope``,
+        ``uncovered_peak``, or a reading note's kind (``decimal_comma``, ``merged_overlap``...).
     range : int or None
-        Index of the range in the range file's order (None for uncovered peaks).
+        Index of the range in the range table's order (None for uncovered peaks and reading notes;
+        these give the file's ``line`` in ``figures``).
     message : str
         One line for people.
     figures : dict
@@ -228,7 +238,10 @@ def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Rang
     if np.any(left):
         final = refit_without(final, left)
 
-    findings = _overlaps(range_list)
+    findings = _overlaps(range_list) + [
+        Finding(NOTE_SEVERITY.get(n.kind, "info"), n.kind, None,
+                (f"line {n.line}: " if n.line is not None else "") + n.message, {"line": n.line})
+        for n in getattr(ranges, "notes", [])]
     for index, r in enumerate(range_list):
         findings += _range_findings(index, r, labels[index], labels_only, final, spectrum, label_compositions, settings)
     missing = _missing_isotopes(final, label_compositions, range_list, spectrum, windows, settings)
@@ -243,7 +256,9 @@ def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Rang
 
 
 def _label_species(r: Range, settings: AuditSettings, max_mz: float) -> list[Species]:
-    """Charge states of the range's label that put an isotope inside the range."""
+    """Charge states of the range's label that put an isotope inside the range (none for unknown species)."""
+    if any(el not in ELEMENTS for el, _ in r.composition):
+        return []
     out = []
     for charge in settings.charges:
         sp = make_species(r.composition, charge, settings.resolution, max_mz)
@@ -302,7 +317,11 @@ def _range_findings(index: int, r: Range, labels: list[Species], labels_only: Fi
         columns = np.array([s for s, sp in enumerate(labels_only.species) if sp.key in {l.key for l in labels}])
         figures |= _pattern_figures(labels_only, columns)
     out = []
-    if not labels:
+    if any(el not in ELEMENTS for el, _ in r.composition):
+        out.append(Finding("warning", "unknown_label", index,
+                           f"{r.describe()}: {r.ion} is not a chemical formula, its isotopes cannot be checked"
+                           + (f"; best fit {figures['best_fit']}" if best is not None else ""), figures))
+    elif not labels:
         out.append(Finding("error", "label_not_in_range", index,
                            f"{r.describe()}: no isotope of {r.ion} at charge {_charges(settings)} lies in this range"
                            + (f"; best fit {figures['best_fit']}" if best is not None else ""), figures))
@@ -410,13 +429,14 @@ def _uncovered_peaks(final: Fit, range_list: list[Range], reported: list[float],
         if any(a <= apex[k] <= b for a, b in taken):
             continue
         taken.append((lo[k], hi[k]))
-        figures = {"mz": float(apex[k]), "observed": float(observed[k]), "background": float(background[k]),
-                   "net": float(net[k])}
+        figures = {"mz": float(apex[k]), "lower": float(lo[k]), "upper": float(hi[k]),
+                   "observed": float(observed[k]), "background": float(background[k]), "net": float(net[k])}
         contributions = _contributions(final, lo[k], hi[k])
         text = ""
         if contributions.sum() >= 0.5 * net[k]:
             name = final.species[int(np.argmax(contributions))].name
             figures["likely_species"] = name
+            figures["likely_composition"] = final.species[int(np.argmax(contributions))].composition
             text = f", fits {name}"
         out.append(Finding("warning", "uncovered_peak", None,
                            f"peak at {apex[k]:.2f} Da ({net[k]:.0f} ions above background) lies in no range{text}",

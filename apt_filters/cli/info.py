@@ -9,14 +9,20 @@ need one chunk of memory.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 
-from apt_filters.io import RangeTable, read_ranges
+from apt_filters.cli.rangeopts import add_range_options, load_ranges
+from apt_filters.core.errors import AptFiltersError
+from apt_filters.io import RangeTable
 from apt_filters.io.readers import ion_format
 from apt_filters.io.summary import IonSummary, summarize
 
 ORDER = 10
-FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "text": "text table"}
+NOTES_SHOWN = 10
+"""Range-file notes printed in full; the rest are counted."""
+FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "ato": "ATO (LAWATAP / GPM Rouen)",
+                "text": "text table"}
 
 
 def _as_json(path: str, summary: IonSummary, ranges: RangeTable | None) -> dict:
@@ -31,6 +37,7 @@ def _as_json(path: str, summary: IonSummary, ranges: RangeTable | None) -> dict:
         out.update({
             "range_file": ranges.source,
             "ranges": len(ranges),
+            "range_notes": [dataclasses.asdict(n) for n in ranges.notes],
             "ranged_ions": summary.ranged,
             "ranged_fraction": summary.ranged_fraction,
             "ion_counts": summary.ion_counts,
@@ -51,6 +58,10 @@ def _as_text(path: str, summary: IonSummary, ranges: RangeTable | None) -> str:
         lines += [
             f"  ranges        {ranges.source}: {len(ranges)} ranges, {len(ranges.ions)} ions, "
             f"{len(ranges.elements)} elements",
+            *(f"  range file    {f'line {n.line}: ' if n.line is not None else ''}{n.message}"
+              for n in ranges.notes[:NOTES_SHOWN]),
+            *([f"  range file    ... and {len(ranges.notes) - NOTES_SHOWN} more (apt-filters audit lists them all)"]
+              if len(ranges.notes) > NOTES_SHOWN else []),
             f"  ranged        {summary.ranged:,} ions ({100 * summary.ranged_fraction:.2f} %)",
             "  composition   at.% (molecular ions decomposed into atoms)",
         ]
@@ -60,7 +71,9 @@ def _as_text(path: str, summary: IonSummary, ranges: RangeTable | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    ranges = read_ranges(args.range_file) if args.range_file else None
+    if args.relabel and not args.range_file:
+        raise AptFiltersError("--relabel needs a range file (--range)")
+    ranges = load_ranges(args.range_file, args.relabel, args.unknown_species) if args.range_file else None
     summary = summarize(args.file, ranges)
     if args.json:
         print(json.dumps(_as_json(args.file, summary, ranges), indent=2))
@@ -75,8 +88,9 @@ def register(subparsers) -> None:
         description="Summarise an APT ion file: ion count, bounding box (nm), m/z span (Da) and, with a "
                     "range file, the ranged fraction and the composition by element (at.%; molecular "
                     "ions decomposed into atoms). The file is streamed in chunks.")
-    p.add_argument("file", metavar="FILE", help="ion file: .pos, .epos, .apt (AP Suite APT6), .csv or .txt")
+    p.add_argument("file", metavar="FILE", help="ion file: .pos, .epos, .apt (AP Suite APT6), .ato, .csv or .txt")
     p.add_argument("--range", "-r", dest="range_file", metavar="R",
                    help="range file (.rrng, .rng or .env) for ranged fraction and composition")
     p.add_argument("--json", action="store_true", help="print JSON instead of text (composition as fractions)")
+    add_range_options(p)
     p.set_defaults(func=run)

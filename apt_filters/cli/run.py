@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from apt_filters.cli.rangeopts import add_range_options
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 5
@@ -20,6 +21,10 @@ def build_config(args: argparse.Namespace):
         config.input.ions = str(args.input)
     if args.range:
         config.input.ranges = str(args.range)
+    if args.relabel:
+        config.input.relabel = list(args.relabel)
+    if args.unknown_species:
+        config.input.unknown_species = args.unknown_species
     if args.species or args.iso is not None or args.density is not None:
         if args.density is not None and (args.species or args.iso is not None):
             raise AptFiltersError("give --species with --iso, or --density, not both")
@@ -61,6 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "excess, and write meshes, a MeshLab project and report.json/report.html into OUT.")
     p.add_argument("input", nargs="?", help="ion file (POS, EPOS, APT, CSV); optional with --config")
     p.add_argument("--range", "-r", help="range file (RRNG, RNG, ENV)")
+    add_range_options(p)
     p.add_argument("--out", "-o", required=True, help="output folder (replaced only with --force)")
     p.add_argument("--config", help="pipeline.toml; options given here override it")
     p.add_argument("--species", help="element whose iso-concentration surface is drawn (with --iso)")

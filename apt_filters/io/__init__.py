@@ -1,8 +1,9 @@
-"""Reading and writing APT data: ion files (POS, EPOS, APT6, CSV), range files (RRNG, RNG, ENV), ranging."""
+"""Reading and writing APT data: ion files (POS, EPOS, APT6, ATO, CSV), range files (RRNG, RNG, ENV), ranging."""
 
 from apt_filters.io.ions import IonTable
-from apt_filters.io.rangefiles import read_ranges
-from apt_filters.io.ranges import UNRANGED, Range, RangeTable, ion_name
+from apt_filters.io.rangefiles import read_ranges, relabel
+from apt_filters.io.ranges import UNRANGED, Range, RangeTable, ReadNote, ion_name
 from apt_filters.io.readers import iter_ion_chunks, read_ions
 
-__all__ = ["IonTable", "Range", "RangeTable", "UNRANGED", "ion_name", "read_ions", "iter_ion_chunks", "read_ranges"]
+__all__ = ["IonTable", "Range", "RangeTable", "ReadNote", "UNRANGED", "ion_name", "read_ions", "iter_ion_chunks",
+           "read_ranges", "relabel"]

@@ -13,6 +13,7 @@ import re
 import periodictable
 
 from apt_filters.core.errors import InputError
+from apt_filters.io.ranges import MAX_ATOMS
 
 ELEMENTS = frozenset(el.symbol for el in periodictable.elements if el.number >= 1)
 """Chemical element symbols (118)."""
@@ -21,6 +22,23 @@ Composition = tuple[tuple[str, int], ...]
 
 _PART = re.compile(r"([A-Z][a-z]*)(\d*)")
 _OPAQUE = re.compile(r"[^\s:=]+")
+CLIP = 40
+"""Characters of a file's text quoted in an error line (a 1 MB token must not make a 1 MB line)."""
+
+
+def clip(text: str, limit: int = CLIP, quote: bool = True) -> str:
+    """``repr(text)`` (``text`` without ``quote``), cut to ``limit`` characters and marked with the
+    full length when longer."""
+    show = repr if quote else str
+    if len(text) <= limit:
+        return show(text)
+    return f"{show(text[:limit])}... ({len(text):,} characters)"
+
+
+def is_formula(text: str) -> bool:
+    """True when ``text`` is a formula of known element symbols (``"Cr2O"``; counts not checked)."""
+    comp = split_formula(text)
+    return comp is not None and all(el in ELEMENTS for el, _ in comp)
 
 
 def split_formula(text: str) -> Composition | None:
@@ -54,17 +72,21 @@ def species(text: str, path: str, line_no: int, check_elements: bool = True, for
     """
     if not check_elements and not formula:
         if not _OPAQUE.fullmatch(text):
-            raise InputError(f"line {line_no}: {text!r} is not a species name", path)
+            raise InputError(f"line {line_no}: {clip(text)} is not a species name", path)
         return ((text, 1),)
     comp = split_formula(text)
     if comp is None:
         what = "unknown element" if check_elements else "not a chemical formula"
-        raise InputError(f"line {line_no}: {what} {text!r}", path)
+        raise InputError(f"line {line_no}: {what} {clip(text)}", path)
     if check_elements:
         unknown = [el for el, _ in comp if el not in ELEMENTS]
         if unknown:
-            raise InputError(f"line {line_no}: unknown element {unknown[0]!r}"
-                             + (f" in {text!r}" if text != unknown[0] else ""), path)
+            raise InputError(f"line {line_no}: unknown element {clip(unknown[0])}"
+                             + (f" in {clip(text)}" if text != unknown[0] else ""), path)
+    big = [n for _, n in comp if n > MAX_ATOMS]
+    if big:
+        raise InputError(f"line {line_no}: {clip(text)} has {big[0]:,} atoms of one element, more than {MAX_ATOMS:,}",
+                         path)
     return comp
 
 

@@ -16,6 +16,31 @@ from apt_filters.core.errors import AptFiltersError
 UNRANGED = -1
 """Ion index given to ions outside every range (they are kept, and flagged by this value)."""
 
+MAX_ATOMS = 1000
+"""Most atoms of one element in one ion: far beyond any field-evaporated ion, and small enough that
+atom counts times ion counts stay exact in int64."""
+
+
+@dataclass(frozen=True)
+class ReadNote:
+    """A quirk met while reading a range file, and what the reader did about it.
+
+    Attributes
+    ----------
+    kind : str
+        ``encoding``, ``layout``, ``header_line``, ``decimal_comma``, ``colour``, ``duplicate_index``,
+        ``duplicate_range``, ``merged_overlap``, ``unknown_species``, ``extra_ranges`` or ``relabel``
+        (see docs/io.md, "Reading policy").
+    line : int or None
+        1-based line of the range file (None for the whole file or the command line).
+    message : str
+        One line for people: what was found and what was done.
+    """
+
+    kind: str
+    line: int | None
+    message: str
+
 
 def ion_name(composition: tuple[tuple[str, int], ...]) -> str:
     """Canonical ion name from its elements, in the given order: (("Cr", 1), ("O", 2)) -> "CrO2"."""
@@ -62,7 +87,11 @@ class RangeTable:
 
     ranges: list[Range]
     source: str | None = None
+    notes: list[ReadNote] = field(default_factory=list)
+    """What the reader met and did (decimal commas read, duplicates merged, unknown species kept...)."""
     _order: np.ndarray = field(init=False, repr=False)
+    _ions: list[str] = field(init=False, repr=False)
+    _ion_of_range: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         for r in self.ranges:
@@ -70,6 +99,14 @@ class RangeTable:
                 raise AptFiltersError(f"range {r.describe()} has lower bound not below upper bound", self.source)
             if not r.composition or any(n < 1 for _, n in r.composition):
                 raise AptFiltersError(f"range {r.describe()} has no atoms", self.source)
+            if any(n > MAX_ATOMS for _, n in r.composition):
+                raise AptFiltersError(f"range {r.describe()} has more than {MAX_ATOMS} atoms of one element",
+                                      self.source)
+        # ion list and each range's ion, once: per-range list lookups made 10^4 ranges take a minute
+        position: dict[str, int] = {}
+        self._ion_of_range = np.array([position.setdefault(r.ion, len(position)) for r in self.ranges],
+                                      dtype=np.int32)
+        self._ions = list(position)
         self._order = np.argsort([r.lower for r in self.ranges], kind="stable")
         sorted_ranges = [self.ranges[i] for i in self._order]
         for a, b in zip(sorted_ranges, sorted_ranges[1:]):
@@ -81,7 +118,11 @@ class RangeTable:
 
     @property
     def ions(self) -> list[str]:
-        return list(dict.fromkeys(r.ion for r in self.ranges))
+        return list(self._ions)
+
+    def ion_of_range(self) -> np.ndarray:
+        """(n_ranges,) int32 index into ``ions`` of each range's species."""
+        return self._ion_of_range.copy()
 
     @property
     def elements(self) -> list[str]:
@@ -100,11 +141,11 @@ class RangeTable:
 
     def element_matrix(self) -> np.ndarray:
         """(n_ions, n_elements) int64: atoms of each element per ion, rows in ``ions`` order."""
-        ions, elements = self.ions, self.elements
-        m = np.zeros((len(ions), len(elements)), dtype=np.int64)
-        for ion, comp in self.ion_compositions().items():
+        column = {el: k for k, el in enumerate(self.elements)}
+        m = np.zeros((len(self._ions), len(column)), dtype=np.int64)
+        for row, comp in enumerate(self.ion_compositions().values()):  # dict in ``ions`` order
             for el, n in comp:
-                m[ions.index(ion), elements.index(el)] = n
+                m[row, column[el]] = n
         return m
 
     def range_index(self, mz: np.ndarray) -> np.ndarray:
@@ -123,6 +164,5 @@ class RangeTable:
 
     def ion_index(self, mz: np.ndarray) -> np.ndarray:
         """(N,) int32 index into ``ions`` for each m/z, ``UNRANGED`` (-1) outside every range."""
-        ions = self.ions
-        lookup = np.array([ions.index(r.ion) for r in self.ranges] + [UNRANGED], dtype=np.int32)
+        lookup = np.append(self._ion_of_range, np.int32(UNRANGED))
         return lookup[self.range_index(mz)]  # index -1 picks the trailing UNRANGED entry

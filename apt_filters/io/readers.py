@@ -1,8 +1,9 @@
-"""Reading ion files: one entry point for POS, EPOS, APT6 and CSV/TXT, whole or in chunks.
+"""Reading ion files: one entry point for POS, EPOS, APT6, ATO and CSV/TXT, whole or in chunks.
 
-The format is picked by extension (``.pos``, ``.epos``, ``.apt``, ``.csv``, ``.txt``, any
-case) and confirmed by content: sizes must be whole numbers of records, APT6 files must
-carry their signature and consistent section headers, text must parse as a table. Every
+The format is picked by extension (``.pos``, ``.epos``, ``.apt``, ``.ato``, ``.csv``, ``.txt``,
+any case) and confirmed by content: sizes must be whole numbers of records, APT6 files must
+carry their signature and consistent section headers, ATO files a known version, text must
+parse as a table. Every
 problem is an :class:`~apt_filters.core.errors.InputError` naming the file.
 
 Binary files are memory-mapped and read column-wise in chunks of :data:`CHUNK` ions
@@ -19,12 +20,13 @@ import numpy as np
 
 from apt_filters.core.errors import AptFiltersError, InputError
 from apt_filters.io.apt6 import map_apt6
+from apt_filters.io.ato import map_ato
 from apt_filters.io.csvtxt import read_text_ions
 from apt_filters.io.ions import IonTable
 from apt_filters.io.mapped import MappedIons
 from apt_filters.io.records import map_epos, map_pos
 
-ION_FORMATS = {".pos": "pos", ".epos": "epos", ".apt": "apt6", ".csv": "text", ".txt": "text"}
+ION_FORMATS = {".pos": "pos", ".epos": "epos", ".apt": "apt6", ".ato": "ato", ".csv": "text", ".txt": "text"}
 """File extension (lower case) -> format name."""
 
 CHUNK = 1 << 20
@@ -32,7 +34,7 @@ CHUNK = 1 << 20
 
 
 def ion_format(path: str | os.PathLike) -> str:
-    """Format name of an ion file from its extension: "pos", "epos", "apt6" or "text"."""
+    """Format name of an ion file from its extension: "pos", "epos", "apt6", "ato" or "text"."""
     ext = Path(path).suffix.lower()
     if ext not in ION_FORMATS:
         known = ", ".join(ION_FORMATS)
@@ -63,7 +65,7 @@ def _open(path: str | os.PathLike) -> MappedIons | IonTable:
         except OSError as exc:
             raise InputError(f"cannot read ({exc.strerror})", path) from None
         return read_text_ions(path, data)
-    return {"pos": map_pos, "epos": map_epos, "apt6": map_apt6}[fmt](path, size)
+    return {"pos": map_pos, "epos": map_epos, "apt6": map_apt6, "ato": map_ato}[fmt](path, size)
 
 
 def _native(view: np.ndarray, dtype: np.dtype | type) -> np.ndarray:

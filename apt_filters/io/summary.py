@@ -117,9 +117,8 @@ def range_edges(ranges: RangeTable) -> tuple[np.ndarray, np.ndarray]:
     lower = np.array([ranges.ranges[k].lower for k in order], dtype=np.float64)
     upper = np.array([ranges.ranges[k].upper for k in order], dtype=np.float64)
     edges = np.column_stack([lower, np.minimum(np.nextafter(upper, np.inf), np.r_[lower[1:], np.inf])]).ravel()
-    species = [ranges.ions.index(ranges.ranges[k].ion) + 1 for k in order]
     range_of_bin = np.zeros(len(edges) + 1, dtype=np.int64)
-    range_of_bin[1::2] = species  # odd bins lie inside a range
+    range_of_bin[1::2] = ranges.ion_of_range()[order] + 1  # odd bins lie inside a range
     return edges, range_of_bin
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from apt_filters.core.atomic import atomic_output
+from apt_filters.io.formula import ELEMENTS
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 
@@ -56,13 +57,18 @@ def write_epos(path: str | os.PathLike, ions: IonTable, overwrite: bool = False,
 
 
 def format_rrng(ranges: RangeTable) -> str:
-    """The text of an IVAS RRNG file for ``ranges`` (bounds with 4 decimals, as IVAS writes)."""
-    elements = ranges.elements
+    """The text of an IVAS RRNG file for ``ranges`` (bounds with 4 decimals, as IVAS writes).
+
+    Species that are not formulas of elements (unknown species) are written as ``Name:species``
+    without element counts, as IVAS writes unnamed peaks.
+    """
+    elements = [el for el in ranges.elements if el in ELEMENTS]
     lines = ["[Ions]", f"Number={len(elements)}"]
     lines += [f"Ion{i}={el}" for i, el in enumerate(elements, 1)]
     lines += ["[Ranges]", f"Number={len(ranges)}"]
     for i, r in enumerate(ranges.ranges, 1):
-        atoms = " ".join(f"{el}:{n}" for el, n in r.composition)
+        known = all(el in ELEMENTS for el, _ in r.composition)
+        atoms = " ".join(f"{el}:{n}" for el, n in r.composition) if known else f"Name:{r.ion}"
         vol = f" Vol:{r.volume:.5f}" if r.volume is not None else ""
         color = f" Color:{r.color}" if r.color else ""
         lines.append(f"Range{i}={r.lower:.4f} {r.upper:.4f}{vol} {atoms}{color}")

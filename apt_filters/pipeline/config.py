@@ -22,6 +22,10 @@ class InputConfig:
     """Ion file (POS, EPOS, APT, CSV)."""
     ranges: str = ""
     """Range file (RRNG, RNG, ENV)."""
+    relabel: list[str] = field(default_factory=list)
+    """Species relabelled after reading, ``OLD=NEW`` (e.g. ``Cr2O=Ni``), in order."""
+    unknown_species: str = "species"
+    """Range-file names that are not chemical formulas: their own species, or unranged."""
 
 
 @dataclass
@@ -139,6 +143,7 @@ class PipelineConfig:
 
 
 CHOICES = {
+    ("input", "unknown_species"): ("species", "unranged"),
     ("voxel", "kernel"): ("gaussian", "sawtooth", "square"),
     ("contour", "method"): ("dc", "mc"),
     ("remesh", "method"): ("cvt", "none"),

@@ -21,6 +21,7 @@ from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io import read_ions, read_ranges
+from apt_filters.io.rangefiles import relabel
 from apt_filters.io.summary import summarize
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
@@ -131,7 +132,10 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         (stage / "meshes").mkdir()
         with log.step("read") as s:
             ions = read_ions(config.input.ions)
-            ranges = read_ranges(config.input.ranges)
+            ranges = read_ranges(config.input.ranges, unknown=config.input.unknown_species)
+            if config.input.relabel:
+                ranges = relabel(ranges, config.input.relabel, origin="[input] relabel, --relabel")
+            report["range_file"] = [dataclasses.asdict(n) for n in ranges.notes]
             summary = summarize(ions, ranges)  # chunk by chunk: no (N,) ranging array kept
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
             report["ions"] = {"count": summary.ions, "ranged_fraction": summary.ranged_fraction,
@@ -143,8 +147,9 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 result = audit_ranges(ions, ranges)
                 report["audit"] = [dataclasses.asdict(f) for f in result.flagged]
                 s.summary = f"{len(result.flagged)} range-file findings"
-                if verbose:
-                    s.summary += "".join(f"\n    {f['severity'].upper():7} {f['message']}" for f in report["audit"])
+                # errors are always named: a wrong label changes every composition downstream
+                named = report["audit"] if verbose else [f for f in report["audit"] if f["severity"] == "error"]
+                s.summary += "".join(f"\n    {f['severity'].upper():7} {f['message']}" for f in named)
         with log.step("voxelize") as s:
             v = config.voxel
             basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
@@ -266,6 +271,9 @@ def _html_sections(report: dict) -> list:
         ("Input", [{"file": f["path"], "bytes": f["bytes"], "sha256": f["sha256"][:16] + "…"} for f in report["inputs"]]),
         ("Composition (at.%)", [{"element": k, "at.%": 100 * v} for k, v in report["composition"].items()]),
     ]
+    if report.get("range_file"):
+        sections.append(("Range file as read", [{"line": n["line"], "kind": n["kind"], "what was done": n["message"]}
+                                                for n in report["range_file"]]))
     if "audit" in report:
         sections.append(("Range-file audit", [{"severity": f["severity"], "message": f["message"]}
                                               for f in report["audit"]]))
