@@ -152,8 +152,12 @@ def read_ions(path: str | os.PathLike, *, mmap: bool = True) -> IonTable:
     return IonTable(positions, mz, out, source=src.path)
 
 
-def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22) -> Iterator[IonTable]:
+def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, *, start: int = 0,
+                    stop: int | None = None) -> Iterator[IonTable]:
     """Yield the ions of a file as consecutive :class:`IonTable` chunks of ``chunk_size`` ions.
+
+    ``start`` and ``stop`` (ion indices, ``stop`` None: the end) limit the pass to one share of
+    the file without reading the rest of it (so workers of a cluster each map their own share).
 
     For streaming passes over 10^8-10^9 ions (voxelisation, counting): binary files are
     memory-mapped, each chunk is converted to native float32 (POS/EPOS; APT6 chunks are
@@ -172,16 +176,24 @@ def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22) -> Itera
     if int(chunk_size) < 1:
         raise AptFiltersError(f"chunk size must be at least 1 ion, got {chunk_size}")
     src = _open(path)
+    end = len(src) if stop is None else min(int(stop), len(src))
+    if not 0 <= int(start) <= end:
+        raise AptFiltersError(f"ion share [{start}, {stop}) is not within the file's {len(src)} ions", str(path))
     if isinstance(src, IonTable):
         _check_finite(src.source, src.positions, src.mz, 0)
-        for start in range(0, len(src), chunk_size):
-            yield src.subset(slice(start, start + chunk_size))
+        for a in range(int(start), end, chunk_size):
+            yield src.subset(slice(a, min(a + chunk_size, end)))
         return
     cols = _columns(src)
-    for start in range(0, len(src), chunk_size):
-        stop = min(start + chunk_size, len(src))
-        chunk = {name: _native(view[start:stop], dtype) for name, (view, dtype) in cols.items()}
-        _check_finite(src.path, chunk["positions"], chunk["mz"], start)
+    for a in range(int(start), end, chunk_size):
+        b = min(a + chunk_size, end)
+        chunk = {name: _native(view[a:b], dtype) for name, (view, dtype) in cols.items()}
+        _check_finite(src.path, chunk["positions"], chunk["mz"], a)
         positions, mz = chunk.pop("positions"), chunk.pop("mz")
         yield IonTable(positions, mz, chunk, source=src.path)
-        src.release(start, stop)
+        src.release(a, b)
+
+
+def count_ions(path: str | os.PathLike) -> int:
+    """Number of ions in a file, from its size or header (text files are parsed)."""
+    return len(_open(path))

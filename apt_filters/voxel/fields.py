@@ -218,34 +218,85 @@ def voxelize(
     :func:`~apt_filters.voxel.grid.check_budget` bounds it (measured: 10 M ions in a
     60 × 60 × 200 nm box, 8 species, see benchmarks/results_voxel.md).
     """
+    plan = plan_voxelization(ions_or_chunks, ranges, grid=grid, kernel=kernel, delocalization=delocalization,
+                             species=species, voxel=voxel, basis=basis, keep_unranged=keep_unranged,
+                             efficiency=efficiency)
+    if threads is None:
+        threads = scatter_threads(plan.grid, len(plan.names), memory_budget)
+    check_budget(plan.grid, len(plan.names), memory_budget, copies=int(threads) + 1)
+    acc = plan.accumulator(threads)
+    for chunk in as_chunks(ions_or_chunks):
+        plan.scatter(acc, chunk, threads)
+    coords, channels = acc.result()
+    return plan.fields(coords, channels, acc.row_count)
+
+
+@dataclass(frozen=True)
+class VoxelPlan:
+    """Everything a voxelization needs besides the ions: the grid, the transfer function, the
+    fields and the map from m/z to fields. Built by :func:`plan_voxelization`; small and picklable,
+    so that workers of a cluster can scatter their share of the ions with it
+    (:mod:`apt_filters.voxel.distributed`).
+    """
+
+    grid: Grid
+    kernel: str
+    delocalization: tuple[float, float, float]
+    species: str
+    names: tuple[str, ...]
+    rows: tuple[np.ndarray, ...]
+    lookup: MzLookup
+    basis: ConcentrationBasis
+    efficiency: float
+
+    def accumulator(self, threads: int = 1) -> BlockAccumulator:
+        return BlockAccumulator(self.grid, self.kernel, self.rows, len(self.names), self.delocalization, threads)
+
+    def scatter(self, acc: BlockAccumulator, chunk: IonTable, threads: int = 1) -> None:
+        """Range one chunk and scatter it into ``acc`` (its rows int32: 4 bytes per ion)."""
+        acc.add(chunk.positions, self.lookup.rows_of(chunk.mz, threads))
+
+    def fields(self, coords: np.ndarray, channels: list[np.ndarray], row_count: np.ndarray) -> Fields:
+        """The :class:`Fields` of the finished blocks (``row_count``: ions scattered per ion row)."""
+        counts = {n: SparseField(self.grid, coords, d) for n, d in zip(self.names, channels)}
+        total_names = self.basis.fields(list(self.names))
+        total = _sum_fields(self.grid, [counts[n] for n in total_names]) if total_names else SparseField(
+            self.grid, coords, np.zeros_like(channels[0]))
+        return Fields(grid=self.grid, counts=counts, total=total, kind=self.species, kernel=self.kernel,
+                      delocalization=self.delocalization, basis=self.basis, efficiency=self.efficiency,
+                      n_counted=_counted(list(self.names), self.rows, row_count.astype(np.float64)))
+
+
+def plan_voxelization(
+    ions_or_chunks: IonTable | Iterable[IonTable] | None,
+    ranges: RangeTable,
+    *,
+    grid: Grid | None = None,
+    kernel: str = "gaussian",
+    delocalization=(3.0, 3.0, 1.5),
+    species: str = "elements",
+    voxel: float = 1.0,
+    basis: ConcentrationBasis = ConcentrationBasis(),
+    keep_unranged: bool | None = None,
+    efficiency: float = 1.0,
+) -> VoxelPlan:
+    """The :class:`VoxelPlan` of :func:`voxelize`'s arguments (same meanings); the ions are read only
+    to find the covering grid when ``grid`` is not given."""
     check_kernel(kernel)
     if not (0 < efficiency <= 1):
         raise AptFiltersError(f"detection efficiency must be in (0, 1], got {efficiency!r}")
     keep_unranged = basis.include_unranged if keep_unranged is None else keep_unranged
     names, rows = decomposition(ranges, species, keep_unranged)
-    total_names = basis.fields(names)
-    chunks = as_chunks(ions_or_chunks)
+    basis.fields(names)  # refuses an unknown species in the basis up front
     if grid is None:
-        if iter(chunks) is chunks:
+        chunks = as_chunks(ions_or_chunks) if ions_or_chunks is not None else None
+        if chunks is None or iter(chunks) is chunks:
             raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
         grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
-    if threads is None:
-        threads = scatter_threads(grid, len(names), memory_budget)
-    check_budget(grid, len(names), memory_budget, copies=int(threads) + 1)
-    acc = BlockAccumulator(grid, kernel, rows, len(names), delocalization, threads)
-    lookup = MzLookup.from_ranges(ranges)
-    for chunk in chunks:
-        acc.add(chunk.positions, lookup.rows_of(chunk.mz, threads))  # rows int32: 4 bytes per ion
-    matrix_counts = acc.row_count.astype(np.float64)
-    coords, channels = acc.result()
-    counts = {n: SparseField(grid, coords, d) for n, d in zip(names, channels)}
-    total = _sum_fields(grid, [counts[n] for n in total_names]) if total_names else SparseField(
-        grid, coords, np.zeros_like(channels[0]))
-    return Fields(
-        grid=grid, counts=counts, total=total, kind=species, kernel=kernel,
-        delocalization=tuple(float(v) for v in np.broadcast_to(delocalization, (3,))),
-        basis=basis, efficiency=float(efficiency), n_counted=_counted(names, rows, matrix_counts),
-    )
+    return VoxelPlan(grid=grid, kernel=kernel,
+                     delocalization=tuple(float(v) for v in np.broadcast_to(delocalization, (3,))),
+                     species=species, names=tuple(names), rows=rows, lookup=MzLookup.from_ranges(ranges),
+                     basis=basis, efficiency=float(efficiency))
 
 
 def _counted(names: list[str], rows: tuple[np.ndarray, ...], per_row: np.ndarray) -> dict[str, float]:

@@ -15,6 +15,7 @@ sum of a field equals its count exactly (to rounding): mass is never reflected a
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -501,32 +502,101 @@ class BlockAccumulator:
                 )
         self.row_count = sum(p.counts for p in self.pools)
 
-    def result(self) -> tuple[np.ndarray, list[np.ndarray]]:
-        """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian.
+    def _merged(self, extend: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Every pool's blocks added into one array, and the pools released.
 
-        Blocks in x, y, z block order, whatever the order the ions came in.
+        Returns ``(keys, fields)``: sorted flat block indices (x, y, z block order, whatever the
+        order the ions came in) and (n_channels, len(keys), 8, 8, 8) float64 values, x, y, z.
+        ``extend`` adds the blocks pass 2 will reach (gaussian), so that the second pass can work
+        in place without a second copy of the fields.
         """
         pools, self.pools = self.pools, []
         threads = len(pools)
         keys = [np.ravel_multi_index(tuple(p.coords[: p.n_active].T), self.grid.block_shape) for p in pools]
-        union = np.unique(np.concatenate(keys))  # flat block indices, sorted: x, y, z block order
-        coords = np.column_stack(np.unravel_index(union, self.grid.block_shape)).astype(np.int32)
-        sigma = second_pass_sigma(self.grid.voxel, self.delocalization) if self.kernel == "gaussian" else None
-        if sigma is not None:  # the fields hold pass 2's blocks from the start: it then works in place
-            coords = second_pass_blocks(self.grid, coords, sigma)
+        union = np.unique(np.concatenate(keys))
+        if extend and self.kernel == "gaussian":
+            coords = block_coords(self.grid, union)
+            coords = second_pass_blocks(self.grid, coords, second_pass_sigma(self.grid.voxel, self.delocalization))
             union = np.ravel_multi_index(tuple(coords.T), self.grid.block_shape)
-        # one array for all channels, holding the occupied blocks only; each thread adds every
-        # pool's share of its range of blocks (disjoint writes), then the pools are released
+        # each thread adds every pool's share of its range of blocks (disjoint writes)
         fields = np.zeros((pools[0].stride // BLOCK**3, len(union), BLOCK, BLOCK, BLOCK))
         blocks = [p.blocks()[: p.n_active].reshape(p.n_active, fields.shape[0], BLOCK, BLOCK, BLOCK) for p in pools]
         wheres = [np.searchsorted(union, key) for key in keys]
         on_threads(lambda lo, hi: [_unpool(b, w, lo, hi, fields) for b, w in zip(blocks, wheres)],
                    shares(len(union), threads))
-        del pools, blocks
+        return union, fields
+
+    def partial(self) -> BlockPartial:
+        """The first pass so far, as a :class:`BlockPartial` to add to others' (releases the pools).
+
+        Partials of disjoint sets of ions, added and finished with :func:`finish_partial`, give the
+        fields of all the ions (map-reduce voxelization over many processes or machines).
+        """
+        counts = self.row_count.copy()
+        keys, fields = self._merged(extend=False)
+        return BlockPartial(keys, fields, counts)
+
+    def result(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """(coords (n_blocks, 3) int32, one (n_blocks, 8, 8, 8) array per channel), after pass 2 if gaussian.
+
+        Blocks in x, y, z block order, whatever the order the ions came in.
+        """
+        threads = len(self.pools)
+        keys, fields = self._merged(extend=True)
+        coords = block_coords(self.grid, keys)
         channels = list(fields)
-        if sigma is not None:
-            second_pass(self.grid, coords, channels, sigma, threads)
+        if self.kernel == "gaussian":
+            second_pass(self.grid, coords, channels, second_pass_sigma(self.grid.voxel, self.delocalization), threads)
         return coords, channels
+
+
+@dataclass
+class BlockPartial:
+    """The first-pass scatter of a set of ions, before the gaussian's second pass (which is linear,
+    so it runs once on the sum).
+
+    Attributes
+    ----------
+    keys : (n,) int64
+        Sorted flat indices of the occupied blocks on the grid's block shape.
+    fields : (n_channels, n, 8, 8, 8) float64
+        Values per channel and block, x, y, z.
+    row_count : (n_rows,) int64
+        Ions scattered per ion row.
+    """
+
+    keys: np.ndarray
+    fields: np.ndarray
+    row_count: np.ndarray
+
+    def __add__(self, other: BlockPartial) -> BlockPartial:
+        """The partial of both sets of ions (the blocks' union, values added)."""
+        keys = np.union1d(self.keys, other.keys)
+        fields = np.zeros((self.fields.shape[0], len(keys)) + self.fields.shape[2:])
+        fields[:, np.searchsorted(keys, self.keys)] += self.fields  # keys are unique: no lost additions
+        fields[:, np.searchsorted(keys, other.keys)] += other.fields
+        return BlockPartial(keys, fields, self.row_count + other.row_count)
+
+
+def block_coords(grid: Grid, keys: np.ndarray) -> np.ndarray:
+    """(n, 3) int32 block coordinates of flat block indices."""
+    return np.column_stack(np.unravel_index(keys, grid.block_shape)).astype(np.int32).reshape(-1, 3)
+
+
+def finish_partial(grid: Grid, kernel: str, delocalization, partial: BlockPartial,
+                   threads: int = 1) -> tuple[np.ndarray, list[np.ndarray]]:
+    """What :meth:`BlockAccumulator.result` returns, from the sum of partials: (coords, channels)."""
+    coords = block_coords(grid, partial.keys)
+    if kernel != "gaussian":
+        return coords, list(partial.fields)
+    sigma = second_pass_sigma(grid.voxel, delocalization)
+    coords = second_pass_blocks(grid, coords, sigma)
+    keys = np.ravel_multi_index(tuple(coords.T), grid.block_shape)
+    fields = np.zeros((partial.fields.shape[0], len(keys)) + partial.fields.shape[2:])
+    fields[:, np.searchsorted(keys, partial.keys)] = partial.fields
+    channels = list(fields)
+    second_pass(grid, coords, channels, sigma, threads)
+    return coords, channels
 
 
 def second_pass_weights(sigma_vox: float) -> tuple[float, ...]:
