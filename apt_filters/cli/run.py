@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 from apt_filters.cli.rangeopts import add_range_options
-from apt_filters.core.errors import AptFiltersError
 
 ORDER = 5
 
@@ -17,33 +15,13 @@ def build_config(args: argparse.Namespace):
     from apt_filters.pipeline import config as cfg
 
     config = cfg.load(args.config) if args.config else cfg.PipelineConfig()
-    if args.input:
-        config.input.ions = str(args.input)
-    if args.range:
-        config.input.ranges = str(args.range)
-    if args.relabel:
-        config.input.relabel = list(args.relabel)
-    if args.unknown_species:
-        config.input.unknown_species = args.unknown_species
-    if args.species or args.iso is not None or args.density is not None:
-        if args.density is not None and (args.species or args.iso is not None):
-            raise AptFiltersError("give --species with --iso, or --density, not both")
-        if args.density is None and not (args.species and args.iso is not None):
-            raise AptFiltersError("--species and --iso go together")
-        species, iso = (args.species, args.iso) if args.density is None else ("", args.density)
-        config.surface = [cfg.SurfaceConfig(species, iso)]
-    overrides = {("voxel", "size"): args.voxel, ("voxel", "kernel"): args.kernel, ("voxel", "exclude"): args.exclude,
-                 ("contour", "method"): args.method, ("remesh", "method"): args.remesh,
-                 ("analysis", "efficiency"): args.efficiency, ("refine", "blur"): args.blur,
-                 ("refine", "cross_fit"): False if args.no_cross_fit else None,
-                 ("refine", "select_modes"): False if args.no_mode_selection else None,
-                 ("refine", "facets"): False if args.no_facets else None,
-                 ("refine", "marker"): False if args.no_marker else None}
-    for (section, key), value in overrides.items():
-        if value is not None:
-            setattr(getattr(config, section), key, value)
-    # Options pass the same checks as a configuration file.
-    return cfg.from_dict(dataclasses.asdict(config), source="command line")
+    for key, off in (("cross_fit", args.no_cross_fit), ("select_modes", args.no_mode_selection),
+                     ("facets", args.no_facets), ("marker", args.no_marker)):
+        if off:
+            setattr(config.refine, key, False)
+    options = {"input": args.input, "range": args.range, "species": args.species, "iso": args.iso,
+               "density": args.density} | {name: getattr(args, name) for name in cfg.OPTIONS}
+    return cfg.with_options(config, options, source="command line")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -76,6 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=["dc", "mc"], help="marching cubes (default) or dual contouring")
     p.add_argument("--kernel", choices=["gaussian", "sawtooth", "square"], help="transfer function (default gaussian)")
     p.add_argument("--voxel", type=float, help="voxel edge in nm (default 1.0)")
+    p.add_argument("--delocalization", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="gaussian delocalization, 3 sigma per axis in nm (default 3 3 1.5, AP Suite's)")
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")
     p.add_argument("--efficiency", type=float, help="detection efficiency (default 0.5)")
     p.add_argument("--blur", type=float, nargs=2, metavar=("LATERAL", "DEPTH"),

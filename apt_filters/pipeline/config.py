@@ -188,13 +188,69 @@ def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
     return config
 
 
-def load(path: str | os.PathLike) -> PipelineConfig:
-    """Read a pipeline configuration TOML file."""
+OPTIONS = {
+    "voxel": ("voxel", "size"), "kernel": ("voxel", "kernel"), "delocalization": ("voxel", "delocalization"),
+    "exclude": ("voxel", "exclude"), "method": ("contour", "method"), "remesh": ("remesh", "method"),
+    "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "relabel": ("input", "relabel"),
+    "unknown_species": ("input", "unknown_species"),
+}
+"""Run options (as ``apt-filters run`` and batch manifests name them) -> (section, key)."""
+
+
+def with_options(config: PipelineConfig, options: dict, source: str) -> PipelineConfig:
+    """``config`` with run options applied (None: left as is) and checked like a configuration file.
+
+    ``options`` may hold ``input``, ``range``, ``species`` with ``iso`` (one concentration surface),
+    ``density`` (one iso-density surface) and any key of :data:`OPTIONS`; other keys are refused.
+    """
+    unknown = sorted(set(options) - set(OPTIONS) - {"input", "range", "species", "iso", "density"})
+    if unknown:
+        raise AptFiltersError(f"unknown option(s): {', '.join(unknown)}", source)
+    data = dataclasses.asdict(config)
+    dash = "--" if source == "command line" else ""  # options are named as the user typed them
+    if options.get("input") is not None:
+        data["input"]["ions"] = str(options["input"])
+    if options.get("range") is not None:
+        data["input"]["ranges"] = str(options["range"])
+    species, iso, density = options.get("species"), options.get("iso"), options.get("density")
+    if species is not None or iso is not None or density is not None:
+        if density is not None and (species is not None or iso is not None):
+            raise AptFiltersError(f"give {dash}species with {dash}iso, or {dash}density, not both", source)
+        if density is None and not (species and iso is not None):
+            raise AptFiltersError(f"{dash}species and {dash}iso go together", source)
+        data["surface"] = [{"species": species, "iso": iso} if density is None else {"species": "", "iso": density}]
+    for name, (section, key) in OPTIONS.items():
+        if options.get(name) is not None:
+            data[section][key] = options[name]
+    return from_dict(data, source=source)
+
+
+def check_config(config: PipelineConfig) -> None:
+    """Refuse a configuration that cannot run: no inputs or surfaces, values out of range."""
+    if not config.input.ions or not config.input.ranges:
+        raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
+    if not config.surface:
+        raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
+    if len(config.refine.blur) not in (0, 2) or any(b < 0 for b in config.refine.blur):
+        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)")
+    for s in config.surface:
+        if s.species and not 0 < s.iso < 1:
+            raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
+        if not s.species and s.iso <= 0:
+            raise AptFiltersError(f"iso-density must be positive atoms/nm³, got {s.iso:g}")
+
+
+def read_toml(path: str | os.PathLike, what: str = "configuration file") -> dict:
+    """Parse a TOML file; a missing or malformed one is one line naming it."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise AptFiltersError("no such configuration file", path) from None
+        raise AptFiltersError(f"no such {what}", path) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise AptFiltersError(f"not valid TOML: {exc}", path) from None
-    return from_dict(data, str(path))
+
+
+def load(path: str | os.PathLike) -> PipelineConfig:
+    """Read a pipeline configuration TOML file."""
+    return from_dict(read_toml(path), str(path))

@@ -24,7 +24,7 @@ from apt_filters.io import read_ions, read_ranges
 from apt_filters.io.rangefiles import relabel
 from apt_filters.io.summary import summarize
 from apt_filters.pipeline import report as rep
-from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig, check_config
 from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.pipeline.surface import contour_surface
@@ -91,20 +91,6 @@ def _marker(marks) -> dict | None:
             "shift_nm": _finite(marks.shift)}
 
 
-def _check_config(config: PipelineConfig) -> None:
-    if not config.input.ions or not config.input.ranges:
-        raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
-    if not config.surface:
-        raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
-    if len(config.refine.blur) not in (0, 2) or any(b < 0 for b in config.refine.blur):
-        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)")
-    for s in config.surface:
-        if s.species and not 0 < s.iso < 1:
-            raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
-        if not s.species and s.iso <= 0:
-            raise AptFiltersError(f"iso-density must be positive atoms/nm³, got {s.iso:g}")
-
-
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
                  verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
@@ -123,7 +109,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
-    _check_config(config)
+    check_config(config)
     per_surface = 4 + (config.remesh.method == "cvt")
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
