@@ -20,7 +20,8 @@ from pathlib import Path
 from apt_filters.core.atomic import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline"]
+ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
+         "sweep"]
 
 
 def machine() -> str:
