@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -32,16 +33,36 @@ def machine() -> str:
             f"numpy {numpy.__version__}; gathered {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
 
 
+SUMMARY = re.compile(r"<!-- summary -->\s*\n(.*?)\n\s*<!-- /summary -->", re.S)
+
+
+def summary_rows(text: str) -> list[str]:
+    """The table rows of a results file's summary block (its header and rule left out)."""
+    match = SUMMARY.search(text)
+    if not match:
+        return []
+    rows = [line.strip() for line in match.group(1).splitlines() if line.strip().startswith("|")]
+    return rows[2:]
+
+
 def gather() -> str:
-    """RESULTS.md: the machine, then each results_<name>.md in pipeline order."""
-    parts = ["# Benchmark results", "", f"Machine: {machine()}.", "",
-             "Each section below is written by its benchmark (`python -m benchmarks.bench_<name>`); "
-             "peers run side by side with ours in the same run, so the ratios are the figures to read.", ""]
+    """RESULTS.md: one table of every benchmark's summary rows in pipeline order, the machine, the files."""
+    rows, missing, files = [], [], []
     for name in ORDER:
         path = HERE / f"results_{name}.md"
         if path.is_file():
-            text = path.read_text().strip()
-            parts += [text.replace("\n# ", "\n## ").replace("# ", "## ", 1) if text.startswith("# ") else text, ""]
+            found = summary_rows(path.read_text())
+            rows += found
+            files.append(f"[results_{name}.md](results_{name}.md)")
+            if not found:
+                missing.append(name)
+    parts = ["# Benchmark results", "",
+             f"Machine: {machine()}. Ours and the peers run side by side in one run of each benchmark "
+             "(`python -m benchmarks [--quick]`); the ratios are the figures to read.", "",
+             "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|", *rows, "",
+             "Details, method and every case: " + ", ".join(files) + "."]
+    if missing:
+        parts += ["", "Not summarised yet (no summary block): " + ", ".join(missing) + "."]
     return "\n".join(parts)
 
 
