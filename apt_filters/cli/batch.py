@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "batch", help="one analysis over many datasets listed in a TOML manifest",
         description="Run the pipeline on every [[dataset]] of MANIFEST (input, range and any run option: species, "
-                    "iso, density, exclude, voxel, kernel, delocalization, method, remesh, efficiency, blur, "
+                    "iso, density, exclude, voxel, kernel, delocalization, method, remesh, efficiency, blur, relabel, "
                     "config; [defaults] for all), each into OUT/runs/<name>/, and write OUT/batch.csv (one summary "
                     "row per dataset), objects.csv, batch.json and report.html. A dataset that fails fails its own "
                     "row (exit status 1); the others finish.")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from apt_filters.cli.rangeopts import add_range_options
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 6
@@ -28,7 +29,8 @@ def _run(args: argparse.Namespace) -> int:
     isos = args.iso or []
     base = cfg.with_options(base, {"input": args.input, "range": args.range, "species": args.species,
                                    "iso": isos[0] if isos else None, "exclude": args.exclude,
-                                   "method": args.method, "remesh": args.remesh, "efficiency": args.efficiency},
+                                   "method": args.method, "remesh": args.remesh, "efficiency": args.efficiency,
+                                   "relabel": args.relabel, "unknown_species": args.unknown_species},
                             source="command line")
     if not base.surface:
         raise AptFiltersError("no iso-surface asked for: give --species with --iso, or --config")
@@ -69,6 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=["dc", "mc"], help="contouring (default mc)")
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")
     p.add_argument("--efficiency", type=float, help="detection efficiency (default 0.5)")
+    add_range_options(p)
     p.add_argument("--scheduler", help="Dask scheduler address (tcp://host:8786) or scheduler file (.json); "
                                        "default: a local cluster, one worker per core")
     p.add_argument("--workers", type=int, help="local cluster: worker processes (default one per core)")

@@ -11,7 +11,8 @@ The manifest::
     input = "data/Si.pos"      # paths relative to the manifest
     range = "data/Si.RRNG"
     iso = 0.25                 # any run option: species, iso, density, exclude, voxel, kernel,
-                               # delocalization, method, remesh, efficiency, blur; config = a base TOML
+                               # delocalization, method, remesh, efficiency, blur, relabel,
+                               # unknown_species; config = a base TOML
 
 Each dataset is one pipeline run, a task on a Dask cluster, into ``OUT/runs/<name>/``; a dataset
 that fails (a bad file, a wrong option) fails its own row with the one-line error, and the
