@@ -21,7 +21,7 @@ Per precipitate: volume, area and B excess per own area (relative to the truth; 
 1-3 nm from the surface, ``object_excess``'s default), mean and Hausdorff distance to the true surface,
 the Al plateaus 0.75-3 nm inside/outside (``object_levels``' default; all
 species in the denominator, at.% absolute error), proxigram sign errors (ions within 2 nm whose exact
-signed distance to the surface, ``apt_filters.analysis.distance``, disagrees with a ray-parity
+signed distance to the surface, ``apt_filters.core.distance``, disagrees with a ray-parity
 inside test), folded triangle pairs; per run the specks and the time of each pipeline. ``floor``: the
 counting-statistics floor of the object's volume (:func:`~apt_filters.refine.evaluate.counting_floor`,
 the Cramér-Rao bound of its size from its ions with the true profile known: no method can have a smaller
@@ -40,7 +40,7 @@ import time
 import numpy as np
 
 from apt_filters.contour import marching_cubes
-from apt_filters.contour.topology import folded_pairs
+from apt_filters.core.checks import folded_pairs
 from apt_filters.core.deps import open3d
 from apt_filters.pipeline.truth import counted_truths
 from apt_filters.refine import (ion_atoms, match_objects, merge, object_excess, object_levels, per_object_iso,
@@ -93,8 +93,8 @@ def run_pipelines(sp, fields) -> dict:
 
 
 def sign_errors(mesh, part_faces, points) -> int:
-    """Ions whose signed distance sign (analysis.distance) disagrees with a ray-parity inside test."""
-    from apt_filters.analysis.distance import SurfaceDistance
+    """Ions whose signed distance sign (core.distance) disagrees with a ray-parity inside test."""
+    from apt_filters.core.distance import SurfaceDistance
     from apt_filters.core.mesh import TriMesh
 
     part = TriMesh(mesh.vertices, part_faces)
@@ -105,7 +105,7 @@ def sign_errors(mesh, part_faces, points) -> int:
                         o3d.core.Tensor(part.faces.astype(np.uint32)))
     inside = scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=3).numpy().astype(bool)
     near = np.abs(signed) > 1e-4
-    return int(np.sum(near & ((signed > 0) != inside)))
+    return int(np.sum(near & ((signed < 0) != inside)))  # negative inside
 
 
 def floors(sp) -> list:

@@ -8,8 +8,8 @@ import pytest
 from apt_filters.contour import component_table, dual_contouring, marching_cubes, surface_nets
 from apt_filters.contour.cells import find_active_cells, prepare_field
 from apt_filters.contour.gradients import crossing_gradients, hermite_crossings
-from apt_filters.contour.metrics import (evaluate, non_manifold_vertex_count, self_intersection_count,
-                                         triangle_quality)
+from apt_filters.contour.metrics import evaluate, self_intersection_count, triangle_quality
+from apt_filters.core.checks import non_manifold_vertex_count
 from apt_filters.contour.shapes import Sphere, benchmark_shapes
 from apt_filters.contour.tables import CORNERS, EDGES, case_table
 from apt_filters.core.errors import AptFiltersError
@@ -63,7 +63,7 @@ def test_sphere_closed_outward_and_accurate(method):
     values, spacing, origin = grid("sphere")
     mesh = method(values, 0.0, spacing, origin)
     assert len(mesh.boundary_edges()) == 0 and mesh.non_manifold_edge_count() == 0
-    assert non_manifold_vertex_count(mesh) == 0
+    assert non_manifold_vertex_count(mesh.vertices, mesh.faces) == 0
     true_volume = 4 / 3 * np.pi * sphere.radius**3
     assert mesh.signed_volume() == pytest.approx(true_volume, rel=0.01)
     assert np.abs(sphere.sdf(mesh.vertices)).max() < 0.1 * spacing[0]
@@ -77,7 +77,7 @@ def test_noise_field_is_watertight_and_manifold(method):
     values = np.pad(rng.normal(size=(23, 19, 17)), 1, constant_values=-1.0)
     mesh = method(values, 0.0)
     assert len(mesh.boundary_edges()) == 0
-    assert non_manifold_vertex_count(mesh) == 0
+    assert non_manifold_vertex_count(mesh.vertices, mesh.faces) == 0
     if method is marching_cubes:
         # Dual contouring keeps a few doubled dual edges on white noise (reported, not fixed).
         assert mesh.non_manifold_edge_count() == 0
@@ -265,7 +265,7 @@ def test_metric_definitions_on_known_meshes():
     tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
     two = TriMesh(np.vstack([pts, -pts[1:]]), np.vstack([tet, np.where(tet == 0, 0, tet + 3)]))
-    assert non_manifold_vertex_count(two) == 1 and two.non_manifold_edge_count() == 0
+    assert non_manifold_vertex_count(two.vertices, two.faces) == 1 and two.non_manifold_edge_count() == 0
     assert self_intersection_count(TriMesh(pts, tet)) == 0
     crossing = TriMesh(np.vstack([pts, pts + [0.2, 0.2, 0.2]]), np.vstack([tet, tet + 4]))
     assert self_intersection_count(crossing) > 0

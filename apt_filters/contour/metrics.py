@@ -25,11 +25,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from apt_filters.contour.topology import folded_pairs, self_intersecting_faces, unit_normals
+from apt_filters.core.checks import folded_pairs, non_manifold_vertex_count, self_intersecting_faces
+from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh
 
 EDGE_DOT = 0.2
@@ -47,18 +46,7 @@ def sample_mesh(mesh: TriMesh, density: float, rng: np.random.Generator) -> tupl
     s = np.sqrt(r1)
     w = np.stack([1 - s, s * (1 - r2), s * r2], 1)
     pts = np.einsum("ni,nij->nj", w, mesh.vertices[mesh.faces[face]])
-    return pts, unit_normals(mesh.vertices, mesh.faces)[face]
-
-
-def point_to_mesh_distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
-    """Exact distance from each point to the nearest triangle (open3d ray-casting scene)."""
-    from apt_filters.core.deps import open3d
-
-    o3d = open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().astype(np.float64)
+    return pts, mesh.face_normals()[face]
 
 
 def edge_points(points: np.ndarray, normals: np.ndarray, radius: float, k: int = 24) -> np.ndarray:
@@ -109,28 +97,6 @@ def triangle_quality(mesh: TriMesh) -> dict:
             "q_min": float(q.min()), "q_mean": float(q.mean())}
 
 
-def non_manifold_vertex_count(mesh: TriMesh) -> int:
-    """Vertices whose incident faces form more than one fan (their link is disconnected)."""
-    return int(non_manifold_vertices(mesh).sum())
-
-
-def non_manifold_vertices(mesh: TriMesh) -> np.ndarray:
-    """(n,) bool: vertices whose incident faces form more than one fan (their link is disconnected)."""
-    f = mesh.faces
-    centre = f.reshape(-1)
-    a = np.roll(f, -1, axis=1).reshape(-1)
-    b = np.roll(f, -2, axis=1).reshape(-1)
-    # Nodes: (vertex, neighbour) pairs; each face corner links the vertex's two neighbours.
-    pair_keys = np.concatenate([centre * mesh.n_vertices + a, centre * mesh.n_vertices + b])
-    uniq, inv = np.unique(pair_keys, return_inverse=True)
-    half = len(centre)
-    graph = coo_matrix((np.ones(half), (inv[:half], inv[half:])), shape=(len(uniq), len(uniq)))
-    _, label = connected_components(graph, directed=False)
-    owner = uniq // mesh.n_vertices
-    fans = np.unique(np.stack([owner, label], 1), axis=0)[:, 0]
-    return np.bincount(fans, minlength=mesh.n_vertices) > 1
-
-
 def self_intersection_count(mesh: TriMesh) -> int:
     """Faces that intersect another face (pymeshlab ``compute_selection_by_self_intersections_per_face``)."""
     return int(self_intersecting_faces(mesh.vertices, mesh.faces).sum())
@@ -179,7 +145,7 @@ def evaluate(mesh: TriMesh, shape, voxel: float, density: float = 20.0, seed: in
         to_true = np.abs(shape.sdf(mp))
     else:  # nearest of 4x denser true samples (overestimates by about their spacing)
         to_true = cKDTree(shape.sample(per_area * 4, rng)[0]).query(mp)[0]
-    to_mesh = point_to_mesh_distance(mesh, tp)
+    to_mesh = mesh_distance(mesh, tp)
     nearest = cKDTree(tp).query(mp)[1]
     edge_rng = np.random.default_rng(seed + 1)
     edges = (edge_metrics(sample_mesh(mesh, EDGE_DENSITY / voxel**2, edge_rng),
@@ -196,7 +162,7 @@ def evaluate(mesh: TriMesh, shape, voxel: float, density: float = 20.0, seed: in
         n_faces=mesh.n_faces,
         boundary_edges=len(mesh.boundary_edges()),
         non_manifold_edges=mesh.non_manifold_edge_count(),
-        non_manifold_vertices=non_manifold_vertex_count(mesh),
+        non_manifold_vertices=non_manifold_vertex_count(mesh.vertices, mesh.faces),
         folded_pairs=len(folded_pairs(mesh.vertices, mesh.faces)),
         self_intersections=self_intersection_count(mesh) if intersections else -1,
         signed_volume=mesh.signed_volume(),

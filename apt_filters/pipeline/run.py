@@ -42,11 +42,7 @@ def surface_label(surface: SurfaceConfig) -> str:
 
 def closed_components(mesh: TriMesh) -> int:
     """Number of connected components without boundary edges."""
-    labels = mesh.face_components()
-    edges = np.sort(mesh.edges(), axis=1)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    open_faces = (counts[inverse.ravel()] == 1).reshape(-1, 3).any(axis=1)
-    return int(len(np.unique(labels)) - len(np.unique(labels[open_faces])))
+    return int(mesh.topology.closed_component.sum())
 
 
 @dataclass

@@ -18,7 +18,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from apt_filters.contour.metrics import point_to_mesh_distance, sample_mesh
+from apt_filters.contour.metrics import sample_mesh
+from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.refine.marker import combined_offset_errors
@@ -57,7 +58,7 @@ def surface_error(part: TriMesh, sdf: Callable[[np.ndarray], np.ndarray], true_m
     pts, _ = sample_mesh(part, density, rng)
     to_true = np.abs(sdf(pts))
     true_pts, _ = sample_mesh(true_mesh, density, rng)
-    to_mesh = point_to_mesh_distance(part, true_pts)
+    to_mesh = mesh_distance(part, true_pts)
     return SurfaceError(part.signed_volume(), true_volume, part.area(), true_area,
                         0.5 * (to_true.mean() + to_mesh.mean()), float(to_true.mean()), float(to_mesh.mean()),
                         float(max(to_true.max(), to_mesh.max())))
