@@ -19,8 +19,8 @@ import numpy as np
 
 from apt_filters.contour import dual_contouring, marching_cubes, surface_nets
 from apt_filters.contour.cells import find_active_cells, prepare_field
-from apt_filters.contour.metrics import evaluate
-from apt_filters.contour.shapes import benchmark_shapes
+from apt_filters.truth.metrics import evaluate
+from apt_filters.truth.shapes import benchmark_shapes
 from apt_filters.core.mesh import TriMesh
 
 

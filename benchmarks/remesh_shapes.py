@@ -138,7 +138,7 @@ DC_CENTRE = np.array([0.31, -0.27, 0.37])  # off the grid planes (voxels)
 
 
 def _torus_shape(major: float, minor: float):
-    from apt_filters.contour.shapes import Shape
+    from apt_filters.truth.shapes import Shape
 
     class Torus(Shape):
         def sdf(self, p):
@@ -149,9 +149,9 @@ def _torus_shape(major: float, minor: float):
 
 
 def dc_shape(name: str):
-    """The analytic :class:`~apt_filters.contour.shapes.Shape` of ``name`` at voxel scale (nm = voxel),
+    """The analytic :class:`~apt_filters.truth.shapes.Shape` of ``name`` at voxel scale (nm = voxel),
     centred off the grid planes; sizes as the marching-cubes stand-ins above."""
-    from apt_filters.contour import shapes as cs
+    from apt_filters.truth import shapes as cs
 
     turn = cs.rotation([1.0, 2.0, 3.0], 27.0)
     if name == "sphere":
@@ -191,8 +191,9 @@ def dual_contoured(name: str, exact_normals: bool = True) -> TriMesh:
 
 def truth_edge_f1(mesh: TriMesh, name: str, seed: int = 0) -> float:
     """Edge F1 of ``mesh`` against the sharp edges of the analytic shape ``name`` (voxel 1 nm),
-    by the contouring benchmark's rule (:func:`apt_filters.contour.metrics.edge_metrics`)."""
-    from apt_filters.contour.metrics import EDGE_DENSITY, edge_metrics, sample_mesh
+    by the contouring benchmark's rule (:func:`apt_filters.truth.metrics.edge_metrics`)."""
+    from apt_filters.contour.metrics import sample_mesh
+    from apt_filters.truth.metrics import EDGE_DENSITY, edge_metrics
 
     rng = np.random.default_rng(seed)
     return edge_metrics(sample_mesh(mesh, EDGE_DENSITY, rng), dc_shape(name).sample(EDGE_DENSITY, rng), 1.0)["edge_f1"]

@@ -8,9 +8,10 @@ import pytest
 from apt_filters.contour import component_table, dual_contouring, marching_cubes, surface_nets
 from apt_filters.contour.cells import find_active_cells, prepare_field
 from apt_filters.contour.gradients import crossing_gradients, hermite_crossings
-from apt_filters.contour.metrics import evaluate, self_intersection_count, triangle_quality
+from apt_filters.contour.metrics import self_intersection_count, triangle_quality
+from apt_filters.truth.metrics import evaluate
 from apt_filters.core.checks import non_manifold_vertex_count
-from apt_filters.contour.shapes import Sphere, benchmark_shapes
+from apt_filters.truth.shapes import Sphere, benchmark_shapes
 from apt_filters.contour.tables import CORNERS, EDGES, case_table
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh

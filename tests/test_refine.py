@@ -14,9 +14,10 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import (contrast_weights, counted_truth, guarded_move, ion_atoms, match_objects,
-                                merge, object_excess, object_levels, per_object_iso, refine_surface,
-                                remove_specks, split_components, subdivide, surface_error)
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import (contrast_weights, guarded_move, ion_atoms, merge, object_excess, object_levels,
+                                per_object_iso, refine_surface, remove_specks, subdivide)
+from apt_filters.truth import counted_truth, match_objects, surface_error
 from apt_filters.refine.surface import equal_area_offset, matched_offset, profile_width
 from apt_filters.remesh.quality import self_intersections
 from apt_filters.synth import Sphere, generate, preset

@@ -7,10 +7,10 @@ have chosen is compared with the true surface, and its choice must be (nearly) t
 import numpy as np
 import pytest
 
-from apt_filters.core.mesh import topology
+from apt_filters.core.mesh import split_components, topology
 from apt_filters.contour import marching_cubes
-from apt_filters.refine import (counting_floor, ion_atoms, match_objects, refine_surface, remove_specks,
-                                split_components, surface_error)
+from apt_filters.refine import ion_atoms, refine_surface, remove_specks
+from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
 from apt_filters.refine.spectral import low_pass
 from apt_filters.synth import generate, preset

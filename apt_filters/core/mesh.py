@@ -253,3 +253,10 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     out = np.stack([np.bincount(corner, np.tile(fn[:, k], 3), minlength=len(vertices)) for k in range(3)], axis=1)
     length = np.linalg.norm(out, axis=1, keepdims=True)
     return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+
+
+def split_components(mesh: TriMesh) -> list[TriMesh]:
+    """One TriMesh per connected component (:attr:`Topology.components` order; vertices shared with ``mesh``,
+    unused ones kept)."""
+    labels = mesh.face_components()
+    return [TriMesh(mesh.vertices, mesh.faces[labels == c]) for c in range(int(labels.max()) + 1 if len(labels) else 0)]

@@ -58,7 +58,7 @@ class SurfaceResult:
 
 def _counting_errors(mesh, offset_errors) -> list[dict]:
     """Per refined object: the counting-statistics standard error of its mean offset and, if closed, of its volume."""
-    from apt_filters.refine import split_components
+    from apt_filters.core.mesh import split_components
 
     out = []
     for c, (e, part) in enumerate(zip(offset_errors, split_components(mesh))):
@@ -246,7 +246,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                "mesh": r.stats, "objects": r.objects, "excess": r.excess} for r in results]
         rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
         if truth is not None:
-            from apt_filters.pipeline.truth import compare_with_truth, counted_excess
+            from apt_filters.truth.specimen import compare_with_truth, counted_excess
 
             report["truth"] = compare_with_truth(results, truth, counted_excess(truth, ions, ranges))
         report["steps"] = log.as_dicts()

@@ -159,7 +159,7 @@ class RefineResult:
         segregant's peak where ``marker`` moved it; times the object's area it is that of its volume. From
         the score alone, on the gamma-prime specimen 0.035-0.041 nm for a 3 nm sphere (3.5-4.1 % of its
         volume), against the Cramér-Rao floor of all the element profiles with the truth known, 0.036 nm
-        (:func:`~apt_filters.refine.evaluate.counting_floor`).
+        (:func:`~apt_filters.truth.counting_floor`).
     marker : MarkerOffsets or None
         Each object's segregant peak, the layer's common offset and the moves (``marker``), None where no
         species left out of the basis is ranged or ``marker=False``.

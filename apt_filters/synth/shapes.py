@@ -444,14 +444,14 @@ class CustomShape(Shape):
         return self._field
 
     def _level_mesh(self, level: float) -> TriMesh:
-        from skimage.measure import marching_cubes
+        from apt_filters.contour.marching_cubes import marching_cubes
 
         field = self._values()
         if not field.min() < level < field.max():
             return TriMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-        v, f, _, _ = marching_cubes(field, level=level, spacing=(self.grid,) * 3)
-        mesh = TriMesh(v + self._origin, f)
-        return mesh if mesh.signed_volume() >= 0 else TriMesh(mesh.vertices, mesh.faces[:, ::-1])
+        # the region below the level is inside: contour -sdf above -level, normals outward
+        mesh = marching_cubes(-field, -level, spacing=self.grid, origin=self._origin)
+        return TriMesh(mesh.vertices, mesh.faces)
 
     def level_area(self, d, within=None):
         d = np.atleast_1d(np.asarray(d, dtype=np.float64))
