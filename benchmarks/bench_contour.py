@@ -19,8 +19,8 @@ import numpy as np
 
 from apt_filters.contour import dual_contouring, marching_cubes, surface_nets
 from apt_filters.contour.cells import find_active_cells, prepare_field
-from apt_filters.contour.metrics import evaluate
-from apt_filters.contour.shapes import benchmark_shapes
+from apt_filters.truth.metrics import evaluate
+from apt_filters.truth.shapes import benchmark_shapes, field_gradient, grid
 from apt_filters.core.mesh import TriMesh
 
 
@@ -68,8 +68,8 @@ def best_time(fn, repeats: int) -> tuple[float, object]:
 
 
 def timing_table(n: int, repeats: int) -> str:
-    shape = benchmark_shapes()[4]  # box minus sphere: flat, curved, convex and concave edges
-    values, spacing, origin = shape.grid(n)
+    shape_name = "box_minus_sphere"  # flat, curved, convex and concave edges
+    values, spacing, origin = grid(benchmark_shapes()[shape_name], n)
     methods = {
         "skimage lewiner": lambda: skimage_mc(values, 0.0, spacing, origin),
         "VTK flying edges": lambda: vtk_flying_edges(values, 0.0, spacing, origin),
@@ -86,7 +86,7 @@ def timing_table(n: int, repeats: int) -> str:
             t, mesh = best_time(fn, 1)
             times[name] = (min(t, times[name][0]), mesh)
     ref = times["skimage lewiner"][0]
-    rows = [f"Field: {shape.name}, {n}³ float64.", "", "| method | time (s) | × skimage | faces |", "|---|---|---|---|"]
+    rows = [f"Field: {shape_name}, {n}³ float64.", "", "| method | time (s) | × skimage | faces |", "|---|---|---|---|"]
     for name, (t, mesh) in times.items():
         rows.append(f"| {name} | {t:.3f} | {t / ref:.2f} | {mesh.n_faces} |")
     return "\n".join(rows)
@@ -121,15 +121,15 @@ def quality_table(n: int, names: list[str] | None = None) -> str:
     rows = [f"Grid {n}³ on [-1, 1]³ (h = {2 / (n - 1):.4f} nm); distances in voxels; "
             "peers' faces flipped to outward where needed.", "",
             "| shape | method | " + " | ".join(COLUMNS) + " |", "|" + "---|" * (len(COLUMNS) + 2)]
-    for shape in benchmark_shapes():
-        if names and shape.name not in names:
+    for shape_name, shape in benchmark_shapes().items():
+        if names and shape_name not in names:
             continue
-        values, spacing, origin = shape.grid(n)
+        values, spacing, origin = grid(shape, n)
         methods = {
             "skimage": lambda: outward(skimage_mc(values, 0.0, spacing, origin)),
             "VTK FE": lambda: outward(vtk_flying_edges(values, 0.0, spacing, origin)),
             "MC": lambda: marching_cubes(values, 0.0, spacing, origin),
-            "DC exact normals": lambda: dual_contouring(values, 0.0, spacing, origin, gradient=shape.field_gradient),
+            "DC exact normals": lambda: dual_contouring(values, 0.0, spacing, origin, gradient=field_gradient(shape)),
             "DC eno": lambda: dual_contouring(values, 0.0, spacing, origin),
             "DC central": lambda: dual_contouring(values, 0.0, spacing, origin, field_gradient="central"),
             "DC fit": lambda: dual_contouring(values, 0.0, spacing, origin, field_gradient="fit"),
@@ -138,7 +138,7 @@ def quality_table(n: int, names: list[str] | None = None) -> str:
         for name, fn in methods.items():
             r = evaluate(fn(), shape, spacing[0]).as_dict()
             cells = [f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in COLUMNS]
-            rows.append(f"| {shape.name} | {name} | " + " | ".join(cells) + " |")
+            rows.append(f"| {shape_name} | {name} | " + " | ".join(cells) + " |")
             print(rows[-1], flush=True)
     return "\n".join(rows)
 

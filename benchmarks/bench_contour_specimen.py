@@ -19,10 +19,12 @@ import argparse
 import numpy as np
 
 from apt_filters.contour import dual_contouring, marching_cubes
-from apt_filters.contour.metrics import EDGE_DENSITY, edge_metrics, sample_mesh
-from apt_filters.contour.topology import folded_pairs
-from apt_filters.refine import match_objects, remove_specks
-from apt_filters.refine.evaluate import split_components, surface_error
+from apt_filters.contour.metrics import sample_mesh
+from apt_filters.truth.metrics import EDGE_DENSITY, edge_metrics
+from apt_filters.core.checks import folded_pairs
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import remove_specks
+from apt_filters.truth import match_objects, surface_error
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 

@@ -21,13 +21,13 @@ Per precipitate: volume, area and B excess per own area (relative to the truth; 
 1-3 nm from the surface, ``object_excess``'s default), mean and Hausdorff distance to the true surface,
 the Al plateaus 0.75-3 nm inside/outside (``object_levels``' default; all
 species in the denominator, at.% absolute error), proxigram sign errors (ions within 2 nm whose exact
-signed distance to the surface, ``apt_filters.analysis.distance``, disagrees with a ray-parity
+signed distance to the surface, ``apt_filters.core.distance``, disagrees with a ray-parity
 inside test), folded triangle pairs; per run the specks and the time of each pipeline. ``floor``: the
-counting-statistics floor of the object's volume (:func:`~apt_filters.refine.evaluate.counting_floor`,
+counting-statistics floor of the object's volume (:func:`~apt_filters.truth.counting_floor`,
 the Cramér-Rao bound of its size from its ions with the true profile known: no method can have a smaller
 standard deviation), and ``z``, the volume error in units of it. ``counted``: the B excess and the Al
 inside plateau that the object's own ions hold against its true surface and true plateaus
-(:func:`~apt_filters.refine.evaluate.counted_truth`): their errors against the model are counting noise
+(:func:`~apt_filters.truth.counted_truth`): their errors against the model are counting noise
 that every method inherits, and ``beyond counting`` is a pipeline's error against them (the excess as the
 ratio of the two, the plateau as the difference).
 """
@@ -40,12 +40,13 @@ import time
 import numpy as np
 
 from apt_filters.contour import marching_cubes
-from apt_filters.contour.topology import folded_pairs
+from apt_filters.core.checks import folded_pairs
 from apt_filters.core.deps import open3d
-from apt_filters.pipeline.truth import counted_truths
-from apt_filters.refine import (ion_atoms, match_objects, merge, object_excess, object_levels, per_object_iso,
-                                recontour, refine_surface, remove_specks, split_components, surface_error)
-from apt_filters.refine.evaluate import counting_floor
+from apt_filters.truth.specimen import counted_truths
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import (ion_atoms, merge, object_excess, object_levels, per_object_iso, recontour,
+                                refine_surface, remove_specks)
+from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
@@ -93,8 +94,8 @@ def run_pipelines(sp, fields) -> dict:
 
 
 def sign_errors(mesh, part_faces, points) -> int:
-    """Ions whose signed distance sign (analysis.distance) disagrees with a ray-parity inside test."""
-    from apt_filters.analysis.distance import SurfaceDistance
+    """Ions whose signed distance sign (core.distance) disagrees with a ray-parity inside test."""
+    from apt_filters.core.distance import SurfaceDistance
     from apt_filters.core.mesh import TriMesh
 
     part = TriMesh(mesh.vertices, part_faces)
@@ -105,7 +106,7 @@ def sign_errors(mesh, part_faces, points) -> int:
                         o3d.core.Tensor(part.faces.astype(np.uint32)))
     inside = scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=3).numpy().astype(bool)
     near = np.abs(signed) > 1e-4
-    return int(np.sum(near & ((signed > 0) != inside)))
+    return int(np.sum(near & ((signed < 0) != inside)))  # negative inside
 
 
 def floors(sp) -> list:
@@ -121,7 +122,7 @@ def floors(sp) -> list:
 
 def counted(sp) -> list[dict]:
     """Per true precipitate: the B excess (relative) and Al inside plateau (at.%) errors against the model of
-    what its own ions hold (:func:`~apt_filters.pipeline.truth.counted_truths`: all species in the basis, as
+    what its own ions hold (:func:`~apt_filters.truth.counted_truths`: all species in the basis, as
     ``evaluate`` measures them)."""
     elements, counts = counted_truths(sp.truth, sp.ions, sp.ranges)
     kb, kal = elements.index(SOLUTE), elements.index(SPECIES)

@@ -18,7 +18,7 @@ import numpy as np
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import quality, remesh
-from benchmarks import remesh_shapes as shapes
+from tests import remesh_shapes as shapes
 
 
 def ours(mesh: TriMesh, edge: float) -> TriMesh:

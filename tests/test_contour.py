@@ -8,19 +8,21 @@ import pytest
 from apt_filters.contour import component_table, dual_contouring, marching_cubes, surface_nets
 from apt_filters.contour.cells import find_active_cells, prepare_field
 from apt_filters.contour.gradients import crossing_gradients, hermite_crossings
-from apt_filters.contour.metrics import (evaluate, non_manifold_vertex_count, self_intersection_count,
-                                         triangle_quality)
-from apt_filters.contour.shapes import Sphere, benchmark_shapes
+from apt_filters.contour.metrics import self_intersection_count, triangle_quality
+from apt_filters.truth.metrics import evaluate
+from apt_filters.core.checks import non_manifold_vertex_count
+from apt_filters.truth.shapes import benchmark_shapes, field_gradient
+from apt_filters.truth.shapes import grid as shape_grid
 from apt_filters.contour.tables import CORNERS, EDGES, case_table
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 
-SHAPES = {s.name: s for s in benchmark_shapes()}
+SHAPES = benchmark_shapes()
 
 
 @functools.lru_cache(maxsize=None)
 def grid(name: str, n: int = 64):
-    return SHAPES[name].grid(n)
+    return shape_grid(SHAPES[name], n)
 
 
 @functools.lru_cache(maxsize=None)
@@ -30,7 +32,7 @@ def report(name: str, method: str):
     if method == "mc":
         mesh = marching_cubes(values, 0.0, spacing, origin)
     elif method == "dc_exact":
-        mesh = dual_contouring(values, 0.0, spacing, origin, gradient=shape.field_gradient)
+        mesh = dual_contouring(values, 0.0, spacing, origin, gradient=field_gradient(shape))
     else:
         mesh = dual_contouring(values, 0.0, spacing, origin, field_gradient=method.split("_")[1])
     return evaluate(mesh, shape, spacing[0], density=12.0, edges=name == "rotated_box", intersections=method != "mc")
@@ -59,11 +61,11 @@ def test_table_single_corner_normal_points_away_from_inside():
 
 @pytest.mark.parametrize("method", [marching_cubes, dual_contouring, surface_nets])
 def test_sphere_closed_outward_and_accurate(method):
-    sphere = Sphere("sphere")
+    sphere = SHAPES["sphere"]
     values, spacing, origin = grid("sphere")
     mesh = method(values, 0.0, spacing, origin)
     assert len(mesh.boundary_edges()) == 0 and mesh.non_manifold_edge_count() == 0
-    assert non_manifold_vertex_count(mesh) == 0
+    assert non_manifold_vertex_count(mesh.vertices, mesh.faces) == 0
     true_volume = 4 / 3 * np.pi * sphere.radius**3
     assert mesh.signed_volume() == pytest.approx(true_volume, rel=0.01)
     assert np.abs(sphere.sdf(mesh.vertices)).max() < 0.1 * spacing[0]
@@ -77,7 +79,7 @@ def test_noise_field_is_watertight_and_manifold(method):
     values = np.pad(rng.normal(size=(23, 19, 17)), 1, constant_values=-1.0)
     mesh = method(values, 0.0)
     assert len(mesh.boundary_edges()) == 0
-    assert non_manifold_vertex_count(mesh) == 0
+    assert non_manifold_vertex_count(mesh.vertices, mesh.faces) == 0
     if method is marching_cubes:
         # Dual contouring keeps a few doubled dual edges on white noise (reported, not fixed).
         assert mesh.non_manifold_edge_count() == 0
@@ -113,7 +115,7 @@ def test_eno_normals_beat_central_differences():
     values, spacing, origin = grid("rotated_box")
     field = prepare_field(values, 0.0, spacing, origin, None, False)
     act = find_active_cells(field)
-    exact = SHAPES["rotated_box"].field_gradient(field.to_world(act.crossing_points(values.shape)))
+    exact = field_gradient(SHAPES["rotated_box"])(field.to_world(act.crossing_points(values.shape)))
     exact /= np.linalg.norm(exact, axis=1, keepdims=True)
     errors = {}
     for method in ("central", "eno"):
@@ -191,7 +193,7 @@ def test_dual_contouring_quality_on_every_shape(name):
 def test_dual_contouring_exact_normals_at_128(name):
     """The Hausdorff target at the finer grid, where corners poke into cells without a grid point."""
     values, spacing, origin = grid(name, 128)
-    mesh = dual_contouring(values, 0.0, spacing, origin, gradient=SHAPES[name].field_gradient)
+    mesh = dual_contouring(values, 0.0, spacing, origin, gradient=field_gradient(SHAPES[name]))
     r = evaluate(mesh, SHAPES[name], spacing[0], density=12.0, edges=False)
     assert (r.boundary_edges, r.non_manifold_edges, r.non_manifold_vertices) == (0, 0, 0)
     assert r.self_intersections == 0 and r.folded_pairs == 0
@@ -200,7 +202,7 @@ def test_dual_contouring_exact_normals_at_128(name):
 
 @pytest.mark.parametrize("method", [marching_cubes, dual_contouring])
 def test_specimen_edge_stays_open_and_closes_as_proxy(method):
-    sphere = Sphere("sphere")
+    sphere = SHAPES["sphere"]
     values, spacing, origin = grid("sphere")
     mask = np.ones(values.shape, dtype=bool)
     mask[:, :, 40:] = False  # the specimen ends at z index 40, through the sphere
@@ -217,7 +219,7 @@ def test_specimen_edge_stays_open_and_closes_as_proxy(method):
     assert comp.status == "closed_proxy" and comp.n_boundary_edges == 0
     assert closed.face_scalars["at_edge"].any() and not closed.face_scalars["at_edge"].all()
     # Cap near the last inside voxel plane: volume of the sphere cut there, within a voxel slab.
-    c, r = sphere.centre[2], sphere.radius
+    c, r = sphere.center[2], sphere.radius
     cap = lambda z: np.pi * ((r**2) * (z - c) - (z - c) ** 3 / 3) + 2 / 3 * np.pi * r**3
     assert cap(z_edge) < closed.signed_volume() < cap(z_edge + spacing[2])
 
@@ -265,7 +267,7 @@ def test_metric_definitions_on_known_meshes():
     tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
     two = TriMesh(np.vstack([pts, -pts[1:]]), np.vstack([tet, np.where(tet == 0, 0, tet + 3)]))
-    assert non_manifold_vertex_count(two) == 1 and two.non_manifold_edge_count() == 0
+    assert non_manifold_vertex_count(two.vertices, two.faces) == 1 and two.non_manifold_edge_count() == 0
     assert self_intersection_count(TriMesh(pts, tet)) == 0
     crossing = TriMesh(np.vstack([pts, pts + [0.2, 0.2, 0.2]]), np.vstack([tet, tet + 4]))
     assert self_intersection_count(crossing) > 0

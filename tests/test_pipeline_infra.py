@@ -1,5 +1,3 @@
-import tomllib
-
 import numpy as np
 import pytest
 
@@ -14,6 +12,17 @@ def test_config_round_trips_through_toml(tmp_path):
     c.voxel.exclude = ["B"]
     path = tmp_path / "c.toml"
     path.write_text(c.to_toml())
+    assert cfg.load(path) == c
+
+
+def test_config_with_non_bmp_paths_and_quotes_round_trips(tmp_path):
+    """Paths with emoji (outside the Basic Multilingual Plane), quotes, backslashes and newlines reload as written."""
+    c = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
+    c.input.ions = 'data/😀 run "1"\\tip\n.pos'
+    c.input.ranges = "𝔘nicode ranges 🧪.rrng"
+    c.proxigram.solutes = ["B", "Cr"]
+    path = tmp_path / "c.toml"
+    path.write_text(c.to_toml(), encoding="utf-8")
     assert cfg.load(path) == c
 
 
@@ -35,7 +44,7 @@ def test_config_mistakes_are_one_line_naming_the_file(tmp_path, text, problem):
 
 
 def test_int_where_float_expected_is_accepted():
-    c = cfg.from_dict(tomllib.loads("[voxel]\nsize = 2\n"))
+    c = cfg.from_dict(cfg.tomllib.loads("[voxel]\nsize = 2\n"))
     assert c.voxel.size == 2.0 and isinstance(c.voxel.size, float)
 
 

@@ -63,8 +63,9 @@ def test_report_numbers_against_the_truth(small_run):
 def test_the_excess_the_ions_hold_is_counted_against_the_true_surfaces(small_run):
     """``counted_excess_B_ratio``: the run's own ions counted against each feature's shape rebuilt from truth.json
     equal the count against the generating specimen's exact SDF (the same ions, drawn again from the seed)."""
-    from apt_filters.pipeline.truth import true_plateaus
-    from apt_filters.refine import counted_truth, ion_atoms
+    from apt_filters.truth.specimen import true_plateaus
+    from apt_filters.refine import ion_atoms
+    from apt_filters.truth import counted_truth
     from apt_filters.synth import generate
     from apt_filters.voxel import ConcentrationBasis
 
@@ -88,7 +89,7 @@ def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
 
     from apt_filters.io.ions import IonTable
     from apt_filters.io.ranges import Range, RangeTable
-    from apt_filters.pipeline.truth import counted_excess
+    from apt_filters.truth.specimen import counted_excess
     from apt_filters.synth import CustomShape, Sphere
 
     rng = np.random.default_rng(0)

@@ -1,10 +1,12 @@
-"""Signed distance and narrow band against exact distances to boxes, spheres and an open plane."""
+"""The signed-distance engine (apt_filters.core.distance; positive outside, along the normals) and its narrow
+band against exact distances to boxes, spheres and an open plane, and against open3d's BVH."""
 
 import numpy as np
 import pytest
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.analysis.distance import EDGE, FACE, VERTEX, SurfaceDistance
+from apt_filters.core.deps import open3d
+from apt_filters.core.distance import EDGE, FACE, VERTEX, SurfaceDistance
 from tests.proxigram_specimens import box_distance, cube, icosphere, plane, sphere_distance
 
 HALF = (3.0, 4.0, 5.0)  # asymmetric, so that an x/y/z mix-up shows
@@ -30,8 +32,8 @@ def test_cube_signs_and_distances_exact_at_edges_and_corners():
     truth = box_distance(pts.astype(np.float64), HALF, CENTER)
     sd = SurfaceDistance(mesh).query(pts)
     clear = np.abs(truth) > 1e-4  # the sign of a point on the surface is moot
-    assert np.count_nonzero((sd.distance[clear] > 0) != (truth[clear] > 0)) == 0
-    assert np.abs(sd.distance - truth).max() < 1e-4
+    assert np.count_nonzero((sd.distance[clear] < 0) != (truth[clear] > 0)) == 0  # truth: positive inside
+    assert np.abs(-sd.distance - truth).max() < 1e-4
     # the test exercises all three kinds of closest feature
     assert min(np.count_nonzero(sd.feature == k) for k in (FACE, EDGE, VERTEX)) > 1000
     assert not sd.on_boundary.any()  # closed mesh: no rim
@@ -53,8 +55,8 @@ def test_sharp_tetrahedron_signs_where_face_normals_fail():
     inside, clear = np.all(side < 0, axis=1), np.abs(side).min(axis=1) > 1e-4
     surface = SurfaceDistance(mesh)
     sd = surface.query(pts)
-    assert np.count_nonzero((sd.distance > 0)[clear] != inside[clear]) == 0
-    result = surface._scene.compute_closest_points(surface._tensor(pts))
+    assert np.count_nonzero((sd.distance < 0)[clear] != inside[clear]) == 0
+    result = _scene(mesh).compute_closest_points(open3d().core.Tensor(pts))
     offset = pts - result["points"].numpy()
     naive = np.einsum("ij,ij->i", offset, mesh.face_normals()[result["primitive_ids"].numpy()]) < 0
     assert np.count_nonzero(naive[clear] != inside[clear]) > 100
@@ -67,9 +69,9 @@ def test_sphere_distances():
     sd = SurfaceDistance(mesh).query(pts)
     truth = sphere_distance(pts.astype(np.float64), 4.0, CENTER)
     # faceting: the chords of a 5120-face icosphere of radius 4 sit at most ~0.01 nm inside the sphere
-    assert np.abs(sd.distance - truth).max() < 0.015
+    assert np.abs(-sd.distance - truth).max() < 0.015
     far = np.abs(truth) > 0.015
-    assert np.all((sd.distance[far] > 0) == (truth[far] > 0))
+    assert np.all((sd.distance[far] < 0) == (truth[far] > 0))
 
 
 def test_open_plane_rim_and_sign():
@@ -78,7 +80,7 @@ def test_open_plane_rim_and_sign():
     sd = SurfaceDistance(plane(10.0, n=20)).query(pts)
     beyond = np.any(np.abs(pts[:, :2]) > 10.0, axis=1)
     np.testing.assert_array_equal(sd.on_boundary, beyond)
-    np.testing.assert_allclose(sd.distance[~beyond], -pts[~beyond, 2], atol=1e-5)  # inside is z < 0
+    np.testing.assert_allclose(sd.distance[~beyond], pts[~beyond, 2], atol=1e-5)  # inside is z < 0
 
 
 @pytest.mark.parametrize("mesh, truth", [
@@ -103,8 +105,16 @@ def test_narrow_band_is_conservative_and_narrow(mesh, truth, max_distance, home)
     assert np.count_nonzero(np.abs(d) <= max_distance) < sd.searched <= within
 
 
+def _scene(mesh):
+    o3d = open3d()
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    return scene
+
+
 def _reference(mesh, pts):
-    return SurfaceDistance(mesh, method="open3d").query(pts)
+    """open3d's unsigned distance (BVH, float32): an independent peer for the closest point."""
+    return _scene(mesh).compute_distance(open3d().core.Tensor(pts.astype(np.float32))).numpy()
 
 
 def _segment_distance(p, a, b):
@@ -125,7 +135,7 @@ def _triangle_distance(p, tri):
 
 
 @pytest.mark.parametrize("name", ["cube", "plane", "tetrahedron"])
-def test_grid_search_matches_open3d(name):
+def test_grid_search_matches_open3d_and_the_shapes_signs(name):
     """Our grid search against open3d's BVH: same distances, signs, features and rim flags."""
     rng = np.random.default_rng(11)
     if name == "cube":
@@ -140,15 +150,22 @@ def test_grid_search_matches_open3d(name):
         pts = rng.uniform(-3, 11, size=(40000, 3))
     pts = pts.astype(np.float32)
     ours, ref = SurfaceDistance(mesh).query(pts), _reference(mesh, pts)
-    np.testing.assert_allclose(ours.distance, ref.distance, atol=1e-5)
-    clear = np.abs(ref.distance) > 1e-4
-    np.testing.assert_array_equal(ours.distance[clear] > 0, ref.distance[clear] > 0)
+    np.testing.assert_allclose(np.abs(ours.distance), ref, atol=1e-5)
     # the face returned realises the distance (checked by an independent point-triangle distance)
     own = _triangle_distance(pts.astype(np.float64), mesh.vertices[mesh.faces[ours.face]])
     np.testing.assert_allclose(own, np.abs(ours.distance), atol=1e-5)
-    # features and rim flags agree except for float32 rounding at ties (open3d is float32)
-    assert np.mean(ours.feature == ref.feature) > 0.999
-    assert np.mean(ours.on_boundary == ref.on_boundary) > 0.999
+    # signs against the shape itself: outside positive
+    p = pts.astype(np.float64)
+    if name == "cube":
+        truth = -box_distance(p, HALF, CENTER)
+    elif name == "plane":
+        truth = np.where(np.any(np.abs(p[:, :2]) > 10.0, axis=1), np.nan, p[:, 2])
+    else:
+        corners = mesh.vertices
+        side = np.einsum("fk,nfk->nf", mesh.face_normals(), p[:, None, :] - corners[mesh.faces].mean(axis=1)[None])
+        truth = np.where(np.all(side < 0, axis=1), -1.0, 1.0) * np.where(np.abs(side).min(axis=1) > 1e-4, 1, np.nan)
+    clear = np.isfinite(truth) & (np.abs(truth) > 1e-4)
+    np.testing.assert_array_equal(ours.distance[clear] > 0, truth[clear] > 0)
     assert min(np.count_nonzero(ours.feature == k) for k in (FACE, EDGE, VERTEX)) > 50
 
 
@@ -178,6 +195,6 @@ def test_grid_search_far_points_and_degenerate_triangles():
                           rng.uniform([19, -1, -1], [23, 1, 1], size=(5000, 3))]).astype(np.float32)
     ours, ref = SurfaceDistance(mesh, cell=0.5).query(pts), _reference(mesh, pts)
     assert not np.isnan(ours.distance).any()
-    np.testing.assert_allclose(np.abs(ours.distance), np.abs(ref.distance), atol=1e-4, rtol=1e-6)
+    np.testing.assert_allclose(np.abs(ours.distance), ref, atol=1e-4, rtol=1e-6)
     segment = _segment_distance(pts[5000:].astype(np.float64), np.array([[20.0, 0, 0]]), np.array([[22.0, 0, 0]]))
     np.testing.assert_allclose(np.abs(ours.distance[5000:]), segment, atol=1e-5)

@@ -9,14 +9,15 @@ import pytest
 from scipy.special import erfc
 
 from apt_filters.contour import marching_cubes
-from apt_filters.contour.topology import folded_pairs
+from apt_filters.core.checks import folded_pairs
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import (contrast_weights, counted_truth, guarded_move, ion_atoms, match_objects,
-                                merge, object_excess, object_levels, per_object_iso, refine_surface,
-                                remove_specks, split_components, subdivide, surface_error)
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import (contrast_weights, guarded_move, ion_atoms, merge, object_excess, object_levels,
+                                per_object_iso, refine_surface, remove_specks, subdivide)
+from apt_filters.truth import counted_truth, match_objects, surface_error
 from apt_filters.refine.surface import equal_area_offset, matched_offset, profile_width
 from apt_filters.remesh.quality import self_intersections
 from apt_filters.synth import Sphere, generate, preset
@@ -213,7 +214,7 @@ def test_untangle_leaves_separated_coplanar_faces_alone_and_separates_crossing_o
 
 
 def test_refined_surface_has_no_folds_no_intersections_and_right_signs(small_run):
-    from apt_filters.analysis.distance import SurfaceDistance
+    from apt_filters.core.distance import SurfaceDistance
     from apt_filters.core.deps import open3d
 
     sp, _, _, result = small_run
@@ -231,7 +232,7 @@ def test_refined_surface_has_no_folds_no_intersections_and_right_signs(small_run
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
     inside = scene.compute_occupancy(o3d.core.Tensor(near.astype(np.float32)), nsamples=3).numpy().astype(bool)
     decided = np.abs(signed) > 1e-4
-    assert np.sum(decided & ((signed > 0) != inside)) == 0
+    assert np.sum(decided & ((signed < 0) != inside)) == 0  # negative inside
 
 
 def test_per_object_levels_and_iso_match_the_truth(small_run):

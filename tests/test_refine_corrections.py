@@ -106,7 +106,7 @@ def _rounded_box(rounding=1.0, rotation=27, spacing=0.3, noise=0.03, seed=0, siz
 
 
 def test_facets_of_a_rounded_noisy_box_and_its_rebuilt_edges_and_corners():
-    from apt_filters.refine.evaluate import surface_error
+    from apt_filters.truth import surface_error
 
     box, mesh = _rounded_box()
     # planes fitted to the 20° cones: the default 40° ones take in the start of the rims, which balances the

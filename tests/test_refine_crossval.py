@@ -7,10 +7,10 @@ have chosen is compared with the true surface, and its choice must be (nearly) t
 import numpy as np
 import pytest
 
+from apt_filters.core.mesh import split_components, topology
 from apt_filters.contour import marching_cubes
-from apt_filters.refine import (counting_floor, ion_atoms, match_objects, refine_surface, remove_specks,
-                                split_components, surface_error)
-from apt_filters.refine.band import vertex_components
+from apt_filters.refine import ion_atoms, refine_surface, remove_specks
+from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
 from apt_filters.refine.spectral import low_pass
 from apt_filters.synth import generate, preset
@@ -39,7 +39,7 @@ def test_the_modes_held_out_ions_choose_are_the_closest_to_the_true_sphere(small
     tf, sdf = sp.truth["features"][sphere], sp.feature_sdf(sphere)
     parts = split_components(placed)
     component = match_objects(parts, [sdf])[0]
-    bases = object_harmonics(placed.vertices, placed.faces, vertex_components(placed.faces, placed.n_vertices),
+    bases = object_harmonics(placed.vertices, placed.faces, topology(placed.faces, placed.n_vertices).vertex_components,
                              [component], basis_size(max(CANDIDATES)))
     idx, basis = bases[component]
 

@@ -1,15 +1,18 @@
-"""Ions near a mesh without a KD-tree (apt_filters.refine.nearest, NearIons) and fold removal, against brute force."""
+"""Ions near a mesh without a KD-tree (apt_filters.core.nearby, refine.nearest, NearIons) and fold removal, against
+brute force."""
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from apt_filters.core.mesh import topology, vertex_normals
 from apt_filters.contour import marching_cubes
-from apt_filters.contour.topology import folded_pairs
+from apt_filters.core.checks import folded_pairs
+from apt_filters.core.nearby import select_near
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.refine import subdivide, unfold
-from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled, vertex_components, vertex_normals
-from apt_filters.refine.nearest import CellGrid, band_indices, descend
+from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled
+from apt_filters.refine.nearest import descend
 from apt_filters.refine.surface import umbrella
 from apt_filters.voxel import ConcentrationBasis
 
@@ -21,15 +24,15 @@ def _blob():
     return subdivide(marching_cubes(-f, -3.0, spacing=(0.5, 0.5, 0.5), origin=(-6.0, -6.0, -6.0)))
 
 
-def test_cell_grid_band_keeps_every_point_within_reach():
+def test_selection_keeps_every_point_whose_nearest_vertex_is_within_reach():
     mesh = _blob()
     rng = np.random.default_rng(1)
     points = rng.uniform(-9, 9, size=(60_000, 3)).astype(np.float32)
     reach = 1.7
     nearest = cKDTree(mesh.vertices).query(points)[0]
-    rows = band_indices(points, CellGrid.around(mesh.vertices, reach), reach, chunk=7_001)
-    assert set(np.flatnonzero(nearest <= reach)) <= set(rows.tolist())
-    assert len(rows) < len(points) / 2  # and it does filter
+    near = select_near(points, mesh, reach, chunk=7_001)
+    assert set(np.flatnonzero(nearest <= reach)) <= set(near.rows.tolist())
+    assert len(near.rows) < len(points) / 2  # and it does filter
 
 
 def test_descend_finds_the_nearest_vertex_near_the_surface():
@@ -37,8 +40,9 @@ def test_descend_finds_the_nearest_vertex_near_the_surface():
     adj = adjacency(mesh.faces, mesh.n_vertices)
     rng = np.random.default_rng(2)
     points = mesh.vertices[rng.integers(0, mesh.n_vertices, 20_000)] + rng.normal(0, 0.8, size=(20_000, 3))
-    grid = CellGrid.around(mesh.vertices, 3.0)
-    start = grid.seed.reshape(-1)[grid.cells(points)]  # as NearIons.select starts
+    near = select_near(points, mesh, 4.0)
+    assert len(near.rows) == len(points)
+    start = mesh.faces[near.face, 0]  # a corner of the face holding the closest point, as NearIons.select starts
     vertex, d2 = descend(points, mesh.vertices, adj.indptr, adj.indices, start, exact=2.5)
     true_d, true_v = cKDTree(mesh.vertices).query(points)
     near = true_d < 1.5
@@ -71,7 +75,7 @@ def test_pooled_profiles_match_the_dense_weights():
     mesh = _blob()
     n = mesh.n_vertices
     normals = vertex_normals(mesh.vertices, mesh.faces)
-    comps = vertex_components(mesh.faces, n)
+    comps = topology(mesh.faces, n).vertex_components
     profiles = np.random.default_rng(4).random((n, 5))
     pairs = Pairs.find(mesh.vertices, comps, 1.2)
     got = pooled(profiles, mesh.vertices, normals, pairs, 8.0)

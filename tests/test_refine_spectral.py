@@ -134,7 +134,7 @@ def test_lateral_blur_needs_several_orientations():
 
 def _box_error(box, mesh, vertices):
     """The rounded box's mesh with ``vertices`` against the sharp box."""
-    from apt_filters.refine.evaluate import surface_error
+    from apt_filters.truth import surface_error
 
     return surface_error(type(mesh)(vertices, mesh.faces), box.sdf, box.mesh(0.2), box.volume(), box.area())
 

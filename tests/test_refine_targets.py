@@ -8,13 +8,13 @@ The issue's per-object targets (volume and area within 5 %, mean distance <= 0.1
 excess within 5 %, plateaus within 1 at.%) meet the counting statistics of this specimen: the Cramér-Rao
 floor of a 3 nm sphere's volume is 2.4 % (one standard deviation, from its Al / Cr step and its B shell, the
 shell's offset from the midpoint fitted over the four precipitates: no method can do better, and 4 % of
-unbiased estimates fall outside +-5 %), of the cubes' 1.5-2.0 % (:func:`~apt_filters.refine.counting_floor`).
+unbiased estimates fall outside +-5 %), of the cubes' 1.5-2.0 % (:func:`~apt_filters.truth.counting_floor`).
 So each volume is held to 5 % or three standard deviations of its floor, whichever is larger, 11 of the 12 to
 the issue's 5 %, and the method's bias and efficiency are tested over the 12 objects. Area, mean distance
 and Hausdorff are held to the issue's own figures on every object; excess and the inside plateau to what
 these seeds reach with a margin, the issue's figures beside them. Those two targets sit below this specimen's
 counting: its objects' own ions, counted in their true frames against the true plateaus
-(:func:`~apt_filters.refine.counted_truth`), miss the model's excess by up to 13 % and its inside plateau by up
+(:func:`~apt_filters.truth.counted_truth`), miss the model's excess by up to 13 % and its inside plateau by up
 to 2.1 at.% (seeds 1-8; 12 and 7 of 32 objects outside the targets), so they are also held against that count.
 """
 

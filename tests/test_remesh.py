@@ -11,7 +11,7 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import cvt, extract, optimize, quality, remesh, repair
 from apt_filters.remesh.remesh import curve_slivers
 from apt_filters.remesh.sampling import refine
-from benchmarks import remesh_shapes as shapes
+from tests import remesh_shapes as shapes
 
 SHAPES = ["sphere", "torus", "capped_cylinder", "open_sphere", "rotated_box", "box_minus_sphere"]
 EDGE = 1.0  # voxels

@@ -7,7 +7,7 @@ import numpy as np
 from apt_filters.cli.main import main
 from apt_filters.meshlab.bridge import read_mesh
 from apt_filters.meshlab.exports import write_mesh
-from benchmarks import remesh_shapes as shapes
+from tests import remesh_shapes as shapes
 
 
 def test_remesh_cli_round_trip(tmp_path, capsys):

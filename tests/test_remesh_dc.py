@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from apt_filters.remesh import quality, remesh
-from benchmarks import remesh_shapes as shapes
+from tests import remesh_shapes as shapes
 
 EDGE = 1.0  # voxels
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.voxel import Grid, SparseField, gradient, gradient_at, inside_mask, ion_hull, voxelize
+from apt_filters.core.hull import SpecimenHull
+from apt_filters.voxel import Grid, SparseField, gradient, gradient_at, inside_mask, voxelize
 from tests.voxel_helpers import ions, ranges
 
 HALF_ANGLE = np.radians(12.0)
@@ -35,7 +36,7 @@ def tip():
 @pytest.mark.parametrize("rule", ["density", "hull", "both"])
 def test_mask_marks_outside_of_a_conical_tip(tip, rule):
     f = voxelize(tip, ranges(), kernel="gaussian", voxel=1.0)
-    hull = ion_hull([tip.subset(slice(0, len(tip) // 2)), tip.subset(slice(len(tip) // 2, None))])
+    hull = SpecimenHull.from_points(tip.positions, chunk=len(tip) // 2 + 1)
     mask = inside_mask(f, rule=rule, hull=hull)
     inside = mask.dense()
     centres = np.stack(np.meshgrid(*(f.grid.axis(a) for a in range(3)), indexing="ij"), axis=-1)

@@ -1,18 +1,17 @@
-"""Interface chemistry across iso-surfaces: exact signed distances, proximity histograms, excess.
+"""Interface chemistry across iso-surfaces: proximity histograms, excess, objects.
 
-- :mod:`.distance`: exact signed distance of ions to an oriented (open or closed) mesh in a
-  narrow band, sign from angle-weighted pseudo-normals, rim detection;
+Distances to the surface come from :mod:`apt_filters.core.distance`.
+
 - :mod:`.proxigram`: counts per distance bin, object and species; concentrations with binomial
   errors, shell volumes and densities; CSV and PNG;
 - :mod:`.excess`: Gibbsian interfacial excess (proxigram integration, Krakauer–Seidman) per object
   and pooled, detection efficiencies of common instruments; JSON.
 """
 
-from apt_filters.analysis.distance import SignedDistance, SurfaceDistance
 from apt_filters.analysis.excess import (INSTRUMENT_EFFICIENCY, Excess, interfacial_excess, interface_position,
                                          write_excess_json)
 from apt_filters.analysis.proxigram import POOLED, Proxigram, compute_proxigram
 
-__all__ = ["INSTRUMENT_EFFICIENCY", "POOLED", "Excess", "Proxigram", "SignedDistance",
-           "SurfaceDistance", "compute_proxigram", "interface_position", "interfacial_excess",
+__all__ = ["INSTRUMENT_EFFICIENCY", "POOLED", "Excess", "Proxigram", 
+           "compute_proxigram", "interface_position", "interfacial_excess",
            "write_excess_json"]

@@ -1,7 +1,8 @@
 """Proximity histograms (Hellman et al. 2000): composition against signed distance to an iso-surface.
 
 Every ion within ``max_distance`` of the surface gets its exact signed distance
-(:mod:`apt_filters.analysis.distance`): positive inside the region above the iso-value. Ions
+(:mod:`apt_filters.core.distance`), reported positive inside the region above the iso-value
+(the engine's sign negated, as AP Suite plots proxigrams). Ions
 are binned by that distance, per object (the connected piece of surface holding the closest
 point, or ``face_scalars["object_id"]``), and counted per ion species; element counts follow
 from the range table's decomposition (CrO2 = 1 Cr + 2 O).
@@ -20,8 +21,8 @@ from typing import Iterable
 
 import numpy as np
 
-from apt_filters.analysis.distance import MeshTopology, SurfaceDistance
 from apt_filters.core.atomic import atomic_output, atomic_write_text
+from apt_filters.core.distance import PseudoNormals, SurfaceDistance
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
@@ -193,14 +194,14 @@ class Proxigram:
         return Path(path)
 
 
-def face_objects(mesh: TriMesh, topology: MeshTopology) -> np.ndarray:
+def face_objects(mesh: TriMesh) -> np.ndarray:
     """(m,) int64 object id per face: ``face_scalars["object_id"]`` or connected components."""
     if "object_id" in mesh.face_scalars:
         return np.asarray(mesh.face_scalars["object_id"]).astype(np.int64)
-    return topology.face_components(mesh.n_vertices)
+    return mesh.face_components()
 
 
-def curvature_integrals(mesh: TriMesh, topology: MeshTopology, labels: np.ndarray,
+def curvature_integrals(mesh: TriMesh, normals: PseudoNormals, labels: np.ndarray,
                         n_objects: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Area, integrated mean curvature and integrated Gaussian curvature per object.
 
@@ -208,18 +209,17 @@ def curvature_integrals(mesh: TriMesh, topology: MeshTopology, labels: np.ndarra
     dihedral angle, positive where the surface bends away from its normal), Gaussian curvature
     ``K = sum (2 pi - angle sum)`` over interior vertices. Returns three (n_objects,) arrays.
     """
+    topology = mesh.topology
     areas = np.bincount(labels, mesh.face_areas(), minlength=n_objects)
-    interior = np.flatnonzero(topology.edge_faces == 2)
-    order = np.argsort(topology.face_edge.ravel(), kind="stable")
-    first = np.searchsorted(topology.face_edge.ravel()[order], interior)
-    f1, f2 = order[first] // 3, order[first + 1] // 3
-    n1, n2 = topology.face_normals[f1], topology.face_normals[f2]
+    interior = np.flatnonzero(topology.edge_faces == 2)  # the edges of topology.face_pairs, in order
+    f1, f2 = topology.face_pairs.T
+    n1, n2 = normals.face_normals[f1], normals.face_normals[f2]
     centroid = mesh.vertices[mesh.faces].mean(axis=1)
     convex = np.einsum("ij,ij->i", n1, centroid[f2] - centroid[f1]) < 0
     theta = np.arccos(np.clip(np.einsum("ij,ij->i", n1, n2), -1, 1)) * np.where(convex, 1, -1)
     length = np.linalg.norm(np.diff(mesh.vertices[topology.edge_vertices[interior]], axis=1)[:, 0], axis=1)
     mean = np.bincount(labels[f1], 0.5 * length * theta, minlength=n_objects)
-    angle_sum = np.bincount(mesh.faces.ravel(), topology.corner_angles.ravel(), minlength=mesh.n_vertices)
+    angle_sum = np.bincount(mesh.faces.ravel(), normals.corner_angles.ravel(), minlength=mesh.n_vertices)
     vertex_label = np.zeros(mesh.n_vertices, dtype=np.int64)
     vertex_label[mesh.faces.ravel()] = np.repeat(labels, 3)
     used = np.zeros(mesh.n_vertices, dtype=bool)
@@ -267,7 +267,7 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
     chunk : int
         Ions per chunk of an ``IonTable``. Peak memory about 60 bytes x chunk size (250 MB at the
         default 4 M; the ions themselves not counted) plus the search grid (about 40 MB for 230k
-        triangles, :class:`~apt_filters.analysis.distance.TriangleGrid`), independent of the
+        triangles, :class:`~apt_filters.core.distance.TriangleGrid`), independent of the
         number of ions.
 
     Returns
@@ -282,7 +282,7 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
     n_bins = int(round(2 * max_distance / bin_width))
     edges = np.linspace(-max_distance, max_distance, n_bins + 1)
     surface = SurfaceDistance(mesh)
-    labels = face_objects(mesh, surface.topology)
+    labels = face_objects(mesh)
     object_ids, face_slot = np.unique(labels, return_inverse=True)
     n_obj, n_ion = len(object_ids), len(ranges.ions)
     counts = np.zeros(n_obj * n_bins * (n_ion + 1), dtype=np.int64)
@@ -295,17 +295,18 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         n_ions += len(points)
         sd = surface.query(points, max_distance=max_distance)  # NaN beyond: not kept
         n_candidates += sd.searched
-        keep = (sd.distance >= -max_distance) & (sd.distance < max_distance)
+        inside = -sd.distance  # positive inside the region above the iso-value
+        keep = (inside >= -max_distance) & (inside < max_distance)
         n_edge += int(np.count_nonzero(keep & sd.on_boundary))
         if not keep_edge:
             keep &= ~sd.on_boundary
         kept = np.flatnonzero(keep)
         species = ranges.ion_index(np.asarray(part.mz)[kept]) + 1
-        bins = np.minimum(((sd.distance[kept] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
+        bins = np.minimum(((inside[kept] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
         slot = (face_slot[sd.face[kept]] * n_bins + bins) * (n_ion + 1) + species
         counts += np.bincount(slot, minlength=len(counts))
     counts = counts.reshape(n_obj, n_bins, n_ion + 1)
-    area, mean, gauss = curvature_integrals(mesh, surface.topology, face_slot, n_obj)
+    area, mean, gauss = curvature_integrals(mesh, surface.normals, face_slot, n_obj)
     return Proxigram(edges=edges, ions=ranges.ions, elements=ranges.elements,
                      element_matrix=ranges.element_matrix(), colors=ranges.ion_colors(),
                      object_ids=object_ids, counts=counts[:, :, 1:], unranged=counts[:, :, 0], areas=area,

@@ -12,8 +12,8 @@ from apt_filters.contour.gradients import hermite_crossings
 from apt_filters.contour.marching_cubes import cap_cells
 from apt_filters.contour.qef import plane_misfit, solve_qef
 from apt_filters.contour.tables import case_table
-from apt_filters.contour.topology import face_pairs, folded_pairs, self_intersecting_faces, unit_normals
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.checks import folded_pairs, self_intersecting_faces
+from apt_filters.core.mesh import TriMesh, face_normals, topology
 
 # Position of a cell around a grid edge, by the cube-edge sub-index k (e % 4): the four
 # cells, in this order, run counter-clockwise about the edge's axis.
@@ -90,7 +90,7 @@ def _splits(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _folds(pos: np.ndarray, a: np.ndarray, b: np.ndarray, max_fold: float) -> np.ndarray:
     """(k,) bool: whether triangles ``a`` and ``b`` ((k, 3) vertex ids) fold against each other."""
-    na, nb = unit_normals(pos, a), unit_normals(pos, b)
+    na, nb = face_normals(pos, a), face_normals(pos, b)
     return np.einsum("ij,ij->i", na, nb) < np.cos(np.radians(max_fold))
 
 
@@ -123,7 +123,7 @@ def _flip_diagonals(pos: np.ndarray, split: np.ndarray, quads: np.ndarray, folde
     cand = np.unique(folded // 2)
     tris = split.reshape(-1, 3)
     near = np.flatnonzero(np.isin(tris, split[cand]).any(axis=1))
-    pairs = near[face_pairs(tris[near])]
+    pairs = near[topology(tris[near], len(pos)).face_pairs]
     pairs = np.concatenate([pairs, pairs[:, ::-1]])
     pairs = pairs[np.isin(pairs[:, 0] // 2, cand) & (pairs[:, 0] // 2 != pairs[:, 1] // 2)]
     split_a, split_b = _splits(quads[cand])

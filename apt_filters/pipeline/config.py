@@ -8,12 +8,18 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import tomli_w
+
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.pipeline import toml
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the same parser, from PyPI
+    import tomli as tomllib
 
 
 @dataclass
@@ -139,7 +145,7 @@ class PipelineConfig:
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
 
     def to_toml(self) -> str:
-        return toml.dumps(dataclasses.asdict(self))
+        return tomli_w.dumps(_without_none(dataclasses.asdict(self)))
 
 
 CHOICES = {
@@ -148,6 +154,15 @@ CHOICES = {
     ("contour", "method"): ("dc", "mc"),
     ("remesh", "method"): ("cvt", "none"),
 }
+
+
+def _without_none(value):
+    """``value`` with the None entries of its tables left out (TOML has no null: a missing key means the default)."""
+    if isinstance(value, dict):
+        return {k: _without_none(v) for k, v in value.items() if v is not None}
+    if isinstance(value, (list, tuple)):
+        return [_without_none(v) for v in value]
+    return value
 
 
 def _coerce(section: str, cls, values: dict, source: str | None):

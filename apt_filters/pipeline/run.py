@@ -43,11 +43,7 @@ def surface_label(surface: SurfaceConfig) -> str:
 
 def closed_components(mesh: TriMesh) -> int:
     """Number of connected components without boundary edges."""
-    labels = mesh.face_components()
-    edges = np.sort(mesh.edges(), axis=1)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    open_faces = (counts[inverse.ravel()] == 1).reshape(-1, 3).any(axis=1)
-    return int(len(np.unique(labels)) - len(np.unique(labels[open_faces])))
+    return int(mesh.topology.closed_component.sum())
 
 
 @dataclass
@@ -63,7 +59,7 @@ class SurfaceResult:
 
 def _counting_errors(mesh, offset_errors) -> list[dict]:
     """Per refined object: the counting-statistics standard error of its mean offset and, if closed, of its volume."""
-    from apt_filters.refine import split_components
+    from apt_filters.core.mesh import split_components
 
     out = []
     for c, (e, part) in enumerate(zip(offset_errors, split_components(mesh))):
@@ -241,7 +237,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                "mesh": r.stats, "objects": r.objects, "excess": r.excess} for r in results]
         rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
         if truth is not None:
-            from apt_filters.pipeline.truth import compare_with_truth, counted_excess
+            from apt_filters.truth.specimen import compare_with_truth, counted_excess
 
             report["truth"] = compare_with_truth(results, truth, counted_excess(truth, ions, ranges))
         report["steps"] = log.as_dicts()

@@ -13,7 +13,7 @@ it by 30-45% in volume). This step
   bias, places each object by the peak of a segregant left out of the basis as well (:mod:`.marker`)
   and rebuilds faceted edges on planes fitted to the ions (:func:`refine_surface`),
 - gives the interfacial excess per object over its own area (:func:`object_excess`),
-- and, for synthetic specimens, the counting floor no method can beat (:func:`counting_floor`).
+The counting floor no method can beat, on synthetic specimens, is :func:`apt_filters.truth.counting_floor`.
 
 Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
 
@@ -32,8 +32,6 @@ self-intersections or proxigram sign errors (benchmarks/results_refine.md, docs/
 """
 
 from apt_filters.refine.composition import IonAtoms, contrast_weights, ion_atoms
-from apt_filters.refine.evaluate import (CountedTruth, CountingFloor, SurfaceError, counted_truth, counting_floor,
-                                        match_objects, split_components, surface_error)
 from apt_filters.refine.excess import ObjectExcess, object_excess
 from apt_filters.refine.levels import ObjectLevels, object_levels, per_object_iso
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
@@ -44,8 +42,7 @@ from apt_filters.refine.surface import RefineResult, guarded_move, refine_surfac
 from apt_filters.refine.untangle import unfold, untangle
 
 __all__ = [
-    "CountedTruth", "CountingFloor", "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult",
-    "Specks", "SurfaceError", "contrast_weights", "counted_truth", "counting_floor", "marker_offsets",
-    "guarded_move", "ion_atoms", "match_objects", "merge", "recontour", "object_excess", "object_levels", "per_object_iso",
-    "refine_surface", "remove_specks", "split_components", "subdivide", "surface_error", "unfold", "untangle",
+    "IonAtoms", "MarkerOffsets", "ObjectExcess", "ObjectLevels", "RefineResult", "Specks", "contrast_weights",
+    "marker_offsets", "guarded_move", "ion_atoms", "merge", "recontour", "object_excess", "object_levels",
+    "per_object_iso", "refine_surface", "remove_specks", "subdivide", "unfold", "untangle",
 ]

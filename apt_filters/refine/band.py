@@ -11,8 +11,8 @@ across the interface made of the ions of its Voronoi patch; pooling the profiles
 vertices gives enough ions per bin while each ion keeps the distance to its own local surface,
 so pooling adds no curvature bias.
 
-:class:`NearIons` holds the ions near a mesh (selected chunk by chunk through a cell grid, so
-10^8-10^9 memory-mapped ions are read once in bounded memory) and keeps their nearest vertices
+:class:`NearIons` holds the ions near a mesh (selected in one streamed pass,
+:func:`apt_filters.core.nearby.select_near`, so 10^8-10^9 memory-mapped ions are read once in bounded memory) and keeps their nearest vertices
 up to date as the mesh moves; :class:`Pairs` and :func:`pooled` pool the profiles of vertices
 within a radius (numba).
 """
@@ -26,11 +26,13 @@ from scipy.sparse import coo_matrix, csr_matrix
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
+from apt_filters.core.mesh import TriMesh
+from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import IonAtoms, ion_atoms
-from apt_filters.refine.nearest import CellGrid, band_indices, descend
+from apt_filters.refine.nearest import descend
 from apt_filters.voxel import ConcentrationBasis
 
 REASSIGN = 0.15
@@ -41,35 +43,12 @@ EXACT = 2.5
 the profiles' reach (1.5 nm) and the inner plateau bins; farther ions only count in a plateau."""
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(n, 3) unit area-weighted vertex normals (zero for isolated vertices)."""
-    v = vertices[faces]
-    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])  # length = 2 x area: area weighting
-    out = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(out, faces[:, k], fn)
-    length = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
-
-
 def adjacency(faces: np.ndarray, n_vertices: int) -> csr_matrix:
     """(n, n) symmetric 0/1 vertex adjacency through mesh edges."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     a = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
     a = ((a + a.T) > 0).astype(np.float64)
     return a
-
-
-def vertex_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """(n,) component id of each vertex (-1 for vertices no face uses)."""
-    from apt_filters.core.mesh import TriMesh
-
-    out = np.full(n_vertices, -1, dtype=np.int64)
-    if len(faces):
-        labels = TriMesh(np.zeros((n_vertices, 3)), faces).face_components()
-        for k in range(3):
-            out[faces[:, k]] = labels
-    return out
 
 
 def normal_weight(normals: np.ndarray, i: np.ndarray, j: np.ndarray, power: float) -> np.ndarray:
@@ -200,16 +179,16 @@ class NearIons:
         then 24 + 8 + 4 k bytes per selected ion (k basis elements).
         """
         adj = adjacency(faces, len(vertices))
-        used = np.unique(faces)  # vertices no face uses have no neighbours to walk to
-        rows, positions, vertex = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-        if len(used):
-            grid = CellGrid.around(vertices[used], radius)
-            rows = band_indices(ions.positions, grid, radius)
-            positions = np.asarray(ions.positions[rows], dtype=np.float64)
-            start = used[grid.seed.reshape(-1)[grid.cells(positions)]]
-            vertex, d2 = descend(positions, vertices, adj.indptr, adj.indices, start, EXACT)
-            keep = d2 <= radius * radius
-            rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
+        # every ion within ``radius`` of a vertex is within ``radius`` of the mesh; its walk to the
+        # nearest vertex starts at the nearest corner of the face holding its closest point
+        near = select_near(ions.positions, TriMesh(vertices, faces), radius)
+        rows, positions = near.rows, near.positions
+        corners = faces[near.face]
+        start = corners[np.arange(len(rows)), np.argmin(((vertices[corners] - positions[:, None]) ** 2).sum(axis=2),
+                                                         axis=1)]
+        vertex, d2 = descend(positions, vertices, adj.indptr, adj.indices, start, EXACT)
+        keep = d2 <= radius * radius
+        rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
         atoms = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, basis)
         return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
                    vertices.copy())

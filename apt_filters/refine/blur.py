@@ -43,8 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apt_filters.core.mesh import TriMesh
-from apt_filters.refine.band import adjacency, vertex_normals
+from apt_filters.core.mesh import TriMesh, vertex_normals
+from apt_filters.refine.band import adjacency
 from apt_filters.refine.peak import fit_peak
 
 

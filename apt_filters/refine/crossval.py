@@ -42,9 +42,10 @@ from typing import Callable
 import numpy as np
 from scipy.special import erfc
 
+from apt_filters.core.mesh import vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import NearIons, vertex_normals
+from apt_filters.refine.band import NearIons
 from apt_filters.refine.composition import ObjectScores
 from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
 from apt_filters.voxel import ConcentrationBasis

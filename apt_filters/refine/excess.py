@@ -14,10 +14,10 @@ import numpy as np
 
 from apt_filters.contour.components import component_table
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, topology, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import NearIons, vertex_components, vertex_normals
+from apt_filters.refine.band import NearIons
 from apt_filters.refine.levels import plateaus
 from apt_filters.voxel import ConcentrationBasis
 
@@ -69,7 +69,7 @@ def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str
     Fractions count every ranged element (the solute must be in the denominator here).
     ``half_width`` (nm) must cover the segregation shell and the blur on both sides.
     """
-    components = vertex_components(mesh.faces, mesh.n_vertices)
+    components = topology(mesh.faces, mesh.n_vertices).vertex_components
     n_comp = int(components.max()) + 1 if mesh.n_vertices else 0
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     reach = max(window[1], half_width) + 1.0

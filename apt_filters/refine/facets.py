@@ -60,8 +60,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 from scipy.special import erfc
 
-from apt_filters.core.mesh import TriMesh
-from apt_filters.refine.band import adjacency, vertex_components, vertex_normals
+from apt_filters.core.mesh import TriMesh, topology, vertex_normals
+from apt_filters.refine.band import adjacency
 from apt_filters.refine.blur import vertex_areas
 
 MAX_CANDIDATES = 400
@@ -208,7 +208,7 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
         smoothed = (adj @ smoothed) / deg[:, None]
     normals = vertex_normals(smoothed, faces)
     area = vertex_areas(vertices, faces)
-    components = vertex_components(faces, len(vertices))
+    components = topology(faces, len(vertices)).vertex_components
     detect, fit = np.cos(np.radians(cap)), np.cos(np.radians(fit_cap))
     # open surfaces (interfaces that meet the specimen edge) are not polyhedra: only closed objects
     open_components = np.unique(components[TriMesh(vertices, faces).boundary_edges().ravel()])
@@ -237,7 +237,7 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
     vertices = np.asarray(vertices, dtype=np.float64)
     normals = vertex_normals(vertices, faces)
     step = np.zeros(len(vertices))
-    components = vertex_components(faces, len(vertices))
+    components = topology(faces, len(vertices)).vertex_components
     on_facet = np.zeros(len(vertices), dtype=bool)
     for f in facets:
         on_facet[f.core] = True
@@ -285,7 +285,7 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
     shorter reach than a corner's: an edge's rim is rounded less deeply than a corner's).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
-    components = vertex_components(faces, len(vertices))
+    components = topology(faces, len(vertices)).vertex_components
     moves = np.zeros_like(vertices)
     taken = np.zeros(len(vertices), dtype=bool)
     # faces around each vertex (CSR: those of v are order[start[v]:start[v + 1]])

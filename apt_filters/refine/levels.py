@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, topology, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import Band, NearIons, vertex_components, vertex_normals
+from apt_filters.refine.band import Band, NearIons
 from apt_filters.refine.composition import IonAtoms
 from apt_filters.voxel import ConcentrationBasis
 
@@ -137,7 +137,7 @@ def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: st
     -------
     list of ObjectLevels, one per component.
     """
-    components = vertex_components(mesh.faces, mesh.n_vertices)
+    components = topology(mesh.faces, mesh.n_vertices).vertex_components
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     near = NearIons.select(ions, ranges, basis, vertices, mesh.faces, window[1] + 1.0)
     band = near.band(vertices, vertex_normals(vertices, mesh.faces), window[1] + 1.0)

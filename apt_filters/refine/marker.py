@@ -2,7 +2,7 @@
 
 The refinement places a surface at the midpoint of the basis elements' step (Al up, Cr down across a
 gamma / gamma-prime interface). At a 10-point contrast that step fixes a 3 nm sphere's mean offset only to
-~0.036 nm, 3.6 % of its volume (:func:`~apt_filters.refine.evaluate.counting_floor`). A segregant held in a
+~0.036 nm, 3.6 % of its volume (:func:`~apt_filters.truth.counting_floor`). A segregant held in a
 thin layer at the interface (B here, left out of the basis so that it does not dilute the step) marks the
 same interface with ions the step never counted: its peak's centre ``mu_k`` against the signed distance to
 object ``k``'s surface is a second, independent reading of where the interface lies, ~0.03 nm on a 3 nm

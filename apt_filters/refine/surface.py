@@ -77,12 +77,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from apt_filters.contour.topology import face_pairs, folded_pairs, self_intersecting_faces, unit_normals
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.checks import folded_pairs, self_intersecting_faces
+from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import (Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled, vertex_components,
-                                    vertex_normals)
+from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size, cross_validated_modes,
@@ -160,7 +159,7 @@ class RefineResult:
         segregant's peak where ``marker`` moved it; times the object's area it is that of its volume. From
         the score alone, on the gamma-prime specimen 0.035-0.041 nm for a 3 nm sphere (3.5-4.1 % of its
         volume), against the Cramér-Rao floor of all the element profiles with the truth known, 0.036 nm
-        (:func:`~apt_filters.refine.evaluate.counting_floor`).
+        (:func:`~apt_filters.truth.counting_floor`).
     marker : MarkerOffsets or None
         Each object's segregant peak, the layer's common offset and the moves (``marker``), None where no
         species left out of the basis is ranged or ``marker=False``.
@@ -217,18 +216,18 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
     pair (:data:`FOLD_ANGLE`) that the input did not have. After :data:`GUARD_HALVINGS` halvings
     the vertices of offending faces stop (step 0) until none is left: faces whose vertices all
     stand still are unchanged, so the loop ends with no new fold. Returns the new vertices and
-    how many vertices had their step shortened. ``pairs``: :func:`face_pairs` of ``faces``, if known.
+    how many vertices had their step shortened. ``pairs``: :attr:`~apt_filters.core.mesh.Topology.face_pairs` of ``faces``, if known.
     """
-    pairs = face_pairs(faces) if pairs is None else pairs
+    pairs = topology(faces, len(vertices)).face_pairs if pairs is None else pairs
     limit = np.cos(np.radians(FOLD_ANGLE))
 
     def folded(normals: np.ndarray) -> np.ndarray:
         return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
 
-    before = unit_normals(vertices, faces)
+    before = face_normals(vertices, faces)
     existing = folded(before)
     moved = vertices + step
-    after = unit_normals(moved, faces)
+    after = face_normals(moved, faces)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
     attempt = 0
@@ -246,7 +245,7 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
         changed = np.zeros(len(vertices), dtype=bool)
         changed[verts] = True
         around = np.flatnonzero(changed[faces].any(axis=1))
-        after[around] = unit_normals(moved, faces[around])
+        after[around] = face_normals(moved, faces[around])
         attempt += 1
 
 
@@ -318,7 +317,7 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
         mesh = subdivide(mesh)
     vertices, faces = mesh.vertices.astype(np.float64).copy(), mesh.faces
     plain = umbrella(adjacency(faces, len(vertices)))
-    pairs = face_pairs(faces)
+    pairs = topology(faces, len(vertices)).face_pairs
     # the fold guard keeps the folds it is given: none may be left in the start
     vertices, _ = unfold(vertices, faces, plain)
     for _ in range(relax_start):
@@ -338,10 +337,10 @@ def _place(vertices: np.ndarray, faces: np.ndarray, ions: IonTable, ranges: Rang
     """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``."""
     vertices = vertices.copy()
     n = len(vertices)
-    components = vertex_components(faces, n)
+    components = topology(faces, n).vertex_components
     n_comp = int(components.max()) + 1 if n else 0
     adj = adjacency(faces, n)
-    pairs = face_pairs(faces)
+    pairs = topology(faces, n).face_pairs
     plain = umbrella(adj)
     reach = max(plateau_window[1], half_width) + 1.0
     # ions within reach of the surface, selected once (chunked) and again only if it moves far
@@ -424,7 +423,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, halves: list[Io
                          distance: str) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
     even ions' (see ``cross_fit`` of :func:`refine_surface`)."""
-    components = vertex_components(faces, len(fits[0].vertices))
+    components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = window[1] + 1.0
     sums, elements = 0.0, None
@@ -741,8 +740,8 @@ def refine_surface(
     mesh, start, plain = _prepare(mesh, subdivisions, relax_start)
     faces = mesh.faces
     n = len(start)
-    components = vertex_components(faces, n)
-    pairs = face_pairs(faces)
+    components = topology(faces, n).vertex_components
+    pairs = topology(faces, n).face_pairs
     fits, halves, fixed = [], [], None
     if cross_fit:
         # strided views: no copy of a memory-mapped table

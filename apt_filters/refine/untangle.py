@@ -5,7 +5,7 @@ but the guard keeps folds it is given (:func:`unfold` removes those from the inp
 faces two or more steps apart on the mesh can still cross (a dent pushed through, or the fan of
 sliver triangles around a vertex turning over itself), which would flip the sign of proxigram
 distances near them. :func:`untangle` finds crossing faces
-(:func:`~apt_filters.contour.topology.self_intersecting_faces`) and folded pairs and smooths their
+(:func:`~apt_filters.core.checks.self_intersecting_faces`) and folded pairs and smooths their
 vertices and one ring around them locally, then, if that does not separate them, moves those
 vertices back toward their positions in the (clean) input.
 
@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from apt_filters.contour.topology import folded_pairs, self_intersecting_faces
+from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 
 SMOOTH_ROUNDS = 6
 REVERT_ROUNDS = 6
@@ -75,7 +75,7 @@ def untangle(vertices: np.ndarray, faces: np.ndarray, original: np.ndarray,
 
 
 def unfold(vertices: np.ndarray, faces: np.ndarray, mean_of_neighbours: csr_matrix) -> tuple[np.ndarray, int]:
-    """Vertices with no folded face pair (:func:`~apt_filters.contour.topology.folded_pairs`), and the rounds used.
+    """Vertices with no folded face pair (:func:`~apt_filters.core.checks.folded_pairs`), and the rounds used.
 
     Marching cubes on a noisy, masked field leaves a few folds (13 pairs on the 10M-ion ``many``
     specimen, on sliver triangles of ~0.1 nm²); the fold guard of the refinement keeps folds it

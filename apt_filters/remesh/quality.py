@@ -13,8 +13,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from apt_filters.contour.metrics import face_quality, point_to_mesh_distance, sample_mesh
+from apt_filters.contour.metrics import face_quality, sample_mesh
 from apt_filters.core.deps import open3d
+from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh._arrays import isin, unique_rows
 
@@ -23,7 +24,7 @@ def hausdorff(a: TriMesh, b: TriMesh, n_samples: int = 200_000) -> float:
     """Two-sided Hausdorff distance, estimated from vertices plus about ``n_samples`` area samples of each mesh."""
     pa = np.vstack([a.vertices, sample_mesh(a, n_samples / a.area(), np.random.default_rng(1))[0]])
     pb = np.vstack([b.vertices, sample_mesh(b, n_samples / b.area(), np.random.default_rng(2))[0]])
-    return float(max(point_to_mesh_distance(b, pa).max(), point_to_mesh_distance(a, pb).max()))
+    return float(max(mesh_distance(b, pa).max(), mesh_distance(a, pb).max()))
 
 
 def feature_edges(mesh: TriMesh, angle: float = 40.0) -> np.ndarray:

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from apt_filters.contour.metrics import face_quality, non_manifold_vertices
+from apt_filters.contour.metrics import face_quality
+from apt_filters.core.checks import non_manifold_vertices
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh._arrays import isin, unique_rows
 from apt_filters.remesh.extract import triangulate_polygon
@@ -120,7 +121,7 @@ def defects(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray) ->
     bad[undirected[(counts > 2) | opened].ravel()] = True
     directed, _, _, repeats = unique_rows(half)
     bad[directed[repeats > 1].ravel()] = True
-    return bad | non_manifold_vertices(TriMesh(vertices, faces))
+    return bad | non_manifold_vertices(vertices, faces)
 
 
 def lone_generators(faces: np.ndarray, n: int) -> np.ndarray:

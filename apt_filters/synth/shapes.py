@@ -78,6 +78,8 @@ class Shape:
     """Interface of every shape; see the module docstring."""
 
     kind = "shape"
+    exact_sdf = True
+    """``|sdf|`` is the true distance to the surface everywhere."""
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """(N,) signed distance in nm of points (N, 3); negative inside."""
@@ -111,6 +113,14 @@ class Shape:
         """JSON-ready description of the shape."""
         raise NotImplementedError
 
+    def sample(self, density: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Uniform random surface points (``density`` per nm², Poisson count) and their outward unit normals."""
+        raise NotImplementedError
+
+
+def _count(area: float, density: float, rng: np.random.Generator) -> int:
+    return int(rng.poisson(area * density))
+
 
 class _Solid(Shape):
     """A bounded shape placed by a centre and a rotation; subclasses work in the local frame."""
@@ -139,6 +149,13 @@ class _Solid(Shape):
     def mesh(self, spacing: float = 0.1, within: Within | None = None) -> TriMesh:
         v, f = self._local_mesh(spacing)
         return TriMesh(v @ self.rotation.T + self.center, f)
+
+    def sample(self, density: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        p, n = self._local_sample(density, rng)
+        return p @ self.rotation.T + self.center, n @ self.rotation.T
+
+    def _local_sample(self, density: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
 
     def _placement(self) -> dict:
         return {"center": self.center.tolist(), "rotation": self.rotation.tolist()}
@@ -171,6 +188,11 @@ class Sphere(_Solid):
 
     def _local_mesh(self, spacing):
         return _revolve(*_arc(0.0, self.radius, math.pi, 0.0, spacing), spacing)
+
+    def _local_sample(self, density, rng):
+        n = rng.normal(size=(_count(4 * np.pi * self.radius**2, density, rng), 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return self.radius * n, n
 
     def params(self):
         return {"kind": self.kind, "radius": self.radius, **self._placement()}
@@ -213,6 +235,23 @@ class Cuboid(_Solid):
 
     def _local_mesh(self, spacing):
         return _box_surface(self.size / 2, spacing)
+
+    def _local_sample(self, density, rng):
+        half = self.size / 2
+        pts, nrm = [], []
+        for a in range(3):
+            u, v = (a + 1) % 3, (a + 2) % 3
+            for s in (-1.0, 1.0):
+                m = _count(4 * half[u] * half[v], density, rng)
+                q = np.zeros((m, 3))
+                q[:, a] = s * half[a]
+                q[:, u] = rng.uniform(-half[u], half[u], m)
+                q[:, v] = rng.uniform(-half[v], half[v], m)
+                n = np.zeros((m, 3))
+                n[:, a] = s
+                pts.append(q)
+                nrm.append(n)
+        return np.concatenate(pts), np.concatenate(nrm)
 
     def params(self):
         return {"kind": self.kind, "size": self.size.tolist(), **self._placement()}
@@ -298,6 +337,20 @@ class Cylinder(_Axial):
                        _segment((r, -h), (r, h), spacing),
                        _segment((r, h), (0.0, h), spacing))
         return _revolve(rho, z, spacing)
+
+    def _local_sample(self, density, rng):
+        r, hh = self.radius, self.length / 2
+        m = _count(2 * np.pi * r * 2 * hh, density, rng)
+        phi = rng.uniform(0, 2 * np.pi, m)
+        side = np.stack([r * np.cos(phi), r * np.sin(phi), rng.uniform(-hh, hh, m)], 1)
+        side_n = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
+        pts, nrm = [side], [side_n]
+        for s in (-1.0, 1.0):
+            m = _count(np.pi * r**2, density, rng)
+            rad, phi = r * np.sqrt(rng.uniform(0, 1, m)), rng.uniform(0, 2 * np.pi, m)
+            pts.append(np.stack([rad * np.cos(phi), rad * np.sin(phi), np.full(m, s * hh)], 1))
+            nrm.append(np.tile([0.0, 0.0, s], (m, 1)))
+        return np.concatenate(pts), np.concatenate(nrm)
 
 
 class HalfSpace(Shape):
@@ -444,14 +497,14 @@ class CustomShape(Shape):
         return self._field
 
     def _level_mesh(self, level: float) -> TriMesh:
-        from skimage.measure import marching_cubes
+        from apt_filters.contour.marching_cubes import marching_cubes
 
         field = self._values()
         if not field.min() < level < field.max():
             return TriMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-        v, f, _, _ = marching_cubes(field, level=level, spacing=(self.grid,) * 3)
-        mesh = TriMesh(v + self._origin, f)
-        return mesh if mesh.signed_volume() >= 0 else TriMesh(mesh.vertices, mesh.faces[:, ::-1])
+        # the region below the level is inside: contour -sdf above -level, normals outward
+        mesh = marching_cubes(-field, -level, spacing=self.grid, origin=self._origin)
+        return TriMesh(mesh.vertices, mesh.faces)
 
     def level_area(self, d, within=None):
         d = np.atleast_1d(np.asarray(d, dtype=np.float64))

@@ -8,7 +8,7 @@ outside the specimen; :func:`gradient` / :func:`gradient_at` give sub-voxel grad
 from apt_filters.voxel.fields import UNRANGED_FIELD, ConcentrationBasis, Fields, voxelize
 from apt_filters.voxel.gradient import field_gradient, gradient, gradient_at, sample
 from apt_filters.voxel.grid import BLOCK, Grid, check_budget, default_budget
-from apt_filters.voxel.mask import inside_mask, ion_hull
+from apt_filters.voxel.mask import inside_mask
 from apt_filters.voxel.sparse import SparseField
 from apt_filters.voxel.transfer import KERNELS, kernel_reach, second_pass_sigma
 
@@ -26,7 +26,6 @@ __all__ = [
     "gradient",
     "gradient_at",
     "inside_mask",
-    "ion_hull",
     "kernel_reach",
     "sample",
     "second_pass_sigma",

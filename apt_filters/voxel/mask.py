@@ -12,22 +12,19 @@ Rules
     voxels. A voxel half covered by the specimen holds about half the bulk count, so the
     default boundary sits at the specimen's surface.
 ``hull``
-    Inside the convex hull of the ions (:func:`ion_hull`); voxels of blocks without counts
-    are outside.
+    Inside the convex hull of the ions (:class:`~apt_filters.core.hull.SpecimenHull`); voxels of
+    blocks without counts are outside.
 ``both``
     Inside by both rules.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-
 import numpy as np
-from scipy.spatial import ConvexHull, Delaunay
 
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.io.ions import IonTable
-from apt_filters.voxel.fields import Fields, as_chunks
+from apt_filters.core.hull import SpecimenHull
+from apt_filters.voxel.fields import Fields
 from apt_filters.voxel.grid import BLOCK
 from apt_filters.voxel.sparse import SparseField
 
@@ -35,29 +32,11 @@ RULES = ("density", "hull", "both")
 BULK_PERCENTILE = 90.0
 
 
-def ion_hull(ions_or_chunks: IonTable | Iterable[IonTable]) -> np.ndarray:
-    """(k, 3) float64 vertices of the convex hull of all ions, built chunk by chunk.
-
-    The hull of a union is the hull of the previous hull's vertices and the next chunk, so
-    memory stays at one chunk.
-    """
-    verts = np.empty((0, 3))
-    for chunk in as_chunks(ions_or_chunks):
-        pts = np.vstack([verts, chunk.positions.astype(np.float64)])
-        if len(pts) >= 4:
-            verts = pts[ConvexHull(pts).vertices]
-        else:
-            verts = pts
-    if len(verts) < 4:
-        raise AptFiltersError("the ions span no volume: a hull needs at least 4 ions not in one plane")
-    return verts
-
-
 def inside_mask(
     fields: Fields,
     rule: str = "density",
     threshold: float = 0.5,
-    hull: np.ndarray | None = None,
+    hull: SpecimenHull | None = None,
 ) -> SparseField:
     """Boolean field, True inside the specimen (background False: blocks without counts are outside).
 
@@ -69,8 +48,8 @@ def inside_mask(
     threshold : float
         Fraction of the bulk count (90th percentile of positive voxels) below which a voxel is
         outside (``density`` and ``both``).
-    hull : (k, 3) array, optional
-        Hull vertices from :func:`ion_hull`; required by ``hull`` and ``both``.
+    hull : SpecimenHull, optional
+        The ions' hull (``SpecimenHull.from_points(ions.positions)``); required by ``hull`` and ``both``.
     """
     if rule not in RULES:
         raise AptFiltersError(f"unknown mask rule {rule!r}; choose one of {', '.join(RULES)}")
@@ -82,9 +61,9 @@ def inside_mask(
         inside &= counts.data >= threshold * bulk if bulk > 0 else False
     if rule in ("hull", "both"):
         if hull is None:
-            raise AptFiltersError(f"mask rule {rule!r} needs the ions' hull (ion_hull)")
+            raise AptFiltersError(f"mask rule {rule!r} needs the ions' hull (SpecimenHull)")
         local = np.stack(np.meshgrid(*[np.arange(BLOCK)] * 3, indexing="ij"), axis=-1)  # (8, 8, 8, 3)
         index = counts.coords[:, None, None, None, :] * BLOCK + local
         centres = fields.grid.points(index).reshape(-1, 3)
-        inside &= (Delaunay(hull).find_simplex(centres) >= 0).reshape(inside.shape)
+        inside &= (hull.distance(centres) >= 0).reshape(inside.shape)
     return SparseField(fields.grid, counts.coords, inside, background=False)

@@ -1,17 +1,18 @@
-"""Exact signed distance of points to an oriented triangle mesh, in a narrow band.
+"""The signed distance of points to an oriented triangle mesh: the one engine every step uses.
 
-The closest point on the surface comes from our own exact search (:class:`TriangleGrid`: triangles
+Sign convention: a mesh's normals point OUT of the region above the iso-value, and a distance is
+positive along them, i.e. outside that region (below the iso-value), negative inside. Steps that
+report the other way (the proxigram plots distance positive inside, as AP Suite does) negate it.
+
+The closest point on the surface comes from an exact search (:class:`TriangleGrid`: triangles
 bucketed in a uniform grid; points visited block by block, each block listing once the non-empty
 cells within range sorted by a lower bound; cells and triangles pruned by box and disk lower
-bounds, Ericson's closest point on a triangle; numba on all cores, float64), or on request from open3d's
-BVH (``RaycastingScene.compute_closest_points``, float32); the sign from the angle-weighted
-pseudo-normal of the feature (face, edge or vertex) on which the closest point lies (Bærentzen &
-Aanæs 2005). That sign is provably right for any point of a closed
-manifold, including at sharp edges and corners, and stays meaningful on open surfaces, unlike
-open3d's own ``compute_signed_distance`` (ray parity; assumes a watertight mesh).
-
-Sign convention: mesh normals point OUT of the region above the iso-value, and distances are
-positive inside that region (the precipitate side), as AP Suite plots proxigrams.
+bounds; Ericson's closest point on a triangle, :func:`apt_filters.core.triangle.closest_on_triangle`;
+numba on all cores, float64). The sign comes from the angle-weighted pseudo-normal of the feature
+(face, edge or vertex) on which the closest point lies (Bærentzen & Aanæs 2005,
+doi:10.1109/TVCG.2005.49): provably right for any point of a closed manifold, including at sharp
+edges and corners, and meaningful on open surfaces, unlike ray parity (which assumes a watertight
+mesh).
 
 Narrow band: with ``max_distance``, a point whose block (2 x 2 x 2 grid cells by default) has no
 triangle within that distance is rejected at once (NaN) and the others are searched no farther
@@ -23,16 +24,12 @@ structure.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numba
 import numpy as np
 from numba import njit, prange
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
-from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 from apt_filters.core.triangle import closest_on_triangle
 
@@ -51,64 +48,35 @@ right sign for a point whose closest point is inside an adjacent face, too.
 
 
 @dataclass
-class MeshTopology:
-    """Edge and vertex structure of a triangle mesh, with the pseudo-normals for the sign.
+class PseudoNormals:
+    """The normals that sign a distance (Bærentzen & Aanæs 2005), for one placement of the vertices.
 
     Attributes
     ----------
     face_normals : (m, 3) float64
         Unit face normals.
-    face_edge : (m, 3) int64
-        Undirected edge id of half-edge ``(f[k], f[(k+1) % 3])`` of each face.
-    edge_vertices : (e, 2) int64
-        Vertex pair of each undirected edge.
-    edge_faces : (e,) int64
-        Number of faces using each edge (1 = boundary, 2 = manifold interior).
     edge_normals : (e, 3) float64
-        Sum of the unit normals of the faces using the edge (edge pseudo-normal).
+        Sum of the unit normals of the faces using each edge of :attr:`TriMesh.topology`.
     vertex_normals : (n, 3) float64
-        Angle-weighted sum of incident unit face normals (vertex pseudo-normal).
+        Angle-weighted sum of incident unit face normals.
     corner_angles : (m, 3) float64
         Interior angle (radians) of each face at each of its corners.
-    boundary_vertex : (n,) bool
-        Vertices on a boundary edge.
     """
 
     face_normals: np.ndarray
-    face_edge: np.ndarray
-    edge_vertices: np.ndarray
-    edge_faces: np.ndarray
     edge_normals: np.ndarray
     vertex_normals: np.ndarray
     corner_angles: np.ndarray
-    boundary_vertex: np.ndarray
 
     @classmethod
-    def of(cls, mesh: TriMesh) -> "MeshTopology":
-        v, f = mesh.vertices, mesh.faces
+    def of(cls, mesh: TriMesh) -> "PseudoNormals":
+        top = mesh.topology
         nf = mesh.face_normals()
-        half = np.sort(np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-        # one int64 key per vertex pair: np.unique on it is ~10x faster than on rows
-        n = max(len(v), 1)
-        keys, inverse, counts = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True, return_counts=True)
-        edge_vertices = np.stack([keys // n, keys % n], axis=1)
-        face_edge = inverse.reshape(-1, 3)
-        edge_normals = _sum_rows(face_edge.ravel(), np.repeat(nf, 3, axis=0), len(keys))
-        corner_angles = _corner_angles(v[f])
-        vertex_normals = _sum_rows(f.ravel(), (corner_angles[:, :, None] * nf[:, None, :]).reshape(-1, 3), len(v))
-        boundary_vertex = np.zeros(len(v), dtype=bool)
-        boundary_vertex[edge_vertices[counts == 1].ravel()] = True
-        return cls(nf, face_edge, edge_vertices, counts, edge_normals, vertex_normals, corner_angles,
-                   boundary_vertex)
-
-    def face_components(self, n_vertices: int) -> np.ndarray:
-        """(m,) int64 connected-component label of each face (faces sharing an edge or a vertex)."""
-        a, b = self.edge_vertices.T
-        graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n_vertices, n_vertices))
-        _, labels = connected_components(graph, directed=False)
-        first_vertex = self.edge_vertices[self.face_edge[:, 0], 0]
-        _, relabelled = np.unique(labels[first_vertex], return_inverse=True)
-        return relabelled.astype(np.int64)
+        corner_angles = _corner_angles(mesh.vertices[mesh.faces])
+        edge_normals = _sum_rows(top.face_edge.ravel(), np.repeat(nf, 3, axis=0), len(top.edge_vertices))
+        vertex_normals = _sum_rows(mesh.faces.ravel(), (corner_angles[:, :, None] * nf[:, None, :]).reshape(-1, 3),
+                                   mesh.n_vertices)
+        return cls(nf, edge_normals, vertex_normals, corner_angles)
 
 
 def _sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -131,16 +99,17 @@ class SignedDistance:
     Attributes
     ----------
     distance : (N,) float32
-        Signed distance in nm, positive inside the region above the iso-value.
+        Signed distance in nm, positive outside the region above the iso-value (along the
+        normals); NaN beyond a query's ``max_distance``.
     face : (N,) int64
-        Triangle holding the closest point.
+        Triangle holding the closest point (-1 beyond ``max_distance``).
     feature : (N,) int8
         ``FACE``, ``EDGE`` or ``VERTEX``: where on that triangle the closest point lies.
     on_boundary : (N,) bool
         The closest point lies on a boundary edge or vertex of an open surface (the specimen
         edge): the point is beyond the surface's rim rather than across it.
     searched : int
-        Points that needed a search (grid with ``max_distance``: those whose home block has a
+        Points that needed a search (with ``max_distance``: those whose home block has a
         triangle within reach, the narrow band; otherwise all).
     """
 
@@ -152,67 +121,43 @@ class SignedDistance:
 
 
 class SurfaceDistance:
-    """Signed-distance queries against one mesh (search structure and pseudo-normals built once).
+    """Signed-distance queries against one placement of a mesh (search grid and pseudo-normals built once).
 
     Parameters
     ----------
     mesh : TriMesh
-        Oriented surface (normals out of the region above the iso-value); may be open.
-    batch : int
-        Points per open3d call (``method="open3d"``); memory about 100 bytes per point of a batch.
-        Either method needs 30 bytes per queried point for the results and the visiting order.
-    sort_cell : float
-        Edge (nm) of the cells whose order the queries follow with ``method="open3d"`` (the grid
-        search follows its own cells).
-    method : {"grid", "open3d"}
-        Closest-triangle search: our uniform grid (:class:`TriangleGrid`, numba, all cores,
-        float64) or open3d's BVH (``RaycastingScene.compute_closest_points``, float32: exact to
-        about 1e-7 of the coordinates' magnitude). Both are exact; the grid was 1.3-2.2x
-        faster on a 230k-triangle iso-surface (``benchmarks/results_proxigram.md``).
+        Oriented surface (normals out of the region above the iso-value); may be open. Its
+        vertices are copied: a mesh that moves needs a new ``SurfaceDistance`` (the topology
+        is cached on the mesh and reused).
     cell : float, optional
-        Grid cell, nm (default: :meth:`TriangleGrid.build`).
+        Grid cell, nm (default: :meth:`TriangleGrid.build`, twice the median edge).
     home : int
         Edge, in grid cells, of the blocks whose points share one list of rows to search (the
-        grid search's visiting order).
+        visiting order).
+
+    Notes
+    -----
+    Memory: the grid (:class:`TriangleGrid`, about 170 bytes per triangle) plus 30 bytes per
+    queried point for the results and the visiting order.
     """
 
-    def __init__(self, mesh: TriMesh, batch: int = 1 << 20, sort_cell: float = 2.0,
-                 method: str = "grid", cell: float | None = None, home: int = 2):
-        if method not in ("grid", "open3d"):
-            raise ValueError(f"method must be 'grid' or 'open3d', not {method!r}")
+    def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2):
         self.mesh = mesh
-        self.topology = MeshTopology.of(mesh)
-        self.batch = batch
-        self.method = method
-        self._vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        self.normals = PseudoNormals.of(mesh)
+        self._vertices = np.array(mesh.vertices, dtype=np.float64)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-        self.grid = TriangleGrid.build(self._vertices, self._faces, cell) if method == "grid" else None
-        self.sort_cell = sort_cell
+        self.grid = TriangleGrid.build(self._vertices, self._faces, cell)
         self.home = home
-
-    @cached_property
-    def _tensor(self):
-        return open3d().core.Tensor
-
-    @cached_property
-    def _scene(self):
-        scene = open3d().t.geometry.RaycastingScene()
-        scene.add_triangles(self._tensor(self.mesh.vertices.astype(np.float32)),
-                            self._tensor(self.mesh.faces.astype(np.uint32)))
-        return scene
 
     def query(self, points: np.ndarray, max_distance: float | None = None) -> SignedDistance:
         """Exact signed distance of every point (N, 3) nm to the surface.
 
-        Points are visited cell by cell (grid cells; ``sort_cell`` nm for open3d), so that
-        consecutive searches touch the same cells (BVH nodes). With ``max_distance`` (nm, grid
-        only), points farther than that from the surface get a NaN distance and face -1, and the
-        search never looks farther: a point whose cell has no triangle within range costs a
-        few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells away from every
-        triangle is finished by brute force (exact, but slow on large meshes).
+        Points are visited cell by cell, so that consecutive searches touch the same cells. With
+        ``max_distance`` (nm), points farther than that from the surface get a NaN distance and
+        face -1, and the search never looks farther: a point whose cell has no triangle within
+        range costs a few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells
+        away from every triangle is finished by brute force (exact, but slow on large meshes).
         """
-        if max_distance is not None and self.method != "grid":
-            raise ValueError("max_distance needs method='grid'")
         if points.dtype not in (np.float32, np.float64):
             points = points.astype(np.float32)
         points = np.ascontiguousarray(points)
@@ -220,36 +165,28 @@ class SurfaceDistance:
         out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool))
         if n == 0:
             return out
-        top = self.topology
-        signs = (self._vertices, self._faces, top.face_normals, top.face_edge, top.edge_normals, top.edge_faces,
-                 top.vertex_normals, top.boundary_vertex)
-        if self.method == "grid":
-            g = self.grid
-            reach = np.inf if max_distance is None else float(max_distance)
-            m = self.home
-            offsets, bound, r, first, covered = g.offsets(
-                min(reach, g.cell * float(min(g.shape.max(), _MAX_RING))), m)
-            # homes beyond r cells of the grid hold no triangle within the plan's reach
-            pad = -(-r // m)
-            low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
-            order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-            out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles, g.face_id,
-                             g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes, offsets, bound, first,
-                             covered, reach * reach * (1 + 1e-12), *signs, out.distance, out.face, out.feature,
-                             out.on_boundary, numba.get_num_threads()).sum())
-            return out
-        lo = points.min(axis=0).astype(np.float64)
-        dims = np.floor((points.max(axis=0) - lo) / self.sort_cell).astype(np.int64) + 1
-        order, _ = _spatial_order(points, lo, float(self.sort_cell), np.zeros(3, np.int64), dims)
-        for a in range(0, n, self.batch):
-            idx = order[a:a + self.batch]
-            result = self._scene.compute_closest_points(self._tensor(points[idx].astype(np.float32)))
-            face = result["primitive_ids"].numpy().astype(np.int64)
-            uw = result["primitive_uvs"].numpy().astype(np.float64)
-            out.face[idx] = face
-            out.distance[idx], out.feature[idx], out.on_boundary[idx] = _signed_all(points[idx], face, uw, *signs)
-        out.searched = n
+        top, nrm = self.mesh.topology, self.normals
+        signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
+                 nrm.vertex_normals, top.boundary_vertex)
+        g = self.grid
+        reach = np.inf if max_distance is None else float(max_distance)
+        m = self.home
+        offsets, bound, r, first, covered = g.offsets(min(reach, g.cell * float(min(g.shape.max(), _MAX_RING))), m)
+        # homes beyond r cells of the grid hold no triangle within the plan's reach
+        pad = -(-r // m)
+        low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
+        order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
+        out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles,
+                                            g.face_id, g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes,
+                                            offsets, bound, first, covered, reach * reach * (1 + 1e-12), *signs,
+                                            out.distance, out.face, out.feature, out.on_boundary,
+                                            numba.get_num_threads()).sum())
         return out
+
+
+def mesh_distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
+    """(N,) float64 unsigned exact distance (nm) of points (N, 3) to the nearest triangle of ``mesh``."""
+    return np.abs(SurfaceDistance(mesh).query(np.asarray(points, dtype=np.float64)).distance.astype(np.float64))
 
 
 # --- exact closest-triangle search on a uniform grid (numba) -----------------------------------
@@ -380,25 +317,10 @@ def _signed_one(px, py, pz, f, u, w, d2, vertices, faces, face_normals, face_edg
     oy = py - (vertices[a, 1] + u * (vertices[b, 1] - vertices[a, 1]) + w * (vertices[c, 1] - vertices[a, 1]))
     oz = pz - (vertices[a, 2] + u * (vertices[b, 2] - vertices[a, 2]) + w * (vertices[c, 2] - vertices[a, 2]))
     length = np.sqrt(d2) if d2 >= 0.0 else np.sqrt(ox * ox + oy * oy + oz * oz)
-    # Normals point out of the above-iso region, so the inside has a negative projection.
-    if ox * nx + oy * ny + oz * nz > 0.0:
+    # positive along the pseudo-normal, i.e. out of the region above the iso-value
+    if ox * nx + oy * ny + oz * nz <= 0.0:
         length = -length
     return length, feature, rim
-
-
-@njit(cache=True, error_model="numpy", parallel=True)
-def _signed_all(points, face, uw, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
-                vertex_normals, boundary_vertex):
-    """:func:`_signed_one` for closest faces (N,) and weights (N, 2) found elsewhere (open3d)."""
-    n = points.shape[0]
-    distance = np.empty(n, np.float32)
-    feature = np.empty(n, np.int8)
-    rim = np.empty(n, np.bool_)
-    for i in prange(n):
-        distance[i], feature[i], rim[i] = _signed_one(
-            np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]), face[i], uw[i, 0], uw[i, 1],
-            -1.0, vertices, faces, face_normals, face_edge, edge_normals, edge_faces, vertex_normals, boundary_vertex)
-    return distance, feature, rim
 
 
 @njit(cache=True, error_model="numpy")

@@ -137,35 +137,28 @@ def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
 DC_CENTRE = np.array([0.31, -0.27, 0.37])  # off the grid planes (voxels)
 
 
-def _torus_shape(major: float, minor: float):
-    from apt_filters.contour.shapes import Shape
+def dc_shape(name: str):
+    """The analytic shape (:mod:`apt_filters.synth.shapes`) of ``name`` at voxel scale (nm = voxel),
+    centred off the grid planes; sizes as the marching-cubes stand-ins above."""
+    from apt_filters.synth.shapes import Cuboid, CustomShape, Cylinder, Sphere
+    from apt_filters.truth.shapes import Difference, rotation
 
-    class Torus(Shape):
-        def sdf(self, p):
+    turn = rotation([1.0, 2.0, 3.0], 27.0)
+    if name == "sphere":
+        return Sphere(DC_CENTRE, 10.0)
+    if name == "rotated_box":
+        return Cuboid(DC_CENTRE, [18.0, 14.0, 10.0], turn)
+    if name == "cylinder":  # along z, as in the contouring benchmark: flat caps, sharp rims
+        return Cylinder(DC_CENTRE, 8.0, 16.0)
+    if name == "box_minus_sphere":
+        return Difference(Cuboid(DC_CENTRE, [16.0, 16.0, 16.0], turn),
+                          Sphere(DC_CENTRE + turn @ np.array([8.0, 8.0, 1.6]), 7.0))
+    if name == "torus":
+        def torus(p, major=10.0, minor=4.0):
             q = p - DC_CENTRE
             return np.hypot(np.hypot(q[:, 0], q[:, 1]) - major, q[:, 2]) - minor
 
-    return Torus("torus")
-
-
-def dc_shape(name: str):
-    """The analytic :class:`~apt_filters.contour.shapes.Shape` of ``name`` at voxel scale (nm = voxel),
-    centred off the grid planes; sizes as the marching-cubes stand-ins above."""
-    from apt_filters.contour import shapes as cs
-
-    turn = cs.rotation([1.0, 2.0, 3.0], 27.0)
-    if name == "sphere":
-        return cs.Sphere("sphere", 10.0, DC_CENTRE)
-    if name == "rotated_box":
-        return cs.Box("rotated_box", half=np.array([9.0, 7.0, 5.0]), rot=turn, centre=DC_CENTRE)
-    if name == "cylinder":  # along z, as in the contouring benchmark: flat caps, sharp rims
-        return cs.Cylinder("cylinder", 8.0, 8.0, DC_CENTRE)
-    if name == "box_minus_sphere":
-        box = cs.Box("box", half=np.full(3, 8.0), rot=turn, centre=DC_CENTRE)
-        ball = cs.Sphere("ball", 7.0, DC_CENTRE + turn @ np.array([8.0, 8.0, 1.6]))
-        return cs.BoxMinusSphere("box_minus_sphere", box, ball)
-    if name == "torus":
-        return _torus_shape(10.0, 4.0)
+        return CustomShape(torus, DC_CENTRE - [14.0, 14.0, 4.0], DC_CENTRE + [14.0, 14.0, 4.0], name="torus")
     raise ValueError(f"unknown shape {name!r}")
 
 
@@ -179,20 +172,22 @@ def dual_contoured(name: str, exact_normals: bool = True) -> TriMesh:
     estimate from the samples, as ``benchmarks.bench_contour`` does.
     """
     from apt_filters.contour import dual_contouring
+    from apt_filters.truth.shapes import field_gradient
 
     shape = dc_shape(name)
     half = 17.0
     axis = np.arange(-half, half + 1.0)
     p = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     values = -shape.sdf(p).reshape((len(axis),) * 3)
-    gradient = shape.field_gradient if exact_normals else None
+    gradient = field_gradient(shape) if exact_normals else None
     return dual_contouring(values, 0.0, (1.0, 1.0, 1.0), (axis[0],) * 3, gradient=gradient)
 
 
 def truth_edge_f1(mesh: TriMesh, name: str, seed: int = 0) -> float:
     """Edge F1 of ``mesh`` against the sharp edges of the analytic shape ``name`` (voxel 1 nm),
-    by the contouring benchmark's rule (:func:`apt_filters.contour.metrics.edge_metrics`)."""
-    from apt_filters.contour.metrics import EDGE_DENSITY, edge_metrics, sample_mesh
+    by the contouring benchmark's rule (:func:`apt_filters.truth.metrics.edge_metrics`)."""
+    from apt_filters.contour.metrics import sample_mesh
+    from apt_filters.truth.metrics import EDGE_DENSITY, edge_metrics
 
     rng = np.random.default_rng(seed)
     return edge_metrics(sample_mesh(mesh, EDGE_DENSITY, rng), dc_shape(name).sample(EDGE_DENSITY, rng), 1.0)["edge_f1"]

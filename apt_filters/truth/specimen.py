@@ -3,7 +3,7 @@
 Each bounded feature of ``truth.json`` is matched to the object whose centroid lies
 nearest its centre (within the feature's depth); volume, area and excess are compared.
 With the ions, each segregant's excess is also counted from them against the feature's true
-surface and true plateaus (:func:`~apt_filters.refine.evaluate.counted_truth`): the specimen's ions
+surface and true plateaus (:func:`~apt_filters.truth.counted_truth`): the specimen's ions
 are one draw of its model, and that count is what they hold, which no method can know better.
 """
 
@@ -14,9 +14,10 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine import CountedTruth, counted_truth, ion_atoms
+from apt_filters.refine import ion_atoms
 from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.synth import shape_from_params
+from apt_filters.truth.counting import CountedTruth, counted_truth
 from apt_filters.voxel import ConcentrationBasis
 
 
@@ -44,7 +45,7 @@ def true_plateaus(feature: dict, elements: list[str]) -> tuple[np.ndarray, np.nd
 
 
 def counted_truths(truth: dict, ions: IonTable, ranges: RangeTable) -> tuple[list[str], dict[int, CountedTruth]]:
-    """The elements, and (feature index) -> what its ions hold (:func:`~apt_filters.refine.evaluate.counted_truth`)
+    """The elements, and (feature index) -> what its ions hold (:func:`~apt_filters.truth.counted_truth`)
     for every bounded feature.
 
     Counted in the band |d| <= 1.5 nm of the true surface against the true plateaus (0.75-3 nm), every ranged

@@ -1,29 +1,10 @@
-"""Edge adjacency and fold detection on indexed triangle meshes."""
+"""Mesh sanity checks: folded face pairs, self-intersections, non-manifold vertices."""
 
 from __future__ import annotations
 
 import numpy as np
 
-
-def face_pairs(faces: np.ndarray) -> np.ndarray:
-    """(k, 2) pairs of faces that share an edge used by exactly two faces."""
-    m = len(faces)
-    if m == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    a, b = faces.reshape(-1), np.roll(faces, -1, axis=1).reshape(-1)
-    key = np.minimum(a, b) * (int(faces.max()) + 1) + np.maximum(a, b)  # 1-D keys sort fast
-    owner = np.repeat(np.arange(m), 3)
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    two = counts[inverse] == 2
-    order = np.argsort(inverse[two], kind="stable")
-    return owner[two][order].reshape(-1, 2)
-
-
-def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    v = vertices[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+from apt_filters.core.mesh import face_normals, topology
 
 
 def folded_pairs(vertices: np.ndarray, faces: np.ndarray, max_angle_deg: float = 120.0) -> np.ndarray:
@@ -32,8 +13,8 @@ def folded_pairs(vertices: np.ndarray, faces: np.ndarray, max_angle_deg: float =
     A fold is a triangle flipped against its neighbour; the default of 120° is beyond any
     dihedral the benchmark shapes have (their sharpest edges are 90°).
     """
-    pairs = face_pairs(faces)
-    n = unit_normals(vertices, faces)
+    pairs = topology(faces, len(vertices)).face_pairs
+    n = face_normals(vertices, faces)
     dots = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
     return pairs[dots < np.cos(np.radians(max_angle_deg))]
 
@@ -87,3 +68,23 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
     hit = pairs[triangles_intersect(tri[pairs[:, 0]], tri[pairs[:, 1]])]
     out[flagged[hit.reshape(-1)]] = True
     return out
+
+
+def non_manifold_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n,) bool: vertices whose incident faces form more than one fan (pymeshlab's
+    ``compute_selection_by_non_manifold_per_vertex``)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    ms.compute_selection_by_non_manifold_per_vertex()
+    return ms.current_mesh().vertex_selection_array().astype(bool)
+
+
+def non_manifold_vertex_count(vertices: np.ndarray, faces: np.ndarray) -> int:
+    """Vertices whose incident faces form more than one fan (pymeshlab's ``get_topological_measures``)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    return int(ms.get_topological_measures()["non_two_manifold_vertices"])
