@@ -40,7 +40,8 @@ def _row_key(line: str) -> tuple[str, str]:
     return cells[0], cells[1]
 
 
-def write_results(name: str, title: str, rows: list[Row], sections: list[str], *, merge: bool = False) -> Path:
+def write_results(name: str, title: str, rows: list[Row], sections: list[str], *, intro: str = "",
+                  merge: bool = False) -> Path:
     """Write ``benchmarks/results_<name>.md``: the title, the summary block, the sections.
 
     Parameters
@@ -53,6 +54,8 @@ def write_results(name: str, title: str, rows: list[Row], sections: list[str], *
         Summary rows of this run.
     sections : list of str
         Detailed tables of this run, each starting with its ``## `` heading.
+    intro : str, optional
+        What is measured and how (data, peers), between the summary block and the sections.
     merge : bool, optional
         Keep the previous file's summary rows whose (step, measure) this run did not measure
         and its sections whose heading this run did not write (for benchmarks run in parts or
@@ -74,7 +77,8 @@ def write_results(name: str, title: str, rows: list[Row], sections: list[str], *
         headings = {s.splitlines()[0] for s in sections}
         old_sections = ["## " + s.strip() for s in old.split("\n## ")[1:]]
         sections = [s for s in old_sections if s.splitlines()[0] not in headings] + list(sections)
+    body = ([intro.strip()] if intro else []) + [s.strip() for s in sections]
     text = "\n".join([f"# {title}", "", "<!-- summary -->", *HEADER, *new_lines, "<!-- /summary -->", "",
-                      "\n\n".join(s.strip() for s in sections)]) + "\n"
+                      "\n\n".join(body)]) + "\n"
     atomic_write_text(path, text, overwrite=True)
     return path
