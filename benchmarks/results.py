@@ -23,7 +23,7 @@ from pathlib import Path
 from apt_filters.core.atomic import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
-BLOCK = re.compile(r"<!-- summary -->\s*\n(.*?)\n\s*<!-- /summary -->", re.S)
+SUMMARY = re.compile(r"<!-- summary -->\s*\n(.*?)\n\s*<!-- /summary -->", re.S)
 HEADER = ["| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|"]
 
 Row = tuple[str, str, str, str, str]
@@ -33,6 +33,15 @@ Row = tuple[str, str, str, str, str]
 def ratio(ours: float, peer: float) -> str:
     """``ours / peer`` as the summary prints it."""
     return f"{ours / peer:.2f}" if peer else "-"
+
+
+def summary_rows(text: str) -> list[str]:
+    """The table rows of a results file's summary block (its header and rule left out)."""
+    match = SUMMARY.search(text)
+    if not match:
+        return []
+    rows = [line.strip() for line in match.group(1).splitlines() if line.strip().startswith("|")]
+    return rows[2:]
 
 
 def _row_key(line: str) -> tuple[str, str]:
@@ -70,10 +79,8 @@ def write_results(name: str, title: str, rows: list[Row], sections: list[str], *
     new_lines = ["| " + " | ".join(r) + " |" for r in rows]
     if merge and path.is_file():
         old = path.read_text()
-        found = BLOCK.search(old)
-        old_rows = [ln.strip() for ln in found.group(1).splitlines() if ln.strip().startswith("|")][2:] if found else []
         done = {_row_key(ln) for ln in new_lines}
-        new_lines = [ln for ln in old_rows if _row_key(ln) not in done] + new_lines
+        new_lines = [ln for ln in summary_rows(old) if _row_key(ln) not in done] + new_lines
         headings = {s.splitlines()[0] for s in sections}
         old_sections = ["## " + s.strip() for s in old.split("\n## ")[1:]]
         sections = [s for s in old_sections if s.splitlines()[0] not in headings] + list(sections)
