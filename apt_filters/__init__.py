@@ -1,11 +1,7 @@
 """apt-filters: atom probe tomography iso-surfaces, MeshLab filter chains and interface chemistry.
 
-The pipeline flows one way, one package per step::
-
-    io -> voxel -> contour -> meshlab / remesh -> analysis -> cli
-
-``core`` holds the few types every step shares (errors, :class:`~apt_filters.core.mesh.TriMesh`,
-atomic file output).
+One package per step; the steps and their order are in docs/index.md ("The steps, in the order a
+run takes them"). ``core`` holds what every step shares.
 """
 
 import warnings

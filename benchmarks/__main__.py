@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from apt_filters.core.atomic import atomic_write_text
+from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
@@ -31,18 +31,6 @@ def machine() -> str:
     mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     return (f"{platform.machine()}, {os.cpu_count()} cores, {mem:.0f} GiB RAM, Python {platform.python_version()}, "
             f"numpy {numpy.__version__}; gathered {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
-
-
-SUMMARY = re.compile(r"<!-- summary -->\s*\n(.*?)\n\s*<!-- /summary -->", re.S)
-
-
-def summary_rows(text: str) -> list[str]:
-    """The table rows of a results file's summary block (its header and rule left out)."""
-    match = SUMMARY.search(text)
-    if not match:
-        return []
-    rows = [line.strip() for line in match.group(1).splitlines() if line.strip().startswith("|")]
-    return rows[2:]
 
 
 def gather() -> str:

@@ -34,9 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.results import ratio, write_results
+
 METHODS = ["np.fromfile", "np.fromfile + astype", "read_ions", "iter_ion_chunks"]
 NAIVE_LIMIT = 20_000_000
-RESULTS = Path(__file__).with_name("results_io.md")
 
 
 def _vm_kib(key: str) -> int:
@@ -145,18 +146,17 @@ def main(argv: list[str] | None = None) -> int:
                f"jobs (wall times are noisy; CPU = user + sys of the worker); numpy {np.__version__}; the file was "
                f"just written, so it is read from the page cache as far as memory pressure allows (major faults "
                f"count pages read from disk); {args.repeat} runs per method: least wall and least CPU time, largest peak RSS")
-    text = (f"## Ion file read throughput: {ions:,}-ion POS ({ions * 16 / 1e9:.2f} GB)\n\n{machine}\n\n{table}\n")
+    text = f"## Ion file read throughput: {ions:,}-ion POS ({ions * 16 / 1e9:.2f} GB)\n\n{machine}\n\n{table}\n"
     print(text)
-    _record(ions, text)
+    base, ours, stream = best["np.fromfile"], best["read_ions"], best["iter_ion_chunks"]
+    size = f"{ions / 1e6:g}M-ion POS ({ions * 16 / 1e9:.2f} GB)"
+    rows = [("io", f"read a {size}, wall", f"{ours['seconds']:.2f} s", f"{base['seconds']:.2f} s (np.fromfile)",
+             ratio(ours["seconds"], base["seconds"])),
+            ("io", f"stream a {size} in 4M-ion chunks, peak extra RSS", f"{stream['peak_kib'] * 1024 / 1e6:,.0f} MB",
+             f"{base['peak_kib'] * 1024 / 1e6:,.0f} MB (np.fromfile)", ratio(stream["peak_kib"], base["peak_kib"]))]
+    # one section and two rows per ion count: a 10M run keeps the 100M figures and vice versa
+    write_results("io", "benchmarks/bench_io.py results", rows, [text], merge=True)
     return 0
-
-
-def _record(ions: int, text: str) -> None:
-    """Keep one section per ion count in results_io.md (the newest run replaces the older)."""
-    sections = RESULTS.read_text().split("\n## ")[1:] if RESULTS.exists() else []
-    title = f"Ion file read throughput: {ions:,}-ion POS"
-    kept = ["## " + s.rstrip() + "\n" for s in sections if not s.startswith(title)]
-    RESULTS.write_text("# benchmarks/bench_io.py results\n\n" + "\n".join(kept + [text]))
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.meshlab.bridge import to_meshset
 from apt_filters.meshlab.chains import CHAINS, pymeshlab_args, apply_chain, resolve
 from apt_filters.meshlab.decimation import decimate
+from benchmarks.results import ratio, write_results
 
 
 def make_mesh(subdiv: int, n_holes: int = 200, seed: int = 0) -> TriMesh:
@@ -103,28 +104,46 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown chains {sorted(unknown)}; known: {', '.join(CHAINS)}")
     repeat = args.repeat or (3 if args.quick else 1)
     mesh = make_mesh(6 if args.quick else 8)
-    print(f"mesh: {mesh.n_faces:,} triangles, {mesh.n_vertices:,} vertices, "
-          f"{len(mesh.boundary_edges()):,} boundary edges; best of {repeat}; "
-          f"{platform.processor() or platform.machine()}, shared machine (2 cores, other jobs running)\n")
-    print("| chain | apt-filters (s) | raw pymeshlab (s) | overhead ratio | open3d (s) | apt-filters / open3d |")
-    print("|---|---|---|---|---|---|")
-    ours_by_chain = {}
+    head = (f"mesh: {mesh.n_faces:,} triangles, {mesh.n_vertices:,} vertices, "
+            f"{len(mesh.boundary_edges()):,} boundary edges; best of {repeat}; "
+            f"{platform.processor() or platform.machine()}, shared machine (2 cores, other jobs running)")
+    print(head + "\n")
+    lines = ["| chain | apt-filters (s) | raw pymeshlab (s) | overhead ratio | open3d (s) | apt-filters / open3d |",
+             "|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines))
+    size = f"{mesh.n_faces / 1e6:.2g}M-triangle mesh"
+    rows = []
+    ours_by_chain, peer_by_chain = {}, {}
     for name in chains:
         ours = ours_by_chain[name] = best(lambda: apply_chain(mesh, name), repeat)
         raw = best(raw_pymeshlab(mesh, name), repeat)
         peer_fn = open3d_peer(mesh, name)
-        peer = best(peer_fn, repeat) if peer_fn else float("nan")
+        peer = peer_by_chain[name] = best(peer_fn, repeat) if peer_fn else float("nan")
         peer_txt = f"{peer:.2f}" if peer_fn else "—"
         ratio_txt = f"{ours / peer:.2f}" if peer_fn else "—"
-        print(f"| {name} | {ours:.2f} | {raw:.2f} | {ours / raw:.2f} | {peer_txt} | {ratio_txt} |")
-    if "decimate" not in chains:
-        return 0
-    fast = best(lambda: decimate(mesh, 0.5), repeat)
-    ours = ours_by_chain["decimate"]
-    print(f"\ndecimate to 50 %: fast-simplification (decimate()) {fast:.2f} s, MeshLab quadric chain {ours:.2f} s, "
-          f"ratio MeshLab / fast-simplification {ours / fast:.2f}")
+        lines.append(f"| {name} | {ours:.2f} | {raw:.2f} | {ours / raw:.2f} | {peer_txt} | {ratio_txt} |")
+        print(lines[-1])
+        if name == "clean":
+            rows.append(("meshlab", f"wrapper overhead, clean chain, {size}", f"{ours:.2f} s",
+                         f"{raw:.2f} s (raw pymeshlab)", ratio(ours, raw)))
+        if name in ("clean", "smooth"):
+            rows.append(("meshlab", f"{name} chain, {size}", f"{ours:.2f} s", f"{peer:.2f} s (open3d)", ratio(ours, peer)))
+    sections = [f"## Chain times, {size}: {', '.join(chains)}\n\n"
+                f"`python -m benchmarks.bench_meshlab{' --quick' if args.quick else ''} --chains {','.join(chains)}`; "
+                + head + ". Compare the ratios, measured in the same run.\n\n" + "\n".join(lines)]
+    if "decimate" in chains:
+        fast = best(lambda: decimate(mesh, 0.5), repeat)
+        ours = ours_by_chain["decimate"]
+        o3d_s = peer_by_chain["decimate"]
+        text = (f"Decimation to 50 %: fast-simplification (`decimate()`, boundary kept) {fast:.2f} s, MeshLab quadric "
+                f"chain {ours:.2f} s: MeshLab / fast-simplification = {ours / fast:.2f}.")
+        print("\n" + text)
+        sections[0] += "\n\n" + text
+        rows.append(("meshlab", f"decimate to 50 %, {size}", f"{fast:.2f} s (fast-simplification)",
+                     f"{o3d_s:.2f} s (open3d quadric)", ratio(fast, o3d_s)))
+    # the full run is made in parts (--chains): each part keeps the other parts' rows and tables
+    write_results("meshlab", "MeshLab chains: cleaning time on a 1M-triangle mesh", rows, sections, merge=True)
     return 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

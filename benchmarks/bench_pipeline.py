@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from apt_filters.core.atomic import atomic_write_text
+from benchmarks.results import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 SI = ROOT.parent / "shared" / "data" / "real" / "apav-si"
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         steps = report["steps"]
         rows.append((f"synthetic {preset[1]} (Al 15 at.%, {objects} objects; generated in {gen_wall:.0f} s)", n_ions,
                      wall, peak, "<= 120 s and 4 GB at 10M ions; <= 15 min and 12 GB at 100M"))
-    lines = ["# bench_pipeline: apt-filters run end to end", "",
+    lines = ["## `apt-filters run` end to end", "",
              "Each case is one `apt-filters run` process (all steps, default settings: gaussian 3x3x1.5 nm, "
              "marching cubes, refinement, clean chain, CVT remesh, objects, proxigram, excess, exports, report).", "",
              "| case | ions | wall (s) | ions/s | peak RSS (MiB) | target |", "|---|---:|---:|---:|---:|---|"]
@@ -81,9 +81,14 @@ def main(argv: list[str] | None = None) -> int:
     lines += [f"| (sum of steps) | {sum(st['seconds'] for st in steps):.1f} | | |", "",
               "Load average (1, 5, 15 min) before: {:.1f} {:.1f} {:.1f}; after: {:.1f} {:.1f} {:.1f}.".format(
                   *load_before, *os.getloadavg())]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    atomic_write_text(Path(__file__).with_name("results_pipeline.md"), text, overwrite=True)
+    (_, _, si_wall, _, _), (_, n, wall, peak, _) = rows
+    summary = [("pipeline", "`apt-filters run`, real Si, 945,211 ions, wall (target: <= 20 s)", f"{si_wall:.1f} s", "-", "-"),
+               ("pipeline", f"`apt-filters run`, synthetic, {n / 1e6:.1f}M ions, wall (target: <= 120 s at 10M)",
+                f"{wall:.1f} s", "-", "-"),
+               ("pipeline", f"`apt-filters run`, synthetic, {n / 1e6:.1f}M ions, peak RSS (target: <= 4 GB at 10M)",
+                f"{peak:,.0f} MiB", "-", "-")]
+    print("\n".join(lines))
+    write_results("pipeline", "bench_pipeline: apt-filters run end to end", summary, ["\n".join(lines)])
     return 0
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import sys
 import time
 
 import numpy as np
@@ -29,6 +30,7 @@ from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
+from benchmarks.results import ratio, write_results
 
 RANGES = RangeTable([Range(26.5, 27.5, (("Al", 1),), "00AA00"), Range(55.0, 57.0, (("Fe", 1),), "FF0000")])
 BOX = (10_000_000 / 40.0) ** (1 / 3)
@@ -60,6 +62,15 @@ def ion_chunks(n: int, chunk: int = 1 << 22, seed: int = 0):
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
+
+INTRO = ('Specimen: 180 icospheres of radius 2.5 nm (1280 triangles each, 230,400 in all) on a 6 x 6 x 5 grid '
+         'in a 63 nm cube; ions uniform in the cube (40 nm⁻³ at 10M), range ±3 nm, 0.1 nm bins. Ours = the '
+         'whole `compute_proxigram` (block band, grid search for the exact closest triangle, pseudo-normal '
+         'signs and rim test in one numba kernel, binning), ion generation included. Peer = open3d '
+         '`RaycastingScene.compute_signed_distance` over every ion (what a tool without a narrow band must do; '
+         'ray-parity signs, wrong on open meshes). Both run in one process, one after the other, on a shared '
+         '2-core machine.')
+"""What the results file says about the specimen and the peer, above the tables."""
 
 TARGET_S = 15.0
 """Issue 7's target for 10 M ions on 2 cores."""
@@ -107,15 +118,22 @@ def main(argv: list[str] | None = None) -> None:
         w, c, _ = timed(run_peer, mesh, n_peer)
         rows.append((f"open3d compute_signed_distance, all ions{'' if n_peer == n else f' (run on {n_peer:,}, scaled)'}",
                      w * n / n_peer, c * n / n_peer))
-    print(f"\n{n:,} ions, {mesh.n_faces:,} triangles, ±3 nm; load average {load:.1f} -> {os.getloadavg()[0]:.1f} "
-          f"on {os.cpu_count()} cores; {100 * band:.1f} % of ions in the narrow band, {100 * in_range / n:.1f} % "
-          f"within ±3 nm; peak RSS after ours {peak:.0f} MB"
-          + f"; target {TARGET_S * n / 1e7:g} s (15 s per 10 M): ours / target = {wall / (TARGET_S * n / 1e7):.2f}\n")
-    print("| method | wall (s) | CPU (s) | ions/s (wall) | wall ratio to ours |")
-    print("|---|---:|---:|---:|---:|")
-    for name, w, c in rows:
-        print(f"| {name} | {w:.1f} | {c:.1f} | {n / w:,.0f} | {w / wall:.2f} |")
-
+    head = (f"{n:,} ions, {mesh.n_faces:,} triangles, ±3 nm; load average {load:.1f} -> {os.getloadavg()[0]:.1f} "
+            f"on {os.cpu_count()} cores; {100 * band:.1f} % of ions in the narrow band, {100 * in_range / n:.1f} % "
+            f"within ±3 nm; peak RSS after ours {peak:.0f} MB"
+            f"; target {TARGET_S * n / 1e7:g} s (15 s per 10 M): ours / target = {wall / (TARGET_S * n / 1e7):.2f}")
+    lines = ["| method | wall (s) | CPU (s) | ions/s (wall) | wall ratio to ours |", "|---|---:|---:|---:|---:|"]
+    lines += [f"| {name} | {w:.1f} | {c:.1f} | {n / w:,.0f} | {w / wall:.2f} |" for name, w, c in rows]
+    print("\n" + head + "\n\n" + "\n".join(lines))
+    size = f"{n / 1e6:g}M ions, {mesh.n_faces:,} triangles, ±3 nm"
+    summary = [("proxigram", f"{size}, wall (target: {TARGET_S * n / 1e7:g} s)", f"{wall:.1f} s",
+                f"{rows[1][1]:.1f} s (open3d signed distance)" if len(rows) > 1 else "-",
+                ratio(wall, rows[1][1]) if len(rows) > 1 else "-"),
+               ("proxigram", f"{size}, peak RSS", f"{peak:.0f} MB", "-", "-")]
+    cmd = " ".join(["python -m benchmarks.bench_proxigram", *(argv if argv is not None else sys.argv[1:])])
+    # one section and two rows per ion count: the 10M run (with the peer) and the 100M run (ours only) coexist
+    write_results("proxigram", "Proxigram: exact narrow-band signed distances", summary,
+                  [f"## {size}\n\n`{cmd.strip()}`: {head}.\n\n" + "\n".join(lines)], intro=INTRO, merge=True)
 
 if __name__ == "__main__":
     main()

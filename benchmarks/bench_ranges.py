@@ -18,11 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from apt_filters.core.atomic import atomic_write_text
 from apt_filters.io import IonTable, read_ranges
 from apt_filters.io.summary import summarize
+from benchmarks.results import write_results
 
-RESULTS = Path(__file__).with_name("results_ranges.md")
 SPECIES = [("Fe", "Fe:1"), ("O", "O:1"), ("FeO", "Fe:1 O:1")]
 
 
@@ -92,14 +91,11 @@ def main() -> None:
                 lines.append(row)
     big, small = sizes[-1], sizes[0]
     per = {n: 1e6 * max(cpu_read[d, n] for d in ("rrng", "rng", "env")) / n for n in (small, big)}
-    summary = ["<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
-               f"| ranges | read {big:,} ranges, CPU (RRNG / RNG / ENV; target: seconds) | "
-               + " / ".join(f"{cpu_read[d, big]:.1f}" for d in ("rrng", "rng", "env")) + " s | - | - |",
-               f"| ranges | CPU per range, slowest dialect, {small:,} and {big:,} ranges (linear: flat) | "
-               f"{per[small]:.0f} and {per[big]:.0f} µs | - | - |", "<!-- /summary -->", ""]
-    head = ["# benchmarks/bench_ranges.py results", ""]
-    atomic_write_text(RESULTS, "\n".join(head + summary + lines) + "\n", overwrite=True)
-
+    rows = [("ranges", f"read {big:,} ranges, CPU (RRNG / RNG / ENV; target: seconds)",
+             " / ".join(f"{cpu_read[d, big]:.1f}" for d in ("rrng", "rng", "env")) + " s", "-", "-"),
+            ("ranges", f"CPU per range, slowest dialect, {small:,} and {big:,} ranges (linear: flat)",
+             f"{per[small]:.0f} and {per[big]:.0f} µs", "-", "-")]
+    write_results("ranges", "benchmarks/bench_ranges.py results", rows, ["\n".join(lines)])
 
 if __name__ == "__main__":
     main()

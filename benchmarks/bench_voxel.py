@@ -28,6 +28,7 @@ import argparse
 import gc
 import os
 import platform
+import sys
 import tempfile
 import time
 import tracemalloc
@@ -41,10 +42,19 @@ from apt_filters.voxel.fields import decomposition
 from apt_filters.voxel.grid import available_cores, scatter_threads
 from apt_filters.voxel.ranging import MzLookup
 from apt_filters.voxel.transfer import BlockAccumulator, second_pass_radius, second_pass_sigma
+from benchmarks.results import ratio, write_results
 
 BOX = np.array([60.0, 60.0, 200.0])
 ELEMENTS = ("Fe", "Cr", "Ni", "Al", "Ti", "Mo", "Si", "C")
 VOXEL, DELOC = 1.0, (3.0, 3.0, 1.5)
+
+INTRO = ('Data: uniform synthetic ions in a 60 × 60 × 200 nm box in detection order (z falling), 8 single-atom '
+         "species, 1 nm voxels, grid 71 × 71 × 207 with the gaussian kernel's padding; gaussian delocalization "
+         '(3, 3, 1.5) nm. "scatter" rows: the transfer-function loop given the species index (like the '
+         'bincount peer); "voxelize" rows: the whole call (ranging with `MzLookup`, scatter, gaussian second '
+         'pass, fields). Peak memory: tracemalloc peak of numpy allocations during the call (input excluded). '
+         'The 2 cores are shared with other jobs: compare ratios taken in the same run.')
+"""What the results file says about the data and rows, above the tables."""
 
 
 def bench_ranges() -> RangeTable:
@@ -241,26 +251,50 @@ def main(argv=None) -> int:
                 t = best_time(lambda: holder.update(ref=apav_run(ions, rt)), 1)
                 peak = peak_bytes(lambda: apav_run(ions, rt))
                 results.append(("apav RangedGrid (gaussian)", t, peak))
-                print(f"agreement with APAV (max relative difference, interior voxels): "
-                      f"{apav_agreement(ions, rt, holder['ref']):.2e}")
+                agreement = apav_agreement(ions, rt, holder["ref"])
+                print(f"agreement with APAV (max relative difference, interior voxels): {agreement:.2e}")
 
-    print(f"load average {os.getloadavg()[0]:.1f} at the end")
+    load_end = os.getloadavg()[0]
+    print(f"load average {load_end:.1f} at the end")
     base_wall, base_cpu = results[0][1]
     times = {name: t for name, t, _ in results}
-    print()
-    print("| method | wall (s) | CPU (s) | M ions/s (wall) | speed vs bincount (wall) | (CPU) | peak memory (MB) |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+    peaks = {name: p for name, _, p in results}
+    lines = ["| method | wall (s) | CPU (s) | M ions/s (wall) | speed vs bincount (wall) | (CPU) | peak memory (MB) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for name, (wall, cpu), peak in results:
         mem = f"{peak / 1e6:.0f}" if peak is not None else "-"
-        print(f"| {name} | {wall:.3f} | {cpu:.3f} | {n / wall / 1e6:.1f} | {base_wall / wall:.2f} | "
-              f"{base_cpu / cpu:.2f} | {mem} |")
+        lines.append(f"| {name} | {wall:.3f} | {cpu:.3f} | {n / wall / 1e6:.1f} | {base_wall / wall:.2f} | "
+                     f"{base_cpu / cpu:.2f} | {mem} |")
+    notes = []
     if "apav RangedGrid (gaussian)" in times:
-        ratio = times["apav RangedGrid (gaussian)"][0] / times["ours gaussian voxelize"][0]
-        print(f"\nours gaussian voxelize is {ratio:.1f}x faster than APAV RangedGrid (wall)")
+        faster = times["apav RangedGrid (gaussian)"][0] / times["ours gaussian voxelize"][0]
+        notes.append(f"ours gaussian voxelize is {faster:.1f}x faster than APAV RangedGrid (wall); agreement with "
+                     f"APAV (max relative difference, interior voxels): {agreement:.2e}")
     key = "voxelize (streamed)" if args.full else "voxelize"
     for col, label in ((0, "wall"), (1, "CPU")):
-        ratio = times[f"ours gaussian {key}"][col] / times[f"ours sawtooth {key}"][col]
-        print(f"gaussian / sawtooth time ({label}): {ratio:.2f}")
+        notes.append(f"gaussian / sawtooth time ({label}): "
+                     f"{times[f'ours gaussian {key}'][col] / times[f'ours sawtooth {key}'][col]:.2f}")
+    print("\n" + "\n".join(lines) + "\n\n" + "\n".join(notes))
+    size = f"{n / 1e6:g}M ions"
+    gauss, square, peer = times[f"ours gaussian {key}"][0], times[f"ours square {key}"][0], base_wall
+    summary = [("voxel", f"square voxelization, {size}, wall", f"{square:.3f} s", f"{peer:.3f} s (numpy bincount)",
+                ratio(square, peer))]
+    if "apav RangedGrid (gaussian)" in times:
+        apav_s = times["apav RangedGrid (gaussian)"][0]
+        summary.append(("voxel", f"gaussian voxelization, {size}, wall", f"{gauss:.3f} s",
+                        f"{apav_s:.3f} s (APAV RangedGrid)", ratio(gauss, apav_s)))
+    else:
+        summary.append(("voxel", f"gaussian voxelization, {size}, wall", f"{gauss:.3f} s",
+                        f"{peer:.3f} s (numpy bincount, square)", ratio(gauss, peer)))
+    if args.full:
+        summary.append(("voxel", f"gaussian voxelization, {size} streamed, peak memory beyond the mapped file",
+                        f"{peaks[f'ours gaussian {key}'] / 1e6:.0f} MB", "-", "-"))
+    cmd = "python -m benchmarks.bench_voxel " + " ".join(argv if argv is not None else sys.argv[1:])
+    # one section per ion count: the in-memory 10M run (with APAV) and the streamed 100M run coexist
+    write_results("voxel", "Voxelization (`apt_filters.voxel`)", summary,
+                  [f"## {size}\n\n`{cmd.strip()}`, best of {args.repeat}; load average {load_end:.1f} at the end "
+                   "on a shared 2-core machine: compare ratios taken in the same run.\n\n"
+                   + "\n".join(lines) + "\n\n" + "\n".join(f"- {x}" for x in notes)], intro=INTRO, merge=True)
     return 0
 
 

@@ -28,14 +28,13 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 
 from apt_filters.cli.main import main as cli
-from apt_filters.core.atomic import atomic_write_text
 from apt_filters.io import IonTable
 from apt_filters.io.writers import write_pos
+from benchmarks.results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from rangefile_gen import range_files  # noqa: E402
 
-RESULTS = Path(__file__).with_name("results_fuzz_ranges.md")
 LIMIT_S = 10.0
 
 
@@ -92,12 +91,9 @@ def main() -> None:
         stats = run_campaign(args.files, args.subprocess_every, Path(tmp))
     total = time.perf_counter() - start
     slow, slow_name = stats["slowest"]
-    lines = ["# benchmarks/fuzz_ranges.py results", "",
-             "<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
-             f"| ranges | fuzz: {stats['files']:,} generated range files through the CLI (target: no traceback, "
-             f"none over {LIMIT_S:g} s) | {len(stats['broken'])} broken, slowest {slow:.1f} s | - | - |",
-             "<!-- /summary -->", "",
-             f"## Fuzz campaign: {stats['files']:,} generated range files through `apt-filters info`", "",
+    rows = [("ranges", f"fuzz: {stats['files']:,} generated range files through the CLI (target: no traceback, "
+             f"none over {LIMIT_S:g} s)", f"{len(stats['broken'])} broken, slowest {slow:.1f} s", "-", "-")]
+    lines = [f"## Fuzz campaign: {stats['files']:,} generated range files through `apt-filters info`", "",
              "RRNG, RNG, ENV and GPM ENV files from tests/rangefile_gen.py (up to 300 ranges, quirks, line damage, "
              f"five encodings), derandomized; {total:.0f} s in all on a shared 2-core machine", "",
              "| outcome | files |", "|---|---:|"]
@@ -108,9 +104,9 @@ def main() -> None:
               f"- broken promises (traceback, several error lines, signal death, over {LIMIT_S:g} s): "
               f"{len(stats['broken'])}"]
     lines += [f"  - {b}" for b in stats["broken"][:20]]
-    text = "\n".join(lines) + "\n"
+    text = "\n".join(lines)
     print(text)
-    atomic_write_text(RESULTS, text, overwrite=True)
+    write_results("fuzz_ranges", "benchmarks/fuzz_ranges.py results", rows, [text])
 
 
 if __name__ == "__main__":

@@ -59,9 +59,9 @@ class SurfaceConfig:
 @dataclass
 class ContourConfig:
     method: str = "mc"
-    """mc (marching cubes) or dc (dual contouring, sharp features on smooth fields). On counted,
-    delocalized data followed by refinement, mc measured better: dc leaves some objects open
-    (non-manifold sheets on noisy fields), see docs/pipeline.md."""
+    """mc (marching cubes) or dc (dual contouring, sharp features on smooth fields). mc by default: the
+    delocalization has already rounded the edges of counted data, and dc can leave objects open on
+    noisy fields (non-manifold sheets); the refinement then moves the surface (docs/pipeline.md)."""
     close_at_edge: bool = False
     """Close objects that meet the specimen edge (proxies) instead of leaving them open."""
 
@@ -79,9 +79,8 @@ class RefineConfig:
     """Open components smaller than this (nm²) are specks too."""
     facets: bool = True
     """Rebuild sharp edges and corners where planar facets of an object meet (cuboids; spheres are
-    untouched), on planes fitted to the ions where the facets close the object. Gamma-prime seeds 1-5
-    (20 objects): area 4.5 -> 2.4 % mean abs, Hausdorff 0.90 -> 0.76 nm; planes from the ions and rows of
-    vertices along the edges, seeds 1-8 (16 cubes): Hausdorff 0.72 -> 0.57 nm mean, area 2.2 -> 1.6 %."""
+    untouched), on planes fitted to the ions where the facets close the object: the delocalization
+    rounds edges and corners away, the ions still hold the planes (docs/refine.md)."""
     blur: list[float] = field(default_factory=list)
     """[lateral, depth] reconstruction blur sigmas in nm whose curvature bias is undone (a 3 nm sphere
     comes out ~2 % small under 0.3 / 0.1 nm). Empty: the lateral sigma is estimated from the ions (the
@@ -90,17 +89,17 @@ class RefineConfig:
     where one flat interface gives no estimate). [0, 0]: no correction."""
     cross_fit: bool = True
     """Plateaus from each half of the ions against the other half's surface (no self-selection: the
-    inside plateau read +0.35 at.% high against the surface the same ions placed); also gives the
-    halves that choose each object's smoothness. About 2.5x the refinement time."""
+    ions that placed a surface read its plateaus biased); also gives the halves that choose each
+    object's smoothness. It multiplies the refinement's time (docs/refine.md)."""
     select_modes: bool = True
     """Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
-    (two-fold cross-validation on the cross-fit's halves): 3 nm spheres keep 4-9, cubes 4-36. Gamma-prime
-    seeds 1-8: mean distance to the truth 0.16 -> 0.12 nm, worst area error 7.9 -> 5.6 % (needs cross_fit)."""
+    (two-fold cross-validation on the cross-fit's halves), so each object keeps as much shape as its
+    ions support and no more (needs cross_fit; docs/refine.md)."""
     marker: bool = True
     """Where the species ``voxel.exclude`` leaves out (segregants) peak at an object's surface, read its
     mean offset off that peak too and move it by the combination with the step's (the layer's common
-    offset from the midpoint fitted over the objects; needs two objects). Gamma-prime seeds 1-8: volume
-    errors 2.8 -> 1.8 % mean abs, 25 -> 31 of 32 precipitates within 5 %."""
+    offset from the midpoint fitted over the objects; needs two objects): two independent placements of
+    one surface combine into a better one (docs/refine.md)."""
 
 
 @dataclass

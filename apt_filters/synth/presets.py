@@ -1,4 +1,5 @@
-"""Built-in specimens: ``default`` (the demo), ``gamma-prime`` (Ni superalloy, issue 9) and ``small`` (tests).
+"""Built-in specimens: ``default`` (the demo), ``gamma-prime`` (Ni superalloy, the refinement's test
+specimen) and ``small`` (tests).
 
 All three model a Ni-based superalloy: gamma matrix (Al 10 at.%) with gamma-prime precipitates
 (Al 20 at.%), and B segregated in a Gaussian shell at every interface. Their layout is fixed
@@ -46,7 +47,7 @@ def default() -> SpecimenSpec:
 
 
 def gamma_prime() -> SpecimenSpec:
-    """~1.2M ions: the specimen of issue 9. Tip 45 nm long (apex 12 nm, 10 deg), efficiency 0.5, blur
+    """~1.2M ions: the refinement's test specimen. Tip 45 nm long (apex 12 nm, 10 deg), efficiency 0.5, blur
     0.3/0.1 nm; rotated gamma-prime cubes of 7 and 6 nm and two spheres of 3 nm (Al 0.20 inside,
     0.10 outside), B in a shell at every interface."""
     features = (
@@ -70,7 +71,7 @@ def small() -> SpecimenSpec:
 
 
 def many() -> SpecimenSpec:
-    """~8.4M ions with 47 precipitates (issue 8's scale case; ``--ions`` lengthens the shank): tip
+    """~8.4M ions with 47 precipitates (the end-to-end scale case; ``--ions`` lengthens the shank): tip
     130 nm long (apex 14 nm, 8 deg); layers every 8.5 nm, each of 3-5 precipitates (rotated 5 nm cubes and 2.5 nm spheres) around
     the axis, alternate layers turned so that no two sit on top of each other."""
     tip = Tip(14.0, 8.0, 130.0)

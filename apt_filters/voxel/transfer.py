@@ -84,11 +84,10 @@ def admissible_range(kernel: str, grid: Grid, delocalization) -> tuple[np.ndarra
 # it and flags the blocks its footprint touches in a dense uint8 table over the box's blocks;
 # the flagged blocks without a slot get the next pool slots in block order (``_Pool.assign``, one
 # pass over the box's blocks); ``_scatter`` then adds the weights through the slot table
-# with no checks, no allocation and no early exit (the fused pass this replaces, which gave slots
-# on first touch and stopped when the pool was full, cost 1.2-1.3x as much per ion in one process).
+# with no checks, no allocation and no early exit (cheaper per ion than one fused pass that gives
+# slots on first touch and must stop when the pool is full).
 # The slot table is read flat and holds each block's offset in the pool (slot × values per block,
-# int64: no multiplication per tap; gaussian pass 1 48.4 -> 44.2 ns/ion, sawtooth 18.7 -> 18.4, one
-# process), and every subscript goes through ``_u`` (unsigned), which spares
+# int64: no multiplication per tap), and every subscript goes through ``_u`` (unsigned), which spares
 # numba's negative-index handling on each of the up to 27 writes per ion.
 #
 # The transfer function reaches the kernels as a tuple whose length selects it (``_KIND``): numba
