@@ -27,10 +27,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from apt_filters.core.atomic import atomic_write_text
+from benchmarks.results import ratio, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-SUMMARY: list[str] = []
+SUMMARY: list[tuple[str, str, str, str, str]] = []
 """Rows of the summary block that RESULTS.md gathers."""
 SI = ROOT.parent / "shared" / "data" / "real" / "apav-si"
 
@@ -59,9 +59,9 @@ def scaling(tmp: Path, quick: bool, workers: int) -> list[str]:
         result = run_sweep(base, choices, tmp / "sweep", client=client, progress=False)
     ideal = alone * len(choices) / workers
     ok = sum(r["status"] == "ok" for r in result.runs)
-    SUMMARY.append(f"| sweep | {len(choices)}-choice sweep on real Si, {workers} workers: wall / ideal (target <= 3) | "
-                   f"{result.wall_seconds:.0f} s | {ideal:.0f} s (one run alone x choices / cores) | "
-                   f"{result.wall_seconds / ideal:.2f} |")
+    SUMMARY.append(("sweep", f"{len(choices)}-choice sweep on real Si, {workers} workers: wall / ideal (target <= 3)",
+                    f"{result.wall_seconds:.0f} s", f"{ideal:.0f} s (one run alone x choices / workers)",
+                    ratio(result.wall_seconds, ideal)))
     return ["## Scaling: the real Si data (945,211 ions, Cr 30 at.%)", "",
             "| choices | workers | one run alone (s) | ideal sweep (s) | sweep wall (s) | wall / ideal | target |",
             "|---:|---:|---:|---:|---:|---:|---|",
@@ -103,9 +103,9 @@ def refined_spread(tmp: Path, quick: bool, workers: int) -> list[str]:
                      f"{100 * raw['sd'] / raw['mean'] if raw else float('nan'):.1f} % | {s['mean']:.0f} | "
                      f"{100 * s['sd'] / s['mean']:.1f} % | {100 * s['counting_se'] / s['mean']:.1f} % |")
     cv = {k: statistics.median(100 * s["sd"] / s["mean"] for s in v.values()) for k, v in spreads.items() if v}
-    SUMMARY.append(f"| sweep | median spread of precipitate volumes over {len(choices)} choices (gamma-prime) | "
-                   f"{cv.get(True, float('nan')):.1f} % refined | {cv.get(False, float('nan')):.1f} % AP Suite-style | "
-                   f"{cv.get(True, float('nan')) / cv.get(False, float('nan')):.2f} |")
+    SUMMARY.append(("sweep", f"median spread of precipitate volumes over {len(choices)} choices (gamma-prime)",
+                    f"{cv.get(True, float('nan')):.1f} % refined", f"{cv.get(False, float('nan')):.1f} % AP Suite-style",
+                    ratio(cv.get(True, float("nan")), cv.get(False, float("nan")))))
     lines += ["", f"Median spread of the volumes over the choices: unrefined {cv.get(False, float('nan')):.1f} %, "
                   f"refined {cv.get(True, float('nan')):.1f} %.", ""]
     return lines
@@ -118,14 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
-        lines = ["# bench_sweep: sweeps on a local Dask cluster", "",
-                 f"Load average before: {load[0]:.1f} (the cluster shares the machine's cores with it).", ""]
-        body = scaling(Path(tmp), args.quick, args.workers) + refined_spread(Path(tmp), args.quick, args.workers)
-    block = ["<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
-             *SUMMARY, "<!-- /summary -->", ""]
-    text = "\n".join(lines[:2] + block + lines[2:] + body) + "\n"
-    print(text)
-    atomic_write_text(Path(__file__).with_name("results_sweep.md"), text, overwrite=True)
+        sections = ["\n".join(scaling(Path(tmp), args.quick, args.workers)),
+                    "\n".join(refined_spread(Path(tmp), args.quick, args.workers))]
+    path = write_results("sweep", "bench_sweep: sweeps on a local Dask cluster", SUMMARY, sections,
+                         intro=f"Load average before: {load[0]:.1f} (the cluster shares the machine's cores with it).")
+    print(path.read_text())
     return 0
 
 
