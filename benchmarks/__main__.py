@@ -21,7 +21,7 @@ from pathlib import Path
 from apt_filters.core.atomic import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
+ORDER = ["cli", "io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
          "sweep"]
 
 
