@@ -21,7 +21,7 @@ from apt_filters.core.atomic import atomic_write_text
 from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
+ORDER = ["cli", "io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "refine", "pipeline",
          "sweep"]
 
 

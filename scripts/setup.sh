@@ -19,10 +19,12 @@ ldconfig -p | grep -q 'libGL.so.1' || need+=(libgl1)
 ldconfig -p | grep -q 'libgomp.so.1' || need+=(libgomp1)
 ldconfig -p | grep -q 'libGLU.so.1' || need+=(libglu1-mesa)
 # Tests only: Debian's meshlab (2020.09) still ships meshlabserver, which replays our .mlx
-# scripts headless under xvfb-run, a second MeshLab client besides pymeshlab.
+# scripts headless under xvfb-run, a second MeshLab client besides pymeshlab; chromium renders
+# report.html headless.
 if [ $dev = 1 ]; then
   command -v meshlabserver >/dev/null || need+=(meshlab)
   command -v xvfb-run >/dev/null || need+=(xvfb xauth)
+  command -v chromium >/dev/null || need+=(chromium)  # the report's render test
 fi
 if [ ${#need[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then

@@ -1,19 +1,22 @@
 """``apt-filters run`` end to end: a small synthetic specimen against its truth, and the real Si data."""
 
 import json
+import shutil
 import subprocess
 import sys
+from html.parser import HTMLParser
 
 import pytest
 
 from apt_filters.cli.main import main
 from apt_filters.pipeline import config as cfg
+from apt_filters.pipeline.report import with_error
 from apt_filters.pipeline.run import run_pipeline
 from apt_filters.synth import preset, write_specimen
 
 OUTPUTS = ["report.json", "report.html", "config.toml", "project.mlp", "excess.json", "clean_Al15.mlx",
            "clean_Al15.json", "objects_Al15.csv", "objects_Al15.json", "proxigram_Al15.csv", "proxigram_Al15.png",
-           "meshes/Al15.ply", "meshes/ions.ply"]
+           "meshes/Al15.ply", "meshes/ions_Al.ply", "meshes/ions_B.ply", "clean_Al15.meshlab2020.mlx", "legend.png"]
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +119,7 @@ def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
     first = json.loads((out / "report.json").read_text())
     for key in ("composition", "voxel", "surfaces", "inputs"):
         assert second[key] == first[key], key
-    for name in ("meshes/Al15.ply", "meshes/ions.ply", "clean_Al15.mlx", "proxigram_Al15.csv"):
+    for name in ("meshes/Al15.ply", "meshes/ions_Al.ply", "clean_Al15.mlx", "proxigram_Al15.csv"):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
 
 
@@ -128,7 +131,8 @@ def test_existing_output_needs_force(small_run, capsys):
 
 
 @pytest.mark.parametrize("args, problem", [
-    (["--species", "Xe", "--iso", "0.1"], "no field 'Xe'"),
+    (["--species", "Xe", "--iso", "0.1"], "unknown iso-surface species 'Xe'; valid names: "),
+    (["--species", "al", "--iso", "0.15", "--exclude", "b", "xe"], "unknown species to exclude 'xe'"),
     (["--density", "1e6"], "outside the atomic density range"),
     (["--species", "Al"], "--species and --iso go together"),
     (["--voxel", "-1", "--species", "Al", "--iso", "0.15"], "voxel"),
@@ -142,6 +146,61 @@ def test_user_mistakes_are_one_line_and_exit_2(specimen, tmp_path, args, problem
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and problem in lines[0] and "Traceback" not in proc.stderr
     assert not (tmp_path / "o").exists(), "a failed run leaves no output"
+
+
+class _Page(HTMLParser):
+    """Headings, table cells and all text of a page, in order."""
+
+    def __init__(self):
+        super().__init__()
+        self.headings, self.cells, self.text, self._tag = [], [], [], None
+
+    def handle_starttag(self, tag, attrs):
+        self._tag = tag
+
+    def handle_data(self, data):
+        self.text.append(data)
+        if self._tag in ("h1", "h2", "h3"):
+            self.headings.append(data.strip())
+        if self._tag in ("td", "th"):
+            self.cells.append(data.strip())
+
+
+def test_report_html_is_for_a_reader(small_run):
+    """Summary first, units on every figure, no Python reprs, no bare NaN, pooled row in words."""
+    out, report, _ = small_run
+    page = _Page()
+    page.feed((out / "report.html").read_text())
+    text = " ".join(page.text)
+    order = [h for h in page.headings if h.startswith(("Al 15 at.%", "Against", "Pictures", "Details"))]
+    assert order == ["Al 15 at.% iso-concentration surface (Al15)", "Against the ground truth (synthetic specimen)",
+                     "Pictures", "Details"], page.headings
+    for unit in ("volume (nm³)", "area (nm²)", "inside (at.%)", "outside (at.%)", "(atoms/nm²)"):
+        assert any(unit in c for c in page.cells), unit
+    for repr_ in ("np.float64", "{'", "array(", "None", "nan", "object_id -1"):
+        assert repr_ not in text, repr_
+    assert all(c != "-1" for c in page.cells)
+    summary = report["surfaces"][0]["summary"]
+    assert [r["label"] for r in summary] == ["interior objects (closed)"]  # the small specimen has no edge objects
+    assert f"{summary[0]['objects']}" in page.cells
+    gamma = summary[0]["excess"]["B"]
+    assert with_error(gamma["gamma_atoms_nm2"], gamma["error"]) in page.cells
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium not installed (setup.sh --dev installs it)")
+def test_report_renders_in_chromium(small_run, tmp_path):
+    """Headless Chromium lays the page out (a screenshot of its first screen, not blank)."""
+    out, _, _ = small_run
+    shot = tmp_path / "first.png"
+    subprocess.run(["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                    "--disable-component-update", "--no-first-run", "--disable-sync",
+                    f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}", "--window-size=1400,1000",
+                    (out / "report.html").as_uri()], capture_output=True, timeout=120, check=True)
+    import matplotlib.image
+
+    pixels = matplotlib.image.imread(shot)
+    assert pixels.shape[:2] == (1000, 1400)
+    assert pixels[..., :3].std() > 0.05, "the first screen is not blank"
 
 
 def test_run_on_real_si(real_si, tmp_path):

@@ -11,6 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
+from apt_filters.cli.options import add_output
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 1
@@ -55,10 +56,10 @@ def _run(args: argparse.Namespace) -> int:
     from apt_filters.cli.synth import report
     from apt_filters.pipeline.run import run_pipeline
 
-    out = Path(args.out)
+    out = Path(args.output)
     specimen = out / "specimen"
     if out.is_dir() and any(out.iterdir()) and not specimen.is_dir() and not args.force:
-        raise AptFiltersError("output folder holds something else; pass --force or choose --out", out)
+        raise AptFiltersError("output folder holds something else; pass --force or choose -o/--output", out)
     specimen.mkdir(parents=True, exist_ok=True)
     truth, reused = demo_specimen(specimen, args.seed, args.force)
     report(specimen, truth, "reused" if reused else "wrote")
@@ -81,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "a plate and a flat interface, B segregated at every interface; ~3.4M ions) into OUT/specimen, "
                     "run the whole pipeline on it (Al iso-surface at 15 at.%, B left out of the concentration) into OUT/run, and print the objects' "
                     "volumes, areas and B excess over their true values.")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT})")
+    add_output(p, f"output folder (default ./{DEFAULT_OUT})", default=DEFAULT_OUT)
     p.add_argument("--seed", type=int, default=0, help="random seed of the ions (default 0)")
     p.add_argument("--force", action="store_true", help="regenerate even if the folder holds a specimen")
     p.add_argument("--quiet", "-q", action="store_true", help="no step summaries")

@@ -14,9 +14,6 @@ import json
 
 from apt_filters.cli.rangeopts import add_range_options, load_ranges
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.io import RangeTable
-from apt_filters.io.readers import ion_format
-from apt_filters.io.summary import IonSummary, summarize
 
 ORDER = 10
 NOTES_SHOWN = 10
@@ -25,7 +22,9 @@ FORMAT_NAMES = {"pos": "POS", "epos": "EPOS", "apt6": "APT6 (AP Suite)", "ato": 
                 "text": "text table"}
 
 
-def _as_json(path: str, summary: IonSummary, ranges: RangeTable | None) -> dict:
+def _as_json(path: str, summary, ranges) -> dict:
+    from apt_filters.io.readers import ion_format
+
     out = {
         "file": path,
         "format": ion_format(path),
@@ -47,7 +46,9 @@ def _as_json(path: str, summary: IonSummary, ranges: RangeTable | None) -> dict:
     return out
 
 
-def _as_text(path: str, summary: IonSummary, ranges: RangeTable | None) -> str:
+def _as_text(path: str, summary, ranges) -> str:
+    from apt_filters.io.readers import ion_format
+
     axes = "   ".join(f"{a} {lo:.3f} .. {hi:.3f}" for a, lo, hi in zip("xyz", summary.lower, summary.upper))
     lines = [
         f"{path}: {FORMAT_NAMES[ion_format(path)]}, {summary.ions:,} ions",
@@ -71,9 +72,14 @@ def _as_text(path: str, summary: IonSummary, ranges: RangeTable | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from apt_filters.io.readers import ion_format
+
     if args.relabel and not args.range_file:
         raise AptFiltersError("--relabel needs a range file (--range)")
     ranges = load_ranges(args.range_file, args.relabel, args.unknown_species) if args.range_file else None
+    ion_format(args.file)  # an unknown extension is refused before numba loads
+    from apt_filters.io.summary import summarize
+
     summary = summarize(args.file, ranges)
     if args.json:
         print(json.dumps(_as_json(args.file, summary, ranges), indent=2))

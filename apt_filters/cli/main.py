@@ -16,8 +16,8 @@ import pkgutil
 import sys
 
 from apt_filters import __version__
+from apt_filters.cli.options import check_output
 from apt_filters.core.errors import AptFiltersError
-
 
 
 def command_modules() -> list:
@@ -25,7 +25,7 @@ def command_modules() -> list:
     import apt_filters.cli as package
 
     modules = [importlib.import_module(f"{package.__name__}.{info.name}")
-               for info in pkgutil.iter_modules(package.__path__) if info.name != "main"]
+               for info in pkgutil.iter_modules(package.__path__) if info.name not in ("main", "options")]
     return sorted((m for m in modules if hasattr(m, "register")), key=lambda m: (getattr(m, "ORDER", 99), m.__name__))
 
 
@@ -44,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    check_output(args)
     try:
         return int(args.func(args) or 0)
     except AptFiltersError as exc:

@@ -10,21 +10,37 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-
-from apt_filters.analysis.excess import INSTRUMENT_EFFICIENCY, interfacial_excess, write_excess_json
-from apt_filters.analysis.proxigram import compute_proxigram
+from apt_filters.cli.options import add_output
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.io import iter_ion_chunks, read_ranges
-from apt_filters.meshlab.bridge import read_mesh
 
 ORDER = 80
+INSTRUMENTS = ("EIKOS", "Invizio", "LEAP 5000R", "LEAP 5000S", "LEAP 6000")
+"""Names of ``analysis.excess.INSTRUMENT_EFFICIENCY`` (spelled here so ``--help`` imports no analysis code;
+a test checks they agree)."""
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.outdir)
+    from apt_filters.io import read_ranges
+    from apt_filters.io.readers import ion_format
+    from apt_filters.pipeline.inputs import match_species
+
+    out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise AptFiltersError("exists and is not a folder", out)
+    for path, missing in ((args.ions, "no such file"), (args.mesh, "mesh file not found")):
+        if not Path(path).is_file():  # before the heavy imports: a mistake is reported at once
+            raise AptFiltersError(missing, path)
+    ion_format(args.ions)
     ranges = read_ranges(args.range_file)
+    if args.solute:
+        args.solute = match_species(args.solute, ranges.elements + [i for i in ranges.ions if i not in ranges.elements],
+                                    what="solute")
+
+    from apt_filters.analysis.excess import INSTRUMENT_EFFICIENCY, interfacial_excess, write_excess_json
+    from apt_filters.analysis.proxigram import compute_proxigram
+    from apt_filters.io import iter_ion_chunks
+    from apt_filters.meshlab.bridge import read_mesh
+
     mesh = read_mesh(args.mesh)
     if args.instrument:
         efficiency = INSTRUMENT_EFFICIENCY[args.instrument]
@@ -72,14 +88,14 @@ def register(subparsers) -> None:
                    help="range file (.rrng, .rng or .env)")
     p.add_argument("--mesh", "-m", metavar="MESH", required=True,
                    help="iso-surface (.ply, .obj, .stl, .off), normals out of the region above the iso-value")
-    p.add_argument("-o", "--outdir", metavar="OUTDIR", required=True, help="folder for the outputs")
+    add_output(p, "folder for the outputs", metavar="OUTDIR")
     p.add_argument("--bin", type=float, default=0.1, help="bin width in nm (default 0.1)")
     p.add_argument("--range-nm", type=float, default=3.0, help="half range of distances in nm (default 3)")
     p.add_argument("--keep-edge", action="store_true", help="keep ions beyond the rim of an open surface")
     p.add_argument("--iso", type=float, default=None, help="iso-value as a fraction, marked on the plot")
     p.add_argument("--solute", metavar="B", help="element or ion species whose interfacial excess to compute")
     p.add_argument("--efficiency", type=float, default=0.5, help="detection efficiency (default 0.5)")
-    p.add_argument("--instrument", choices=sorted(INSTRUMENT_EFFICIENCY),
+    p.add_argument("--instrument", choices=INSTRUMENTS,
                    help="take the detection efficiency of this instrument instead of --efficiency")
     p.add_argument("--inner", type=float, default=1.0,
                    help="plateau windows start this far from the interface, nm (default 1)")

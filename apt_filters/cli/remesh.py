@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+
+from apt_filters.cli.options import add_output
 from pathlib import Path
 
 from apt_filters.core.errors import AptFiltersError
@@ -38,7 +40,7 @@ def register(subparsers) -> None:
         description="Feature-preserving centroidal Voronoi (Lloyd) remeshing: near-equilateral triangles, "
                     "sharp edges, corners and open boundaries kept, vertex quality re-interpolated.")
     p.add_argument("input", metavar="IN.ply", help="input triangle mesh (PLY; any format MeshLab reads)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.ply", help="output mesh (written atomically)")
+    add_output(p, "output mesh (written atomically)", metavar="OUT.ply")
     p.add_argument("--edge-length", type=float, default=None, metavar="L",
                    help="target edge length in nm (default: the input's mean edge length)")
     p.add_argument("--feature-angle", type=float, default=40.0, metavar="A",

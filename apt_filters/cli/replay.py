@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from apt_filters.cli.options import add_output
+
 ORDER = 60
 
 
@@ -23,6 +25,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "the filters apt-filters knows (cleaning, hole closing, smoothing, decimation).")
     p.add_argument("script", help="MeshLab filter script (.mlx)")
     p.add_argument("mesh", help="input mesh (PLY, OBJ, STL, OFF; not modified)")
-    p.add_argument("-o", "--output", required=True, help="output mesh; format from the extension")
+    add_output(p, "output mesh; format from the extension", metavar="OUT")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT if it exists")
     p.set_defaults(func=_run)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from apt_filters.cli.options import add_output
 from apt_filters.cli.rangeopts import add_range_options
 
 ORDER = 5
@@ -25,11 +26,13 @@ def build_config(args: argparse.Namespace):
 
 
 def _run(args: argparse.Namespace) -> int:
+    from apt_filters.pipeline.inputs import check_inputs
+
+    config = check_inputs(build_config(args))  # mistakes in milliseconds, before the heavy imports
     from apt_filters.pipeline.run import run_pipeline
 
-    config = build_config(args)
-    report = run_pipeline(config, args.out, force=args.force, quiet=args.quiet, verbose=args.verbose)
-    print(f"report: {Path(args.out) / 'report.html'}")
+    report = run_pipeline(config, args.output, force=args.force, quiet=args.quiet, verbose=args.verbose)
+    print(f"report: {Path(args.output) / 'report.html'}")
     for s in report["surfaces"]:
         print(f"  {s['label']}: {len(s['objects'])} objects, area {s['mesh']['area_nm2']:.1f} nm2")
     return 0
@@ -45,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("input", nargs="?", help="ion file (POS, EPOS, APT, CSV); optional with --config")
     p.add_argument("--range", "-r", help="range file (RRNG, RNG, ENV)")
     add_range_options(p)
-    p.add_argument("--out", "-o", required=True, help="output folder (replaced only with --force)")
+    add_output(p, "output folder (replaced only with --force)")
     p.add_argument("--config", help="pipeline.toml; options given here override it")
     p.add_argument("--species", help="element whose iso-concentration surface is drawn (with --iso)")
     p.add_argument("--iso", type=float, help="iso-concentration as a fraction, e.g. 0.15 for 15 at.%%")

@@ -38,8 +38,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from apt_filters.synth.presets import PRESETS
-
     p = subparsers.add_parser(
         "synth", help="write a synthetic specimen with known truth (POS, RRNG, truth.json, PLY surfaces)",
         description="Generate a synthetic APT specimen whose truth is known exactly: ions as POS, ranges as "
@@ -48,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "Presets: default (the demo, ~3.4M ions), gamma-prime (rotated cubes and spheres in a "
                     "tip, ~1.2M ions), small (~270k ions, for tests).")
     p.add_argument("outdir", help="output folder (created if missing)")
-    p.add_argument("--preset", default="default", choices=list(PRESETS), help="which specimen (default: default)")
+    p.add_argument("--preset", default="default", help="which specimen (default: default; the presets are named above)")
     p.add_argument("--ions", type=ion_count, default=None, metavar="N",
                    help="about N ions: the specimen is lengthened or shortened below its top (features stay put)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the ions (default 0)")

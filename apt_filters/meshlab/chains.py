@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -25,11 +26,11 @@ from typing import Any, Mapping
 import numpy as np
 import pymeshlab
 
-from apt_filters.core.atomic import atomic_output, atomic_write_text
+from apt_filters.core.atomic import atomic_output, atomic_write_bytes, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.meshlab.bridge import OBJECT_ID, from_pymeshlab, to_meshset
-from apt_filters.meshlab.filters import FILTERS
+from apt_filters.meshlab.filters import FILTERS, MESHLAB_2020
 
 
 CAP = "cap"
@@ -197,21 +198,53 @@ def run_on_meshset(ms: pymeshlab.MeshSet, chain: Chain | str) -> ChainRun:
     return ChainRun(chain, resolved, diagonals)
 
 
+MESHLAB_2020_SUFFIX = ".meshlab2020.mlx"
+"""``NAME.mlx`` in MeshLab 2020.x's dialect is written as ``NAME.meshlab2020.mlx``."""
+
+
+def meshlab2020_script(data: bytes) -> bytes:
+    """A ``.mlx`` script of current MeshLab (pymeshlab) rewritten for MeshLab 2020.x.
+
+    Filters MeshLab 2020.x names differently are renamed and the parameters it lacks are
+    left out (:data:`apt_filters.meshlab.filters.MESHLAB_2020`); the rest is kept as it is.
+    """
+    root = ET.fromstring(data)
+    for element in root:
+        rule = MESHLAB_2020.get(element.get("name", ""))
+        if rule is None:
+            continue
+        name, dropped = rule
+        params = {p.get("name"): p for p in element}
+        if isinstance(name, dict):  # one filter with a mode parameter was two filters in 2020.x
+            key = dropped[0]
+            name = name[f"{key}={params[key].get('value') if key in params else 0}"]
+        element.set("name", name)
+        for key in dropped:
+            if key in params:
+                element.remove(params[key])
+    return b"<!DOCTYPE FilterScript>\n" + ET.tostring(root, encoding="utf-8", xml_declaration=False) + b"\n"
+
+
 def save_script(ms: pymeshlab.MeshSet, run: ChainRun, script: str | os.PathLike, overwrite: bool = False,
                 label: str = "") -> tuple[Path, Path]:
-    """Write ``ms``'s filter script as ``script`` (.mlx) and the chain record beside it (.json).
+    """Write ``ms``'s filter script as ``script`` (.mlx), the chain record beside it (.json) and
+    the script for MeshLab 2020.x (``meshlabserver`` of Debian 12) as ``*.meshlab2020.mlx``
+    (:func:`meshlab2020_script`).
 
-    ``ms`` must have run only the chain (see :func:`apply_chain`); both writes are atomic.
+    ``ms`` must have run only the chain (see :func:`apply_chain`); every write is atomic.
+    Returns the ``.mlx`` and ``.json`` paths.
     """
     script = Path(script)
     if script.suffix.lower() != ".mlx":
         raise AptFiltersError("a MeshLab filter script must end in .mlx", script)
     record = script.with_suffix(".json")
-    for path in (script, record):  # refuse before writing either file
+    legacy = script.with_name(script.stem + MESHLAB_2020_SUFFIX)
+    for path in (script, record, legacy):  # refuse before writing any file
         if path.exists() and not overwrite:
             raise AptFiltersError("exists already; pass overwrite/--force to replace it", path)
     with atomic_output(script, overwrite) as tmp:
         ms.save_filter_script(str(tmp))
+    atomic_write_bytes(legacy, meshlab2020_script(script.read_bytes()), overwrite)
     atomic_write_text(record, json.dumps(run.record(label), indent=1) + "\n", overwrite)
     return script, record
 

@@ -71,8 +71,13 @@ def _ply_header(n_vertices: int, vertex_dtype: np.dtype, n_faces: int | None, fa
 
 
 def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "value", cmap: str | None = "viridis",
-              limits: tuple[float, float] | None = None, overwrite: bool = False) -> Path:
+              limits: tuple[float, float] | None = None, overwrite: bool = False,
+              comments: Sequence[str] = ()) -> Path:
     """Write ``mesh`` as a binary PLY the MeshLab GUI shows coloured at once.
+
+    Every vertex scalar is written as a float property under its own name, so any per-vertex
+    map (a composition, an excess) plugs in by being a vertex scalar; ``quality`` picks the
+    one MeshLab colours and shows as vertex quality.
 
     Parameters
     ----------
@@ -86,6 +91,8 @@ def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "val
         colour scalars are still written).
     limits : (low, high), optional
         Colour-map range; default 1st-99th percentile.
+    comments : sequence of str
+        Extra header comments, e.g. what each property means and its unit.
     """
     scalars = {k: np.asarray(v) for k, v in mesh.vertex_scalars.items() if k not in COLOR_KEYS}
     if quality not in scalars:
@@ -123,7 +130,7 @@ def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "val
         f["quality"] = mesh.face_scalars[OBJECT_ID]
         f[OBJECT_ID] = mesh.face_scalars[OBJECT_ID]
     header_dtype = np.dtype([d for d in f_fields if d[0] != "vertex_indices_n"])
-    comments = [f"apt-filters iso-surface; units nm; quality = {quality}"]
+    comments = [*comments, f"apt-filters iso-surface; units nm; quality = {quality}"]
     header = _ply_header(mesh.n_vertices, v.dtype, mesh.n_faces, header_dtype, comments)
     return atomic_write_bytes(path, header + v.tobytes() + f.tobytes(), overwrite)
 
@@ -180,18 +187,25 @@ _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1")
                          ("quality", "<f4")])
 
 
-def _pool(ranges: RangeTable, mz: np.ndarray, include_unranged: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Species of a chunk of ions and the chunk-local indices eligible for the cloud."""
+def _pool(ranges: RangeTable, mz: np.ndarray, include_unranged: bool,
+          only: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Species of a chunk of ions and the chunk-local indices eligible for the cloud (all
+    ranged ions, unranged too if asked, or only the ion species of index ``only``)."""
     species = ranges.ion_index(mz)
+    if only is not None:
+        return species, np.flatnonzero(species == only)
     return species, (np.arange(len(mz)) if include_unranged else np.flatnonzero(species >= 0))
 
 
 def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike, max_points: int = GUI_POINTS,
-                    include_unranged: bool = False, seed: int = 0, overwrite: bool = False) -> CloudExport:
+                    include_unranged: bool = False, seed: int = 0, overwrite: bool = False,
+                    species: str | None = None) -> CloudExport:
     """Write ions as a coloured point-cloud PLY (x, y, z float32 nm; RGB by species; quality = species index).
 
     At most ``max_points`` ions, drawn uniformly without replacement (reproducible with
     ``seed``) and kept in file order; the header comment states the sampling ratio.
+    ``species`` (an ion name of ``ranges``) writes that species only: one MeshLab layer per
+    species, which the GUI shows and hides one by one.
     Two passes over chunks of :data:`CLOUD_CHUNK` ions: count the eligible ions per chunk,
     split the sample between chunks (multivariate hypergeometric, so the draw is uniform over
     all ions), then draw inside each chunk. Memory: one chunk's work arrays plus the written
@@ -199,24 +213,27 @@ def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike,
     """
     if max_points < 1:
         raise AptFiltersError(f"max_points must be at least 1, got {max_points}")
+    if species is not None and species not in ranges.ions:
+        raise AptFiltersError(f"no ion {species!r} in the range file; ions: {', '.join(ranges.ions)}")
+    only = None if species is None else ranges.ions.index(species)
     chunks = [slice(i, i + CLOUD_CHUNK) for i in range(0, len(ions), CLOUD_CHUNK)]
-    counts = np.array([len(_pool(ranges, ions.mz[c], include_unranged)[1]) for c in chunks], dtype=np.int64)
+    counts = np.array([len(_pool(ranges, ions.mz[c], include_unranged, only)[1]) for c in chunks], dtype=np.int64)
     n_pool = int(counts.sum())
     rng = np.random.default_rng(seed)
     take = counts if n_pool <= max_points else rng.multivariate_hypergeometric(counts, max_points)
     rows = []
     for c, k in zip(chunks, take):
-        species, pool = _pool(ranges, ions.mz[c], include_unranged)
+        index, pool = _pool(ranges, ions.mz[c], include_unranged, only)
         chosen = pool if k == len(pool) else np.sort(rng.choice(pool, size=k, replace=False))
         part = np.empty(len(chosen), dtype=_CLOUD_DTYPE)
         part["x"], part["y"], part["z"] = ions.positions[c][chosen].T
-        part["red"], part["green"], part["blue"] = species_colors(ranges)[species[chosen]].T  # -1: unranged row
-        part["quality"] = species[chosen]
+        part["red"], part["green"], part["blue"] = species_colors(ranges)[index[chosen]].T  # -1: unranged row
+        part["quality"] = index[chosen]
         rows.append(part)
     v = np.concatenate(rows) if rows else np.empty(0, dtype=_CLOUD_DTYPE)
     n = len(v)
-    comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} "
-                f"{'ions' if include_unranged else 'ranged ions'} (sampling ratio {n / max(n_pool, 1):.6g})",
+    what = f"{species} ions" if species is not None else "ions" if include_unranged else "ranged ions"
+    comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} {what} (sampling ratio {n / max(n_pool, 1):.6g})",
                 "quality = species index: " + ", ".join(f"{i}={name}" for i, name in enumerate(ranges.ions))
                 + (", -1=unranged" if include_unranged else "")]
     header = _ply_header(n, v.dtype, None, None, comments)
@@ -224,29 +241,63 @@ def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike,
     return CloudExport(out, n, n_pool)
 
 
+POINTS_RENDERING = "0001" + "100100000" + "000000000" * 3 + "10000000000100011010110000010101"
+"""How MeshLab (2020.09 and later) draws a point-cloud layer, in its own serialisation of the
+rendering options (``MLRenderingData::serialize``, vcglib ``PerViewData``): primitive mask
+(points only), per primitive the attributes used (points: position and vertex colour; no
+normals), then the 32 view flags of ``MLPerViewGLOptions`` (MeshLab's defaults except
+per-point shading off, so each ion shows its species colour unlit, and distance attenuation on)."""
+
+POINT_SIZE = 2.0
+"""Pixels per ion in MeshLab (its default is 3): small enough that the surfaces show through."""
+
+
+_TILT = np.radians(20.0)
+SIDE_VIEW = np.array([[1, 0, 0, 0], [0, np.sin(_TILT), np.cos(_TILT), 0], [0, -np.cos(_TILT), np.sin(_TILT), 0],
+                      [0, 0, 0, 1]])
+"""Layer transform that shows a specimen from the side, z (the analysis direction) up and tilted
+20 degrees toward the viewer (so flat interfaces across the tip show as bands, not lines):
+MeshLab opens looking down its z axis, which for a tip means looking through its whole length."""
+
+
 def write_project(path: str | os.PathLike, meshes: Sequence[str | os.PathLike], labels: Sequence[str] | None = None,
-                  overwrite: bool = False) -> Path:
+                  overwrite: bool = False, visible: Sequence[bool] | None = None,
+                  points: Sequence[bool] | None = None, transform: np.ndarray | None = None) -> Path:
     """Write a MeshLab project (.mlp) that opens ``meshes`` together (identity transforms).
 
     Mesh paths are stored relative to the project's folder when they lie under it, so the
-    folder can be moved as a whole.
+    folder can be moved as a whole. ``labels`` name the layers in MeshLab's layer dialog;
+    ``visible`` (default all) says which layers show when the project opens (MeshLab 2020.09
+    and later read it; the others are one click away). Layers flagged in ``points`` are drawn
+    as unlit points of :data:`POINT_SIZE` pixels in their vertex colours
+    (:data:`POINTS_RENDERING`); MeshLab versions that do not read these options use their own.
+    ``transform`` (4 x 4, default identity) is every layer's display matrix, e.g.
+    :data:`SIDE_VIEW`; the files keep their coordinates.
     """
     path = Path(path)
     if path.suffix.lower() != ".mlp":
         raise AptFiltersError("a MeshLab project must end in .mlp", path)
     labels = [Path(m).stem for m in meshes] if labels is None else list(labels)
-    if len(labels) != len(meshes):
-        raise AptFiltersError(f"{len(labels)} labels for {len(meshes)} meshes", path)
+    visible = [True] * len(meshes) if visible is None else list(visible)
+    points = [False] * len(meshes) if points is None else list(points)
+    if not len(labels) == len(visible) == len(points) == len(meshes):
+        raise AptFiltersError(f"{len(labels)} labels, {len(visible)} visibilities, {len(points)} point flags "
+                              f"for {len(meshes)} meshes", path)
+    matrix = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+    matrix_text = "\n" + " ".join(f"{v:g}" for v in matrix.ravel()) + " \n"
     root = ET.Element("MeshLabProject")
     group = ET.SubElement(root, "MeshGroup")
     base = path.parent.resolve()
-    for mesh, label in zip(meshes, labels):
+    for mesh, label, shown, cloud in zip(meshes, labels, visible, points):
         mesh = Path(mesh).resolve()
         if not mesh.is_file():
             raise InputError("mesh of the project not found", mesh)
         name = mesh.relative_to(base).as_posix() if mesh.is_relative_to(base) else str(mesh)
-        element = ET.SubElement(group, "MLMesh", idInFile="-1", visible="1", label=label, filename=name)
-        ET.SubElement(element, "MLMatrix44").text = "\n1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 \n"
+        element = ET.SubElement(group, "MLMesh", idInFile="-1", visible="1" if shown else "0", label=label,
+                                filename=name)
+        ET.SubElement(element, "MLMatrix44").text = matrix_text
+        if cloud:
+            ET.SubElement(element, "RenderingOption", pointSize=f"{POINT_SIZE:g}").text = POINTS_RENDERING
     ET.SubElement(root, "RasterGroup")
     ET.indent(root, " ")
     text = "<!DOCTYPE MeshLabDocument>\n" + ET.tostring(root, encoding="unicode") + "\n"

@@ -35,6 +35,17 @@ FILTERS: dict[str, str] = {
 MLX_NAMES: dict[str, str] = {mlx: py for py, mlx in FILTERS.items()}
 """MeshLab filter name -> pymeshlab filter name."""
 
+MESHLAB_2020: dict[str, tuple[str | dict[str, str], tuple[str, ...]]] = {
+    "Repair non Manifold Edges": ({"method=0": "Repair non Manifold Edges by removing faces",
+                                   "method=1": "Repair non Manifold Edges by splitting vertices"}, ("method",)),
+    "Re-Orient all faces coherently": ("Re-Orient all faces coherentely", ()),
+    "Close Holes": ("Close Holes", ("RefineHole", "RefineHoleEdgeLen")),
+}
+"""How MeshLab 2020.x (Debian's ``meshlabserver``) names the filters of :data:`FILTERS` that it
+names differently, and the parameters it lacks: ``.mlx`` name -> (2020 name, or parameter
+value -> 2020 name; parameters to leave out). Every other filter and parameter is the same in
+both (the test that replays every chain in ``meshlabserver`` checks it)."""
+
 OPENGL_HINT = "install the system library libopengl0 (Debian/Ubuntu: apt-get install libopengl0)"
 
 

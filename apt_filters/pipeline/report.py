@@ -1,5 +1,15 @@
-"""The run report: ``report.json`` (every figure and parameter) and a self-contained
-``report.html`` (plots inlined, tables, timings)."""
+"""The run report: ``report.json`` (every figure and parameter) and ``report.html``, a page
+for the scientist who ran the job.
+
+The page reads top-down in the order a reader asks: what was run, what to be careful about
+(range-file errors, objects left out, figures whose error is as large as the figure), the
+summary per iso-surface (geometry, composition inside/outside, excess; interior objects
+apart from those cut by the specimen edge), then the pictures, then the details (every
+object, the per-object excess, files, steps, versions). Numbers carry their unit in the
+column header and are rounded to their error (two significant digits of the error when it
+starts with 1, else one); a missing figure is shown as "—" with the reason on hover.
+The page is self-contained (pictures inlined) and links the CSV/JSON files beside it.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +17,7 @@ import base64
 import hashlib
 import html
 import json
+import math
 import os
 import platform
 from importlib import metadata
@@ -16,6 +27,9 @@ from apt_filters import __version__
 from apt_filters.core.atomic import atomic_write_text
 
 DEPENDENCIES = ("numpy", "scipy", "pymeshlab", "open3d", "fast-simplification", "numba", "matplotlib", "tqdm")
+
+DASH = "—"
+"""Shown for a figure that does not exist; the reason goes in the cell's tooltip."""
 
 
 def file_record(path: str | os.PathLike) -> dict:
@@ -51,40 +65,340 @@ def _jsonable(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def _table(rows: list[dict]) -> str:
+# --- numbers ---------------------------------------------------------------------------------
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def number(v, digits: int = 3) -> str:
+    """``v`` to ``digits`` significant digits (integers whole, thousands separated); "—" if missing."""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return f"{v:,}"
+    if not _finite(v):
+        return DASH
+    if v == 0:
+        return "0"
+    magnitude = math.floor(math.log10(abs(v)))
+    if magnitude >= digits - 1:
+        return f"{v:,.0f}"
+    decimals = digits - 1 - magnitude
+    return f"{v:.{decimals}f}" if magnitude >= -4 else f"{v:.{digits - 1}e}"
+
+
+def with_error(v, err, scale: float = 1.0) -> str:
+    """``v ± err`` (both times ``scale``) rounded to the error's leading digit (two if it is a 1)."""
+    if not _finite(v):
+        return DASH
+    v = v * scale
+    if not _finite(err) or err <= 0:
+        return number(v)
+    err = err * scale
+    lead = math.floor(math.log10(err))
+    keep = 2 if f"{err:e}"[0] == "1" else 1
+    decimals = max(0, keep - 1 - lead)
+    return f"{v:.{decimals}f} ± {err:.{decimals}f}"
+
+
+def _cell(value, reason: str = "") -> str:
+    """A table cell; a missing value shows its reason on hover; words are left-aligned."""
+    text = value if isinstance(value, str) else number(value)
+    if text == DASH and reason:
+        return f'<td title="{html.escape(reason)}">{DASH}</td>'
+    words = isinstance(value, str) and not (text[:1].isdigit() or text[:1] in "-+−" or text == DASH)
+    return f"<td class='t'>{html.escape(text)}</td>" if words else f"<td>{html.escape(text)}</td>"
+
+
+def _table(header: list[str], rows: list[list[str]], cls: str = "", groups: list[tuple[str, int]] = ()) -> str:
+    """``rows`` hold ready cells (``<td>...``) or plain values; ``groups`` (title, columns) adds a
+    header row above ``header`` spanning its columns."""
     if not rows:
-        return "<p><em>none</em></p>"
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-    head = "".join(f"<th>{html.escape(str(k))}</th>" for k in keys)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(_fmt(row.get(k, '')))}</td>" for k in keys) + "</tr>" for row in rows
-    )
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+        return "<p class='none'>none</p>"
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    if groups:
+        head = ("".join(f"<th colspan='{n}'>{html.escape(g)}</th>" for g, n in groups) + "</tr><tr>" + head)
+    body = "".join("<tr>" + "".join(c if isinstance(c, str) and c.startswith("<td") else _cell(c) for c in row)
+                   + "</tr>" for row in rows)
+    return f"<div class='scroll'><table class='{cls}'><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>"
 
 
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, (list, tuple)):
-        return ", ".join(_fmt(x) for x in v)
-    return str(v)
-
-
-def _image(path: Path) -> str:
+def _image(path: Path, caption: str) -> str:
     data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}"><figcaption>{html.escape(path.name)}</figcaption></figure>'
+    return (f"<figure><img src='data:image/png;base64,{data}' alt='{html.escape(caption)}'>"
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def write_html(path: Path, title: str, sections: list[tuple[str, list[dict] | str]], images: list[Path]) -> None:
-    """A self-contained page: ``sections`` are (heading, table rows or preformatted text)."""
-    parts = [f"<h1>{html.escape(title)}</h1>"]
-    for heading, content in sections:
-        parts.append(f"<h2>{html.escape(heading)}</h2>")
-        parts.append(_table(content) if isinstance(content, list) else f"<pre>{html.escape(content)}</pre>")
-    if images:
-        parts.append("<h2>Plots</h2>" + "".join(_image(p) for p in images))
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse}"
-             "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}img{max-width:100%}")
-    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
-    atomic_write_text(path, page, overwrite=True)
+def _link(name: str, folder: Path) -> str:
+    return f"<a href='{html.escape(name)}'>{html.escape(name)}</a>" if (folder / name).exists() else ""
+
+
+# --- what was run -----------------------------------------------------------------------------
+
+def surface_title(surface: dict) -> str:
+    """``Cr 30 at.% iso-concentration surface`` or ``iso-density surface at 40 atoms/nm³``."""
+    if surface["species"]:
+        return f"{surface['species']} {100 * surface['iso']:g} at.% iso-concentration surface"
+    return f"iso-density surface at {surface['iso']:g} atoms/nm³"
+
+
+def _what_was_run(report: dict) -> str:
+    cfg = report["config"]
+    ions, ranges = (Path(f["path"]).name for f in report["inputs"])
+    v = cfg["voxel"]
+    kernel = (f"{v['kernel']} delocalization {' × '.join(f'{d:g}' for d in v['delocalization'])} nm"
+              if v["kernel"] == "gaussian" else f"{v['kernel']} kernel")
+    steps = [f"{number(report['ions']['count'])} ions of <b>{html.escape(ions)}</b>, "
+             f"{100 * report['ions']['ranged_fraction']:.1f} % ranged by <b>{html.escape(ranges)}</b>",
+             *([f"range labels changed: {html.escape(', '.join(cfg['input']['relabel']))}"]
+               if cfg["input"].get("relabel") else []),
+             f"voxels {v['size']:g} nm, {kernel}"
+             + (f", {', '.join(v['exclude'])} left out of the concentration" if v["exclude"] else ""),
+             ", ".join(html.escape(surface_title(s)) for s in report["surfaces"]),
+             "contoured by " + {"mc": "marching cubes", "dc": "dual contouring"}[cfg["contour"]["method"]]
+             + (", refined against the ions" if cfg["refine"]["enabled"] else "")
+             + ", cleaned by a MeshLab chain"
+             + (", remeshed (CVT)" if cfg["remesh"]["method"] == "cvt" else ""),
+             f"detection efficiency {cfg['analysis']['efficiency']:g}; proxigram bins {cfg['proxigram']['bin']:g} nm "
+             f"over ±{cfg['proxigram']['extent']:g} nm"]
+    return "<ul class='run'>" + "".join(f"<li>{s}</li>" for s in steps) + "</ul>"
+
+
+# --- warnings in words ------------------------------------------------------------------------
+
+UNRELIABLE = 0.5
+"""A figure whose standard error exceeds this fraction of its magnitude is flagged as unreliable."""
+
+FEW_ATOMS = 100
+"""A composition window holding fewer atoms than this is flagged (errors above ~5 at.%)."""
+
+
+def warnings_in_words(report: dict) -> list[str]:
+    """Plain sentences for whatever makes a figure of the report wrong or unreliable.
+
+    Range-file errors of the audit first (every figure with the mislabelled species is wrong),
+    then warnings of the run, objects left out (specks, objects without ions, objects too thin
+    for an excess), and excess or composition figures too uncertain to use.
+    """
+    out = []
+    audit = report.get("audit") or []
+    errors = [f for f in audit if f["severity"] == "error"]
+    wrong = [f for f in errors if f["kind"] == "mislabelled" and f["figures"].get("best_fit")]
+    if wrong:
+        ranges = "; ".join(f"{f['figures']['label']} at {f['figures']['lower']:.2f}–{f['figures']['upper']:.2f} Da "
+                           f"holds {f['figures']['best_fit']} ({100 * f['figures'].get('foreign_fraction', 1):.0f} % "
+                           "of its ions)" for f in wrong)
+        out.append(f"The range file labels {len(wrong)} range{'s' * (len(wrong) > 1)} wrongly (isotope patterns "
+                   f"do not fit): {ranges}. Compositions, surfaces and excess of these species are wrong "
+                   "until the labels are corrected: run again with --relabel OLD=NEW (e.g. Cr2O=Ni) or a "
+                   "corrected range file (apt-filters audit shows the fits).")
+    out += [f"Range file: {f['message']}." for f in errors if f not in wrong]
+    n_warn = sum(f["severity"] == "warning" for f in audit)
+    if n_warn:
+        out.append(f"The range file has {n_warn} further warning{'s' * (n_warn > 1)} (empty ranges, peaks "
+                   "in no range), listed under Details.")
+    out += list(report.get("warnings", []))
+    for s in report["surfaces"]:
+        label, mesh = s["label"], s["mesh"]
+        refine = mesh.get("refine") or {}
+        if refine.get("specks_removed"):
+            n, cfg = refine["specks_removed"], report["config"]["refine"]
+            out.append(f"{label}: {n} speck{'s' * (n > 1)} (closed pieces under {cfg['min_volume']:g} nm³, open "
+                       f"pieces under {cfg['min_area']:g} nm²) removed before refinement; not in the tables.")
+        if mesh.get("objects_dropped"):
+            out.append(f"{label}: {mesh['objects_dropped']} object(s) enclosing no ion left out of the tables.")
+        thin = mesh.get("objects_without_excess") or []
+        if thin:
+            out.append(f"{label}: no excess for object{'s' * (len(thin) > 1)} {', '.join(map(str, thin))}: "
+                       "too thin, or cut by the edge exclusion, to hold ions in a plateau window.")
+        for row in s.get("summary", []):
+            where = f"{label}, {row['label']}"
+            for solute, e in row["excess"].items():
+                if e is None:
+                    out.append(f"{where}: no {solute} excess (a plateau window holds no ion).")
+                elif _finite(e["gamma_atoms_nm2"]) and _finite(e["error"]) and \
+                        e["error"] > UNRELIABLE * abs(e["gamma_atoms_nm2"]):
+                    out.append(f"{where}: the {solute} excess ({with_error(e['gamma_atoms_nm2'], e['error'])} "
+                               "atoms/nm²) is not distinguishable from zero at this counting noise.")
+            comp = row["composition"] or {}
+            for side, part in comp.items():
+                if part["atoms"] < FEW_ATOMS:
+                    out.append(f"{where}: the composition {side} rests on {part['atoms']} atoms only.")
+    return out
+
+
+# --- summary ----------------------------------------------------------------------------------
+
+def _summary(surface: dict) -> str:
+    rows = surface.get("summary", [])
+    if not rows:
+        return "<p class='none'>no objects</p>"
+    geometry = _table(["objects", "count", "volume (nm³)", "area (nm²)", "sphericity (mean ± sd)"], [
+        [r["label"], r["objects"],
+         _cell(r["volume_nm3"], "open objects enclose no volume: they are cut by the specimen edge"),
+         r["area_nm2"],
+         _cell(with_error(r["sphericity_mean"], r["sphericity_sd"]) if r["sphericity_sd"] is not None
+               else r["sphericity_mean"], "sphericity needs a closed object")]
+        for r in rows], "summary")
+    elements = list(dict.fromkeys(e for r in rows if r["composition"] for e in r["composition"]["inside"]["fraction"]))
+    comp_header = ["element"] + ["inside (at.%)", "outside (at.%)"] * len(rows)
+    comp_rows = []
+    for e in elements:
+        cells = [e]
+        for r in rows:
+            for side in ("inside", "outside"):
+                part = (r["composition"] or {}).get(side)
+                cells.append(_cell(with_error(part["fraction"][e], part["error"][e], 100) if part else DASH,
+                                   "no ions of these objects in this window"))
+        comp_rows.append(cells)
+    solutes = list(dict.fromkeys(k for r in rows for k in r["excess"]))
+    excess_rows = [[s] + [_cell(with_error(r["excess"][s]["gamma_atoms_nm2"], r["excess"][s]["error"])
+                                if r["excess"].get(s) else DASH, "a plateau window holds no ion")
+                          for r in rows] for s in solutes]
+    excess = (_table(["solute"] + [f"{r['label']} (atoms/nm²)" for r in rows], excess_rows, "summary")
+              if solutes else "<p class='none'>no solute below 10 % overall</p>")
+    return (f"<div class='cards'><div><h3>Objects</h3>{geometry}</div>"
+            f"<div><h3>Interfacial excess Γ</h3>{excess}</div></div>"
+            f"<h3>Composition inside and outside the interface</h3>"
+            + _table(comp_header, comp_rows, "summary", [("", 1)] + [(r["label"], 2) for r in rows]))
+
+
+# --- details ----------------------------------------------------------------------------------
+
+OBJECT_COLUMNS = (("object_id", "object", ""), ("status", "status", ""), ("area", "area (nm²)", ""),
+                  ("volume", "volume (nm³)", "open: cut by the specimen edge, encloses no volume"),
+                  ("equivalent_radius", "equivalent radius (nm)", "needs a volume"),
+                  ("sphericity", "sphericity", "needs a closed object"),
+                  ("centroid_x", "x (nm)", ""), ("centroid_y", "y (nm)", ""), ("centroid_z", "z (nm)", ""),
+                  ("obb_long", "length (nm)", ""), ("obb_mid", "width (nm)", ""), ("obb_short", "thickness (nm)", ""),
+                  ("genus", "genus", ""), ("edge_distance", "to edge (nm)", "no specimen hull"),
+                  ("n_ions", "ions inside", "open objects have no inside"))
+
+
+def _objects(surface: dict) -> str:
+    objects = surface["objects"]
+    elements = list(dict.fromkeys(k[5:] for o in objects for k in o if k.startswith("frac_")))
+    header = [h for _, h, _ in OBJECT_COLUMNS] + [f"{e} inside (at.%)" for e in elements]
+    rows = []
+    for o in objects:
+        cells = []
+        for key, _, reason in OBJECT_COLUMNS:
+            value = o.get(key)
+            if key == "n_ions" and (value is None or value < 0):
+                value = None
+            cells.append(_cell(value, reason))
+        cells += [_cell(100 * o[f"frac_{e}"] if _finite(o.get(f"frac_{e}")) else None, "no ions inside")
+                  for e in elements]
+        rows.append(cells)
+    return _table(header, rows)
+
+
+def _excess_per_object(surface: dict) -> str:
+    rows = []
+    for e in surface["excess"]:
+        who = "all objects" if e["object_id"] < 0 else str(e["object_id"])
+        rows.append([who, e["solute"], e["area"],
+                     with_error(e["cumulative"]["gamma_atoms"], e["cumulative"]["gamma_atoms_error"]),
+                     with_error(e["integration"]["gamma_atoms"], e["integration"]["gamma_atoms_error"]),
+                     with_error(e["matrix"]["value"], e["matrix"]["error"], 100),
+                     with_error(e["precipitate"]["value"], e["precipitate"]["error"], 100)])
+    return _table(["object", "solute", "area (nm²)", "Γ Krakauer–Seidman (atoms/nm²)",
+                   "Γ proxigram integral (atoms/nm²)", "outside plateau (at.%)", "inside plateau (at.%)"], rows)
+
+
+def _truth(rows: list[dict]) -> str:
+    """Measured over true per feature: ratios first, then the true values (units in the headers)."""
+    solutes = list(dict.fromkeys(k[len("true_excess_"):-len("_atoms_nm2")] for r in rows for k in r
+                                 if k.startswith("true_excess_")))
+    several = len({r["surface"] for r in rows}) > 1
+    header = (["surface"] * several + ["feature", "object", "volume / true", "area / true"]
+              + [h for s in solutes for h in (f"{s} excess / true", f"{s} the ions hold / true")]
+              + ["true volume (nm³)", "true area (nm²)"] + [f"true {s} excess (atoms/nm²)" for s in solutes])
+    missing = "no object of this surface at the feature"
+    body = []
+    for r in rows:
+        cells = [r["surface"]] * several + [r["feature"], _cell(r["object_id"], missing),
+                                            _cell(r.get("volume_ratio"), missing), _cell(r.get("area_ratio"), missing)]
+        for s in solutes:
+            cells += [_cell(r.get(f"excess_{s}_ratio"), "no excess measured for this object"),
+                      _cell(r.get(f"counted_excess_{s}_ratio"), "not counted")]
+        cells += [r["true_volume_nm3"], r["true_area_nm2"]] + [_cell(r.get(f"true_excess_{s}_atoms_nm2"))
+                                                               for s in solutes]
+        body.append(cells)
+    return _table(header, body) + ("<p class='note'>“the ions hold”: the solute the run's own ions hold, counted "
+                                   "against the true surface and plateaus, over the true excess: the counting "
+                                   "noise no method can remove.</p>")
+
+
+def _details(report: dict, folder: Path) -> str:
+    parts = []
+    for s in report["surfaces"]:
+        parts.append(f"<h3>Objects of the {html.escape(surface_title(s))} ({html.escape(s['label'])})</h3>")
+        parts.append(_objects(s))
+        parts.append(f"<h3>Interfacial excess per object at {html.escape(s['label'])}</h3>")
+        parts.append(_excess_per_object(s))
+    parts.append("<h3>Composition of the specimen (ranged ions, atoms)</h3>")
+    parts.append(_table(["element", "at.%"], [[e, 100 * c] for e, c in report["composition"].items()]))
+    if report.get("range_file"):
+        parts.append("<h3>Range file as read</h3>")
+        parts.append(_table(["line", "kind", "what was done"],
+                            [[_cell(n["line"], "not tied to one line"), n["kind"], n["message"]]
+                             for n in report["range_file"]]))
+    if "audit" in report:
+        parts.append("<h3>Range-file audit</h3>")
+        parts.append(_table(["severity", "finding"], [[f["severity"], f["message"]] for f in report["audit"]]))
+    files = sorted({p.relative_to(folder).as_posix() for p in folder.glob("*")
+                    if p.suffix in {".csv", ".json", ".mlx", ".mlp", ".toml", ".png"} and p.name != "report.html"}
+                   | {p.relative_to(folder).as_posix() for p in folder.glob("meshes/*")})
+    parts.append("<h3>Files</h3><p class='files'>" + " · ".join(_link(f, folder) for f in files) + "</p>")
+    parts.append("<h3>Inputs</h3>" + _table(["file", "size (MB)", "SHA-256"],
+                                            [[f["path"], f["bytes"] / 1e6, f["sha256"]] for f in report["inputs"]]))
+    parts.append("<h3>Steps</h3>" + _table(["step", "time (s)", "peak memory (MiB)", "what it found"],
+                                           [[r["step"], r["seconds"], r["peak_mib"], r["summary"].split("\n")[0]]
+                                            for r in report["steps"]]))
+    parts.append("<h3>Versions</h3>" + _table(["package", "version"],
+                                              [[k, v or "not installed"] for k, v in report["apt-filters"].items()]))
+    return "".join(parts)
+
+
+STYLE = """
+body{font-family:system-ui,sans-serif;max-width:1300px;margin:1em auto;padding:0 1em;color:#222;font-size:14px}
+h1{font-size:1.5em;margin:.2em 0}h2{font-size:1.2em;border-bottom:1px solid #ccc;margin-top:1.2em}
+h3{font-size:1em;margin:.8em 0 .3em}
+ul.run{margin:.2em 0;padding-left:1.2em;color:#444}
+.warn{background:#fff4e5;border-left:4px solid #e69500;padding:.3em 1em;margin:.6em 0}
+.warn li{margin:.15em 0}
+table{border-collapse:collapse;font-variant-numeric:tabular-nums}
+td,th{border:1px solid #ddd;padding:2px 7px;text-align:right;white-space:nowrap}
+th{background:#f3f3f3;font-weight:600}td:first-child,th:first-child,td.t{text-align:left}
+table.summary td{font-size:1.05em}
+.scroll{overflow-x:auto;max-width:100%}
+.cards{display:flex;gap:2em;flex-wrap:wrap}
+figure{display:inline-block;margin:.5em;vertical-align:top}figure img{max-height:620px;max-width:100%}
+figcaption{font-size:.9em;color:#555;max-width:600px}
+.none{color:#777;font-style:italic}.note{color:#555;font-size:.9em;margin:.3em 0}.files a{margin-right:.3em}
+"""
+
+
+def write_html(path: Path, report: dict, pictures: list[tuple[Path, str]]) -> Path:
+    """Write the reader's page for ``report`` (the content of report.json) beside its files.
+
+    ``pictures`` are (PNG, caption) pairs, inlined in this order.
+    """
+    folder = Path(path).parent
+    names = ", ".join(Path(f["path"]).name for f in report["inputs"][:1])
+    parts = [f"<h1>apt-filters report: {html.escape(names)}</h1>", _what_was_run(report)]
+    warnings = warnings_in_words(report)
+    if warnings:
+        parts.append("<div class='warn'><b>Check before use</b><ul>"
+                     + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul></div>")
+    for s in report["surfaces"]:
+        parts.append(f"<h2>{html.escape(surface_title(s))} ({html.escape(s['label'])})</h2>{_summary(s)}")
+    if report.get("truth"):
+        parts.append("<h2>Against the ground truth (synthetic specimen)</h2>" + _truth(report["truth"]))
+    parts.append("<h2>Pictures</h2>" + "".join(_image(p, c) for p, c in pictures if p.exists()))
+    parts.append("<h2>Details</h2>" + _details(report, folder))
+    page = (f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>apt-filters report: "
+            f"{html.escape(names)}</title><style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
+    return atomic_write_text(path, page, overwrite=True)

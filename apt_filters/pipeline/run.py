@@ -20,15 +20,16 @@ import numpy as np
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.io import read_ions, read_ranges
-from apt_filters.io.rangefiles import relabel
+from apt_filters.io import read_ions
 from apt_filters.io.summary import summarize
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig, check_config
+from apt_filters.pipeline.inputs import check_inputs, config_ranges
 from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.pipeline.surface import contour_surface
 from apt_filters.pipeline.steps import StepLog
+from apt_filters.pipeline.summary import surface_summary
 
 MINORITY = 0.10
 """Elements below this overall fraction are the default solutes of the excess."""
@@ -55,6 +56,7 @@ class SurfaceResult:
     excess: list[dict] = field(default_factory=list)
     proxigram: object = None
     stats: dict = field(default_factory=dict)
+    summary: list[dict] = field(default_factory=list)
 
 
 def _counting_errors(mesh, offset_errors) -> list[dict]:
@@ -100,12 +102,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     from apt_filters.analysis.proxigram import compute_proxigram
     from apt_filters.audit import audit_ranges
     from apt_filters.meshlab.chains import apply_chain
-    from apt_filters.meshlab.exports import write_ion_cloud, write_ply, write_project
+    from apt_filters.pipeline.scene import scene_species, write_scene
     from apt_filters.refine import refine_surface, remove_specks
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
     check_config(config)
+    config = check_inputs(config)
     per_surface = 4 + (config.remesh.method == "cvt")
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
@@ -114,9 +117,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         (stage / "meshes").mkdir()
         with log.step("read") as s:
             ions = read_ions(config.input.ions)
-            ranges = read_ranges(config.input.ranges, unknown=config.input.unknown_species)
-            if config.input.relabel:
-                ranges = relabel(ranges, config.input.relabel, origin="[input] relabel, --relabel")
+            ranges = config_ranges(config)
             report["range_file"] = [dataclasses.asdict(n) for n in ranges.notes]
             summary = summarize(ions, ranges)  # chunk by chunk: no (N,) ranging array kept
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
@@ -128,10 +129,16 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             with log.step("audit") as s:
                 result = audit_ranges(ions, ranges)
                 report["audit"] = [dataclasses.asdict(f) for f in result.flagged]
-                s.summary = f"{len(result.flagged)} range-file findings"
-                # errors are always named: a wrong label changes every composition downstream
-                named = report["audit"] if verbose else [f for f in report["audit"] if f["severity"] == "error"]
-                s.summary += "".join(f"\n    {f['severity'].upper():7} {f['message']}" for f in named)
+                errors = [f for f in report["audit"] if f["severity"] == "error"]
+                n_warn = len(report["audit"]) - len(errors)
+                s.summary = (f"{len(errors)} range-file errors, {n_warn} warnings"
+                             + (" (--verbose lists them)" if n_warn and not verbose else ""))
+                # errors make figures wrong: always in words; warnings only when asked
+                shown = report["audit"] if verbose else errors
+                s.summary += "".join(f"\n    {f['severity'].upper():7} {f['message']}" for f in shown)
+                if errors:
+                    s.summary += ("\n    figures that count a mislabelled range are wrong: relabel it (--relabel "
+                                  "OLD=NEW, e.g. Cr2O=Ni) or correct the range file, and run again")
         with log.step("voxelize") as s:
             v = config.voxel
             basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
@@ -201,6 +208,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 table.write_csv(stage / f"objects_{label}.csv")
                 table.write_json(stage / f"objects_{label}.json")
                 res.objects = table.rows()
+                res.stats["objects_dropped"] = table.n_dropped
                 s.summary = f"{label}: {len(res.objects)} objects"
             with log.step("proxigram") as s:
                 prox = compute_proxigram(ions, ranges, mesh, bin_width=config.proxigram.bin,
@@ -215,6 +223,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                     res.excess += [dataclasses.asdict(e) for e in
                                    interfacial_excess(prox, solute, config.analysis.efficiency, skip_unmeasurable=True)]
                 res.proxigram = prox
+                res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
+                                              efficiency=config.analysis.efficiency)
                 measured = {e["object_id"] for e in res.excess}
                 res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
                 s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
@@ -223,18 +233,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:
-            paths = []
-            for res in results:
-                paths.append(write_ply(res.mesh, stage / "meshes" / f"{res.label}.ply"))
-            cloud = write_ion_cloud(ions, ranges, stage / "meshes" / "ions.ply")
-            paths.append(stage / "meshes" / "ions.ply")
-            write_project(stage / "project.mlp", paths)
+            scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in results},
+                                species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in results},
+                                ions=ions, ranges=ranges)
             sample = ions.positions[:: max(1, len(ions) // 20_000)]
             render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
-            report["ion_cloud"] = dataclasses.asdict(cloud) if dataclasses.is_dataclass(cloud) else str(cloud)
-            s.summary = f"{len(paths)} PLY files and project.mlp"
+            report["scene"] = scene
+            s.summary = (f"project.mlp: {len(results)} surface(s) coloured by "
+                         + ", ".join(f"{x['element']} at.%" for x in scene["surfaces"])
+                         + f", {len(scene['ion_layers'])} ion layers, legend.png")
         report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,
-                               "mesh": r.stats, "objects": r.objects, "excess": r.excess} for r in results]
+                               "mesh": r.stats, "summary": r.summary, "objects": r.objects, "excess": r.excess}
+                              for r in results]
         rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
         if truth is not None:
             from apt_filters.truth.specimen import compare_with_truth, counted_excess
@@ -243,27 +253,12 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         report["steps"] = log.as_dicts()
         atomic_write_text(stage / "config.toml", config.to_toml())
         rep.write_json(stage / "report.json", report)
-        rep.write_html(stage / "report.html", "apt-filters report", _html_sections(report),
-                       [stage / "surfaces.png", *sorted(stage.glob("proxigram_*.png"))])
+        pictures = [(stage / "surfaces.png", "The iso-surfaces seen from the side (z, the analysis direction, up), "
+                     "each object in its own colour and numbered as in the tables; grey dots: a sample of the ions.")]
+        pictures += [(stage / f"proxigram_{r.label}.png", f"Proxigram across {r.label}, all objects pooled: "
+                      "ion (top) and atomic (bottom) concentration against the distance to the surface, "
+                      "positive inside; bars are binomial standard errors.") for r in results]
+        pictures.append((stage / "legend.png", "Legend of the MeshLab scene (project.mlp): each surface's colour, "
+                         "the composition near it, and the ions drawn per species."))
+        rep.write_html(stage / "report.html", report, pictures)
     return report
-
-
-def _html_sections(report: dict) -> list:
-    sections: list = [
-        ("Input", [{"file": f["path"], "bytes": f["bytes"], "sha256": f["sha256"][:16] + "…"} for f in report["inputs"]]),
-        ("Composition (at.%)", [{"element": k, "at.%": 100 * v} for k, v in report["composition"].items()]),
-    ]
-    if report.get("range_file"):
-        sections.append(("Range file as read", [{"line": n["line"], "kind": n["kind"], "what was done": n["message"]}
-                                                for n in report["range_file"]]))
-    if "audit" in report:
-        sections.append(("Range-file audit", [{"severity": f["severity"], "message": f["message"]}
-                                              for f in report["audit"]]))
-    for s in report["surfaces"]:
-        sections.append((f"Objects of {s['label']}", s["objects"]))
-        sections.append((f"Interfacial excess at {s['label']}", s["excess"]))
-    if "truth" in report:
-        sections.append(("Against the ground truth", report["truth"]))
-    sections.append(("Steps", report["steps"]))
-    sections.append(("Versions", [report["apt-filters"]]))
-    return sections

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import resource
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -47,7 +48,9 @@ class StepRecord:
 @dataclass
 class StepLog:
     """Records steps; prints one line per step unless ``quiet``, under a progress bar over
-    ``total`` steps when it is given (tqdm, on stderr)."""
+    ``total`` steps when it is given (tqdm, on stderr, only on a terminal: logs and pipes get
+    the plain lines). On a terminal the bar shows the running step and its elapsed seconds,
+    refreshed every second."""
 
     quiet: bool = False
     total: int | None = None
@@ -70,7 +73,13 @@ class StepLog:
             self._bar.set_description(name)
         record = StepRecord(name, 0.0, 0)
         start = time.perf_counter()
-        yield record
+        done = threading.Event()
+        if self._bar is not None and not self._bar.disable:
+            threading.Thread(target=self._tick, args=(name, start, done), daemon=True).start()
+        try:
+            yield record
+        finally:
+            done.set()
         record.seconds = time.perf_counter() - start
         record.peak_bytes = _peak_bytes()
         self.records.append(record)
@@ -83,6 +92,11 @@ class StepLog:
                 self._bar.update(1)
                 if self._bar.n >= self._bar.total:
                     self._bar.close()
+
+    def _tick(self, name: str, start: float, done: threading.Event) -> None:
+        """Show the running step's elapsed time once a second, so a long step visibly moves."""
+        while not done.wait(1.0):
+            self._bar.set_description(f"{name} {time.perf_counter() - start:4.0f} s", refresh=True)
 
     def as_dicts(self) -> list[dict]:
         return [{"step": r.name, "seconds": round(r.seconds, 3), "peak_mib": round(r.peak_bytes / 2**20, 1),

@@ -1,0 +1,279 @@
+"""The MeshLab scene of a run: what ``project.mlp`` opens, drawn to show the chemistry.
+
+- Each iso-surface as ``meshes/<label>.ply``, its vertex quality the **local composition** of
+  one species at the surface (:func:`vertex_composition`: at.% of that element among the atoms
+  of the :data:`NEAREST_IONS` ranged ions nearest each vertex, molecular ions decomposed), and
+  its vertex colour that quality through viridis with the range set from the data (1st-99th
+  percentile). The species is the solute whose pooled excess is the most significant (|Γ| over
+  its error), else the surface's own species (:func:`scene_species`). Every composition computed
+  is also written as a vertex property ``at_pct_<element>``.
+- Surfaces above :data:`LOD_FACES` faces get a decimated copy (fast-simplification, boundary
+  loops kept) as ``<label>_lod.ply``, shown when the project opens; the full-resolution mesh
+  is the hidden layer beside it.
+- The ions as one layer per ion species (``meshes/ions_<name>.ply``, the range file's colours),
+  sampled for viewing (:func:`layer_quotas`: :data:`VIEW_POINTS` in all, shared equally between
+  the species), so rare species show; species holding a quarter or more of the ranged ions (the
+  matrix, :data:`MATRIX_FRACTION`) open hidden, so that an interface across the whole tip is not
+  drawn over.
+- ``legend.png``: the colour bar of each surface and the colour of each ion layer.
+
+Memory: the ions near the surfaces (a k-d tree over them) and one block of vertices' neighbours.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from apt_filters.core.mesh import TriMesh
+from apt_filters.io.ions import IonTable
+from apt_filters.io.ranges import RangeTable
+
+NEAREST_IONS = 300
+"""Ions whose atoms make each vertex's composition: a counting error of sqrt(c (1 - c) / N)
+(about 1 at.% at 3 at.% for N atoms ~ 300) over a sphere of about 1.3 nm radius in a 50 %
+efficient metal, about the reach of the voxel field."""
+
+VIEW_POINTS = 12_000
+"""Ions drawn in all ion layers: with MeshLab's default point size the surfaces stay visible."""
+
+MATRIX_FRACTION = 0.25
+"""Ion species holding at least this fraction of the ranged ions (the matrix) open hidden: drawn
+in front of an interface that crosses the whole tip they hide it, and they say little about it.
+Their layers are one click away."""
+
+LOD_FACES = 500_000
+"""Surfaces with more faces get a decimated level of detail shown first, with a fifth of this
+many faces (100k: MeshLab turns such a mesh smoothly even with software OpenGL)."""
+
+_ION_CHUNK = 4_000_000
+_VERTEX_BLOCK = 20_000
+
+
+def vertex_composition(*, vertices: np.ndarray, ions: IonTable, ranges: RangeTable, elements: list[str],
+                       k: int = NEAREST_IONS, margin: float = 5.0) -> dict[str, np.ndarray]:
+    """Composition (at.%) of each element of ``elements`` around each vertex, from its ``k`` nearest ranged ions.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Points in nm.
+    ions, ranges : IonTable, RangeTable
+        The ions (read in chunks of 4M) and their ranging; molecular ions count their atoms.
+    elements : list of str
+        Elements of ``ranges`` to report.
+    k : int
+        Nearest ranged ions per vertex.
+    margin : float
+        Ions farther than this (nm) outside the vertices' bounding box are not searched.
+
+    Returns
+    -------
+    dict
+        Element -> (n,) float64 atoms of that element over all atoms of the ``k`` ions, in %;
+        NaN for every vertex when no ion lies within reach.
+    """
+    from scipy.spatial import cKDTree
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    lo, hi = vertices.min(axis=0) - margin, vertices.max(axis=0) + margin
+    near, kinds = [], []
+    for start in range(0, len(ions), _ION_CHUNK):
+        pos = np.asarray(ions.positions[start:start + _ION_CHUNK], dtype=np.float64)
+        species = ranges.ion_index(ions.mz[start:start + _ION_CHUNK])
+        keep = (species >= 0) & np.all((pos >= lo) & (pos <= hi), axis=1)
+        near.append(pos[keep])
+        kinds.append(species[keep])
+    points, kinds = np.concatenate(near), np.concatenate(kinds)
+    if len(points) == 0:
+        return {e: np.full(len(vertices), np.nan) for e in elements}
+    matrix = ranges.element_matrix()[:, [ranges.elements.index(e) for e in elements]]
+    atoms_per_ion = ranges.element_matrix().sum(axis=1)
+    tree = cKDTree(points)
+    k = min(k, len(points))
+    out = np.empty((len(vertices), len(elements)))
+    for start in range(0, len(vertices), _VERTEX_BLOCK):
+        _, idx = tree.query(vertices[start:start + _VERTEX_BLOCK], k=k)
+        idx = idx.reshape(len(idx), -1)
+        sp = kinds[idx]
+        out[start:start + len(idx)] = 100 * matrix[sp].sum(axis=1) / atoms_per_ion[sp].sum(axis=1)[:, None]
+    return {e: out[:, j] for j, e in enumerate(elements)}
+
+
+def scene_species(species: str, summary: list[dict]) -> str:
+    """The element a surface is coloured by: the solute with the most significant pooled excess
+    (largest |Γ| / error over the summary rows of :func:`apt_filters.pipeline.summary.surface_summary`),
+    else ``species`` itself."""
+    best, score = species, 0.0
+    for row in summary:
+        for solute, e in row["excess"].items():
+            if e and e["gamma_atoms_nm2"] is not None and e["error"]:
+                s = abs(e["gamma_atoms_nm2"]) / e["error"]
+                if s > score:
+                    best, score = solute, s
+    return best
+
+
+def layer_quotas(counts: dict[str, int], total: int = VIEW_POINTS) -> dict[str, int]:
+    """Ions drawn per species: ``total`` shared equally between the species, a species with
+    fewer ions than its share drawn whole and the rest shared among the others (water filling).
+
+    The majority species (the matrix) thus becomes a light haze and the minority species stand
+    out; each layer's label states how many of its ions it draws.
+    """
+    out, left = {}, total
+    order = sorted(counts, key=counts.get)
+    for i, s in enumerate(order):
+        out[s] = min(counts[s], left // (len(order) - i))
+        left -= out[s]
+    return {s: out[s] for s in counts}
+
+
+def _file_name(ion: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "_", ion).strip("_") or "ion"
+
+
+@dataclass
+class SceneSurface:
+    """One surface of the scene: its label, colouring element and colour range (at.%)."""
+
+    label: str
+    element: str
+    limits: tuple[float, float]
+    files: list[str]
+
+
+def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str, str], ions: IonTable,
+                ranges: RangeTable, lod_faces: int = LOD_FACES, view_points: int = VIEW_POINTS) -> dict:
+    """Write the scene into ``folder`` (meshes/, project.mlp, legend.png); returns what it wrote.
+
+    Parameters
+    ----------
+    folder : Path
+        Output folder; ``meshes/`` must exist.
+    surfaces : dict
+        Label -> mesh (nm) with face scalar ``object_id``.
+    species : dict
+        Label -> element the surface is coloured by (its local at.%, see :func:`vertex_composition`).
+    ions, ranges : IonTable, RangeTable
+    lod_faces : int
+        Meshes with more faces get a level of detail (:data:`LOD_FACES`).
+    view_points : int
+        Ions drawn over all ion layers (:data:`VIEW_POINTS`).
+
+    Returns
+    -------
+    dict
+        ``surfaces`` (label, element, colour range in at.%, files), ``ion_layers`` (ion, file,
+        drawn, total) and ``legend`` (file name), JSON-ready.
+    """
+    from apt_filters.meshlab.decimation import decimate
+    from apt_filters.meshlab.exports import SIDE_VIEW, colormap_rgba, write_ion_cloud, write_ply, write_project
+
+    meshes_dir = folder / "meshes"
+    layers, labels, visible, scene_surfaces = [], [], [], []
+    for label, mesh in surfaces.items():
+        element = species[label]
+        elements = list(dict.fromkeys([element, *(e for e in species.values() if e in ranges.elements)]))
+        comp = vertex_composition(vertices=mesh.vertices, ions=ions, ranges=ranges, elements=elements)
+        mesh = mesh.copy()
+        for e, values in comp.items():
+            mesh.vertex_scalars[f"at_pct_{e}"] = values
+        quality = f"at_pct_{element}"
+        values = comp[element][np.isfinite(comp[element])]
+        limits = tuple(float(x) for x in np.percentile(values, [1, 99])) if len(values) else (0.0, 100.0)
+        note = [f"quality = {element} at.% among the {NEAREST_IONS} ranged ions nearest each vertex "
+                f"(colour map viridis {limits[0]:.3g} to {limits[1]:.3g} at.%)",
+                *(f"at_pct_{e} = {e} at.% among the same ions" for e in comp)]
+        full = write_ply(mesh, meshes_dir / f"{label}.ply", quality=quality, limits=limits, comments=note,
+                         overwrite=True)
+        files = [full.name]
+        if mesh.n_faces > lod_faces:
+            lod = decimate(mesh, 1 - (lod_faces // 5) / mesh.n_faces)
+            lod_path = write_ply(lod, meshes_dir / f"{label}_lod.ply", quality=quality, limits=limits,
+                                 comments=note, overwrite=True)
+            layers += [lod_path, full]
+            labels += [f"{label}: {element} at.% ({lod.n_faces:,} faces)",
+                       f"{label} full resolution ({mesh.n_faces:,} faces)"]
+            visible += [True, False]
+            files.append(lod_path.name)
+        else:
+            layers.append(full)
+            labels.append(f"{label}: {element} at.%")
+            visible.append(True)
+        scene_surfaces.append(SceneSurface(label, element, limits, files))
+    counts = _species_counts(ions, ranges)
+    quotas = layer_quotas(counts, view_points)
+    ion_layers = []
+    for ion, quota in quotas.items():
+        if quota == 0:
+            continue
+        cloud = write_ion_cloud(ions, ranges, meshes_dir / f"ions_{_file_name(ion)}.ply", max_points=quota,
+                                species=ion, overwrite=True)
+        layers.append(cloud.path)
+        labels.append(f"ions {ion} ({cloud.n_written:,} of {cloud.n_ions:,})")
+        shown = cloud.n_ions < MATRIX_FRACTION * sum(counts.values())
+        visible.append(shown)
+        ion_layers.append({"ion": ion, "file": cloud.path.name, "drawn": cloud.n_written, "total": cloud.n_ions,
+                           "color": "#" + "".join(f"{c:02x}" for c in _ion_color(ranges, ion)), "shown": shown})
+    write_project(folder / "project.mlp", layers, labels, visible=visible, overwrite=True,
+                  points=[p.name.startswith("ions_") for p in layers], transform=SIDE_VIEW)
+    _legend(folder / "legend.png", scene_surfaces, ion_layers, colormap_rgba)
+    return {"surfaces": [dataclasses.asdict(s) for s in scene_surfaces],
+            "ion_layers": ion_layers, "legend": "legend.png",
+            "nearest_ions": NEAREST_IONS}
+
+
+def _species_counts(ions: IonTable, ranges: RangeTable) -> dict[str, int]:
+    counts = np.zeros(len(ranges.ions), dtype=np.int64)
+    for start in range(0, len(ions), _ION_CHUNK):
+        index = ranges.ion_index(ions.mz[start:start + _ION_CHUNK])
+        counts += np.bincount(index[index >= 0], minlength=len(ranges.ions))
+    return {ion: int(c) for ion, c in zip(ranges.ions, counts)}
+
+
+def _ion_color(ranges: RangeTable, ion: str) -> tuple[int, int, int]:
+    from apt_filters.meshlab.exports import species_colors
+
+    return tuple(int(c) for c in species_colors(ranges)[ranges.ions.index(ion)])
+
+
+def _legend(path: Path, surfaces: list[SceneSurface], layers: list[dict], colormap_rgba) -> None:
+    """A PNG beside the project: each surface's colour bar (at.%) and each ion layer's colour."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from apt_filters.core.atomic import atomic_output
+
+    rows = len(surfaces) + math.ceil(len(layers) / 3)
+    fig = plt.figure(figsize=(6, 0.75 + 0.55 * rows), dpi=110)
+    y = 1.0
+    step = 1.0 / (rows + 1)
+    fig.text(0.02, y - step * 0.6, "apt-filters scene (project.mlp)", fontsize=11, weight="bold")
+    y -= step
+    for s in surfaces:
+        ax = fig.add_axes([0.38, y - step * 0.75, 0.58, step * 0.45])
+        ramp = np.linspace(s.limits[0], s.limits[1], 256)
+        ax.imshow(colormap_rgba(ramp, "viridis", s.limits)[None, :, :3], aspect="auto",
+                  extent=(s.limits[0], s.limits[1], 0, 1))
+        ax.set_yticks([])
+        ax.tick_params(labelsize=8)
+        fig.text(0.02, y - step * 0.6, f"{s.label}: {s.element} at.%\nnear the surface", fontsize=9, va="center")
+        y -= step
+    for i, layer in enumerate(layers):
+        col, row = i % 3, i // 3
+        x0, y0 = 0.02 + 0.33 * col, y - step * (row + 0.6)
+        fig.patches.append(matplotlib.patches.Rectangle((x0, y0 - 0.02), 0.03, 0.04, color=layer["color"],
+                                                        transform=fig.transFigure, figure=fig))
+        fig.text(x0 + 0.045, y0, f"{layer['ion']}: {layer['drawn']:,} of {layer['total']:,} ions", fontsize=8,
+                 va="center")
+    with atomic_output(path, overwrite=True) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
