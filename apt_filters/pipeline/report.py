@@ -402,3 +402,21 @@ def write_html(path: Path, report: dict, pictures: list[tuple[Path, str]]) -> Pa
     page = (f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>apt-filters report: "
             f"{html.escape(names)}</title><style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
     return atomic_write_text(path, page, overwrite=True)
+
+
+def write_page(path: Path, title: str, sections: list[tuple[str, object]],
+               pictures: list[tuple[Path, str]] = ()) -> Path:
+    """A page in the report's style for the commands that gather runs (sweep, batch).
+
+    ``sections`` are (heading, content): a paragraph (str) or a table ``(header, rows)`` as
+    :func:`_table` takes it. ``pictures`` are (PNG, caption) pairs, inlined after the sections.
+    """
+    parts = [f"<h1>{html.escape(title)}</h1>"]
+    for heading, content in sections:
+        body = f"<p>{html.escape(content)}</p>" if isinstance(content, str) else _table(*content)
+        parts.append(f"<h2>{html.escape(heading)}</h2>{body}")
+    if pictures:
+        parts.append("<h2>Pictures</h2>" + "".join(_image(p, c) for p, c in pictures if p.exists()))
+    page = (f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
+    return atomic_write_text(path, page, overwrite=True)

@@ -135,6 +135,8 @@ def run_batch(manifest: str | Path, out: str | Path, *, client, force: bool = Fa
         failed = sum(r["status"] != "ok" for r in rows)
         text = (f"{len(rows)} datasets, {failed} failed; {wall:.1f} s wall. Each dataset's full report: "
                 f"runs/<dataset>/report.html.")
-        rep.write_html(stage / "report.html", "apt-filters batch", [("Summary", text), ("Datasets", rows)], [])
+        header = list(dict.fromkeys(k for r in rows for k in r))
+        table = (header, [[r.get(k) if r.get(k) is not None else "" for k in header] for r in rows])
+        rep.write_page(stage / "report.html", "apt-filters batch", [("Summary", text), ("Datasets", table)])
     return rows
 

@@ -161,19 +161,37 @@ def _write(stage: Path, result: SweepResult, base: cfg.PipelineConfig) -> None:
     failed = [r for r in result.runs if r["status"] != "ok"]
     summary = (f"{len(result.runs)} choices ({len(failed)} failed), run side by side in {result.wall_seconds:.1f} s "
                f"wall; the runs took {busy:.1f} s in all ({busy / max(result.wall_seconds, 1e-9):.1f} at once on "
-               f"average).\nsd: spread of a figure over the choices (systematic); counting se: median of the runs' "
-               f"counting errors (statistical). sd/se well above 1: the choice of analysis matters more than "
-               f"counting noise.")
-    spread = [{"surface": s["surface"], "object": s["object"], "figure": s["figure"],
-               "found in": f"{s['found']} of {len(result.runs)}", "mean": s["mean"], "sd": s["sd"],
-               "min": s["min"], "max": s["max"], "counting se": s["counting_se"], "sd / se": s["sd_over_se"]}
-              for s in result.spread]
+               f"average). sd: the spread of a figure over the choices (systematic); counting se: the median of the "
+               f"runs' counting errors (statistical). sd / se well above 1: the choice of analysis moves the figure "
+               f"more than counting noise does. Objects are matched across choices by overlap (docs/sweep.md).")
+    spread = [[s["surface"], s["object"], figure_label(s["figure"]), f"{s['found']} of {len(result.runs)}",
+               *(v * figure_scale(s["figure"]) for v in (s["mean"], s["sd"], s["min"], s["max"], s["counting_se"])),
+               s["sd_over_se"]] for s in result.spread]
+    choices = [[r["tag"], r["iso"], r["voxel"], r["delocalization"], r["kernel"], r["status"], r["objects"],
+                r["seconds"], r["error"] or ""] for r in result.runs]
     sections = [("Summary", summary),
-                ("Choices", [{k: r[k] for k in ("tag", *CHOICE_COLUMNS, "status", "objects", "seconds")} |
-                             ({"error": r["error"]} if r["error"] else {}) for r in result.runs]),
-                ("Spread over the choices against counting error", spread),
-                ("Every choice and object", [{k: v for k, v in r.items() if k != "bbox"} for r in result.rows])]
-    rep.write_html(stage / "report.html", "apt-filters sweep", sections, images)
+                ("Spread over the choices against counting error",
+                 (["surface", "object", "figure", "found in", "mean", "sd over choices", "min", "max",
+                   "counting se", "sd / se"], spread)),
+                ("Choices", (["run", "iso (fraction)", "voxel (nm)", "delocalization (nm, 3σ x y z)", "kernel",
+                              "status", "objects", "time (s)", "error"], choices))]
+    pictures = [(p, "each object's spread over the choices and its counting error, in % of its mean")
+                for p in images]
+    rep.write_page(stage / "report.html", "apt-filters sweep", sections, pictures)
+
+
+def figure_label(key: str) -> str:
+    """A figure's name with its unit, for tables: ``volume (nm³)``, ``Al inside (at.%)``."""
+    if key.startswith("c_"):
+        return f"{key[2:]} inside (at.%)"
+    if key.startswith("excess_"):
+        return f"{key[7:]} excess (atoms/nm²)"
+    return {"volume": "volume (nm³)", "area": "area (nm²)"}.get(key, key)
+
+
+def figure_scale(key: str) -> float:
+    """Factor from the API's unit to the report's (fractions to at.%)."""
+    return 100.0 if key.startswith("c_") else 1.0
 
 
 def _plot(path: Path, spread: list[dict]) -> Path | None:
