@@ -206,6 +206,36 @@ def _walk_curves(edges: np.ndarray, n_vertices: int, corner: np.ndarray) -> list
     return curves
 
 
+def _rim_turns(vertices: np.ndarray, rim: np.ndarray, threshold: float, spacing: float) -> np.ndarray:
+    """(v,) bool: open-rim vertices where the rim turns by more than ``threshold`` (radians).
+
+    Marching cubes leaves the rim of an open surface (the specimen's edge) as a zigzag of
+    vertices on grid edges; a curve through it in chords of the target edge cut its teeth and
+    sat 0.9-1.2 edge from the input's rim (gyroid and tilted sheet at half-voxel edges). As
+    corners, the turning vertices keep the rim where it was. Of two turning vertices closer than
+    ``spacing`` (nm) along the rim, the one turning less is left out (a triangle that small
+    would only make slivers; the rim moves by less than ``spacing``).
+    """
+    corner = np.zeros(len(vertices), bool)
+    if len(rim) == 0:
+        return corner
+    ends = np.concatenate([rim, rim[:, ::-1]])  # (v, neighbour) both ways
+    ends = ends[np.argsort(ends[:, 0], kind="stable")]
+    count = np.bincount(ends[:, 0], minlength=len(vertices))
+    first = np.r_[0, np.cumsum(count)[:-1]]
+    v = np.flatnonzero(count == 2)
+    a, b = ends[first[v], 1], ends[first[v] + 1, 1]
+    u, w = vertices[v] - vertices[a], vertices[b] - vertices[v]
+    cos = np.einsum("ij,ij->i", u, w) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300)
+    turn = np.full(len(vertices), -1.0)
+    turn[v] = np.arccos(np.clip(cos, -1.0, 1.0))
+    corner = turn > threshold
+    short = rim[np.linalg.norm(vertices[rim[:, 0]] - vertices[rim[:, 1]], axis=1) < spacing]
+    both = short[corner[short].all(axis=1)]
+    corner[np.where(turn[both[:, 0]] < turn[both[:, 1]], both[:, 0], both[:, 1])] = False
+    return corner
+
+
 def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bool = False) -> Features:
     """Find patches, feature curves and corners of ``mesh``.
 
@@ -251,7 +281,8 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     feature = boundary | (manifold & (patch[pair[:, 0]] != patch[np.maximum(pair[:, 1], 0)]))
     fedges = edges[feature]
     degree = np.bincount(fedges.ravel(), minlength=len(mesh.vertices))
-    corner = (degree >= 3) | (degree == 1)
+    corner = (degree >= 3) | (degree == 1) | _rim_turns(mesh.vertices, edges[boundary], threshold,
+                                                         0.25 * np.sqrt(min_area))
     curves = _walk_curves(fedges, len(mesh.vertices), corner)
     # patches beside each curve, from one of its edges
     fidx = np.flatnonzero(feature)

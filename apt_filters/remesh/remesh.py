@@ -11,7 +11,7 @@ from apt_filters.remesh._arrays import isin, unique, unique_rows
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import cvt, extract, features as feat, optimize, repair
+from apt_filters.remesh import cvt, extract, features as feat, optimize, repair, verify as check
 from apt_filters.remesh.sampling import closest_points, refine
 
 
@@ -37,6 +37,12 @@ class RemeshResult:
     n_corners: int
     n_curves: int
     timings: dict = field(default_factory=dict)
+    checks: list = field(default_factory=list)  # one verify.ComponentCheck per input component
+
+    @property
+    def kept_input(self) -> int:
+        """Input components given back unchanged because their remesh failed a check."""
+        return sum(not c.ok for c in self.checks)
 
 
 def _edge_length(mesh: TriMesh, edge_length: float | None, n_vertices: int | None) -> float:
@@ -73,7 +79,8 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float) -> np.ndarray
 
 def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | None = None,
            feature_angle: float = 40.0, adaptive: float = 0.0, max_iter: int = 30, tol: float = 1e-3,
-           smooth_rounds: int = 5, seed: int = 0, bridge_gaps: bool = False) -> RemeshResult:
+           smooth_rounds: int = 5, seed: int = 0, bridge_gaps: bool = False,
+           verify: bool = True) -> RemeshResult:
     """Remesh ``mesh`` into near-equilateral triangles, keeping sharp features and boundaries.
 
     Parameters
@@ -93,12 +100,18 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         :func:`curvature_density`).
     max_iter, tol : int, float
         Lloyd stops after ``max_iter`` steps or when the CVT energy changes by less than ``tol``.
+    verify : bool
+        Check every input component against its remesh (:func:`apt_filters.remesh.verify.check_components`:
+        Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
+        a quarter of the edge, area within 1 %) and give back the input's own faces of each
+        component that fails.
 
     Returns
     -------
     RemeshResult
         ``mesh`` carries the input's vertex scalars interpolated at the new vertices and its
-        face scalars from the nearest input face.
+        face scalars from the nearest input face; ``checks`` and ``kept_input`` say which
+        components were given back unchanged and why.
 
     Peak memory is dominated by the refined copy (each input face split into 4^k faces so
     that the 90th percentile of edge lengths is under L/2; 16x for marching-cubes input at
@@ -159,13 +172,40 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces = faces.reshape(-1, 3)
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
-    vertices = _optimise(mesh, features, gens.positions[used], faces, kind, owner, smooth_rounds)
+    vertices, faces = _optimise(mesh, features, gens.positions[used], faces, kind, owner, smooth_rounds)
+    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples.points, samples.normals,
+                                          samples.weights)
     mark("optimise")
-    out = TriMesh(vertices[0], vertices[1])
-    out = _transfer_scalars(mesh, out)
+    out = _transfer_scalars(mesh, TriMesh(vertices, faces))
     mark("scalars")
+    checks = []
+    if verify:
+        source_component = mesh.face_components()
+        generator_component = _generator_components(mesh, features, gens, source_component)[used]
+        corner = generator_component[faces]
+        result_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
+        checks = check.check_components(mesh, out, source_component, result_component, edge=edge)
+        failed = np.array([not c.ok for c in checks])
+        if failed.any():
+            out = check.keep_input(mesh, out, source_component, result_component, failed)
+        mark("verify")
     return RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, len(features.corners),
-                        len(features.curves), timings)
+                        len(features.curves), timings, checks)
+
+
+def _generator_components(mesh: TriMesh, features: feat.Features, gens: cvt.Generators,
+                          face_component: np.ndarray) -> np.ndarray:
+    """(n,) input component of every generator: of its patch, corner vertex or curve."""
+    patch = np.empty(features.n_patches, np.int64)
+    patch[features.patch] = face_component
+    vertex = np.full(mesh.n_vertices, -1, np.int64)
+    vertex[mesh.faces.ravel()] = np.repeat(face_component, 3)
+    curve = np.array([vertex[c[0]] for c in features.curves], np.int64)
+    out = np.empty(len(gens.kind), np.int64)
+    for kind, table in ((cvt.PATCH, patch), (cvt.CORNER, vertex[features.corners]), (cvt.CURVE, curve)):
+        sel = gens.kind == kind
+        out[sel] = table[gens.owner[sel]]
+    return out
 
 
 def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
