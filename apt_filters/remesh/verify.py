@@ -158,9 +158,12 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
             np.maximum.at(rim, source_component[rf_in], cKDTree(r_out).query(r_in)[0])
             own = result_component[rf_out] >= 0
             np.maximum.at(rim, result_component[rf_out][own], cKDTree(r_in).query(r_out[own])[0])
-        else:  # a rim on one side only: its farthest point is as far as its distance to the other surface
-            comps = source_component[rf_in] if len(r_in) else result_component[rf_out]
-            np.maximum.at(rim, comps[comps >= 0], np.full((comps >= 0).sum(), np.inf))
+        else:  # a rim on one side only: as far as its points are from the other surface
+            pts, comps, other = (r_in, source_component[rf_in], result) if len(r_in) else \
+                (r_out, result_component[rf_out], source)
+            own = comps >= 0
+            if other.n_faces:
+                np.maximum.at(rim, comps[own], _distance(other, pts[own]))
     area_in = np.bincount(source_component, source.face_areas(), minlength=k)
     own = result_component >= 0
     area_out = np.bincount(result_component[own], result.face_areas()[own], minlength=k)
