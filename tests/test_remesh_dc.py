@@ -1,7 +1,10 @@
 """Remesher on the issue's own inputs: the analytic shapes contoured by our dual contouring.
 
 Voxel = 1 nm; Hermite normals from the analytic field's gradient. Quality targets of issue 6
-against the input mesh, sharp features against the analytic truth.
+against the input mesh, sharp features against the analytic truth. These judge the remesher's own
+output (``verify=False``): with the check on, a component that the remesh moves by more than a
+quarter edge is given back unchanged (tests/test_remesh_preserve.py), as the box minus sphere is
+here (0.32 voxel where the dual contouring left a crease's bend split over two edges).
 """
 
 import numpy as np
@@ -20,7 +23,7 @@ def results():
     def get(name):
         if name not in cache:
             mesh = shapes.dual_contoured(name)
-            result = remesh(mesh, edge_length=EDGE, max_iter=20)
+            result = remesh(mesh, edge_length=EDGE, max_iter=20, verify=False)
             cache[name] = (mesh, result, quality.assess(result.mesh, mesh, 50_000))
         return cache[name]
 
@@ -76,7 +79,7 @@ def eno_results():
     def get(name):
         if name not in cache:
             mesh = shapes.dual_contoured(name, exact_normals=False)
-            result = remesh(mesh, edge_length=EDGE, max_iter=20, bridge_gaps=True)
+            result = remesh(mesh, edge_length=EDGE, max_iter=20, bridge_gaps=True, verify=False)
             cache[name] = (mesh, result, quality.assess(result.mesh, mesh, 50_000))
         return cache[name]
 

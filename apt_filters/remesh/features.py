@@ -235,9 +235,11 @@ def _apexes(mesh: TriMesh, threshold: float, spacing: float, on_feature: np.ndar
     total = np.abs(np.bincount(cluster, deficit))
     order = np.lexsort((-np.abs(deficit), cluster))
     first = order[np.r_[True, cluster[order][1:] != cluster[order][:-1]]]
+    # a cluster that touches a feature curve is that curve's corner or bend, already kept
+    free = np.bincount(cluster, on_feature) == 0
     apex = np.zeros(mesh.n_vertices, bool)
-    apex[first[total[cluster[first]] > threshold]] = True
-    return apex & ~on_feature
+    apex[first[(total[cluster[first]] > threshold) & free[cluster[first]]]] = True
+    return apex
 
 
 def _rim_turns(vertices: np.ndarray, rim: np.ndarray, threshold: float, spacing: float) -> np.ndarray:
