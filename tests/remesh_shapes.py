@@ -178,6 +178,48 @@ def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.
     return TriMesh(m.vertex_matrix() @ rotation().T, m.face_matrix())
 
 
+def box_minus_sphere_plate(spacing: float = 0.25, scale: float = 1 / 16) -> TriMesh:
+    """The issue's side-by-side test mesh: the box minus sphere with a thin plate (0.6 thick)
+    standing out of one face, scaled to a unit box (about 50k triangles at the default spacing;
+    the issue remeshed it at edge 0.04)."""
+    import pymeshlab
+
+    body = box_minus_sphere(spacing=spacing)
+    plate = _jittered_box(np.array([5.0, 0.3, 4.0]), spacing, 2)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(body.vertices, body.faces))
+    ms.add_mesh(pymeshlab.Mesh(plate.vertices @ rotation().T + rotation() @ np.array([-4.0, -4.0, 10.0]),
+                               plate.faces))
+    ms.generate_boolean_union(first_mesh=0, second_mesh=1)
+    m = ms.current_mesh()
+    return TriMesh(m.vertex_matrix() * scale, m.face_matrix())
+
+
+def pipeline_surface(preset: str = "small", seed: int = 3, folder=None) -> TriMesh:
+    """The pipeline's own cleaned surface (``apt-filters run --remesh none``: marching cubes,
+    refinement against the ions, clean chain) of the Al 15 at.% iso-surface of a synthetic
+    specimen (``small``: a 6 nm gamma-prime-like cube and a 3 nm sphere); cached in ``folder``."""
+    import tempfile
+    from pathlib import Path
+
+    from apt_filters.meshlab.bridge import read_mesh
+    from apt_filters.pipeline import config as cfg
+    from apt_filters.pipeline.run import run_pipeline
+    from apt_filters.synth import preset as make_preset, write_specimen
+
+    folder = Path(folder or tempfile.gettempdir()) / f"remesh_bench_{preset}_{seed}"
+    ply = folder / "out" / "meshes" / "Al15.ply"
+    if not ply.exists():
+        write_specimen(folder, make_preset(preset), seed=seed, overwrite=True, keep_ions=False)
+        config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
+        config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+        config.voxel.exclude = ["B"]
+        config.remesh.method = "none"
+        run_pipeline(config, folder / "out", quiet=True, force=True)
+    mesh = read_mesh(ply)
+    return TriMesh(mesh.vertices, mesh.faces)
+
+
 def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
     """``mesh`` with every vertex moved along its normal by Gaussian noise of sd ``amplitude``
     (nm), then every face split in four: a stand-in for a small object after the pipeline's
