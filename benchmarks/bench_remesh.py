@@ -101,9 +101,9 @@ def measured(method, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float, i
 
 def one_way(a: TriMesh, b: TriMesh) -> float:
     """Farthest vertex, edge midpoint or face centroid of ``a`` from ``b``."""
-    from apt_filters.contour.metrics import point_to_mesh_distance
+    from apt_filters.core.distance import mesh_distance
 
-    return float(point_to_mesh_distance(b, verify._probe_points(a)[0]).max())
+    return float(mesh_distance(b, verify._probe_points(a)[0]).max())
 
 
 def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:

@@ -88,9 +88,9 @@ def _probe_points(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
-    from apt_filters.contour.metrics import point_to_mesh_distance
+    from apt_filters.core.distance import mesh_distance
 
-    return point_to_mesh_distance(mesh, points) if len(points) else np.zeros(0)
+    return mesh_distance(mesh, points) if len(points) else np.zeros(0)
 
 
 def _rim_points(mesh: TriMesh, spacing: float) -> tuple[np.ndarray, np.ndarray]:
