@@ -1,7 +1,7 @@
 """Remesher benchmark: ours vs pymeshlab's isotropic explicit remeshing vs pyacvd, side by side.
 
 Run: ``.venv/bin/python -m benchmarks.bench_remesh [--quick] [--only NAME ...]``. Every method
-remeshes the same surface to the same target edge; each run is a forked child process, so that its
+remeshes the same surface to the same target edge; each run is a spawned child process, so that its
 peak memory (VmHWM above the resident size before the call, Linux) and time are its own. Surfaces
 (``tests/remesh_shapes.py``; lengths in nm = voxels):
 
@@ -75,26 +75,34 @@ def _status(key: str) -> int:
     return 0
 
 
-def measured(method, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float, int]:
-    """``method(mesh, edge)`` in a forked child: its output, note, wall seconds and peak bytes above
-    the resident size before the call."""
+def _child(conn, name: str, vertices: np.ndarray, faces: np.ndarray, edge: float) -> None:
+    method = METHODS[name]
+    method(shapes.sphere(4.0), 1.0)  # imports and compiled code loaded before the measurement
+    with open("/proc/self/clear_refs", "w") as f:  # reset the peak (VmHWM) to the current size
+        f.write("5")
+    base = _status("VmRSS")
+    t = time.perf_counter()
+    out, note = method(TriMesh(vertices, faces), edge)
+    seconds = time.perf_counter() - t
+    conn.send((out.vertices, out.faces, note, seconds, _status("VmHWM") - base))
+    conn.close()
+
+
+def measured(name: str, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float, int]:
+    """Method ``name`` on ``mesh`` in a fresh (spawned) process: its output, note, wall seconds and
+    peak bytes above the resident size before the call (the libraries loaded and warmed up first).
+    Spawned, not forked: a fork of a process that has run OpenMP code (the pipeline) is unsafe."""
     import multiprocessing as mp
 
-    def child(conn):
-        with open("/proc/self/clear_refs", "w") as f:  # reset the peak (VmHWM) to the current size
-            f.write("5")
-        base = _status("VmRSS")
-        t = time.perf_counter()
-        out, note = method(mesh, edge)
-        seconds = time.perf_counter() - t
-        conn.send((out.vertices, out.faces, note, seconds, _status("VmHWM") - base))
-        conn.close()
-
-    ctx = mp.get_context("fork")
+    ctx = mp.get_context("spawn")
     parent, conn = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=child, args=(conn,))
+    proc = ctx.Process(target=_child, args=(conn, name, mesh.vertices, mesh.faces, edge))
     proc.start()
-    v, f, note, seconds, peak = parent.recv()
+    conn.close()
+    try:
+        v, f, note, seconds, peak = parent.recv()
+    except EOFError:
+        raise RuntimeError(f"{name} died (exit code {proc.join() or proc.exitcode})") from None
     proc.join()
     return TriMesh(v, f), note, seconds, peak
 
@@ -116,7 +124,7 @@ def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:
 def row(kind: str, name: str, mesh: TriMesh, edge: float, sharp: bool) -> str:
     from apt_filters.contour.metrics import face_quality
 
-    out, note, seconds, peak = measured(METHODS[name], mesh, edge)
+    out, note, seconds, peak = measured(name, mesh, edge)
     angles = face_quality(out)[0].min(axis=1)
     before, after = quality.topology(mesh), quality.topology(out)
     same = (after.components, after.boundary_loops, after.genus, after.non_manifold_edges) == \
@@ -150,14 +158,6 @@ def main(argv=None) -> None:
     parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:],
                         help="leave a peer out; repeatable")
     args = parser.parse_args(argv)
-    # imports first, so that no method's time holds a library's import (open3d alone takes seconds)
-    import pyacvd  # noqa: F401
-    import pymeshlab  # noqa: F401
-
-    from apt_filters.core.deps import open3d
-
-    open3d()
-    remesh(shapes.sphere(4.0), edge_length=1.0)  # compiles the numba passes before any timing
     lines = [f"load average {os.getloadavg()[0]:.2f} at the start\n",
              "| surface | method | time s | peak MiB | peak bytes / input face | faces | Hausdorff out->in (edge) | "
              "in->out (edge) | area % | components/loops/genus | feature F1 | min angle ° | % < 30° | "
