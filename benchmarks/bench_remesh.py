@@ -33,6 +33,7 @@ import numpy as np
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import quality, remesh, verify
+from benchmarks.results import ratio, write_results
 from tests import remesh_shapes as shapes
 
 
@@ -121,7 +122,8 @@ def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:
     return quality.edge_f1(ours_, reference, spacing)
 
 
-def row(kind: str, name: str, mesh: TriMesh, edge: float, sharp: bool) -> str:
+def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
+    """One method on one surface: the table row and its figures."""
     from apt_filters.contour.metrics import face_quality
 
     out, note, seconds, peak = measured(name, mesh, edge)
@@ -131,10 +133,13 @@ def row(kind: str, name: str, mesh: TriMesh, edge: float, sharp: bool) -> str:
         (before.components, before.boundary_loops, before.genus, 0)
     topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
     f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
-    return (f"| {kind} | {name} | {seconds:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | "
+    fig = {"seconds": seconds, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh), one_way(mesh, out)) / edge,
+           "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0}
+    line = (f"|  | {name} | {seconds:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | "
             f"{one_way(out, mesh) / edge:.3f} | {one_way(mesh, out) / edge:.3f} | "
             f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
-            f"{100 * np.mean(angles < 30.0):.2f} | {note} |")
+            f"{fig['under30']:.2f} | {note} |")
+    return line, fig
 
 
 def surfaces(quick: bool) -> list:
@@ -158,12 +163,13 @@ def main(argv=None) -> None:
     parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:],
                         help="leave a peer out; repeatable")
     args = parser.parse_args(argv)
-    lines = [f"load average {os.getloadavg()[0]:.2f} at the start\n",
-             "| surface | method | time s | peak MiB | peak bytes / input face | faces | Hausdorff out->in (edge) | "
+    lines = ["| surface | method | time s | peak MiB | peak bytes / input face | faces | Hausdorff out->in (edge) | "
              "in->out (edge) | area % | components/loops/genus | feature F1 | min angle ° | % < 30° | "
              "components kept |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+    load = os.getloadavg()[0]
     print("\n".join(lines), flush=True)
+    figures = []  # (kind, input faces, method, figures)
     for kind, mesh, edge, sharp in surfaces(args.quick):
         if args.only and not any(kind.startswith(o) for o in args.only):
             continue
@@ -173,10 +179,38 @@ def main(argv=None) -> None:
         print(lines[-1], flush=True)
         for name in METHODS:
             if name not in args.without:
-                lines.append(row("", name, mesh, edge, sharp))
-                print(lines[-1], flush=True)
-    print("\n".join(lines))
+                line, fig = row(name, mesh, edge, sharp)
+                lines.append(line)
+                figures.append((kind, mesh.n_faces, name, fig))
+                print(line, flush=True)
+    write(figures, lines, load)
 
+
+def write(figures: list, lines: list, load: float) -> None:
+    """results_remesh.md: the summary (ours against pymeshlab) and the table."""
+    ours_ = [f for _, _, n, f in figures if n == "ours (CVT)"]
+    peer = [f for _, _, n, f in figures if n == "pymeshlab isotropic"]
+    remeshed = [f for f in ours_ if f["kept"] == 0]  # whole surfaces remeshed, nothing given back
+    largest = max(figures, key=lambda x: x[1])[1] if figures else 0
+    big = {n: f for _, faces, n, f in figures if faces == largest}
+    rows = []
+    if remeshed and peer:
+        rows.append(("remesh", f"worst two-sided Hausdorff (edge; target 0.25), surfaces remeshed whole; "
+                               f"{sum(f['kept'] for f in ours_)} components given back",
+                     f"{max(f['hausdorff'] for f in remeshed):.3f}", f"{max(f['hausdorff'] for f in peer):.3f}",
+                     ratio(max(f['hausdorff'] for f in remeshed), max(f['hausdorff'] for f in peer))))
+        rows.append(("remesh", "% of triangles under 30°, surfaces remeshed whole (target 0.5 %)",
+                     f"{max(f['under30'] for f in remeshed):.2f} %", f"{max(f['under30'] for f in peer):.2f} %", "-"))
+    if "ours (CVT)" in big and "pymeshlab isotropic" in big:
+        o, p = big["ours (CVT)"], big["pymeshlab isotropic"]
+        rows.append(("remesh", f"time, {largest:,} input faces (target <= pymeshlab)", f"{o['seconds']:.1f} s",
+                     f"{p['seconds']:.1f} s", ratio(o["seconds"], p["seconds"])))
+        rows.append(("remesh", f"peak memory per input face, {largest:,} faces (target 200 B)", f"{o['bytes']:,.0f} B",
+                     f"{p['bytes']:,.0f} B", ratio(o["bytes"], p["bytes"])))
+    intro = __doc__.split("\n\n", 1)[1].strip()
+    section = (f"## Ours, pymeshlab's isotropic explicit remeshing and pyacvd\n\nOne run, load average {load:.2f} at "
+               f"the start (2 shared cores: compare within a surface).\n\n" + "\n".join(lines))
+    print(write_results("remesh", "benchmarks/bench_remesh.py results", rows, [section], intro=intro))
 
 if __name__ == "__main__":
     main()
