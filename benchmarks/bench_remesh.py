@@ -1,11 +1,26 @@
-"""Remesher benchmark: ours vs pyacvd (ACVD clustering) vs pymeshlab isotropic explicit remeshing.
+"""Remesher benchmark: ours vs pymeshlab's isotropic explicit remeshing vs pyacvd, side by side.
 
-Run: ``/work/venv/bin/python -m benchmarks.bench_remesh [--quick] [--dc exact|eno]``. All three remesh the same
-marching-cubes torus (about 200k triangles; 30k with ``--quick``) to the same target edge
-length (1 voxel), side by side in one run; a second, sharp case (a box with a sphere carved
-out, exact edges) checks feature survival by edge F1. ``--dc`` runs the issue's own inputs
-instead: the analytic shapes contoured by our dual contouring, with edge F1 against the analytic
-edges. Prints a markdown table; lengths in voxels.
+Run: ``.venv/bin/python -m benchmarks.bench_remesh [--quick] [--only NAME ...]``. Every method
+remeshes the same surface to the same target edge; each run is a spawned child process, so that its
+peak memory (VmHWM above the resident size before the call, Linux) and time are its own. Surfaces
+(``tests/remesh_shapes.py``; lengths in nm = voxels):
+
+- ``pipeline``: the pipeline's own cleaned surface of a synthetic specimen (``small`` seed 3: a
+  6 nm gamma-prime-like cube and a 3 nm sphere; marching cubes, refinement against the ions, clean
+  chain), edge 0.5 (the pipeline's default, half a voxel);
+- ``thin plate`` (1.6 thick), ``2 nm spheres``, ``tilted sheet`` (an open, curved interface
+  across a conical tip), ``gyroid`` (bicontinuous, open on the cube's faces), and the last two
+  with the pipeline refinement's bumps (Gaussian, sd 0.25 / 0.1 along the normals, then split in
+  four), all at edge 0.5;
+- ``box-sphere-plate``: the issue's test mesh, a box minus a sphere with a thin plate, scaled to a
+  unit box, at edge 0.04 (sharp edges: feature-edge F1 against the input's).
+
+Measures, against the input: two-sided Hausdorff distance (output -> input and input -> output, as
+fractions of the edge; from every vertex, edge midpoint and face centroid of one mesh to the
+other), area change, topology (components, boundary loops, genus as pymeshlab counts them),
+feature-edge F1 (dihedral over 40°, samples every edge/10 matched within edge/10), smallest angle,
+% of triangles under 30°; for ours also the components given back unchanged by the check. Prints a
+markdown table.
 """
 
 from __future__ import annotations
@@ -17,29 +32,27 @@ import time
 import numpy as np
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import quality, remesh
+from apt_filters.remesh import quality, remesh, verify
+from benchmarks.results import ratio, write_results
 from tests import remesh_shapes as shapes
 
 
-def ours(mesh: TriMesh, edge: float) -> TriMesh:
-    return remesh(mesh, edge_length=edge).mesh
+def ours(mesh: TriMesh, edge: float) -> tuple[TriMesh, str]:
+    result = remesh(mesh, edge_length=edge)
+    return result.mesh, f"{result.kept_input}/{len(result.checks)}"
 
 
-def ours_bridged(mesh: TriMesh, edge: float) -> TriMesh:
-    return remesh(mesh, edge_length=edge, bridge_gaps=True).mesh
-
-
-def meshlab(mesh: TriMesh, edge: float) -> TriMesh:
+def meshlab(mesh: TriMesh, edge: float) -> tuple[TriMesh, str]:
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces))
     ms.meshing_isotropic_explicit_remeshing(targetlen=pymeshlab.PureValue(edge))
     m = ms.current_mesh()
-    return TriMesh(m.vertex_matrix(), m.face_matrix())
+    return TriMesh(m.vertex_matrix(), m.face_matrix()), ""
 
 
-def acvd(mesh: TriMesh, edge: float) -> TriMesh:
+def acvd(mesh: TriMesh, edge: float) -> tuple[TriMesh, str]:
     import pyacvd
     import pyvista
 
@@ -48,109 +61,156 @@ def acvd(mesh: TriMesh, edge: float) -> TriMesh:
     clus.subdivide(3)
     clus.cluster(int(round(mesh.area() / (np.sqrt(3) / 2 * edge**2))))
     out = clus.create_mesh()
-    return TriMesh(np.asarray(out.points), np.asarray(out.faces).reshape(-1, 4)[:, 1:])
+    return TriMesh(np.asarray(out.points), np.asarray(out.faces).reshape(-1, 4)[:, 1:]), ""
 
 
-METHODS = {"ours (CVT)": ours, "pyacvd": acvd, "pymeshlab isotropic": meshlab,
-           "ours (CVT, --bridge-gaps)": ours_bridged}
-MAX_INTERSECTION_FACES = 50_000  # open3d's self-intersection test is all-pairs: minutes at 200k
+METHODS = {"ours (CVT)": ours, "pymeshlab isotropic": meshlab, "pyacvd": acvd}
 
 
-def row(name: str, mesh: TriMesh, out: TriMesh, seconds: float, base: float, sharp: bool, truth: str = "") -> str:
-    q = quality.assess(out, mesh, 200_000, intersections=mesh.n_faces <= MAX_INTERSECTION_FACES)
-    ref = quality.topology(mesh)
-    topo_ok = (q.components, q.boundary_loops, q.genus) == (ref.components, ref.boundary_loops, ref.genus)
-    f1 = ""
-    if sharp:
-        reference = quality.sample_edges(mesh.vertices, quality.feature_edges(mesh), 0.1)
-        samples = quality.sample_edges(out.vertices, quality.feature_edges(out), 0.1)
-        f1 = f"{quality.edge_f1(samples, reference, 0.1):.3f}"
-    if truth:  # against the analytic shape: input -> output
-        f1 = f"{shapes.truth_edge_f1(mesh, truth):.3f} -> {shapes.truth_edge_f1(out, truth):.3f}"
-    return (f"| {name} | {seconds:.2f} | {seconds / base:.2f} | {q.faces} | {100 * (1 - q.frac_ge_30):.2f} | "
-            f"{q.min_angle:.1f} | {q.mean_q:.3f} | {q.hausdorff:.3f} | {q.non_manifold_edges}/{q.non_manifold_vertices} | "
-            f"{q.self_intersections if q.self_intersections >= 0 else 'not run'} | {'yes' if topo_ok else 'NO'} | {f1} |")
+def _status(key: str) -> int:
+    """A /proc/self/status entry in bytes."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) * 1024
+    return 0
 
 
-def bench(label: str, mesh: TriMesh, edge: float, sharp: bool, methods: list[str], truth: str = "") -> list[str]:
-    lines = [f"\n**{label}**: {mesh.n_faces} input triangles, target edge {edge} voxel, load average "
-             f"{os.getloadavg()[0]:.2f} at the start\n",
-             "| method | time s | time / ours | triangles | % min angle < 30° | min angle ° | mean Q | "
-             "Hausdorff (voxel) | non-manifold e/v | self-intersections | topology kept | edge F1 |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    base = None
-    for name in methods:
-        method = METHODS[name]
-        t = time.perf_counter()
-        out = method(mesh, edge)
-        seconds = time.perf_counter() - t
-        base = base or seconds
-        lines.append(row(name, mesh, out, seconds, base, sharp, truth))
-        print(lines[-1], flush=True)
-    return lines
-
-
-def profile(mesh: TriMesh, edge: float, top: int) -> None:
-    """Ours alone: wall time per phase, peak RSS and the ``top`` functions of cProfile by own time."""
-    import cProfile
-    import pstats
-    import resource
-
-    profiler = cProfile.Profile()
+def _child(conn, name: str, vertices: np.ndarray, faces: np.ndarray, edge: float) -> None:
+    method = METHODS[name]
+    method(shapes.sphere(4.0), 1.0)  # imports and compiled code loaded before the measurement
+    with open("/proc/self/clear_refs", "w") as f:  # reset the peak (VmHWM) to the current size
+        f.write("5")
+    base = _status("VmRSS")
     t = time.perf_counter()
-    result = profiler.runcall(remesh, mesh, edge_length=edge)
-    wall = time.perf_counter() - t
-    t = time.perf_counter()
-    q = quality.assess(result.mesh, mesh, 200_000, intersections=mesh.n_faces <= MAX_INTERSECTION_FACES)
-    phases = {**result.timings, "quality (assess)": time.perf_counter() - t}
-    print(f"\n{mesh.n_faces} input triangles -> {result.mesh.n_faces}, {result.iterations} Lloyd steps, "
-          f"remesh {wall:.2f} s (under cProfile), load {os.getloadavg()[0]:.2f}, peak RSS "
-          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.2f} GB")
-    print(f"mean Q {q.mean_q:.4f}, % < 30° {100 * (1 - q.frac_ge_30):.2f}, Hausdorff {q.hausdorff:.3f}\n")
-    print("| phase | s |\n|---|---:|")
-    for name, seconds in phases.items():
-        print(f"| {name} | {seconds:.2f} |")
-    pstats.Stats(profiler).sort_stats("tottime").print_stats(top)
+    out, note = method(TriMesh(vertices, faces), edge)
+    seconds = time.perf_counter() - t
+    conn.send((out.vertices, out.faces, note, seconds, _status("VmHWM") - base))
+    conn.close()
+
+
+def measured(name: str, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float, int]:
+    """Method ``name`` on ``mesh`` in a fresh (spawned) process: its output, note, wall seconds and
+    peak bytes above the resident size before the call (the libraries loaded and warmed up first).
+    Spawned, not forked: a fork of a process that has run OpenMP code (the pipeline) is unsafe."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, conn = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(conn, name, mesh.vertices, mesh.faces, edge))
+    proc.start()
+    conn.close()
+    try:
+        v, f, note, seconds, peak = parent.recv()
+    except EOFError:
+        raise RuntimeError(f"{name} died (exit code {proc.join() or proc.exitcode})") from None
+    proc.join()
+    return TriMesh(v, f), note, seconds, peak
+
+
+def one_way(a: TriMesh, b: TriMesh) -> float:
+    """Farthest vertex, edge midpoint or face centroid of ``a`` from ``b``."""
+    from apt_filters.core.distance import mesh_distance
+
+    return float(mesh_distance(b, verify._probe_points(a)[0]).max())
+
+
+def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:
+    spacing = 0.1 * edge
+    reference = quality.sample_edges(mesh.vertices, quality.feature_edges(mesh), spacing)
+    ours_ = quality.sample_edges(out.vertices, quality.feature_edges(out), spacing)
+    return quality.edge_f1(ours_, reference, spacing)
+
+
+def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
+    """One method on one surface: the table row and its figures."""
+    from apt_filters.contour.metrics import face_quality
+
+    out, note, seconds, peak = measured(name, mesh, edge)
+    angles = face_quality(out)[0].min(axis=1)
+    before, after = quality.topology(mesh), quality.topology(out)
+    same = (after.components, after.boundary_loops, after.genus, after.non_manifold_edges) == \
+        (before.components, before.boundary_loops, before.genus, 0)
+    topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
+    f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
+    fig = {"seconds": seconds, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh), one_way(mesh, out)) / edge,
+           "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0}
+    line = (f"|  | {name} | {seconds:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | "
+            f"{one_way(out, mesh) / edge:.3f} | {one_way(mesh, out) / edge:.3f} | "
+            f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
+            f"{fig['under30']:.2f} | {note} |")
+    return line, fig
+
+
+def surfaces(quick: bool) -> list:
+    """(kind, mesh, edge, sharp) of every benchmark surface."""
+    gyroid = shapes.gyroid(half=8.0) if quick else shapes.gyroid()
+    out = [("pipeline: small seed 3 (cube + sphere, refined)", shapes.pipeline_surface(), 0.5, True),
+           ("thin plate 1.6", shapes.thin_plate(), 0.5, False),
+           ("2 nm spheres x 8", shapes.small_spheres(), 0.5, False),
+           ("tilted sheet (open)", shapes.tilted_sheet(), 0.5, False),
+           ("tilted sheet, bumps 0.25", shapes.bumpy(shapes.tilted_sheet(), 0.25), 0.5, False),
+           ("gyroid (bicontinuous)", gyroid, 0.5, False),
+           ("gyroid, bumps 0.1", shapes.bumpy(shapes.gyroid(half=8.0), 0.1), 0.5, False),
+           ("box-sphere-plate", shapes.box_minus_sphere_plate(0.5 if quick else 0.25), 0.04, True)]
+    return out
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="a 30k-triangle torus instead of 200k")
-    parser.add_argument("--profile", action="store_true",
-                        help="profile ours alone on the torus (phase wall times, cProfile) instead of the comparison")
-    parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:3],
-                        help="leave a peer out (pyacvd takes minutes at 200k triangles); repeatable")
-    parser.add_argument("--dc", choices=["exact", "eno"],
-                        help="instead: the issue's dual-contouring meshes of the analytic shapes (1 nm voxels, "
-                             "Hermite normals exact or ENO); edge F1 against the analytic edges, input -> output")
+    parser.add_argument("--quick", action="store_true", help="smaller gyroid and plate mesh")
+    parser.add_argument("--only", nargs="*", default=None, help="surfaces whose kind starts with one of these")
+    parser.add_argument("--without", action="append", default=[], choices=list(METHODS)[1:],
+                        help="leave a peer out; repeatable")
     args = parser.parse_args(argv)
-    # the bridged variant is meant for dual contouring with estimated normals
-    methods = [name for name in METHODS if name not in args.without
-               and ("bridge" not in name or args.dc == "eno")]
-    # imports first, so that no method's time holds a library's import (open3d alone takes seconds)
-    import pyacvd  # noqa: F401
-    import pymeshlab  # noqa: F401
+    lines = ["| surface | method | time s | peak MiB | peak bytes / input face | faces | Hausdorff out->in (edge) | "
+             "in->out (edge) | area % | components/loops/genus | feature F1 | min angle ° | % < 30° | "
+             "components kept |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+    load = os.getloadavg()[0]
+    print("\n".join(lines), flush=True)
+    figures = []  # (kind, input faces, method, figures)
+    for kind, mesh, edge, sharp in surfaces(args.quick):
+        if args.only and not any(kind.startswith(o) for o in args.only):
+            continue
+        topo = quality.topology(mesh)
+        lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | {mesh.n_faces} | | | | "
+                     f"{topo.components}/{topo.boundary_loops}/{topo.genus} | | | | |")
+        print(lines[-1], flush=True)
+        for name in METHODS:
+            if name not in args.without:
+                line, fig = row(name, mesh, edge, sharp)
+                lines.append(line)
+                figures.append((kind, mesh.n_faces, name, fig))
+                print(line, flush=True)
+    write(figures, lines, load)
 
-    from apt_filters.core.deps import open3d
 
-    open3d()
-    if args.dc:
-        lines = []
-        for name in shapes.DC_SHAPES:
-            mesh = shapes.dual_contoured(name, exact_normals=args.dc == "exact")
-            lines += bench(f"{name}, dual contouring ({args.dc} normals)", mesh, 1.0, sharp=False, methods=methods,
-                           truth=name if name in ("rotated_box", "box_minus_sphere", "cylinder") else "")
-        print("\n".join(lines))
-        return
-    torus = shapes.torus(26.0, 10.0) if args.quick else shapes.torus(66.0, 27.0)
-    if args.profile:
-        profile(torus, 1.0, 25)
-        return
-    lines = bench("marching-cubes torus", torus, 1.0, sharp=False, methods=methods)
-    lines += bench("box minus sphere (exact sharp edges, boolean slivers)", shapes.box_minus_sphere(), 1.0, sharp=True,
-                   methods=methods)
-    print("\n".join(lines))
-
+def write(figures: list, lines: list, load: float) -> None:
+    """results_remesh.md: the summary (ours against pymeshlab) and the table."""
+    ours_ = [f for _, _, n, f in figures if n == "ours (CVT)"]
+    peer = [f for _, _, n, f in figures if n == "pymeshlab isotropic"]
+    remeshed = [f for f in ours_ if f["kept"] == 0]  # whole surfaces remeshed, nothing given back
+    largest = max(figures, key=lambda x: x[1])[1] if figures else 0
+    big = {n: f for _, faces, n, f in figures if faces == largest}
+    rows = []
+    if remeshed and peer:
+        rows.append(("remesh", f"worst two-sided Hausdorff (edge; target 0.25), surfaces remeshed whole; "
+                               f"{sum(f['kept'] for f in ours_)} components given back",
+                     f"{max(f['hausdorff'] for f in remeshed):.3f}", f"{max(f['hausdorff'] for f in peer):.3f}",
+                     ratio(max(f['hausdorff'] for f in remeshed), max(f['hausdorff'] for f in peer))))
+        rows.append(("remesh", "% of triangles under 30°, surfaces remeshed whole (target 0.5 %)",
+                     f"{max(f['under30'] for f in remeshed):.2f} %", f"{max(f['under30'] for f in peer):.2f} %", "-"))
+    if "ours (CVT)" in big and "pymeshlab isotropic" in big:
+        o, p = big["ours (CVT)"], big["pymeshlab isotropic"]
+        rows.append(("remesh", f"time, {largest:,} input faces (target <= pymeshlab)", f"{o['seconds']:.1f} s",
+                     f"{p['seconds']:.1f} s", ratio(o["seconds"], p["seconds"])))
+        rows.append(("remesh", f"peak memory per input face, {largest:,} faces (target 200 B)", f"{o['bytes']:,.0f} B",
+                     f"{p['bytes']:,.0f} B", ratio(o["bytes"], p["bytes"])))
+    intro = __doc__.split("\n\n", 1)[1].strip()
+    section = (f"## Ours, pymeshlab's isotropic explicit remeshing and pyacvd\n\nOne run, load average {load:.2f} at "
+               f"the start (2 shared cores: compare within a surface).\n\n" + "\n".join(lines))
+    print(write_results("remesh", "benchmarks/bench_remesh.py results", rows, [section], intro=intro))
 
 if __name__ == "__main__":
     main()

@@ -21,18 +21,23 @@ def rotation(seed: int = 3) -> np.ndarray:
     return q if np.linalg.det(q) > 0 else -q
 
 
-def marching_cubes(field, half: float) -> TriMesh:
+def marching_cubes(field, half: float, inside=None) -> TriMesh:
     """Iso-surface 0 of ``field(x, y, z)`` (positive inside) on a voxel-1 grid over [-half, half]^3.
 
     Arrays are x, y, z ordered; normals point out of the region where the field is positive.
+    The surface is open where it meets the grid's faces or leaves the region where
+    ``inside(x, y, z)`` holds (the specimen's edge), as the pipeline's surfaces are.
     """
     from skimage.measure import marching_cubes as mc
 
     axis = np.arange(-half, half + 1.0)
     x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
-    verts, faces, _, _ = mc(field(x, y, z), 0.0)
+    values = field(x, y, z)
+    verts, faces, _, _ = mc(values, 0.0, mask=None if inside is None else inside(x, y, z))
     mesh = TriMesh(verts + axis[0], faces)
-    if mesh.signed_volume() < 0:
+    centre = np.round(verts[faces].mean(axis=1)).astype(int)  # orient by the field's gradient, open or closed
+    grad = np.stack(np.gradient(values), -1)[tuple(np.clip(centre, 0, len(axis) - 1).T)]
+    if np.einsum("ij,ij->", mesh.face_normals(), grad) > 0:
         mesh.faces = mesh.faces[:, ::-1].copy()
     return mesh
 
@@ -62,6 +67,60 @@ def open_sphere(radius: float = 10.0, cut: float = 4.0) -> TriMesh:
     keep = mesh.vertices[mesh.faces].mean(axis=1)[:, 2] < cut
     used, faces = np.unique(mesh.faces[keep], return_inverse=True)
     return TriMesh(mesh.vertices[used], faces.reshape(-1, 3))
+
+
+def gyroid(period: float = 12.0, half: float = 14.0, level: float = 0.3) -> TriMesh:
+    """Bicontinuous (spinodal-like) surface: the gyroid level set sin x cos y + ... = ``level``
+    (period in voxels) in a cube, open on the cube's faces, genus in the dozens."""
+    k = 2 * np.pi / period
+
+    def field(x, y, z):
+        x, y, z = k * x + 0.3, k * y - 0.2, k * z + 0.1
+        return np.sin(x) * np.cos(y) + np.sin(y) * np.cos(z) + np.sin(z) * np.cos(x) - level
+
+    return marching_cubes(field, half)
+
+
+def tilted_sheet(radius: float = 14.0, tilt: float = 25.0, curvature: float = 0.02) -> TriMesh:
+    """An open interface across a specimen tip: a curved sheet (paraboloid of curvature
+    ``curvature`` 1/voxel) tilted by ``tilt`` degrees, clipped to a cone of half-angle 15° (the
+    tip) of base radius ``radius``; one boundary loop on the cone."""
+    t = np.radians(tilt)
+    half = radius + 4
+
+    def field(x, y, z):
+        u, w = np.cos(t) * x + np.sin(t) * z, -np.sin(t) * x + np.cos(t) * z
+        return w - curvature * (u**2 + y**2) - 1.3
+
+    def inside(x, y, z):
+        return np.hypot(x, y) < radius - (half - z) * np.tan(np.radians(15.0)) * 0.5
+
+    return marching_cubes(field, half, inside)
+
+
+def thin_plate(thickness: float = 1.6, half: float = 10.0) -> TriMesh:
+    """A closed plate ``thickness`` voxels thick (a few voxels: both faces within one edge length
+    of each other), rounded rim, generically rotated."""
+    r = rotation(7)
+
+    def field(x, y, z):
+        p = np.stack([x, y, z], -1) @ r
+        return np.minimum(thickness / 2 - np.abs(p[..., 2]), half - np.hypot(p[..., 0], p[..., 1]))
+
+    return marching_cubes(field, half + 3)
+
+
+def small_spheres(radius: float = 2.0, count: int = 8, spacing: float = 6.3) -> TriMesh:
+    """``count`` spheres of ``radius`` voxels in a row (one component each), off the grid planes."""
+    centres = np.c_[spacing * np.arange(count) - spacing * (count - 1) / 2, np.full(count, 0.37), np.full(count, -0.21)]
+
+    def field(x, y, z):
+        d = np.full(x.shape, np.inf)
+        for c in centres:
+            d = np.minimum(d, np.sqrt((x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2))
+        return radius - d
+
+    return marching_cubes(field, spacing * count / 2 + 2)
 
 
 def _jittered_box(half: np.ndarray, spacing: float, seed: int) -> TriMesh:
@@ -117,6 +176,48 @@ def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.
     ms.generate_boolean_difference(first_mesh=0, second_mesh=1)
     m = ms.current_mesh()
     return TriMesh(m.vertex_matrix() @ rotation().T, m.face_matrix())
+
+
+def box_minus_sphere_plate(spacing: float = 0.25, scale: float = 1 / 16) -> TriMesh:
+    """The issue's side-by-side test mesh: the box minus sphere with a thin plate (0.6 thick)
+    standing out of one face, scaled to a unit box (about 50k triangles at the default spacing;
+    the issue remeshed it at edge 0.04)."""
+    import pymeshlab
+
+    body = box_minus_sphere(spacing=spacing)
+    plate = _jittered_box(np.array([5.0, 0.3, 4.0]), spacing, 2)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(body.vertices, body.faces))
+    ms.add_mesh(pymeshlab.Mesh(plate.vertices @ rotation().T + rotation() @ np.array([-4.0, -4.0, 10.0]),
+                               plate.faces))
+    ms.generate_boolean_union(first_mesh=0, second_mesh=1)
+    m = ms.current_mesh()
+    return TriMesh(m.vertex_matrix() * scale, m.face_matrix())
+
+
+def pipeline_surface(preset: str = "small", seed: int = 3, folder=None) -> TriMesh:
+    """The pipeline's own cleaned surface (``apt-filters run --remesh none``: marching cubes,
+    refinement against the ions, clean chain) of the Al 15 at.% iso-surface of a synthetic
+    specimen (``small``: a 6 nm gamma-prime-like cube and a 3 nm sphere); cached in ``folder``."""
+    import tempfile
+    from pathlib import Path
+
+    from apt_filters.meshlab.bridge import read_mesh
+    from apt_filters.pipeline import config as cfg
+    from apt_filters.pipeline.run import run_pipeline
+    from apt_filters.synth import preset as make_preset, write_specimen
+
+    folder = Path(folder or tempfile.gettempdir()) / f"remesh_bench_{preset}_{seed}"
+    ply = folder / "out" / "meshes" / "Al15.ply"
+    if not ply.exists():
+        write_specimen(folder, make_preset(preset), seed=seed, overwrite=True, keep_ions=False)
+        config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
+        config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+        config.voxel.exclude = ["B"]
+        config.remesh.method = "none"
+        run_pipeline(config, folder / "out", quiet=True, force=True)
+    mesh = read_mesh(ply)
+    return TriMesh(mesh.vertices, mesh.faces)
 
 
 def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:

@@ -233,17 +233,3 @@ def test_a_remesher_failure_keeps_the_cleaned_mesh_and_warns(specimen, tmp_path,
     report = run_pipeline(config, tmp_path / "out", quiet=True)
     assert report["warnings"] == ["remeshing Al15 failed (RuntimeError: synthetic failure); the cleaned mesh is used"]
     assert report["surfaces"][0]["mesh"]["faces"] > 0
-
-
-def test_closed_components_counts_watertight_parts():
-    import numpy as np
-
-    from apt_filters.core.mesh import TriMesh
-    from apt_filters.pipeline.run import closed_components
-    from tests.test_core import unit_cube
-
-    cube = unit_cube()
-    two = TriMesh(np.vstack([cube.vertices, cube.vertices + 10]), np.vstack([cube.faces, cube.faces + 8]))
-    assert closed_components(two) == 2
-    holed = TriMesh(two.vertices, two.faces[1:])
-    assert closed_components(holed) == 1

@@ -9,7 +9,9 @@ The refined surface carries a few needles below the edge length (0.13 nm tall on
 dihedrals over 110°): uniform triangles of 0.5 nm pass under them, and the Hausdorff distance to
 the input came out 0.21-0.33 voxel over six specimen surfaces (small seeds 1-3, gamma-prime seeds 1-2,
 before and after a contouring change). With the curvature-adaptive density (``adaptive=0.5``,
-1.5x the triangles) the remesh follows them: 0.15-0.23 voxel on the same surfaces.
+1.5x the triangles) the remesh follows them: 0.15-0.23 voxel on the same surfaces. The remesher's
+own output is judged here (``verify=False``); the pipeline gives back any component it moves by
+more than a quarter edge.
 """
 
 import pytest
@@ -38,7 +40,7 @@ def dc_surface(tmp_path_factory):
 
 @pytest.fixture(scope="module", params=[0.0, 0.5], ids=["uniform", "adaptive"])
 def remeshed(dc_surface, request):
-    result = remesh(dc_surface, edge_length=VOXEL / 2, adaptive=request.param)
+    result = remesh(dc_surface, edge_length=VOXEL / 2, adaptive=request.param, verify=False)
     return request.param, result, quality.assess(result.mesh, dc_surface, 100_000)
 
 

@@ -31,6 +31,9 @@ def run(args: argparse.Namespace) -> int:
     write_mesh(result.mesh, out, overwrite=args.force)
     print(f"{out}: {result.mesh.n_vertices} vertices, {result.mesh.n_faces} triangles "
           f"(edge length {result.edge_length:.3g} nm, {result.n_curves} feature curves, {result.iterations} Lloyd steps)")
+    if result.kept_input:  # components whose remesh would change the surface stay as they were
+        print(f"{result.kept_input} of {len(result.checks)} components kept as given: "
+              + "; ".join(", ".join(c.reasons) for c in result.checks if not c.ok))
     return 0
 
 

@@ -42,11 +42,6 @@ def surface_label(surface: SurfaceConfig) -> str:
     return f"density{surface.iso:g}"
 
 
-def closed_components(mesh: TriMesh) -> int:
-    """Number of connected components without boundary edges."""
-    return int(mesh.topology.closed_component.sum())
-
-
 @dataclass
 class SurfaceResult:
     label: str
@@ -183,6 +178,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                  f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
             else:
                 refine_stats = None
+            remesh_stats = None
             with log.step("clean") as s:
                 mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
                 s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
@@ -190,12 +186,16 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 with log.step("remesh") as s:
                     edge = config.remesh.edge_length or fields.grid.voxel / 2
                     try:
-                        remeshed = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle).mesh
-                        lost = closed_components(mesh) - closed_components(remeshed)
-                        if lost > 0:
-                            raise AptFiltersError(f"{lost} closed objects came out with holes")
-                        mesh = remeshed
+                        remeshed = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle)
+                        mesh, kept = remeshed.mesh, remeshed.kept_input
+                        remesh_stats = {"components": len(remeshed.checks), "kept_input": kept,
+                                        "failed": [dataclasses.asdict(c) for c in remeshed.checks if not c.ok]}
                         s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                        if kept:  # each component whose remesh changed the surface keeps its input
+                            warning = (f"remeshing {label}: {kept} of {len(remeshed.checks)} components changed "
+                                       f"the surface and keep the cleaned mesh")
+                            report.setdefault("warnings", []).append(warning)
+                            s.summary += "; WARNING " + warning
                     except Exception as exc:  # noqa: BLE001 - a remesher failure must not cost the whole run
                         warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
                         report.setdefault("warnings", []).append(" ".join(warning.split()))
@@ -229,7 +229,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
                 s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
                              f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
-            res.stats |= {"raw_area_nm2": raw_area, "refine": refine_stats, "faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
+            res.stats |= {"raw_area_nm2": raw_area, "refine": refine_stats, "remesh": remesh_stats, "faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:

@@ -1,4 +1,4 @@
-"""Remeshing: feature-preserving centroidal Voronoi (Lloyd) remesher on open3d KD-trees.
+"""Remeshing: feature-preserving centroidal Voronoi (Lloyd) remesher.
 
 ``remesh(mesh, edge_length=...)`` turns a sliver-rich iso-surface into near-equilateral
 triangles while keeping sharp edges, corners and open boundaries; ``quality`` holds the

@@ -253,3 +253,39 @@ def _unique_ids(tris: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """Sorted vertex ids of ``tris`` (k, 3) for which ``keep`` (v,) holds."""
     ids = np.unique(tris)
     return ids[keep[ids]]
+
+
+def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, points: np.ndarray,
+                      normals: np.ndarray, weights: np.ndarray, rounds: int = 2) -> np.ndarray:
+    """Move the ``movable`` vertices along their normals so that the mesh straddles the input
+    surface instead of lying inside its curvature (a least-squares fit of vertex offsets).
+
+    Vertices on the input and flat triangles between them cut every convex bend as chords: the
+    remesh of a 2-voxel sphere at half-voxel edges lost 2.9 % of the input's area and sat 0.26
+    edge inside it. Each round finds the closest output point of every input sample ``points``
+    (n, 3) with unit ``normals`` (n, 3) and ``weights`` (n,) (areas), takes the signed distance
+    along the output face's normal, and moves each vertex by the weighted mean of the distances
+    of the samples on its faces (barycentric weights): one Jacobi step of the least-squares fit
+    of a piecewise-linear offset. Samples whose closest face faces the other way (the far side
+    of a thin plate) are left out. Returns the new (v, 3) vertices.
+    """
+    from apt_filters.core.deps import open3d
+    from apt_filters.remesh.extract import vertex_normals
+
+    o3d = open3d()
+    out = vertices.copy()
+    for _ in range(rounds):
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(out.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+        near = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+        face = near["primitive_ids"].numpy().astype(np.int64)
+        u, v = near["primitive_uvs"].numpy().astype(np.float64).T
+        normal = _face_normals(out, faces)[face]
+        residual = np.einsum("ij,ij->i", points - near["points"].numpy(), normal)
+        keep = np.einsum("ij,ij->i", normal, normals) > 0.5
+        bary = np.stack([1 - u - v, u, v], 1) * (weights * keep)[:, None]
+        num = np.bincount(faces[face].ravel(), (bary * residual[:, None]).ravel(), minlength=len(out))
+        den = np.bincount(faces[face].ravel(), bary.ravel(), minlength=len(out))
+        move = movable & (den > 0)
+        out[move] += (num[move] / den[move])[:, None] * vertex_normals(out, faces)[move]
+    return out

@@ -73,10 +73,15 @@ MAX_FILL_ROUNDS = 4
 
 
 def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """Close every boundary loop with a vertex not on a boundary curve (``on_boundary`` False)."""
+    """Close every boundary loop most of whose vertices are not on a boundary curve (``on_boundary`` False).
+
+    A loop mostly of boundary-curve generators is the input's open rim, even where a cell next
+    to it took one of its places: filling it capped the rim of an open interface across a
+    specimen tip (+29 % area on a bumpy tilted sheet, +457 % in the pipeline).
+    """
     new = []
     for loop in boundary_loops(faces):
-        if len(loop) < 3 or on_boundary[loop].all():
+        if len(loop) < 3 or 2 * on_boundary[loop].sum() >= len(loop):
             continue
         new.extend(triangulate_polygon(loop[::-1], vertices, pinned))
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)]) if new else faces

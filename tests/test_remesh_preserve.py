@@ -1,0 +1,119 @@
+"""The remesher keeps the surface it is given: open interfaces across a tip, bicontinuous surfaces,
+small spheres; and every input component is checked against its remesh and given back unchanged
+when it fails (``apt_filters.remesh.verify``). Lengths in voxels (= nm); the pipeline's edge is
+half a voxel."""
+
+import numpy as np
+import pytest
+
+from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh import quality, remesh, repair, verify
+from tests import remesh_shapes as shapes
+
+EDGE = 0.5
+
+
+def per_component(mesh: TriMesh) -> list:
+    """(faces' Euler characteristic, boundary loops, area) of each component, sorted."""
+    comp = mesh.face_components()
+    k = comp.max() + 1
+    chi, loops = verify.euler_and_loops(mesh, comp, k)
+    area = np.bincount(comp, mesh.face_areas(), minlength=k)
+    return sorted(zip(chi.tolist(), loops.tolist(), area.tolist()))
+
+
+def assert_preserved(mesh: TriMesh, out: TriMesh, edge: float = EDGE) -> None:
+    before, after = per_component(mesh), per_component(out)
+    assert [b[:2] for b in before] == [a[:2] for a in after], (before, after)
+    assert np.allclose([a[2] for a in after], [b[2] for b in before], rtol=0.01), (before, after)
+    assert quality.hausdorff(out, mesh, 100_000) <= 0.25 * edge
+
+
+@pytest.mark.parametrize("name", ["tilted_sheet", "small_spheres", "gyroid"])
+def test_remesh_keeps_topology_distance_and_area(name):
+    """Open interface across the tip (four pieces clipped by the cone), 2-voxel spheres and a
+    bicontinuous gyroid (two pieces of genus 1, open on the cube's faces): nothing given back, and an
+    independent measurement finds the same topology, area within 1 % and Hausdorff <= edge / 4."""
+    mesh = shapes.gyroid(half=6.0) if name == "gyroid" else getattr(shapes, name)()
+    result = remesh(mesh, edge_length=EDGE)
+    assert result.kept_input == 0, [c for c in result.checks if not c.ok]
+    assert result.mesh.n_faces != mesh.n_faces
+    assert_preserved(mesh, result.mesh)
+
+
+def test_rim_of_bumpy_open_sheet_is_never_capped():
+    """The refined, bumpy interface across a tip: its rim loop (mostly boundary-curve generators)
+    was filled as a hole, +29 % area; now no component changes the surface beyond the tolerances."""
+    mesh = shapes.bumpy(shapes.tilted_sheet(radius=8.0), 0.25)
+    result = remesh(mesh, edge_length=EDGE)
+    assert_preserved(mesh, result.mesh)
+
+
+def test_close_holes_leaves_rim_loops_open():
+    pinned = np.zeros(9, bool)
+    # an octahedron without one face: its hole is off the boundary, filled
+    octa = np.vstack([np.eye(3), -np.eye(3)])
+    faces = np.array([[0, 1, 2], [1, 3, 2], [3, 4, 2], [4, 0, 2], [1, 0, 5], [3, 1, 5], [4, 3, 5], [0, 4, 5]])
+    assert len(repair.close_holes(octa, faces[1:], np.zeros(6, bool), pinned)) == 8
+    # a disk (8 triangles around vertex 0) whose rim 1..8 is the input's boundary but for vertex 3
+    # (a cell beside the rim took its place): not a hole, stays open
+    angle = np.linspace(0, 2 * np.pi, 9)[:-1]
+    vertices = np.vstack([[0, 0, 0], np.c_[np.cos(angle), np.sin(angle), np.zeros(8)]])
+    disk = np.array([[0, 1 + i, 1 + (i + 1) % 8] for i in range(8)])
+    on_boundary = np.ones(9, bool)
+    on_boundary[[0, 3]] = False
+    assert len(repair.close_holes(vertices, disk, on_boundary, pinned)) == 8
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    mesh = shapes.small_spheres(count=3)
+    result = remesh(mesh, edge_length=EDGE, verify=False)
+    comp = mesh.face_components()
+    out = result.mesh
+    # the input component each output face stands for: of its nearest input face
+    from apt_filters.remesh.sampling import closest_points
+
+    owner = comp[closest_points(mesh, out.vertices[out.faces].mean(axis=1))["face"]]
+    return mesh, comp, out, owner
+
+
+def test_check_passes_a_good_remesh(spheres):
+    mesh, comp, out, owner = spheres
+    checks = verify.check_components(mesh, out, comp, owner, edge=EDGE)
+    assert [c.ok for c in checks] == [True] * 3, checks
+    assert all(c.euler_in == c.euler_out == 2 and c.loops_in == c.loops_out == 0 for c in checks)
+
+
+def test_check_flags_a_hole_and_a_shift_and_keeps_those_inputs(spheres):
+    mesh, comp, out, owner = spheres
+    drop = np.flatnonzero(owner == 0)[0]  # a hole in sphere 0
+    broken = TriMesh(out.vertices.copy(), np.delete(out.faces, drop, axis=0))
+    broken_owner = np.delete(owner, drop)
+    moved = np.unique(broken.faces[broken_owner == 2])  # sphere 2 moved by 0.2 voxel (0.4 edge)
+    broken.vertices[moved] += [0.2, 0.0, 0.0]
+    checks = verify.check_components(mesh, broken, comp, broken_owner, edge=EDGE)
+    assert [c.ok for c in checks] == [False, True, False], checks
+    assert checks[0].loops_out == 1 and any("boundary loops" in r for r in checks[0].reasons)
+    assert checks[2].hausdorff_out_in == pytest.approx(0.2, abs=0.03)
+    assert any("Hausdorff" in r for r in checks[2].reasons)
+    fixed = verify.keep_input(mesh, broken, comp, broken_owner, np.array([not c.ok for c in checks]))
+    assert fixed.n_faces == (comp == 0).sum() + (broken_owner == 1).sum() + (comp == 2).sum()
+    assert_preserved(mesh, fixed)
+
+
+def test_check_flags_a_lost_component_and_an_area_change(spheres):
+    mesh, comp, out, owner = spheres
+    keep = owner != 1  # sphere 1 lost
+    lost = TriMesh(out.vertices, out.faces[keep])
+    checks = verify.check_components(mesh, lost, comp, owner[keep], edge=EDGE)
+    assert [c.ok for c in checks] == [True, False, True]
+    assert "0 output pieces" in checks[1].reasons[0]
+    # sphere 0 scaled by 1.5 % about its centre: area +3 %, distance 0.03 voxel
+    grown = TriMesh(out.vertices.copy(), out.faces)
+    ids = np.unique(out.faces[owner == 0])
+    centre = grown.vertices[ids].mean(axis=0)
+    grown.vertices[ids] = centre + 1.015 * (grown.vertices[ids] - centre)
+    checks = verify.check_components(mesh, grown, comp, owner, edge=EDGE)
+    assert [c.ok for c in checks] == [False, True, True]
+    assert checks[0].reasons == [f"area {100 * checks[0].area_change:+.2f} %"]
