@@ -61,6 +61,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="gaussian delocalization, 3 sigma per axis in nm (default 3 3 1.5, AP Suite's)")
     p.add_argument("--remesh", choices=["cvt", "none"], help="remesher (default cvt)")
     p.add_argument("--efficiency", type=float, help="detection efficiency (default 0.5)")
+    p.add_argument("--memory-budget", type=float, metavar="GB",
+                   help="memory the run may use (default: half of this machine's); larger ion tables are streamed")
     p.add_argument("--blur", type=float, nargs=2, metavar=("LATERAL", "DEPTH"),
                    help="reconstruction blur sigmas in nm whose curvature bias the refinement undoes "
                         "(default: lateral estimated from the ions, depth 0; 0 0: no correction)")

@@ -3,7 +3,7 @@
 from apt_filters.io.ions import IonTable
 from apt_filters.io.rangefiles import read_ranges, relabel
 from apt_filters.io.ranges import UNRANGED, Range, RangeTable, ReadNote, ion_name
-from apt_filters.io.readers import count_ions, iter_ion_chunks, read_ions
+from apt_filters.io.readers import count_ions, iter_ion_chunks, map_ions, read_ions
 
 __all__ = ["IonTable", "Range", "RangeTable", "ReadNote", "UNRANGED", "count_ions", "ion_name", "read_ions",
-           "iter_ion_chunks", "read_ranges", "relabel"]
+           "iter_ion_chunks", "map_ions", "read_ranges", "relabel"]

@@ -19,6 +19,7 @@ from typing import Iterator
 import numpy as np
 
 from apt_filters.core.errors import AptFiltersError, InputError
+from apt_filters.core.threads import available_cores, on_threads, shares
 from apt_filters.io.apt6 import map_apt6
 from apt_filters.io.ato import map_ato
 from apt_filters.io.csvtxt import read_text_ions
@@ -31,6 +32,9 @@ ION_FORMATS = {".pos": "pos", ".epos": "epos", ".apt": "apt6", ".ato": "ato", ".
 
 CHUNK = 1 << 20
 """Ions converted per step when reading a whole file (16 MiB of mapped POS pages)."""
+
+_MIN_SHARE = 1 << 16
+"""Fewest rows one conversion thread takes: below that a thread's start costs more than it saves."""
 
 
 def ion_format(path: str | os.PathLike) -> str:
@@ -66,12 +70,6 @@ def _open(path: str | os.PathLike) -> MappedIons | IonTable:
             raise InputError(f"cannot read ({exc.strerror})", path) from None
         return read_text_ions(path, data)
     return {"pos": map_pos, "epos": map_epos, "apt6": map_apt6, "ato": map_ato}[fmt](path, size)
-
-
-def _native(view: np.ndarray, dtype: np.dtype | type) -> np.ndarray:
-    """``view`` as a C-contiguous array of native ``dtype``: the view itself when it already is one."""
-    with np.errstate(over="ignore"):  # float64 beyond float32 range -> inf, refused by _check_finite
-        return np.ascontiguousarray(view, dtype=np.dtype(dtype).newbyteorder("="))
 
 
 def _check_finite(path: str, positions: np.ndarray, mz: np.ndarray, start: int) -> None:
@@ -140,20 +138,19 @@ def read_ions(path: str | os.PathLike, *, mmap: bool = True) -> IonTable:
     for name, (view, dtype) in cols.items():
         native = mmap and view.dtype == dtype and view.flags.c_contiguous
         out[name] = view if native else np.empty(view.shape, dtype=dtype)
+    threads = available_cores()
     for start in range(0, len(src), CHUNK):
         stop = min(start + CHUNK, len(src))
-        for name, (view, _) in cols.items():
-            if out[name] is not view:
-                with np.errstate(over="ignore"):
-                    out[name][start:stop] = view[start:stop]
-        _check_finite(src.path, out["positions"][start:stop], out["mz"][start:stop], start)
+        copies = [(out[name][start:stop], view[start:stop]) for name, (view, _) in cols.items() if out[name] is not view]
+        if not _copy_rows(copies, out["positions"][start:stop], out["mz"][start:stop], threads):
+            _check_finite(src.path, out["positions"][start:stop], out["mz"][start:stop], start)
         src.release(start, stop)
     positions, mz = out.pop("positions"), out.pop("mz")
     return IonTable(positions, mz, out, source=src.path)
 
 
-def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, *, start: int = 0,
-                    stop: int | None = None) -> Iterator[IonTable]:
+def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, threads: int | None = None, *,
+                    start: int = 0, stop: int | None = None) -> Iterator[IonTable]:
     """Yield the ions of a file as consecutive :class:`IonTable` chunks of ``chunk_size`` ions.
 
     ``start`` and ``stop`` (ion indices, ``stop`` None: the end) limit the pass to one share of
@@ -165,7 +162,8 @@ def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, *, start
     when the next one is requested. Peak memory: one chunk (16 B/ion for POS, 44 B/ion for
     EPOS; only its pages for APT6) plus what the caller keeps. Text files are parsed whole
     and then sliced. Chunk ``source`` is the file; the first ion of a chunk is the sum of
-    the lengths of the chunks before it.
+    the lengths of the chunks before it. ``threads`` (default: one per available core) convert
+    each chunk's rows in contiguous shares at once.
 
     Raises
     ------
@@ -185,10 +183,10 @@ def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, *, start
             yield src.subset(slice(a, min(a + chunk_size, end)))
         return
     cols = _columns(src)
+    threads = available_cores() if threads is None else max(1, int(threads))
     for a in range(int(start), end, chunk_size):
         b = min(a + chunk_size, end)
-        chunk = {name: _native(view[a:b], dtype) for name, (view, dtype) in cols.items()}
-        _check_finite(src.path, chunk["positions"], chunk["mz"], a)
+        chunk = _native_chunk(src.path, cols, a, b, threads)
         positions, mz = chunk.pop("positions"), chunk.pop("mz")
         yield IonTable(positions, mz, chunk, source=src.path)
         src.release(a, b)
@@ -197,3 +195,78 @@ def iter_ion_chunks(path: str | os.PathLike, chunk_size: int = 1 << 22, *, start
 def count_ions(path: str | os.PathLike) -> int:
     """Number of ions in a file, from its size or header (text files are parsed)."""
     return len(_open(path))
+
+
+def _copy_rows(copies: list[tuple[np.ndarray, np.ndarray]], positions: np.ndarray, mz: np.ndarray,
+               threads: int) -> bool:
+    """``dst[:] = src`` for each (dst, src) pair of equally long row ranges, then whether ``positions`` and
+    ``mz`` (among the destinations, or views that need no copy) are all finite: ``threads``
+    contiguous shares of the rows at once (numpy's byte-swapping copies release the GIL, and the
+    mapped pages are faulted in by the thread that reads them)."""
+    def convert(a: int, b: int) -> bool:
+        for dst, src in copies:
+            with np.errstate(over="ignore"):  # float64 beyond float32 range -> inf, refused by the caller
+                dst[a:b] = src[a:b]
+        return bool(np.isfinite(positions[a:b]).all() and np.isfinite(mz[a:b]).all())
+
+    return all(on_threads(convert, shares(len(mz), max(1, min(threads, len(mz) // _MIN_SHARE)))))
+
+
+def _native_chunk(path: str, cols: dict, start: int, stop: int, threads: int) -> dict[str, np.ndarray]:
+    """Rows ``start:stop`` of every column as native arrays (views where they already are), checked
+    finite, converted on ``threads`` threads (:func:`_copy_rows`)."""
+    out, copies = {}, []
+    for name, (view, dtype) in cols.items():
+        part = view[start:stop]
+        if part.dtype == dtype and part.flags.c_contiguous:
+            out[name] = part
+        else:
+            out[name] = np.empty(part.shape, dtype=dtype)
+            copies.append((out[name], part))
+    if not _copy_rows(copies, out["positions"], out["mz"], threads):
+        _check_finite(path, out["positions"], out["mz"], start)
+    return out
+
+
+def map_ions(path: str | os.PathLike, scratch: str | os.PathLike, *, chunk_size: int = 1 << 22,
+             threads: int | None = None) -> IonTable:
+    """The positions and m/z of a file as native, read-only memory-mapped columns: a table of any size
+    that holds no memory of its own.
+
+    Passes that take the table in slices (voxelization, objects, proxigram, audit, ion-cloud export)
+    then stream it: its pages are read from the page cache as they are touched and are clean, so
+    the kernel can drop them whenever memory is short.
+
+    Parameters
+    ----------
+    path : path-like
+        The ion file. APT6 ``Position`` and ``Mass`` sections are little-endian float32 already:
+        their views of the file are used as they are. POS/EPOS (big-endian) and text are
+        converted chunk by chunk (:func:`iter_ion_chunks`) into a native scratch file.
+    scratch : path-like
+        Folder for the scratch file (16 bytes per ion; the caller removes it). Other columns
+        (EPOS extras, APT6 sections) are not kept.
+    chunk_size, threads
+        As :func:`iter_ion_chunks`.
+
+    Returns
+    -------
+    IonTable
+        positions (N, 3) float32 and mz (N,) float32, read-only ``numpy.memmap`` views.
+    """
+    src = _open(path)
+    if isinstance(src, MappedIons) and all(v.dtype == np.dtype("<f4") and v.flags.c_contiguous
+                                           for v in (src.positions, src.mz)):
+        for start in range(0, len(src), CHUNK):  # checked like every reader, pages released behind
+            stop = min(start + CHUNK, len(src))
+            _check_finite(src.path, src.positions[start:stop], src.mz[start:stop], start)
+            src.release(start, stop)
+        return IonTable(src.positions, src.mz, source=src.path)
+    stem = Path(scratch) / Path(path).stem
+    with open(f"{stem}.xyz.f4", "wb") as xyz, open(f"{stem}.mz.f4", "wb") as mass:  # written, never mapped dirty
+        for chunk in iter_ion_chunks(path, chunk_size, threads):
+            chunk.positions.tofile(xyz)
+            chunk.mz.tofile(mass)
+    n = len(src)
+    return IonTable(np.memmap(f"{stem}.xyz.f4", np.float32, "r", shape=(n, 3)),
+                    np.memmap(f"{stem}.mz.f4", np.float32, "r", shape=(n,)), source=os.fspath(path))

@@ -32,6 +32,10 @@ class InputConfig:
     """Species relabelled after reading, ``OLD=NEW`` (e.g. ``Cr2O=Ni``), in order."""
     unknown_species: str = "species"
     """Range-file names that are not chemical formulas: their own species, or unranged."""
+    memory_budget: float = 0.0
+    """Memory budget of the run in GB (0: half of this machine's memory). An ion table that does not
+    fit beside the fields is memory-mapped from a native scratch copy instead of read into memory;
+    a run whose fields cannot fit even so is refused before any work."""
 
 
 @dataclass
@@ -206,7 +210,7 @@ OPTIONS = {
     "voxel": ("voxel", "size"), "kernel": ("voxel", "kernel"), "delocalization": ("voxel", "delocalization"),
     "exclude": ("voxel", "exclude"), "method": ("contour", "method"), "remesh": ("remesh", "method"),
     "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "relabel": ("input", "relabel"),
-    "unknown_species": ("input", "unknown_species"),
+    "unknown_species": ("input", "unknown_species"), "memory_budget": ("input", "memory_budget"),
 }
 """Run options (as ``apt-filters run`` and batch manifests name them) -> (section, key)."""
 

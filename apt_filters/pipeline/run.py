@@ -11,7 +11,9 @@ the same numbers and meshes.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -84,6 +86,48 @@ def _marker(marks) -> dict | None:
             "shift_nm": _finite(marks.shift)}
 
 
+ION_BYTES = 16
+"""Bytes per ion of a table in memory: positions and m/z, float32."""
+
+
+def memory_budget(config: PipelineConfig) -> int:
+    """The run's memory budget in bytes: ``[input] memory_budget`` GB, or the machine's default."""
+    from apt_filters.voxel import default_budget
+
+    if config.input.memory_budget < 0 or not np.isfinite(config.input.memory_budget):
+        raise AptFiltersError(f"memory budget must be a positive number of GB, got {config.input.memory_budget:g}")
+    return int(config.input.memory_budget * 1e9) if config.input.memory_budget > 0 else default_budget()
+
+
+def load_ions(config: PipelineConfig, ranges, summary, scratch: Path):
+    """The ions, in memory when the table fits the memory budget beside the fields, else memory-mapped.
+
+    The fields' bound (every block of the ions' box occupied, :func:`~apt_filters.voxel.check_budget`)
+    comes first: a run whose fields cannot fit the budget even with the ions streamed is refused
+    here, in one line, before any work. Then the table (:data:`ION_BYTES` per ion) is read into
+    memory if it fits beside them, or else mapped from a native scratch copy in ``scratch``
+    (:func:`~apt_filters.io.map_ions`), so that every later pass reads it slice by slice.
+    """
+    from apt_filters.io import map_ions
+    from apt_filters.voxel import Grid, check_budget, kernel_reach
+
+    v, budget = config.voxel, memory_budget(config)
+    grid = Grid.covering(summary.lower, summary.upper, v.size, kernel_reach(v.kernel, v.size, v.delocalization))
+    n_fields = len(ranges.elements) + bool(v.include_unranged)
+    fields = check_budget(grid, n_fields, budget)
+    if summary.ions * ION_BYTES + fields <= budget:
+        return read_ions(config.input.ions)
+    return map_ions(config.input.ions, scratch)
+
+
+@contextlib.contextmanager
+def scratch_folder(out: str | Path):
+    """A temporary folder beside the output folder (same file system), removed afterwards."""
+    parent = Path(out).resolve().parent
+    with tempfile.TemporaryDirectory(dir=parent, prefix=".apt-filters-scratch-") as tmp:
+        yield Path(tmp)
+
+
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
                  verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
@@ -108,18 +152,19 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
-    with staged_folder(out, force=force) as stage:
+    with staged_folder(out, force=force) as stage, scratch_folder(out) as scratch:
         (stage / "meshes").mkdir()
         with log.step("read") as s:
-            ions = read_ions(config.input.ions)
             ranges = config_ranges(config)
             report["range_file"] = [dataclasses.asdict(n) for n in ranges.notes]
-            summary = summarize(ions, ranges)  # chunk by chunk: no (N,) ranging array kept
+            summary = summarize(config.input.ions, ranges)  # streamed from the file: nothing kept
+            ions = load_ions(config, ranges, summary, scratch)
             report["inputs"] = [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)]
             report["ions"] = {"count": summary.ions, "ranged_fraction": summary.ranged_fraction,
                               "bounds_nm": [summary.lower.tolist(), summary.upper.tolist()]}
             report["composition"] = summary.composition()
-            s.summary = f"{len(ions):,} ions, {summary.ranged_fraction:.1%} ranged, {len(ranges)} ranges"
+            s.summary = (f"{len(ions):,} ions{' (memory-mapped)' if isinstance(ions.mz, np.memmap) else ''}, "
+                         f"{summary.ranged_fraction:.1%} ranged, {len(ranges)} ranges")
         if config.analysis.audit:
             with log.step("audit") as s:
                 result = audit_ranges(ions, ranges)

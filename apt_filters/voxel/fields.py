@@ -149,9 +149,18 @@ def decomposition(ranges: RangeTable, kind: str, keep_unranged: bool) -> tuple[l
     return names, (row_ptr, c.astype(np.int64), matrix[r, c])
 
 
+SCATTER_CHUNK = 1 << 22
+"""Ions of a table ranged and scattered per step (their rows: 16 MiB of int32)."""
+
+
 def as_chunks(ions_or_chunks: IonTable | Iterable[IonTable]) -> Iterable[IonTable]:
-    """An IonTable as a one-chunk list; an iterable of chunks as it is."""
-    return [ions_or_chunks] if isinstance(ions_or_chunks, IonTable) else ions_or_chunks
+    """An IonTable as a list of views of :data:`SCATTER_CHUNK` ions each (a memory-mapped table is
+    then read slice by slice); an iterable of chunks as it is."""
+    if not isinstance(ions_or_chunks, IonTable):
+        return ions_or_chunks
+    ions = ions_or_chunks
+    return [IonTable(np.asarray(ions.positions[i: i + SCATTER_CHUNK]), np.asarray(ions.mz[i: i + SCATTER_CHUNK]),
+                     source=ions.source) for i in range(0, max(len(ions), 1), SCATTER_CHUNK)]
 
 
 def voxelize(

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.threads import available_cores
 
 BLOCK = 8
 """Edge of a leaf block in voxels (OpenVDB's leaf size): a block holds 8³ = 512 values."""
@@ -156,14 +157,6 @@ def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 
         f"would fit: voxel >= {fit_voxel:g} nm, or {fields_hint}, or a smaller region "
         f"(sparse storage only helps when the ions fill a small part of the box)"
     )
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask where the OS has one)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # no affinity masks on this OS
-        return os.cpu_count() or 1
 
 
 def scatter_threads(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 8) -> int:

@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from apt_filters.io.ranges import RangeTable
-from apt_filters.voxel.threads import on_threads, shares
+from apt_filters.core.threads import on_threads, shares
 
 N_BINS = 1 << 14
 """Bins of the lookup table (64 kB of int32: stays in cache)."""

@@ -24,7 +24,7 @@ from scipy.ndimage import binary_dilation
 
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.voxel.grid import BLOCK, Grid
-from apt_filters.voxel.threads import on_threads, shares
+from apt_filters.core.threads import on_threads, shares
 
 KERNELS = ("square", "sawtooth", "gaussian")
 TRUNCATE = 4.0
@@ -652,22 +652,30 @@ def _correlate_last(src, dst, w):
 
 
 @njit(nogil=True, cache=True)
-def _smooth(coords, data, slots, wx, wy, wz, a, plane, plane2):
-    """One channel's pass 2, in place: blocks ``data`` at ``coords`` into the dense block-rounded box
-    ``a``, then plane by plane along x: filtered along x (into ``plane``), y (into ``plane2``) and z
-    (into ``plane``), and written back into the blocks (``slots``: each block's slot, or -1). One plane
-    (120 kB here) is filtered along y and z while it is in cache: one pass over the box instead of
-    three, and one dense copy per thread instead of two."""
-    nx, ny, nz = a.shape
-    a[...] = 0.0
+def _densify(coords, data, bx0, bx1, a):
+    """Rows ``bx0 * 8 : bx1 * 8`` (x) of the dense block-rounded box ``a``: zero, then the values of the
+    blocks ``data`` at ``coords`` whose x block lies in ``bx0:bx1`` (one thread's slab)."""
+    a[bx0 * BLOCK: bx1 * BLOCK] = 0.0
     for s in range(coords.shape[0]):
+        if coords[s, 0] < bx0 or coords[s, 0] >= bx1:
+            continue
         x0, y0, z0 = coords[s, 0] * BLOCK, coords[s, 1] * BLOCK, coords[s, 2] * BLOCK
         for i in range(BLOCK):
             for j in range(BLOCK):
                 for k in range(BLOCK):
                     a[_u(x0 + i), _u(y0 + j), _u(z0 + k)] = data[s, i, j, k]
+
+
+@njit(nogil=True, cache=True)
+def _smooth(a, data, slots, wx, wy, wz, x0, x1, plane, plane2):
+    """Planes ``x0:x1`` of one channel's pass 2: the dense box ``a`` filtered plane by plane along x
+    (into ``plane``), y (into ``plane2``) and z (into ``plane``), and written back into the blocks
+    ``data`` (``slots``: each block's slot, or -1). One plane (120 kB here) is filtered along y and z
+    while it is in cache: one pass over the box instead of three. Threads filtering disjoint ranges
+    of planes read the same ``a`` and write disjoint values of ``data``."""
+    nx, ny, nz = a.shape
     flat = a.reshape(nx, ny * nz)
-    for x in range(nx):
+    for x in range(x0, x1):
         _correlate_row(flat, x, plane.reshape(ny * nz), wx)
         for y in range(ny):
             _correlate_row(plane, y, plane2[y], wy)
@@ -697,20 +705,20 @@ def second_pass(grid: Grid, coords: np.ndarray, channels: list[np.ndarray], sigm
     """Separable Gaussian (truncated at 4 sigma, zero outside) of each block-sparse channel, in place.
 
     ``coords`` must hold every block within the kernel radius of a block with weight
-    (:func:`second_pass_blocks`). Works one channel at a time per thread (a nogil compiled filter,
-    the same taps as scipy's ``gaussian_filter1d``) through a dense copy of the block-rounded box:
-    transient memory is one dense float64 field per thread (and two of its x planes), at most
-    ``min(threads, len(channels))`` threads.
+    (:func:`second_pass_blocks`). Works one channel at a time through a dense copy of the
+    block-rounded box (a nogil compiled filter, the same taps as scipy's ``gaussian_filter1d``),
+    each of ``threads`` threads on its own slab of x planes (whole blocks): copied in, then
+    filtered once every slab is in. The result does not depend on ``threads``. Transient memory:
+    one dense float64 field, and two of its x planes per thread.
     """
     taps = [second_pass_weights(s) for s in sigma_vox]
     box = tuple(n * BLOCK for n in grid.block_shape)
     slots = np.full(grid.block_shape, -1, dtype=np.int32)
     slots[coords[:, 0], coords[:, 1], coords[:, 2]] = np.arange(len(coords), dtype=np.int32)
-
-    def smooth(mine: list[np.ndarray]) -> None:
-        a, plane, plane2 = np.empty(box), np.empty(box[1:]), np.empty(box[1:])
-        for data in mine:
-            _smooth(coords, data, slots, *taps, a, plane, plane2)
-
-    n_threads = max(1, min(int(threads), len(channels)))
-    on_threads(smooth, [(channels[k::n_threads],) for k in range(n_threads)])
+    slabs = shares(grid.block_shape[0], max(1, min(int(threads), grid.block_shape[0])))
+    planes = [(np.empty(box[1:]), np.empty(box[1:])) for _ in slabs]
+    a = np.empty(box)
+    for data in channels:
+        on_threads(lambda b0, b1: _densify(coords, data, b0, b1, a), slabs)
+        on_threads(lambda b0, b1, p: _smooth(a, data, slots, *taps, b0 * BLOCK, b1 * BLOCK, *p),
+                   [(b0, b1, p) for (b0, b1), p in zip(slabs, planes)])

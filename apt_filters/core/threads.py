@@ -1,13 +1,22 @@
-"""Running the voxel kernels on threads: they are nogil numba loops (or scipy filters), so Python
-threads run them in parallel without copies of their inputs."""
+"""Running compiled kernels on threads: nogil numba loops and numpy's large copies release the GIL,
+so Python threads run them in parallel without copies of their inputs."""
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity masks on this OS
+        return os.cpu_count() or 1
 
 
 def on_threads(fn, calls: list[tuple]) -> list:
@@ -16,7 +25,7 @@ def on_threads(fn, calls: list[tuple]) -> list:
         return [fn(*calls[0])]
     executor = _EXECUTORS.get(len(calls))
     if executor is None:
-        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="voxel")
+        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="apt-filters")
     return list(executor.map(lambda args: fn(*args), calls))
 
 

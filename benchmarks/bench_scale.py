@@ -1,0 +1,292 @@
+"""Scale: the streaming steps on 10^7-10^9 ions, their thread scaling and peak memory, and ``apt-filters run``.
+
+Run: ``python -m benchmarks.bench_scale --ions 1e7 [--threads 1,2] [--run] [--big 1e9] [--out results.md]``.
+
+1. A synthetic POS file of N ions is written chunk by chunk (any N; 16 bytes per ion on disk,
+   one chunk in memory): an Al matrix (96 % Al, 1 % Cu, 3 % unranged background) in a box
+   D × D × 4D nm at 40 ions/nm³, with Cu-rich spheres (radius 3 nm, 40 % Cu) on a 15 nm
+   lattice, in detection order (z falling, as reconstructions store them), and a range file.
+2. Streaming steps, each in a fresh child process (so that its peak RSS is its own), once per
+   thread count:
+
+   - ``read``: one pass of :func:`~apt_filters.io.iter_ion_chunks` over the memory-mapped file
+     (byte-swapping conversion and finiteness check);
+   - ``read + ranging``: the same with every chunk ranged (:class:`~apt_filters.voxel.ranging.MzLookup`);
+   - ``voxelize square`` / ``voxelize gaussian``: :func:`~apt_filters.voxel.voxelize` from the
+     file's chunks on the covering grid (1 nm voxels, gaussian 3 × 3 × 1.5 nm), elements Al and Cu.
+
+   Each row prints the wall time, M ions/s, the speed-up over one thread, the CPU time over the
+   wall time (how many cores the step kept busy: on a shared machine the wall-clock speed-up
+   also depends on the cores the others leave free) and the child's peak RSS.
+   ``--big N`` repeats the steps on a second file of N ions at the largest thread count only.
+3. Marching cubes on dense 128³ and 256³ fields (smoothed noise: active cells everywhere; the
+   contouring benchmark's box minus sphere) beside scikit-image's Lewiner marching cubes, same
+   process, best of 3 (``--no-mc`` skips it).
+4. ``--run``: ``apt-filters run`` on the N-ion file (Cu at 20 at.%, ``--memory-budget`` passed on),
+   wall time and each step's time and peak RSS (from its report).
+
+Pure numpy / numba / scipy except the optional skimage peer and ``--run`` (pymeshlab, open3d).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DENSITY = 40.0  # ions / nm³
+SPACING, RADIUS = 15.0, 3.0  # Cu-rich spheres: lattice spacing and radius, nm
+FRACTIONS = {"matrix": (0.96, 0.01), "sphere": (0.57, 0.40)}  # (Al, Cu); the rest unranged
+GEN_CHUNK = 1 << 22
+STEPS = ("read", "read + ranging", "voxelize square", "voxelize gaussian", "voxelize gaussian, chunks in memory")
+RRNG = """[Ions]
+Number=2
+Ion1=Al
+Ion2=Cu
+[Ranges]
+Number=2
+Range1=26.5000 27.5000 Vol:0.01661 Al:1 Color:33FFFF
+Range2=62.5000 63.5000 Vol:0.01181 Cu:1 Color:FF7700
+"""
+
+
+def box_of(n: int) -> np.ndarray:
+    """(3,) box edges (nm) of the N-ion specimen: D × D × 4D at DENSITY."""
+    d = (n / DENSITY / 4.0) ** (1.0 / 3.0)
+    return np.array([d, d, 4.0 * d])
+
+
+def _chunk_ions(n: int, box: np.ndarray, z_hi: float, z_lo: float, seed: int) -> np.ndarray:
+    """(n, 4) big-endian float32 POS records of ``n`` ions with z in (z_lo, z_hi], z falling."""
+    rng = np.random.default_rng(seed)
+    rec = np.empty((n, 4), dtype=">f4")
+    pos = rng.random((n, 3))
+    pos[:, 2] = np.sort(pos[:, 2])[::-1]
+    pos *= [box[0], box[1], z_hi - z_lo]
+    pos[:, 2] += z_lo
+    centre = (np.floor(pos / SPACING) + 0.5) * SPACING
+    inside = np.sum((pos - centre) ** 2, axis=1) < RADIUS**2
+    u = rng.random(n)
+    al = np.where(inside, FRACTIONS["sphere"][0], FRACTIONS["matrix"][0])
+    cu = al + np.where(inside, FRACTIONS["sphere"][1], FRACTIONS["matrix"][1])
+    mz = np.where(u < al, 27.0, np.where(u < cu, 63.0, 0.0)) + rng.uniform(-0.3, 0.3, n)
+    background = u >= cu
+    mz[background] = rng.uniform(1.0, 100.0, int(background.sum()))
+    rec[:, :3] = pos
+    rec[:, 3] = mz
+    return rec
+
+
+def generate(path: Path, n: int, threads: int) -> float:
+    """Write the N-ion POS (chunks in detection order) and its RRNG; returns seconds."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    start = time.perf_counter()
+    box = box_of(n)
+    n_chunks = -(-n // GEN_CHUNK)
+    counts = [min(GEN_CHUNK, n - k * GEN_CHUNK) for k in range(n_chunks)]
+    tops = box[2] * (1 - np.concatenate([[0], np.cumsum(counts)]) / n)
+    with open(path, "wb") as fh, ThreadPoolExecutor(threads) as pool:
+        jobs = [pool.submit(_chunk_ions, counts[k], box, tops[k], tops[k + 1], k) for k in range(min(threads, n_chunks))]
+        for k in range(n_chunks):
+            rec = jobs[k].result()
+            if k + threads < n_chunks:
+                jobs.append(pool.submit(_chunk_ions, counts[k + threads], box, tops[k + threads],
+                                        tops[k + threads + 1], k + threads))
+            fh.write(rec.tobytes())
+            jobs[k] = None
+    path.with_suffix(".rrng").write_text(RRNG)
+    return time.perf_counter() - start
+
+
+def step(name: str, pos: str, threads: int) -> dict:
+    """Run one streaming step in this process; returns its wall time and this process's peak RSS."""
+    from apt_filters.io import iter_ion_chunks, read_ranges
+    from apt_filters.io.mapped import PAGE  # noqa: F401  (imported here so that compile time is not timed)
+    from apt_filters.voxel import Grid, kernel_reach, voxelize
+    from apt_filters.voxel.ranging import MzLookup
+
+    ranges = read_ranges(str(Path(pos).with_suffix(".rrng")))
+    n = os.path.getsize(pos) // 16
+    box = box_of(n)
+    lookup = MzLookup.from_ranges(ranges)
+    lookup.rows_of(np.zeros(4, np.float32))  # compile outside the timing
+    kernel = "square" if "square" in name else "gaussian"
+    if name.startswith("voxelize"):  # compile and fill the page cache outside the timing
+        small = Grid.covering(np.zeros(3), np.ones(3), 1.0, kernel_reach(kernel))
+        from apt_filters.io import IonTable
+        voxelize(IonTable(np.full((2, 3), 0.5, np.float32), np.float32([27, 63])), ranges, grid=small,
+                 kernel=kernel, threads=1)
+    held = list(iter_ion_chunks(pos)) if name.endswith("in memory") else None  # read before the timing
+    cpu, start = time.process_time(), time.perf_counter()
+    if name == "read":
+        total = sum(len(c) for c in iter_ion_chunks(pos, threads=threads))
+        assert total == n
+    elif name == "read + ranging":
+        total = sum(int(np.count_nonzero(lookup.rows_of(c.mz, threads))) for c in iter_ion_chunks(pos, threads=threads))
+    else:
+        grid = Grid.covering(np.zeros(3), box, 1.0, kernel_reach(kernel))
+        chunks = held if held is not None else iter_ion_chunks(pos, threads=threads)
+        voxelize(chunks, ranges, grid=grid, kernel=kernel, threads=threads)
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    return {"wall": wall, "cpu": cpu, "rss_mib": peak_rss_mib()}
+
+
+def peak_rss_mib() -> float:
+    """This process's resident high-water mark (VmHWM: unlike ru_maxrss it does not carry the forking
+    parent's over the exec)."""
+    with open("/proc/self/status") as fh:
+        return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
+
+
+def in_child(name: str, pos: Path, threads: int) -> dict:
+    cmd = [sys.executable, "-m", "benchmarks.bench_scale", "--child", name, str(pos), str(threads)]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if done.returncode:
+        return {"error": (done.stderr.strip().splitlines() or ["exit %d" % done.returncode])[-1]}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def streaming_table(pos: Path, n: int, thread_counts: list[int]) -> list[str]:
+    rows = [f"{n:,} ions ({os.path.getsize(pos) / 1e9:.1f} GB POS), box {' × '.join(f'{v:.0f}' for v in box_of(n))} nm:",
+            "", "| step | threads | wall (s) | M ions/s | × 1 thread | CPU / wall | peak RSS (MiB) |",
+            "|---|---:|---:|---:|---:|---:|---:|"]
+    for name in STEPS if n * 16 <= 4e9 else STEPS[:-1]:  # holding the chunks: only while they fit easily
+        base = None
+        for t in thread_counts if not name.endswith("in memory") else thread_counts[-1:]:
+            r = in_child(name, pos, t)
+            if "error" in r:
+                rows.append(f"| {name} | {t} | failed: {r['error']} | | | | |")
+                print(rows[-1], flush=True)
+                continue
+            base = r["wall"] if t == 1 else base
+            speedup = f"{base / r['wall']:.2f}" if base else "–"
+            rows.append(f"| {name} | {t} | {r['wall']:.2f} | {n / r['wall'] / 1e6:.1f} | {speedup} | "
+                        f"{r['cpu'] / r['wall']:.2f} | {r['rss_mib']:,.0f} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
+def dense_fields(n: int) -> dict[str, tuple[np.ndarray, float]]:
+    from scipy.ndimage import gaussian_filter
+
+    from apt_filters.contour.shapes import benchmark_shapes
+
+    noise = gaussian_filter(np.random.default_rng(0).standard_normal((n, n, n)), 1.5)
+    shape = benchmark_shapes()[4]
+    return {"smoothed noise": (noise, 0.0), shape.name: (shape.grid(n)[0], 0.0)}
+
+
+def mc_table(sizes=(128, 256), repeats: int = 3) -> list[str]:
+    from apt_filters.contour import marching_cubes
+    from apt_filters.contour.cells import find_active_cells, prepare_field
+
+    try:
+        from skimage.measure import marching_cubes as sk
+    except ImportError:
+        sk = None
+    marching_cubes(np.random.default_rng(1).random((8, 8, 8)), 0.5)  # compile outside the timing
+    rows = ["| field | size | active cells | ours MC (s) | active-cell scan (s) | skimage lewiner (s) | ours / skimage |",
+            "|---|---:|---:|---:|---:|---:|---:|"]
+    for n in sizes:
+        for name, (values, iso) in dense_fields(n).items():
+            def best(fn):
+                return min(_timed(fn) for _ in range(repeats))
+            t_ours = best(lambda: marching_cubes(values, iso))
+            field = prepare_field(values, iso, 1.0, 0.0, None, False)
+            t_scan = best(lambda: find_active_cells(field))
+            active = len(find_active_cells(field).cell)
+            t_sk = best(lambda: sk(values, iso, method="lewiner")) if sk else float("nan")
+            rows.append(f"| {name} | {n}³ | {active:,} | {t_ours:.3f} | {t_scan:.3f} | {t_sk:.3f} | {t_ours / t_sk:.2f} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
+def _timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def run_table(pos: Path, n: int, work: Path, budget: float | None) -> list[str]:
+    cmd = [sys.executable, "-m", "apt_filters", "run", str(pos), "-r", str(pos.with_suffix(".rrng")),
+           "-o", str(work / "run"), "--species", "Cu", "--iso", "0.2", "-q", "--force"]
+    cmd += ["--memory-budget", str(budget)] if budget else []
+    t = time.perf_counter()
+    subprocess.run(cmd, cwd=ROOT, check=True)
+    wall = time.perf_counter() - t
+    report = json.loads((work / "run" / "report.json").read_text())
+    peak = max(s["peak_mib"] for s in report["steps"])
+    rows = [f"`apt-filters run` (Cu 20 at.%{f', memory budget {budget:g} GB' if budget else ''}), {n:,} ions: "
+            f"{wall:.1f} s, {n / wall / 1e6:.2f} M ions/s, peak RSS {peak:,.0f} MiB.", "",
+            "| step | time (s) | peak (MiB) |", "|---|---:|---:|"]
+    rows += [f"| {s['step']} | {s['seconds']:.1f} | {s['peak_mib']:,.0f} |" for s in report["steps"]]
+    print("\n".join(rows), flush=True)
+    return rows
+
+
+def machine() -> str:
+    from apt_filters.core.threads import available_cores
+
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    return (f"{platform.machine()}, {available_cores()} cores available, {mem:.0f} GiB, "
+            f"load average {os.getloadavg()[0]:.1f} at the start, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ions", type=float, default=1e7, help="ions of the main file (default 1e7)")
+    parser.add_argument("--threads", default=None, help="comma-separated thread counts (default 1, 2, 4, ... cores)")
+    parser.add_argument("--big", type=float, default=0, help="also a file of this many ions, largest thread count only")
+    parser.add_argument("--no-mc", action="store_true", help="skip the marching-cubes table")
+    parser.add_argument("--run", action="store_true", help="also time `apt-filters run` on the main file")
+    parser.add_argument("--memory-budget", type=float, help="GB, for --run (default: the run's own)")
+    parser.add_argument("--work", help="folder for the generated files (default: a temporary one, removed)")
+    parser.add_argument("--out", help="also write the tables to this markdown file")
+    parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        name, pos, threads = args.child
+        print(json.dumps(step(name, pos, int(threads))))
+        return 0
+    from apt_filters.core.threads import available_cores
+
+    cores = available_cores()
+    counts = ([int(t) for t in args.threads.split(",")] if args.threads else
+              sorted({1 << k for k in range(cores.bit_length()) if 1 << k <= cores} | {cores}))
+    lines = ["# bench_scale: streaming steps, thread scaling, marching cubes", "", f"Machine: {machine()}.", ""]
+    print("\n".join(lines), flush=True)
+
+    def section(rows: list[str]) -> None:
+        lines.extend(rows + [""])
+        if args.out:  # after every section: a run stopped part-way keeps what it measured
+            Path(args.out).write_text("\n".join(lines) + "\n")
+
+    if not args.no_mc:
+        section(["Marching cubes on dense fields (best of 3, same process):", ""] + mc_table())
+    with tempfile.TemporaryDirectory(dir=args.work) as tmp:
+        work = Path(tmp)
+        for n, counts_n in ((int(args.ions), counts), (int(args.big), counts[-1:])):
+            if not n:
+                continue
+            pos = work / "scale.pos"
+            gen = generate(pos, n, cores)
+            print(f"generated {n:,} ions in {gen:.1f} s", flush=True)
+            section(streaming_table(pos, n, counts_n))
+            if args.run and n == int(args.ions):
+                section(run_table(pos, n, work, args.memory_budget))
+            pos.unlink()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
