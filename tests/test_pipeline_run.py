@@ -217,6 +217,8 @@ def test_run_on_real_si(real_si, tmp_path):
     assert interface["status"] == "open"
     assert -19.0 < interface["centroid_z"] < -14.0, "flat interface near z = -16 nm"
     assert interface["obb_short"] < 0.15 * interface["obb_long"], "it is flat"
+    c_map = next(m for m in surface["maps"] if m["solute"] == "C" and m["object_id"] == interface["object_id"])
+    assert c_map["n_patches"] >= 2 and 0 <= c_map["p_value"] <= 1, "a C map across the interface, tested"
 
 
 def test_a_remesher_failure_keeps_the_cleaned_mesh_and_warns(specimen, tmp_path, monkeypatch):
@@ -233,3 +235,16 @@ def test_a_remesher_failure_keeps_the_cleaned_mesh_and_warns(specimen, tmp_path,
     report = run_pipeline(config, tmp_path / "out", quiet=True)
     assert report["warnings"] == ["remeshing Al15 failed (RuntimeError: synthetic failure); the cleaned mesh is used"]
     assert report["surfaces"][0]["mesh"]["faces"] > 0
+
+
+def test_maps_reach_the_ply_and_the_report(small_run):
+    from apt_filters.meshlab.exports import read_ply
+
+    out, report, _ = small_run
+    rows = report["surfaces"][0]["maps"]
+    assert {r["solute"] for r in rows} == {"B"} and all(r["n_patches"] >= 1 for r in rows)
+    mesh = read_ply(out / "meshes" / "Al15.ply")
+    for name in ("excess_B", "excess_B_sigma", "c_in_B", "c_out_B", "patch_radius_B"):
+        assert name in mesh.vertex_scalars, name
+    assert (out / "map_Al15.png").is_file()
+    assert "Excess maps along the surface" in (out / "report.html").read_text()

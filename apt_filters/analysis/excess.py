@@ -102,32 +102,69 @@ class Excess:
     window_nm: tuple[float, float]
 
 
+def levels_from_moments(w0, w1, w2, m0, m1, slope_sigmas: float = 2.0) -> tuple[np.ndarray, ...]:
+    """Weighted straight-line fits ``c(s) = a + b s`` from the moments of binned counts, vectorised.
+
+    Parameters
+    ----------
+    w0, w1, w2 : array_like (...)
+        Sums over the window's bins of ``N``, ``N s`` and ``N s²`` (N: ions (atoms) per bin,
+        s: bin centre, nm).
+    m0, m1 : array_like (...)
+        Sums of ``n`` and ``n s`` (n: the species' counts per bin).
+    slope_sigmas : float
+        A slope below this many standard errors is not significant and the level is the
+        window's mean fraction instead (0: always keep the line).
+
+    Returns
+    -------
+    value, slope, cov00, cov01, cov11 : (...) float64
+        Level at s = 0, slope (0 where not significant) and the covariance of (a, b) under
+        binomial counting (variance c (1 - c) / N per bin, c the window's mean fraction); NaN
+        where the window holds no ions. One bin (or a singular design) gives a constant level.
+    """
+    w0, w1, w2, m0, m1 = (np.asarray(x, dtype=np.float64) for x in (w0, w1, w2, m0, m1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = m0 / w0
+        var = c * (1 - c)
+        det = w0 * w2 - w1 ** 2
+        # the design's condition number, from the eigenvalues of the 2 x 2 normal matrix
+        half_trace = 0.5 * (w0 + w2)
+        root = np.sqrt(np.maximum(half_trace ** 2 - det, 0.0))
+        line = (half_trace - root) * 1e12 > half_trace + root
+        a = (w2 * m0 - w1 * m1) / det
+        b = (w0 * m1 - w1 * m0) / det
+        cov00, cov01, cov11 = var * w2 / det, -var * w1 / det, var * w0 / det
+        # no significant gradient: extrapolating a noise slope to s = 0 would only add noise
+        line &= np.abs(b) >= slope_sigmas * np.sqrt(cov11)
+        return (np.where(line, a, c), np.where(line, b, 0.0), np.where(line, cov00, var / w0),
+                np.where(line, cov01, 0.0), np.where(line, cov11, 0.0))
+
+
 def fit_level(s: np.ndarray, n: np.ndarray, total: np.ndarray,
               slope_sigmas: float = 2.0) -> tuple[Level, np.ndarray]:
     """Weighted straight-line fit of the fraction ``n / total`` against distance ``s`` (bins).
 
     Weights are the ions per bin (binomial variance c(1 - c)/N with c nearly constant over a
     plateau). A slope smaller than ``slope_sigmas`` standard errors is not significant and the
-    level is the window's mean fraction instead (set 0 to always keep the line). Returns the
-    level at s = 0 and the (2, 2) covariance of (a, b).
+    level is the window's mean fraction instead (set 0 to always keep the line); see
+    :func:`levels_from_moments`. Returns the level at s = 0 and the (2, 2) covariance of (a, b).
     """
     used = total > 0
     s, n, total = s[used], n[used].astype(np.float64), total[used].astype(np.float64)
     if total.sum() == 0:
         raise AptFiltersError("no ions in a plateau window: widen the range or the windows")
-    c_mean = n.sum() / total.sum()
-    design = np.column_stack([np.ones_like(s), s])
-    normal = design.T @ (design * total[:, None])
-    if len(s) < 2 or np.linalg.cond(normal) > 1e12:  # one bin: a constant level
-        cov = np.diag([c_mean * (1 - c_mean) / total.sum(), 0.0])
-        return Level(float(c_mean), float(np.sqrt(cov[0, 0])), 0.0, int(total.sum())), cov
-    coef = np.linalg.solve(normal, design.T @ n)
-    cov = c_mean * (1 - c_mean) * np.linalg.inv(normal)
-    if abs(coef[1]) < slope_sigmas * np.sqrt(cov[1, 1]):
-        # no significant gradient: extrapolating a noise slope to s = 0 would only add noise
-        cov = np.diag([c_mean * (1 - c_mean) / total.sum(), 0.0])
-        return Level(float(c_mean), float(np.sqrt(cov[0, 0])), 0.0, int(total.sum())), cov
-    return Level(float(coef[0]), float(np.sqrt(cov[0, 0])), float(coef[1]), int(total.sum())), cov
+    value, slope, c00, c01, c11 = levels_from_moments(total.sum(), (total * s).sum(), (total * s * s).sum(),
+                                                      n.sum(), (n * s).sum(), slope_sigmas)
+    cov = np.array([[c00, c01], [c01, c11]])
+    return Level(float(value), float(np.sqrt(c00)), float(slope), int(total.sum())), cov
+
+
+def reference_counts(total, total_s, value, slope, cov00, cov01, cov11) -> tuple[np.ndarray, np.ndarray]:
+    """Solute counts a fitted level predicts for ``total`` ions (with ``total_s`` = sum of N s) on
+    its side of the interface, and the variance of that prediction from the level's covariance."""
+    ref = total * value + total_s * slope
+    return ref, total ** 2 * cov00 + 2 * total * total_s * cov01 + total_s ** 2 * cov11
 
 
 def _windows(centers: np.ndarray, inner: float, outer: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -176,9 +213,9 @@ def excess_of_profile(s: np.ndarray, n: np.ndarray, total: np.ndarray, area: flo
     # integration against the fitted lines, each on its own side of s = 0
     ref, var_ref = 0.0, 0.0
     for side, level, cov in ((between & (s < 0), matrix, cov_m), (between & (s >= 0), precip, cov_p)):
-        grad = np.array([total[side].sum(), (total[side] * s[side]).sum()])
-        ref += grad[0] * level.value + grad[1] * level.slope
-        var_ref += grad @ cov @ grad
+        r, v = reference_counts(total[side].sum(), (total[side] * s[side]).sum(), level.value, level.slope,
+                                cov[0, 0], cov[0, 1], cov[1, 1])
+        ref, var_ref = ref + r, var_ref + v
     integration = _estimate(n[between].sum() - ref, var_counts + var_ref, area, efficiency)
 
     # Krakauer–Seidman: cumulative counts at the upper edge of each bin, from the matrix side
@@ -260,4 +297,5 @@ def write_excess_json(path: str | os.PathLike, results: list[Excess], overwrite:
 
 
 __all__ = ["Excess", "ExcessEstimate", "Level", "INSTRUMENT_EFFICIENCY", "POOLED", "interfacial_excess",
-           "excess_of_profile", "fit_level", "interface_position", "write_excess_json"]
+           "excess_of_profile", "fit_level", "interface_position", "levels_from_moments", "reference_counts",
+           "write_excess_json"]

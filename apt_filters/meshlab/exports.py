@@ -104,7 +104,7 @@ def write_ply(mesh: TriMesh, path: str | os.PathLike, quality: str | None = "val
     if quality is not None:
         fields.append(("quality", "<f4"))
     reserved = {"x", "y", "z", "quality", *COLOR_KEYS}
-    extra = [k for k in scalars if k != quality and k not in reserved]
+    extra = [k for k in scalars if k not in reserved]  # the quality's scalar under its own name too
     fields += [(k, "<f4") for k in extra]
     v = np.empty(mesh.n_vertices, dtype=fields)
     v["x"], v["y"], v["z"] = mesh.vertices.T

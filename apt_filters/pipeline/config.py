@@ -134,6 +134,12 @@ class AnalysisConfig:
     """Detection efficiency, to turn ion counts into atoms."""
     audit: bool = True
     """Audit the range file against the mass spectrum and report its warnings."""
+    maps: bool = True
+    """Excess and plateau maps of the solutes on each surface (PLY vertex properties, report pictures,
+    a chi-square test of uniform segregation per object)."""
+    map_error: float = 0.25
+    """Error level of the maps' patches, relative to each object's |excess| (floored at the error of
+    an eighth of the object): patches grow until their predicted error reaches it."""
 
 
 @dataclass

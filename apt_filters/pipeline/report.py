@@ -394,7 +394,8 @@ def write_html(path: Path, report: dict, pictures: list[tuple[Path, str]]) -> Pa
         parts.append("<div class='warn'><b>Check before use</b><ul>"
                      + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul></div>")
     for s in report["surfaces"]:
-        parts.append(f"<h2>{html.escape(surface_title(s))} ({html.escape(s['label'])})</h2>{_summary(s)}")
+        parts.append(f"<h2>{html.escape(surface_title(s))} ({html.escape(s['label'])})</h2>{_summary(s)}"
+                     + _maps(s.get("maps") or []))
     if report.get("truth"):
         parts.append("<h2>Against the ground truth (synthetic specimen)</h2>" + _truth(report["truth"]))
     parts.append("<h2>Pictures</h2>" + "".join(_image(p, c) for p, c in pictures if p.exists()))
@@ -402,6 +403,24 @@ def write_html(path: Path, report: dict, pictures: list[tuple[Path, str]]) -> Pa
     page = (f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>apt-filters report: "
             f"{html.escape(names)}</title><style>{STYLE}</style></head><body>{''.join(parts)}</body></html>\n")
     return atomic_write_text(path, page, overwrite=True)
+
+
+def _maps(rows: list[dict]) -> str:
+    """The excess maps' statistics per solute and object (analysis.maps), with the test of uniform segregation."""
+    if not rows:
+        return ""
+    def num(v, f=".3g"):
+        return "-" if v is None else format(v, f)
+    header = ["solute", "object", "excess (detected atoms/nm²)", "map mean", "map 5th-95th %", "patch error level",
+              "median patch radius (nm)", "disjoint patches", "chi² / dof", "p (uniform)", "spread beyond noise"]
+    body = [[r["solute"], str(r["object_id"]), f"{num(r['excess'])} ± {num(r['excess_sigma'], '.2g')}",
+             num(r["map_mean"]), f"{num(r['map_p5'])} to {num(r['map_p95'])}", num(r["target_sigma"], ".2g"),
+             num(r["median_radius"], ".2g"), str(r["n_patches"]),
+             f"{num(r['chi2'], '.3g')} / {r['dof']}" if r["dof"] else "-", num(r["p_value"], ".2g"),
+             num(r["spread"], ".2g")] for r in rows]
+    return ("<h3>Excess maps along the surface</h3><p>Local excess per vertex from a patch around it; p: chi-square "
+            "test of uniform segregation over disjoint patches (below 0.05: the map varies more than counting "
+            "noise).</p>" + _table(header, body))
 
 
 def write_page(path: Path, title: str, sections: list[tuple[str, object]],

@@ -54,6 +54,7 @@ class SurfaceResult:
     proxigram: object = None
     stats: dict = field(default_factory=dict)
     summary: list[dict] = field(default_factory=list)
+    maps: list[dict] = field(default_factory=list)
 
 
 def _counting_errors(mesh, offset_errors) -> list[dict]:
@@ -148,7 +149,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
 
     check_config(config)
     config = check_inputs(config)
-    per_surface = 4 + (config.remesh.method == "cvt")
+    per_surface = 4 + (config.remesh.method == "cvt") + config.analysis.maps
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
@@ -274,6 +275,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                 res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
                 s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
                              f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
+            if config.analysis.maps:
+                with log.step("maps") as s:
+                    res.maps = _maps(res, ions, ranges, solutes, config, stage / f"map_{label}.png")
+                    tested = [m for m in res.maps if m["p_value"] is not None]
+                    s.summary = f"{label}: " + ("; ".join(
+                        f"{m['solute']} on object {m['object_id']}: p = {m['p_value']:.2g}" for m in tested[:4])
+                        or "no map tested")
             res.stats |= {"raw_area_nm2": raw_area, "refine": refine_stats, "remesh": remesh_stats, "faces": mesh.n_faces, "vertices": mesh.n_vertices, "area_nm2": mesh.area(),
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
@@ -288,7 +296,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                          + ", ".join(f"{x['element']} at.%" for x in scene["surfaces"])
                          + f", {len(scene['ion_layers'])} ion layers, legend.png")
         report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,
-                               "mesh": r.stats, "summary": r.summary, "objects": r.objects, "excess": r.excess}
+                               "mesh": r.stats, "summary": r.summary, "objects": r.objects, "excess": r.excess,
+                               "maps": r.maps}
                               for r in results]
         rep.write_json(stage / "excess.json", {r.label: r.excess for r in results})
         if truth is not None:
@@ -303,7 +312,24 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         pictures += [(stage / f"proxigram_{r.label}.png", f"Proxigram across {r.label}, all objects pooled: "
                       "ion (top) and atomic (bottom) concentration against the distance to the surface, "
                       "positive inside; bars are binomial standard errors.") for r in results]
+        pictures += [(stage / f"map_{r.label}.png", f"The most significant excess map on {r.label}: detected atoms "
+                      "per nm² per vertex, seen face-on and from behind (grey: no patch).") for r in results if r.maps]
         pictures.append((stage / "legend.png", "Legend of the MeshLab scene (project.mlp): each surface's colour, "
                          "the composition near it, and the ions drawn per species."))
         rep.write_html(stage / "report.html", report, pictures)
     return report
+
+
+def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: PipelineConfig, picture: Path) -> list[dict]:
+    """Excess maps of ``solutes`` on ``res.mesh``: vertex properties on the mesh (PLY properties
+    ``excess_<El>`` ...), a picture of the most significant one; returns the statistics rows."""
+    from apt_filters.analysis.maps import excess_maps
+
+    if not solutes:
+        return []
+    maps = excess_maps(mesh=res.mesh, ions=ions, ranges=ranges, solutes=solutes, bin_width=config.proxigram.bin,
+                       max_distance=config.proxigram.extent, keep_edge=not config.proxigram.exclude_edge,
+                       relative_error=config.analysis.map_error)
+    res.mesh.vertex_scalars.update(maps.vertex_scalars())
+    maps.plot(picture, res.mesh, maps.most_significant(), overwrite=True)
+    return maps.rows()

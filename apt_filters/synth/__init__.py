@@ -12,6 +12,8 @@ density, efficiency, blur, spectrum) or take a preset, then :func:`generate` it 
 from apt_filters.synth.generate import Specimen, build_truth, generate, iter_ions, summary, write_specimen
 from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.instruments import DETECTION_EFFICIENCY
+from apt_filters.synth.modulation import (MAP_SPECIMENS, FacetModulation, LinearModulation, map_specimen, map_surface,
+                                          true_excess_map)
 from apt_filters.synth.ply import write_ply
 from apt_filters.synth.presets import PRESETS, preset, with_ions
 from apt_filters.synth.shapes import (Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Shape, Sphere, rotation_matrix,
@@ -20,8 +22,9 @@ from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec, compo
 from apt_filters.synth.spectrum import SpectrumModel
 
 __all__ = [
-    "Box", "Capsule", "Cuboid", "CustomShape", "Cylinder", "DETECTION_EFFICIENCY", "Feature", "HalfSpace",
+    "Box", "Capsule", "Cuboid", "CustomShape", "Cylinder", "DETECTION_EFFICIENCY", "FacetModulation", "Feature",
+    "HalfSpace", "LinearModulation", "MAP_SPECIMENS", "map_specimen", "map_surface",
     "PRESETS", "Segregation", "Shape", "Specimen", "SpecimenSpec", "SpectrumModel", "Sphere", "Tip",
     "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix", "shape_from_params",
-    "summary", "with_ions", "write_ply", "write_specimen",
+    "summary", "true_excess_map", "with_ions", "write_ply", "write_specimen",
 ]

@@ -85,6 +85,8 @@ class Specimen:
 
 
 def _jsonable(value):
+    if hasattr(value, "params"):  # a shape or a segregation's modulation
+        return _jsonable(value.params())
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

@@ -64,12 +64,16 @@ class Segregation:
         Gaussian width of the shell in nm.
     offset : float
         Position of the shell centre in signed distance (nm; positive: outside the feature).
+    modulation : callable, optional
+        ``modulation(points (N, 3), shape) -> (N,)`` factors >= 0 on the peak at each atom's true
+        position (:mod:`.modulation`): segregation that varies along the interface.
     """
 
     species: str
     peak: float
     sigma: float
     offset: float = 0.0
+    modulation: object = None
 
     def __post_init__(self) -> None:
         if not (0 < self.peak <= 1 and self.sigma > 0 and math.isfinite(self.offset)):
@@ -169,11 +173,17 @@ class SpecimenSpec:
         return self.density * self.efficiency * self.geometry.volume() / (1 - self.spectrum.noise_fraction)
 
 
-def blend(c: np.ndarray, d: np.ndarray, feature: Feature, target: np.ndarray, species: list[str]) -> None:
-    """Apply ``feature`` in place to compositions c (N, S) at signed distances d (N,)."""
+def blend(c: np.ndarray, d: np.ndarray, feature: Feature, target: np.ndarray, species: list[str],
+          points: np.ndarray | None = None) -> None:
+    """Apply ``feature`` in place to compositions c (N, S) at signed distances d (N,).
+
+    ``points`` (N, 3): where a modulated segregation's factor is evaluated (without them, at 1).
+    """
     c += (0.5 * (1 - np.tanh(d / feature.width)))[:, None] * (target - c)
     for s in feature.segregation:
         g = s.peak * np.exp(-0.5 * ((d - s.offset) / s.sigma) ** 2)
+        if s.modulation is not None and points is not None:
+            g = np.minimum(g * s.modulation(points, feature.shape), 1.0)
         c *= (1 - g)[:, None]
         c[:, species.index(s.species)] += g
 
@@ -201,7 +211,7 @@ def composition_at(spec: SpecimenSpec, points: np.ndarray, upto: int | None = No
         c[idx[d <= -reach]] = target  # deep inside, where blending changes nothing above 1e-12
         near = np.abs(d) < reach
         sub = c[idx[near]]
-        blend(sub, d[near], feature, target, species)
+        blend(sub, d[near], feature, target, species, points[idx[near]])
         c[idx[near]] = sub
     return c
 
