@@ -6,6 +6,7 @@ import subprocess
 import sys
 from html.parser import HTMLParser
 
+import numpy as np
 import pytest
 
 from apt_filters.cli.main import main
@@ -88,7 +89,6 @@ def test_the_excess_the_ions_hold_is_counted_against_the_true_surfaces(small_run
 
 def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
     """A custom shape (a callable SDF) has no parameters to rebuild: no counted excess, and no error."""
-    import numpy as np
 
     from apt_filters.io.ions import IonTable
     from apt_filters.io.ranges import Range, RangeTable
@@ -248,3 +248,10 @@ def test_maps_reach_the_ply_and_the_report(small_run):
         assert name in mesh.vertex_scalars, name
     assert (out / "map_Al15.png").is_file()
     assert "Excess maps along the surface" in (out / "report.html").read_text()
+    # MeshLab shows the map at once: it is the vertex quality, its meaning and range in the header
+    header = (out / "meshes" / "Al15.ply").read_bytes().split(b"end_header")[0].decode()
+    assert "quality = B interfacial excess map, detected atoms/nm2" in header
+    [surface] = report["scene"]["surfaces"]
+    lo, hi = surface["limits"]
+    b = mesh.vertex_scalars["excess_B"]
+    assert lo < np.nanmedian(b) < hi, "the colour range is set from the map's own values"

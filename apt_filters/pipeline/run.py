@@ -55,6 +55,8 @@ class SurfaceResult:
     stats: dict = field(default_factory=dict)
     summary: list[dict] = field(default_factory=list)
     maps: list[dict] = field(default_factory=list)
+    quality: tuple | None = None
+    """(vertex scalar, colour range, meaning) MeshLab shows as quality; None: the scene's local composition."""
 
 
 def _counting_errors(mesh, offset_errors) -> list[dict]:
@@ -288,7 +290,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         with log.step("export") as s:
             scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in results},
                                 species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in results},
-                                ions=ions, ranges=ranges)
+                                ions=ions, ranges=ranges,
+                                quality={r.label: r.quality for r in results if r.quality is not None})
             sample = ions.positions[:: max(1, len(ions) // 20_000)]
             render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
             report["scene"] = scene
@@ -331,5 +334,8 @@ def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: Pipeline
                        max_distance=config.proxigram.extent, keep_edge=not config.proxigram.exclude_edge,
                        relative_error=config.analysis.map_error)
     res.mesh.vertex_scalars.update(maps.vertex_scalars())
-    maps.plot(picture, res.mesh, maps.most_significant(), overwrite=True)
+    shown = maps.most_significant()
+    maps.plot(picture, res.mesh, shown, overwrite=True)
+    res.quality = (f"excess_{shown}", maps.limits(shown),
+                   f"{shown} interfacial excess map, detected atoms/nm2 (analysis.maps; error: excess_{shown}_sigma)")
     return maps.rows()

@@ -6,7 +6,8 @@
   its vertex colour that quality through viridis with the range set from the data (1st-99th
   percentile). The species is the solute whose pooled excess is the most significant (|Γ| over
   its error), else the surface's own species (:func:`scene_species`). Every composition computed
-  is also written as a vertex property ``at_pct_<element>``.
+  is also written as a vertex property ``at_pct_<element>``. A surface given a map in ``quality``
+  (the run's excess map) shows that map as quality instead, with its own range.
 - Surfaces above :data:`LOD_FACES` faces get a decimated copy (fast-simplification, boundary
   loops kept) as ``<label>_lod.ply``, shown when the project opens; the full-resolution mesh
   is the hidden layer beside it.
@@ -140,16 +141,18 @@ def _file_name(ion: str) -> str:
 
 @dataclass
 class SceneSurface:
-    """One surface of the scene: its label, colouring element and colour range (at.%)."""
+    """One surface of the scene: its label, element, the quantity it is coloured by and its range."""
 
     label: str
     element: str
     limits: tuple[float, float]
     files: list[str]
+    quantity: str = ""
 
 
 def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str, str], ions: IonTable,
-                ranges: RangeTable, lod_faces: int = LOD_FACES, view_points: int = VIEW_POINTS) -> dict:
+                ranges: RangeTable, quality: dict[str, tuple] | None = None, lod_faces: int = LOD_FACES,
+                view_points: int = VIEW_POINTS) -> dict:
     """Write the scene into ``folder`` (meshes/, project.mlp, legend.png); returns what it wrote.
 
     Parameters
@@ -161,6 +164,9 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
     species : dict
         Label -> element the surface is coloured by (its local at.%, see :func:`vertex_composition`).
     ions, ranges : IonTable, RangeTable
+    quality : dict, optional
+        Label -> (vertex scalar, (low, high), meaning): a map the surface already carries (the
+        excess map of :mod:`apt_filters.analysis.maps`) shown as quality instead of the local at.%.
     lod_faces : int
         Meshes with more faces get a level of detail (:data:`LOD_FACES`).
     view_points : int
@@ -184,29 +190,35 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         mesh = mesh.copy()
         for e, values in comp.items():
             mesh.vertex_scalars[f"at_pct_{e}"] = values
-        quality = f"at_pct_{element}"
+        shown = f"{element} at.%"
+        quality_name = f"at_pct_{element}"
         values = comp[element][np.isfinite(comp[element])]
         limits = tuple(float(x) for x in np.percentile(values, [1, 99])) if len(values) else (0.0, 100.0)
-        note = [f"quality = {element} at.% among the {NEAREST_IONS} ranged ions nearest each vertex "
-                f"(colour map viridis {limits[0]:.3g} to {limits[1]:.3g} at.%)",
-                *(f"at_pct_{e} = {e} at.% among the same ions" for e in comp)]
-        full = write_ply(mesh, meshes_dir / f"{label}.ply", quality=quality, limits=limits, comments=note,
+        meaning = f"{element} at.% among the {NEAREST_IONS} ranged ions nearest each vertex"
+        if quality and label in quality:
+            quality_name, limits, meaning = quality[label]
+            shown = quality_name.replace("_", " ")
+        note = [f"quality = {meaning} (colour map viridis {limits[0]:.3g} to {limits[1]:.3g})",
+                *(f"at_pct_{e} = {e} at.% among the {NEAREST_IONS} ranged ions nearest each vertex" for e in comp)]
+        full = write_ply(mesh, meshes_dir / f"{label}.ply", quality=quality_name, limits=limits, comments=note,
                          overwrite=True)
         files = [full.name]
         if mesh.n_faces > lod_faces:
             lod = decimate(mesh, 1 - (lod_faces // 5) / mesh.n_faces)
-            lod_path = write_ply(lod, meshes_dir / f"{label}_lod.ply", quality=quality, limits=limits,
+            lod_path = write_ply(lod, meshes_dir / f"{label}_lod.ply", quality=quality_name, limits=limits,
                                  comments=note, overwrite=True)
             layers += [lod_path, full]
-            labels += [f"{label}: {element} at.% ({lod.n_faces:,} faces)",
+            labels += [f"{label}: {shown} ({lod.n_faces:,} faces)",
                        f"{label} full resolution ({mesh.n_faces:,} faces)"]
             visible += [True, False]
             files.append(lod_path.name)
         else:
             layers.append(full)
-            labels.append(f"{label}: {element} at.%")
+            labels.append(f"{label}: {shown}")
             visible.append(True)
-        scene_surfaces.append(SceneSurface(label, element, limits, files))
+        scene_surfaces.append(SceneSurface(label, element, limits, files,
+                                           quantity=f"{shown}\nnear the surface" if shown.endswith("at.%") else
+                                           f"{shown}\n(atoms/nm², map)"))
     counts = _species_counts(ions, ranges)
     quotas = layer_quotas(counts, view_points)
     ion_layers = []
@@ -244,7 +256,7 @@ def _ion_color(ranges: RangeTable, ion: str) -> tuple[int, int, int]:
 
 
 def _legend(path: Path, surfaces: list[SceneSurface], layers: list[dict], colormap_rgba) -> None:
-    """A PNG beside the project: each surface's colour bar (at.%) and each ion layer's colour."""
+    """A PNG beside the project: each surface's colour bar and each ion layer's colour."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -265,7 +277,7 @@ def _legend(path: Path, surfaces: list[SceneSurface], layers: list[dict], colorm
                   extent=(s.limits[0], s.limits[1], 0, 1))
         ax.set_yticks([])
         ax.tick_params(labelsize=8)
-        fig.text(0.02, y - step * 0.6, f"{s.label}: {s.element} at.%\nnear the surface", fontsize=9, va="center")
+        fig.text(0.02, y - step * 0.6, f"{s.label}: {s.quantity}", fontsize=9, va="center")
         y -= step
     for i, layer in enumerate(layers):
         col, row = i % 3, i // 3
