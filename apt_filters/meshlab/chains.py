@@ -26,6 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 import pymeshlab
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_output, atomic_write_bytes, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
@@ -245,7 +246,7 @@ def save_script(ms: pymeshlab.MeshSet, run: ChainRun, script: str | os.PathLike,
     with atomic_output(script, overwrite) as tmp:
         ms.save_filter_script(str(tmp))
     atomic_write_bytes(legacy, meshlab2020_script(script.read_bytes()), overwrite)
-    atomic_write_text(record, json.dumps(run.record(label), indent=1) + "\n", overwrite)
+    atomic_write_text(record, jsontext.dumps(run.record(label), indent=1) + "\n", overwrite)
     return script, record
 
 
