@@ -3,7 +3,7 @@ import pytest
 
 from apt_filters.core import AptFiltersError
 from apt_filters.pipeline import config as cfg
-from apt_filters.pipeline.staging import staged_folder
+from apt_filters.pipeline.staging import MARKER, staged_folder
 from apt_filters.pipeline.steps import StepLog
 
 
@@ -57,13 +57,13 @@ def test_staged_folder_appears_whole_or_not_at_all(tmp_path):
     assert list(tmp_path.iterdir()) == []
     with staged_folder(target) as stage:
         (stage / "report.json").write_text("{}")
-    assert [p.name for p in target.iterdir()] == ["report.json"]
+    assert sorted(p.name for p in target.iterdir()) == [MARKER, "report.json"]
     with pytest.raises(AptFiltersError, match="not empty"):
         with staged_folder(target):
             pass
     with staged_folder(target, force=True) as stage:
         (stage / "new.json").write_text("{}")
-    assert [p.name for p in target.iterdir()] == ["new.json"]
+    assert sorted(p.name for p in target.iterdir()) == [MARKER, "new.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
