@@ -54,27 +54,28 @@ closing, re-orienting and repairs measured 6-15x slower per face than one Taubin
 
 _INT = r"[+-]?\d{1,10}"
 PARAMS: dict[str, dict[str, tuple[str, str]]] = {
-    "meshing_remove_connected_component_by_face_number": {"mincomponentsize": ("int", "[0, 2147483647]"),
-                                                          "removeunref": ("bool", "")},
-    "meshing_remove_connected_component_by_diameter": {"mincomponentdiag": ("float", "[0, 1e12]"),
-                                                       "removeunref": ("bool", "")},
+    "meshing_remove_connected_component_by_face_number": {"MinComponentSize": ("int", "[0, 2147483647]"),
+                                                          "removeUnref": ("bool", "")},
+    "meshing_remove_connected_component_by_diameter": {"MinComponentDiag": ("float", "[0, 1e12]"),
+                                                       "removeUnref": ("bool", "")},
     "meshing_repair_non_manifold_edges": {"method": ("enum", "[0, 1]")},
-    "meshing_repair_non_manifold_vertices": {"vertdispratio": ("float", "[0, 1]")},
-    "meshing_close_holes": {"maxholesize": ("int", "[0, 2147483647]"), "selected": ("bool", ""),
-                            "newfaceselected": ("bool", ""), "selfintersection": ("bool", ""),
-                            "refinehole": ("bool", ""), "refineholeedgelen": ("float", "(0, 1e12]")},
-    "apply_coord_taubin_smoothing": {"lambda_": ("float", "(0, 1]"), "mu": ("float", "[-1, 0)"),
-                                     "stepsmoothnum": ("int", "[0, 1000]"), "selected": ("bool", "")},
+    "meshing_repair_non_manifold_vertices": {"VertDispRatio": ("float", "[0, 1]")},
+    "meshing_close_holes": {"MaxHoleSize": ("int", "[0, 2147483647]"), "Selected": ("bool", ""),
+                            "NewFaceSelected": ("bool", ""), "SelfIntersection": ("bool", ""),
+                            "RefineHole": ("bool", ""), "RefineHoleEdgeLen": ("float", "(0, 1e12]")},
+    "apply_coord_taubin_smoothing": {"lambda": ("float", "(0, 1]"), "mu": ("float", "[-1, 0)"),
+                                     "stepSmoothNum": ("int", "[0, 1000]"), "Selected": ("bool", "")},
     "meshing_decimation_quadric_edge_collapse": {
-        "targetfacenum": ("int", "[0, 2147483647]"), "targetperc": ("float", "[0, 1]"),
-        "qualitythr": ("float", "[0, 1]"), "preserveboundary": ("bool", ""), "boundaryweight": ("float", "[0, 1000]"),
-        "preservenormal": ("bool", ""), "preservetopology": ("bool", ""), "optimalplacement": ("bool", ""),
-        "planarquadric": ("bool", ""), "planarweight": ("float", "[0, 1000]"), "qualityweight": ("bool", ""),
-        "autoclean": ("bool", ""), "selected": ("bool", "")},
+        "TargetFaceNum": ("int", "[0, 2147483647]"), "TargetPerc": ("float", "[0, 1]"),
+        "QualityThr": ("float", "[0, 1]"), "PreserveBoundary": ("bool", ""), "BoundaryWeight": ("float", "[0, 1000]"),
+        "PreserveNormal": ("bool", ""), "PreserveTopology": ("bool", ""), "OptimalPlacement": ("bool", ""),
+        "PlanarQuadric": ("bool", ""), "PlanarWeight": ("float", "[0, 1000]"), "QualityWeight": ("bool", ""),
+        "AutoClean": ("bool", ""), "Selected": ("bool", "")},
 }
-"""Per pymeshlab filter: parameter (pymeshlab name) -> (kind, interval). Filters absent here have no
-parameters. Kinds: ``int`` (decimal digits), ``float`` (finite), ``bool`` (``true``/``false``),
-``enum`` (an index). Intervals as in :func:`apt_filters.core.numbers.within`, ``(``/``)`` open."""
+"""Per pymeshlab filter: parameter (MeshLab's name, as its scripts spell it; MeshLab ignores any other
+spelling) -> (kind, interval). Filters absent here have no parameters. Kinds: ``int`` (decimal
+digits), ``float`` (finite), ``bool`` (``true``/``false``), ``enum`` (an index). Intervals as in
+:func:`apt_filters.core.numbers.within`, ``(``/``)`` open."""
 RICH_TYPES = {"int": {"RichInt"}, "float": {"RichFloat", "RichAbsPerc", "RichDynamicFloat", "RichPercentage"},
               "bool": {"RichBool"}, "enum": {"RichEnum"}}
 """MeshLab's parameter types (the ``type`` attribute) each kind may be written as."""
@@ -146,7 +147,7 @@ def _check_attributes(filter_name: str, param: ET.Element, path) -> None:
 
 
 def _check_param(f_name: str, py_filter: str, param: ET.Element, seen: set, path) -> tuple[str, str]:
-    """Check one ``<Param>``; returns (pymeshlab name, value text)."""
+    """Check one ``<Param>``; returns (its name, value text)."""
     if param.tag != "Param" or "name" not in param.attrib or "value" not in param.attrib:
         raise InputError(f"filter {f_name!r}: malformed parameter <{param.tag}>", path)
     if len(param):
@@ -154,20 +155,21 @@ def _check_param(f_name: str, py_filter: str, param: ET.Element, seen: set, path
     _check_attributes(f_name, param, path)
     name, text = param.get("name"), param.get("value")
     known = PARAMS.get(py_filter, {})
-    py_name = _python_param(name, set(known))
-    if py_name is None:
-        raise InputError(f"filter {f_name!r} has no parameter {name}", path)
-    if py_name in seen:
+    if name not in known:
+        spelt = [k for k in known if k.lower() == name.lower()]
+        hint = f" (MeshLab spells it {spelt[0]})" if spelt else ""
+        raise InputError(f"filter {f_name!r} has no parameter {name}{hint}", path)
+    if name in seen:
         raise InputError(f"filter {f_name!r}: parameter {name} given twice", path)
-    seen.add(py_name)
-    kind, interval = known[py_name]
-    if "type" in param.attrib and param.get("type") not in RICH_TYPES[kind]:
+    seen.add(name)
+    kind, interval = known[name]
+    if param.get("type") not in RICH_TYPES[kind]:
         raise InputError(f"filter {f_name!r}: parameter {name} has type {param.get('type')!r}, "
                          f"expected {' or '.join(sorted(RICH_TYPES[kind]))}", path)
     problem = check_value(kind, interval, text)
     if problem:
         raise InputError(f"filter {f_name!r}: {name}={text!r} {problem}", path)
-    return py_name, text
+    return name, text
 
 
 def parse_script(data: bytes, path: str | os.PathLike | None = None) -> list[ScriptFilter]:
@@ -202,7 +204,7 @@ def parse_script(data: bytes, path: str | os.PathLike | None = None) -> list[Scr
 def _smoothing_steps(f: ScriptFilter) -> int:
     if f.filter != "apply_coord_taubin_smoothing":
         return 0
-    return int(f.params.get("stepsmoothnum", 10))  # MeshLab's default
+    return int(f.params.get("stepSmoothNum", 10))  # MeshLab's default
 
 
 def script_work(filters: list[ScriptFilter], n_faces: int) -> float:
@@ -255,7 +257,7 @@ def check_params(ms: pymeshlab.MeshSet, filters: list[ScriptFilter], path: str |
     whose work on the current mesh exceeds :data:`MAX_WORK`."""
     for f in filters:
         known = set(ms.filter_parameter_values(f.filter))
-        unknown = [p for p in f.params if p not in known]
+        unknown = [p for p in f.params if _python_param(p, known) is None]
         if unknown:
             raise InputError(f"filter {f.mlx_name!r} has no parameter {', '.join(unknown)}", path)
     work = script_work(filters, ms.current_mesh().face_number())
@@ -318,6 +320,7 @@ def replay_file(script: str | os.PathLike, mesh_in: str | os.PathLike, mesh_out:
     refuse_inputs([mesh_out], [mesh_in, script])
     if Path(mesh_out).exists() and not overwrite:
         raise AptFiltersError("exists already; pass overwrite/--force to replace it", mesh_out)
+    read_script(script)  # a bad script is refused before the mesh is read
     ms = load_mesh(mesh_in)
     filters = replay_on_meshset(ms, script, workdir=Path(mesh_out).parent)
     save_current_mesh(ms, mesh_out, overwrite)

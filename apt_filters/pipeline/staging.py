@@ -63,7 +63,7 @@ def check_output_folder(target: str | os.PathLike, inputs: Iterable[str | os.Pat
         raise AptFiltersError("is the current folder or holds it; name a new folder for the output", given)
     if target.exists() and not target.is_dir():
         raise AptFiltersError("exists and is not a folder", given)
-    refuse_inputs([target], inputs)
+    refuse_inputs([given], inputs)
     if target.is_dir() and any(target.iterdir()):
         if not force:
             raise AptFiltersError("output folder is not empty; pass --force to replace it", given)
