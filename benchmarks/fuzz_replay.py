@@ -1,0 +1,144 @@
+"""Fuzz campaign of ``apt-filters replay``: N hostile ``.mlx`` scripts, none may crash, hang or trace back.
+
+Scripts come from the hypothesis strategy ``tests/mlx_scripts.py`` (MeshLab's vocabulary mixed
+with junk, NaN, huge counts, repeats, deep nesting, DTDs, byte damage). Each is replayed on a
+1,280-face sphere by a worker process that imports apt-filters once; a worker killed by a
+signal (MeshLab crashing) is counted, named and replaced. Every ``--cli`` th script also goes
+through the real command line in its own process (exit status 0 or 2, one stderr line, no
+traceback).
+
+    PYTHONPATH=. python benchmarks/fuzz_replay.py --scripts 200 --cli 10
+
+Prints the figures: scripts replayed / refused, exceptions other than AptFiltersError,
+signal deaths, the slowest script (limit 10 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LIMIT_S = 10.0
+
+WORKER = r"""
+import json, sys, time, traceback
+from apt_filters.core.errors import AptFiltersError
+from apt_filters.meshlab.mlx import replay_file
+mesh, out = sys.argv[1], sys.argv[2]
+for line in sys.stdin:
+    script = line.strip()
+    print(json.dumps({"start": script}), flush=True)
+    t = time.perf_counter()
+    try:
+        replay_file(script, mesh, out, overwrite=True)
+        result = {"ok": True}
+    except AptFiltersError as exc:
+        result = {"refused": str(exc).split(": ", 1)[-1][:60], "multiline": "\n" in str(exc), "chars": len(str(exc))}
+    except Exception:
+        result = {"exception": traceback.format_exc(limit=3)}
+    result.update(script=script, seconds=time.perf_counter() - t)
+    print(json.dumps(result), flush=True)
+"""
+
+
+def generate(n: int, folder: Path) -> list[Path]:
+    """Write ``n`` scripts drawn from the strategy (a fixed seed: the same campaign every time)."""
+    from hypothesis import Phase, given, seed, settings
+
+    sys.path.insert(0, str(ROOT))
+    from tests.mlx_scripts import scripts
+
+    paths: list[Path] = []
+
+    @seed(20261204)
+    @settings(max_examples=n, phases=[Phase.generate], database=None, deadline=None, suppress_health_check=list(
+        __import__("hypothesis").HealthCheck))
+    @given(scripts())
+    def draw(data: bytes) -> None:
+        path = folder / f"s{len(paths):04d}.mlx"
+        path.write_bytes(data)
+        paths.append(path)
+
+    draw()
+    return paths
+
+
+def campaign(paths: list[Path], mesh: Path, out: Path) -> list[dict]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    results: list[dict] = []
+    pending = list(paths)
+    while pending:
+        worker = subprocess.Popen([sys.executable, "-c", WORKER, str(mesh), str(out)], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, text=True, env=env)
+        worker.stdin.write("".join(f"{p}\n" for p in pending))
+        worker.stdin.close()
+        started = None
+        for line in worker.stdout:
+            record = json.loads(line)
+            if "start" in record:
+                started = record["start"]
+                continue
+            results.append(record)
+            pending.remove(Path(record["script"]))
+            started = None
+        worker.wait()
+        if started is not None:  # died inside a script
+            results.append({"script": started, "signal": -worker.returncode, "seconds": None})
+            pending.remove(Path(started))
+    return results
+
+
+def through_cli(paths: list[Path], mesh: Path, out: Path) -> Counter:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    tally: Counter = Counter()
+    for path in paths:
+        proc = subprocess.run([sys.executable, "-m", "apt_filters", "replay", str(path), str(mesh), "-o", str(out),
+                               "--force"], capture_output=True, text=True, env=env, timeout=120)
+        good = proc.returncode in (0, 2) and "Traceback" not in proc.stderr and proc.stderr.count("\n") <= 1
+        tally["cli ok" if good else f"cli BAD exit {proc.returncode}: {proc.stderr[-200:]}"] += 1
+    return tally
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scripts", type=int, default=200)
+    parser.add_argument("--cli", type=int, default=10, help="every N-th script also through the command line")
+    args = parser.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from apt_filters.meshlab.exports import write_ply
+    from tests.meshlab_shapes import sphere
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        mesh = folder / "in.ply"
+        write_ply(sphere(5.0, subdiv=3), mesh)
+        start = time.perf_counter()
+        paths = generate(args.scripts, folder)
+        results = campaign(paths, mesh, folder / "out.ply")
+        cli = through_cli(paths[:: args.cli], mesh, folder / "cli.ply") if args.cli else Counter()
+        sizes = [p.stat().st_size for p in paths]
+    timed = [r["seconds"] for r in results if r["seconds"] is not None]
+    reasons = Counter(r["refused"].split(":")[-1].split("=")[-1].strip()[:36] for r in results if "refused" in r)
+    print(f"{len(results)} scripts ({min(sizes)}-{max(sizes)} bytes) in {time.perf_counter() - start:.0f} s: "
+          f"{sum('ok' in r for r in results)} replayed, {sum('refused' in r for r in results)} refused, "
+          f"{sum('exception' in r for r in results)} other exceptions, {sum('signal' in r for r in results)} "
+          f"signal deaths, {sum(s > LIMIT_S for s in timed)} over {LIMIT_S:g} s (slowest {max(timed):.2f} s), "
+          f"{sum(r.get('multiline', False) or r.get('chars', 0) > 2500 for r in results)} unreadable messages")
+    print("refusals:", ", ".join(f"{k.strip()} {n}" for k, n in reasons.most_common(12)))
+    for r in results:
+        if "exception" in r or "signal" in r:
+            print("FAILURE", r)
+    for k, n in cli.items():
+        print(f"{k}: {n}")
+
+
+if __name__ == "__main__":
+    main()
