@@ -279,6 +279,16 @@ def test_the_memory_budget_counts_far_away_ions_without_wrapping(far):
         check_budget(Grid.covering(np.zeros(3), np.full(3, 3e38), 0.01, margin=4), 3, 1 << 30)
 
 
+def test_the_voxel_api_refuses_absurd_sizes_without_overflow():
+    """Was: ``voxel=1e300`` raised OverflowError in voxel/transfer.py."""
+    from apt_filters.voxel.transfer import second_pass_sigma
+
+    with pytest.raises(AptFiltersError, match="must exceed half the voxel"):
+        second_pass_sigma(1e300, (3.0, 3.0, 1.5))
+    with pytest.raises(AptFiltersError, match="too many voxels"):
+        Grid.covering(np.zeros(3), np.full(3, 100.0), 1e-310)
+
+
 # ---- what is written ------------------------------------------------------------------------------------------
 
 def test_json_is_strict_with_the_reason_beside_each_null(tmp_path):
