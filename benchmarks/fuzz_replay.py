@@ -28,6 +28,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 LIMIT_S = 10.0
 
+REASONS = ("larger than", "not UTF-8", "DTD", "processing instruction", "malformed filter script",
+           "not a MeshLab filter script", "replays at most", "unknown filter", "nested elements", "attribute",
+           "has no parameter", "given twice", "has type", "not a whole number", "not a number", "not true or false",
+           "is outside", "face visits")
+"""Kinds of refusal, as the messages of apt_filters.meshlab.mlx word them (first match counts)."""
+
 WORKER = r"""
 import json, sys, time, traceback
 from apt_filters.core.errors import AptFiltersError
@@ -41,7 +47,7 @@ for line in sys.stdin:
         replay_file(script, mesh, out, overwrite=True)
         result = {"ok": True}
     except AptFiltersError as exc:
-        result = {"refused": str(exc).split(": ", 1)[-1][:60], "multiline": "\n" in str(exc), "chars": len(str(exc))}
+        result = {"refused": str(exc), "multiline": "\n" in str(exc), "chars": len(str(exc))}
     except Exception:
         result = {"exception": traceback.format_exc(limit=3)}
     result.update(script=script, seconds=time.perf_counter() - t)
@@ -49,26 +55,40 @@ for line in sys.stdin:
 """
 
 
-def generate(n: int, folder: Path) -> list[Path]:
-    """Write ``n`` scripts drawn from the strategy (a fixed seed: the same campaign every time)."""
-    from hypothesis import Phase, given, seed, settings
+BATCH = 50
+"""Scripts drawn per generating process (hypothesis' memory grows with the examples of one run)."""
+
+
+def generate(n: int, folder: Path, first: int = 0) -> list[Path]:
+    """Write ``n`` scripts drawn from the strategy as ``folder/sNNNN.mlx`` from number ``first``
+    (the seed follows ``first``: the same campaign every time)."""
+    from hypothesis import HealthCheck, Phase, given, seed, settings
 
     sys.path.insert(0, str(ROOT))
     from tests.mlx_scripts import scripts
 
     paths: list[Path] = []
 
-    @seed(20261204)
-    @settings(max_examples=n, phases=[Phase.generate], database=None, deadline=None, suppress_health_check=list(
-        __import__("hypothesis").HealthCheck))
+    @seed(20261204 + first)
+    @settings(max_examples=n, phases=[Phase.generate], database=None, deadline=None,
+              suppress_health_check=list(HealthCheck))
     @given(scripts())
     def draw(data: bytes) -> None:
-        path = folder / f"s{len(paths):04d}.mlx"
+        path = folder / f"s{first + len(paths):04d}.mlx"
         path.write_bytes(data)
         paths.append(path)
 
     draw()
     return paths
+
+
+def generate_in_batches(n: int, folder: Path) -> list[Path]:
+    """:func:`generate` in processes of :data:`BATCH` scripts each."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for first in range(0, n, BATCH):
+        subprocess.run([sys.executable, __file__, "--generate", str(folder), str(first), str(min(BATCH, n - first))],
+                       check=True, env=env)
+    return sorted(folder.glob("s*.mlx"))
 
 
 def campaign(paths: list[Path], mesh: Path, out: Path) -> list[dict]:
@@ -111,7 +131,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scripts", type=int, default=200)
     parser.add_argument("--cli", type=int, default=10, help="every N-th script also through the command line")
+    parser.add_argument("--generate", nargs=3, metavar=("FOLDER", "FIRST", "N"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.generate:
+        generate(int(args.generate[2]), Path(args.generate[0]), int(args.generate[1]))
+        return
     sys.path.insert(0, str(ROOT))
     from apt_filters.meshlab.exports import write_ply
     from tests.meshlab_shapes import sphere
@@ -121,18 +145,18 @@ def main() -> None:
         mesh = folder / "in.ply"
         write_ply(sphere(5.0, subdiv=3), mesh)
         start = time.perf_counter()
-        paths = generate(args.scripts, folder)
+        paths = generate_in_batches(args.scripts, folder)
         results = campaign(paths, mesh, folder / "out.ply")
         cli = through_cli(paths[:: args.cli], mesh, folder / "cli.ply") if args.cli else Counter()
         sizes = [p.stat().st_size for p in paths]
     timed = [r["seconds"] for r in results if r["seconds"] is not None]
-    reasons = Counter(r["refused"].split(":")[-1].split("=")[-1].strip()[:36] for r in results if "refused" in r)
+    reasons = Counter(next((k for k in REASONS if k in r["refused"]), "other") for r in results if "refused" in r)
     print(f"{len(results)} scripts ({min(sizes)}-{max(sizes)} bytes) in {time.perf_counter() - start:.0f} s: "
           f"{sum('ok' in r for r in results)} replayed, {sum('refused' in r for r in results)} refused, "
           f"{sum('exception' in r for r in results)} other exceptions, {sum('signal' in r for r in results)} "
           f"signal deaths, {sum(s > LIMIT_S for s in timed)} over {LIMIT_S:g} s (slowest {max(timed):.2f} s), "
           f"{sum(r.get('multiline', False) or r.get('chars', 0) > 2500 for r in results)} unreadable messages")
-    print("refusals:", ", ".join(f"{k.strip()} {n}" for k, n in reasons.most_common(12)))
+    print("refusals:", ", ".join(f"{k} {n}" for k, n in reasons.most_common()))
     for r in results:
         if "exception" in r or "signal" in r:
             print("FAILURE", r)
