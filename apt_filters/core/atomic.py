@@ -103,7 +103,8 @@ def refuse_inputs(outputs: Iterable[str | os.PathLike], inputs: Iterable[str | o
             if path == target:
                 raise AptFiltersError(f"would overwrite the input {given}; choose another output", out)
             if target in path.parents:
-                raise AptFiltersError(f"holds the input {given}, which replacing it would delete; choose another output", out)
+                raise AptFiltersError(f"holds the input {given}, which replacing it would delete; "
+                                      "choose another output", out)
             if path in target.parents:
                 raise AptFiltersError(f"lies inside the input {given}; choose another output", out)
 

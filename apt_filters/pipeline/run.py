@@ -6,8 +6,8 @@ exports (PLY, ion cloud, MeshLab project) -> report.json / report.html / config.
 
 Everything is written into a staging folder that replaces the output folder only when
 the run succeeds, and the output folder is checked before any work (:mod:`.staging`). The
-memory the voxel grid may need is checked right after reading, before the audit. Runs are deterministic: the same configuration gives
-the same numbers and meshes.
+memory the voxel grid may need is checked right after reading, before the audit. Runs are
+deterministic: the same configuration gives the same numbers and meshes.
 """
 
 from __future__ import annotations
