@@ -113,6 +113,13 @@ def test_a_configuration_file_inside_the_output_folder_is_an_input(tmp_path, cap
     assert "holds the input" in _one_line(capsys.readouterr().err)
 
 
+def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path):
+    (tmp_path / "file.txt").write_text("x")
+    with pytest.raises(AptFiltersError, match="cannot create the output folder"):
+        with staged_folder(tmp_path / "file.txt" / "out"):
+            pass
+
+
 def test_output_folders_get_ordinary_permissions(tmp_path):
     """Was: output folders were created mode 0700 (tempfile.mkdtemp)."""
     umask = os.umask(0o022)

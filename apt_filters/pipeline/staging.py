@@ -134,9 +134,12 @@ def staged_folder(target: str | os.PathLike, force: bool = False,
     """
     inputs = list(inputs)
     target = check_output_folder(target, inputs, force)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tidy(target.parent)
-    claim = claim_folder(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tidy(target.parent)
+        claim = claim_folder(target)
+    except OSError as exc:
+        raise AptFiltersError(f"cannot create the output folder: {exc.strerror}", target) from None
     try:
         stage = claim / "out"
         stage.mkdir()
