@@ -28,24 +28,11 @@ values = st.one_of(
     st.floats(0, 1).map(lambda v: f"{v:.6g}"),
     TEXT,
 )
-names = st.one_of(st.sampled_from(PARAM_NAMES), st.sampled_from(PARAM_NAMES).map(str.lower), TEXT)
 
 
 def rarely(draw, one_in: int) -> bool:
     """True about once in ``one_in`` draws (hypothesis' integers lean to their bounds)."""
     return draw(st.sampled_from(range(one_in))) == one_in - 1
-
-
-@st.composite
-def params(draw) -> str:
-    attrs = {"name": draw(names), "value": draw(values)}
-    if not rarely(draw, 10):  # MeshLab always writes the type; leave it out now and then
-        attrs["type"] = draw(st.sampled_from(TYPES))
-    if rarely(draw, 10):
-        attrs[draw(st.sampled_from(["min", "max", "enum_cardinality", "tooltip", "x", "val0"]))] = draw(values)
-    text = " ".join(f"{k}={quoteattr(v)}" for k, v in attrs.items() if "\x00" not in v)
-    depth = draw(st.sampled_from([0] * 12 + [1, 3, 60_000]))
-    return f"  <Param {text}>" + "<a>" * depth + "</a>" * depth + "</Param>\n"
 
 
 def _valid_value(kind: str, interval: str):
@@ -59,33 +46,42 @@ def _valid_value(kind: str, interval: str):
 
 
 @st.composite
-def valid_params(draw, filter_name: str) -> str:
-    """A parameter MeshLab writes for this filter, with a value inside its interval."""
-    known = PARAMS[MLX_NAMES[filter_name]]
-    name = draw(st.sampled_from(sorted(known)))
-    kind, interval = known[name]
-    value = draw(_valid_value(kind, interval))
-    return f'  <Param name="{name}" value="{value}" type="{sorted(RICH_TYPES[kind])[0]}"/>\n'
+def params(draw, known: dict, valid: bool) -> str:
+    """A ``<Param>`` of a filter whose parameters are ``known`` (MeshLab name -> (kind, interval)):
+    a valid one, or one with a hostile name, value, type, attribute or nesting."""
+    own = sorted(known)
+    how = "own" if valid else draw(st.sampled_from(["own"] * 6 + ["lower", "other", "junk"]))
+    name = draw(st.sampled_from(own)) if own and how in ("own", "lower") else \
+        draw(st.sampled_from(PARAM_NAMES) if how == "other" else TEXT)
+    kind, interval = known.get(name, ("float", "[0, 1]"))
+    name = name.lower() if how == "lower" else name
+    good = valid or draw(st.booleans())
+    attrs = {"name": name, "value": draw(_valid_value(kind, interval) if good else values)}
+    if valid or not rarely(draw, 10):  # MeshLab always writes the type; leave it out now and then
+        attrs["type"] = sorted(RICH_TYPES[kind])[0] if valid or not rarely(draw, 8) else draw(st.sampled_from(TYPES))
+    if not valid and rarely(draw, 10):
+        attrs[draw(st.sampled_from(["min", "max", "enum_cardinality", "tooltip", "x", "val0"]))] = draw(values)
+    text = " ".join(f"{k}={quoteattr(v)}" for k, v in attrs.items() if "\x00" not in v)
+    depth = 0 if valid else draw(st.sampled_from([0] * 12 + [1, 3, 60_000]))
+    return f"  <Param {text}>" + "<a>" * depth + "</a>" * depth + "</Param>\n"
 
 
 @st.composite
 def filters(draw) -> str:
-    name = draw(st.one_of(st.sampled_from(sorted(MLX_NAMES)), TEXT))
-    if name in MLX_NAMES and draw(st.booleans()):  # half the allowed filters get only valid parameters
-        if not PARAMS.get(MLX_NAMES[name]):
-            return f" <filter name={quoteattr(name)}/>\n"
-        return f" <filter name={quoteattr(name)}>\n" + "".join(draw(st.lists(valid_params(name), max_size=4,
-                                                               unique_by=lambda line: line.split('"')[1]))) \
-            + " </filter>\n"
-    body = draw(st.lists(params(), max_size=5))
-    if body and rarely(draw, 6):
+    """One ``<filter>``: an allowed one (nine in ten) with valid parameters (half of them) or hostile ones."""
+    name = draw(TEXT) if rarely(draw, 10) else draw(st.sampled_from(sorted(MLX_NAMES)))
+    known = PARAMS.get(MLX_NAMES.get(name, ""), {})
+    valid = draw(st.booleans())
+    body = draw(st.lists(params(known, valid), max_size=4 if known or not valid else 0,
+                         unique_by=(lambda line: line.split('"')[1]) if valid else None))
+    if body and not valid and rarely(draw, 6):
         body.append(body[0])  # a parameter given twice
     return f" <filter name={quoteattr(name)}>\n" + "".join(body) + " </filter>\n"
 
 
 @st.composite
 def scripts(draw) -> bytes:
-    """One ``.mlx`` script as bytes (at most ~1.1 MiB)."""
+    """One ``.mlx`` script as bytes (a long run of one filter may pass the 1 MiB limit)."""
     body = draw(st.lists(filters(), max_size=6))
     if body and rarely(draw, 10):
         body = body[:1] * draw(st.integers(50, 3000))  # a long run of one filter
