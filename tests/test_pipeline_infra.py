@@ -23,7 +23,10 @@ def test_config_with_non_bmp_paths_and_quotes_round_trips(tmp_path):
     c.proxigram.solutes = ["B", "Cr"]
     path = tmp_path / "c.toml"
     path.write_text(c.to_toml(), encoding="utf-8")
-    assert cfg.load(path) == c
+    loaded = cfg.load(path)  # relative input paths are relative to the configuration file's folder
+    assert (loaded.input.ions, loaded.input.ranges) == (str(tmp_path / c.input.ions), str(tmp_path / c.input.ranges))
+    loaded.input.ions, loaded.input.ranges = c.input.ions, c.input.ranges
+    assert loaded == c
 
 
 @pytest.mark.parametrize("text, problem", [
