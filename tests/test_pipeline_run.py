@@ -129,11 +129,15 @@ def test_rerun_with_saved_config_is_identical(small_run, tmp_path, monkeypatch):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
 
 
-def test_existing_output_needs_force(small_run, capsys):
+def test_existing_output_needs_force(small_run, tmp_path, capsys):
     out, _, _ = small_run
-    cfg_file = str(out / "config.toml")
-    assert main(["run", "--config", cfg_file, "--out", str(out), "--quiet"]) == 2
+    cfg_file = tmp_path / "config.toml"
+    cfg_file.write_bytes((out / "config.toml").read_bytes())
+    assert main(["run", "--config", str(cfg_file), "--out", str(out), "--quiet"]) == 2
     assert "not empty" in capsys.readouterr().err
+    # the configuration inside the folder is an input of the run: even --force does not replace it
+    assert main(["run", "--config", str(out / "config.toml"), "--out", str(out), "--quiet", "--force"]) == 2
+    assert "holds the input" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, problem", [
