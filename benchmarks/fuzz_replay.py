@@ -9,8 +9,8 @@ traceback).
 
     PYTHONPATH=. python benchmarks/fuzz_replay.py --scripts 200 --cli 10
 
-Prints the figures: scripts replayed / refused, exceptions other than AptFiltersError,
-signal deaths, the slowest script (limit 10 s).
+Writes the figures to benchmarks/results_fuzz_replay.md (summary block first): scripts replayed /
+refused, exceptions other than AptFiltersError, signal deaths, the slowest script (limit 10 s).
 """
 
 from __future__ import annotations
@@ -149,20 +149,43 @@ def main() -> None:
         results = campaign(paths, mesh, folder / "out.ply")
         cli = through_cli(paths[:: args.cli], mesh, folder / "cli.ply") if args.cli else Counter()
         sizes = [p.stat().st_size for p in paths]
+    elapsed = time.perf_counter() - start
     timed = [r["seconds"] for r in results if r["seconds"] is not None]
+    broken = [r for r in results if "exception" in r or "signal" in r or r.get("multiline")
+              or r.get("chars", 0) > 2500 or (r["seconds"] or 0) > LIMIT_S]
+    broken_cli = sum(n for k, n in cli.items() if k != "cli ok")
     reasons = Counter(next((k for k in REASONS if k in r["refused"]), "other") for r in results if "refused" in r)
-    print(f"{len(results)} scripts ({min(sizes)}-{max(sizes)} bytes) in {time.perf_counter() - start:.0f} s: "
-          f"{sum('ok' in r for r in results)} replayed, {sum('refused' in r for r in results)} refused, "
-          f"{sum('exception' in r for r in results)} other exceptions, {sum('signal' in r for r in results)} "
-          f"signal deaths, {sum(s > LIMIT_S for s in timed)} over {LIMIT_S:g} s (slowest {max(timed):.2f} s), "
-          f"{sum(r.get('multiline', False) or r.get('chars', 0) > 2500 for r in results)} unreadable messages")
-    print("refusals:", ", ".join(f"{k} {n}" for k, n in reasons.most_common()))
-    for r in results:
-        if "exception" in r or "signal" in r:
-            print("FAILURE", r)
-    for k, n in cli.items():
-        print(f"{k}: {n}")
+    text = f"""# benchmarks/fuzz_replay.py results
 
+<!-- summary -->
+| step | measure | ours | peer | ours / peer |
+|---|---|---:|---:|---:|
+| meshlab | fuzz: {len(results):,} generated .mlx scripts replayed (target: no traceback, no signal death, none over \
+{LIMIT_S:g} s) | {len(broken) + broken_cli} broken, slowest {max(timed):.2f} s | - | - |
+<!-- /summary -->
+
+## Fuzz campaign: {len(results):,} generated `.mlx` scripts through `replay_file`
+
+Scripts from tests/mlx_scripts.py ({min(sizes):,}-{max(sizes):,} bytes; fixed seeds), replayed on a 1,280-face
+sphere by a worker process; {elapsed:.0f} s in all on a shared 2-core machine.
+
+| outcome | scripts |
+|---|---:|
+| replayed | {sum("ok" in r for r in results)} |
+| refused in one line | {sum("refused" in r for r in results)} |
+| exception other than AptFiltersError | {sum("exception" in r for r in results)} |
+| worker killed by a signal | {sum("signal" in r for r in results)} |
+
+- refusals by kind: {", ".join(f"{k} {n}" for k, n in reasons.most_common())}
+- slowest script: {max(timed):.2f} s; limit {LIMIT_S:g} s
+- through the command line in a fresh process (every {args.cli}th script): \
+{", ".join(f"{n} {k}" for k, n in cli.items()) or "none"}
+- broken promises (traceback, several error lines, signal death, over {LIMIT_S:g} s): {len(broken) + broken_cli}
+"""
+    (ROOT / "benchmarks" / "results_fuzz_replay.md").write_text(text)
+    print(text)
+    for r in broken:
+        print("FAILURE", r)
 
 if __name__ == "__main__":
     main()
