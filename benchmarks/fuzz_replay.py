@@ -155,16 +155,11 @@ def main() -> None:
               or r.get("chars", 0) > 2500 or (r["seconds"] or 0) > LIMIT_S]
     broken_cli = sum(n for k, n in cli.items() if k != "cli ok")
     reasons = Counter(next((k for k in REASONS if k in r["refused"]), "other") for r in results if "refused" in r)
-    text = f"""# benchmarks/fuzz_replay.py results
+    from benchmarks.results import write_results
 
-<!-- summary -->
-| step | measure | ours | peer | ours / peer |
-|---|---|---:|---:|---:|
-| meshlab | fuzz: {len(results):,} generated .mlx scripts replayed (target: no traceback, no signal death, none over \
-{LIMIT_S:g} s) | {len(broken) + broken_cli} broken, slowest {max(timed):.2f} s | - | - |
-<!-- /summary -->
-
-## Fuzz campaign: {len(results):,} generated `.mlx` scripts through `replay_file`
+    row = ("meshlab", f"fuzz: {len(results):,} generated .mlx scripts replayed (target: no traceback, no signal "
+           f"death, none over {LIMIT_S:g} s)", f"{len(broken) + broken_cli} broken, slowest {max(timed):.2f} s", "-", "-")
+    section = f"""## Fuzz campaign: {len(results):,} generated `.mlx` scripts through `replay_file`
 
 Scripts from tests/mlx_scripts.py ({min(sizes):,}-{max(sizes):,} bytes; fixed seeds), replayed on a 1,280-face
 sphere by a worker process; {elapsed:.0f} s in all on a shared 2-core machine.
@@ -182,8 +177,7 @@ sphere by a worker process; {elapsed:.0f} s in all on a shared 2-core machine.
 {", ".join(f"{n} {k}" for k, n in cli.items()) or "none"}
 - broken promises (traceback, several error lines, signal death, over {LIMIT_S:g} s): {len(broken) + broken_cli}
 """
-    (ROOT / "benchmarks" / "results_fuzz_replay.md").write_text(text)
-    print(text)
+    print(write_results("fuzz_replay", "benchmarks/fuzz_replay.py results", [row], [section]).read_text())
     for r in broken:
         print("FAILURE", r)
 
