@@ -44,7 +44,6 @@ def test_run_writes_every_output(small_run):
     assert not list(out.parent.glob(".*")), "no staging or claim folder left behind"
     text = (out / "report.json").read_text()
     assert "apt-filters-run" not in text and "apt-filters-tmp" not in text, "no path of the vanished staging folder"
-    assert json.loads(text)["ion_cloud"]["path"] == "meshes/ions.ply"
 
 
 def test_report_numbers_against_the_truth(small_run):

@@ -104,11 +104,12 @@ def test_force_replaces_only_a_folder_apt_filters_wrote(data, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "thesis"]
 
 
-def test_a_configuration_file_inside_the_output_folder_is_an_input(tmp_path, capsys):
+def test_a_configuration_file_inside_the_output_folder_is_an_input(data, tmp_path, capsys):
     folder = tmp_path / "out"
     with staged_folder(folder) as stage:
-        (stage / "config.toml").write_text('[input]\nions = "a.pos"\nranges = "a.rrng"\n[[surface]]\n'
-                                           'species = "Al"\niso = 0.1\n')
+        (stage / "config.toml").write_text(f'[input]\nions = "{data / "specimen.pos"}"\n'
+                                           f'ranges = "{data / "specimen.rrng"}"\n[[surface]]\nspecies = "Al"\n'
+                                           'iso = 0.1\n')
     assert main(["run", "--config", str(folder / "config.toml"), "-o", str(folder), "--force", "-q"]) == 2
     assert "holds the input" in _one_line(capsys.readouterr().err)
 
@@ -252,6 +253,9 @@ def test_configuration_files_are_held_to_the_same_limits(tmp_path):
         cfg.load(path)
     path.write_text('[voxel]\ndelocalization = ["a", 1, 2]\n')
     with pytest.raises(AptFiltersError, match="list of float"):
+        cfg.load(path)
+    path.write_text('[voxel]\nsize = 4.0\n')  # the default 1.5 nm depth delocalization is below half of it
+    with pytest.raises(AptFiltersError, match="must exceed half the voxel"):
         cfg.load(path)
     path.write_text('[proxigram]\nbin = 1e-6\nextent = 1000\n')
     with pytest.raises(AptFiltersError, match="bins"):

@@ -245,18 +245,18 @@ def _check_limit(section: str, key: str, value, source: str | None) -> None:
 
 
 def check(config: PipelineConfig, source: str | None = None) -> None:
-    """Checks that involve several keys (each key alone passed :data:`LIMITS` in :func:`from_dict`)."""
-    from apt_filters.voxel.transfer import second_pass_sigma
+    """Checks that involve several keys (each key alone passed :data:`LIMITS` in :func:`from_dict`).
 
+    Imports nothing heavy: a mistake is reported before numba or scipy load.
+    """
     v = config.voxel
     if len(v.delocalization) != 3:
         raise AptFiltersError(f"[voxel] delocalization must be three numbers (x, y, z nm), got {v.delocalization}",
                               source)
-    if v.kernel == "gaussian":
-        try:
-            second_pass_sigma(v.size, v.delocalization)
-        except AptFiltersError as exc:
-            raise AptFiltersError(str(exc), source) from None
+    # the gaussian's second pass needs (deloc / 3)² > (voxel / 6)² (voxel.transfer.second_pass_sigma)
+    if v.kernel == "gaussian" and any(d <= v.size / 2 for d in v.delocalization):
+        raise AptFiltersError(f"gaussian delocalization {v.delocalization} nm must exceed half the voxel "
+                              f"({v.size / 2:g} nm) on every axis", source)
     if len(config.refine.blur) not in (0, 2):
         raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)", source)
     for s in config.surface:
