@@ -15,13 +15,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from apt_filters.core.atomic import atomic_write_text
+from apt_filters.core.atomic import atomic_write_text, remove, scratch_path, signals_held
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io import read_ions
@@ -127,10 +126,18 @@ def load_ions(config: PipelineConfig, ranges, summary, scratch: Path):
 
 @contextlib.contextmanager
 def scratch_folder(out: str | Path):
-    """A temporary folder beside the output folder (same file system), removed afterwards."""
-    parent = Path(out).resolve().parent
-    with tempfile.TemporaryDirectory(dir=parent, prefix=".apt-filters-scratch-") as tmp:
-        yield Path(tmp)
+    """A temporary folder beside the output folder (same file system), removed afterwards.
+
+    Named after this process (:func:`~apt_filters.core.atomic.scratch_path`), so that a run
+    killed outright leaves a folder the next run there removes (:func:`~apt_filters.core.atomic.tidy`).
+    """
+    folder = scratch_path(Path(out).resolve())
+    folder.mkdir()
+    try:
+        yield folder
+    finally:
+        with signals_held():
+            remove(folder)
 
 
 def _absolute_inputs(config: PipelineConfig) -> PipelineConfig:
