@@ -33,8 +33,10 @@ def test_cli_prints_text_and_json(readers, capsys):
 
 
 def test_cli_rejects_bad_resolution(readers, capsys):
-    assert main(["audit", "spec.pos", "-r", "spec.rrng", "--resolution", "0"]) == 2
-    assert "resolution must be positive" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # refused by the parser, before any file is read
+        main(["audit", "spec.pos", "-r", "spec.rrng", "--resolution", "0"])
+    assert exit_.value.code == 2
+    assert "argument --resolution: 0 is outside [1, 1e6]" in capsys.readouterr().err
 
 
 def test_cli_on_the_real_si_data(real_si, capsys):

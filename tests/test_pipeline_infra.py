@@ -3,7 +3,7 @@ import pytest
 
 from apt_filters.core import AptFiltersError
 from apt_filters.pipeline import config as cfg
-from apt_filters.pipeline.staging import staged_folder
+from apt_filters.pipeline.staging import MARKER, staged_folder
 from apt_filters.pipeline.steps import StepLog
 
 
@@ -23,7 +23,10 @@ def test_config_with_non_bmp_paths_and_quotes_round_trips(tmp_path):
     c.proxigram.solutes = ["B", "Cr"]
     path = tmp_path / "c.toml"
     path.write_text(c.to_toml(), encoding="utf-8")
-    assert cfg.load(path) == c
+    loaded = cfg.load(path)  # relative input paths are relative to the configuration file's folder
+    assert (loaded.input.ions, loaded.input.ranges) == (str(tmp_path / c.input.ions), str(tmp_path / c.input.ranges))
+    loaded.input.ions, loaded.input.ranges = c.input.ions, c.input.ranges
+    assert loaded == c
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -57,13 +60,13 @@ def test_staged_folder_appears_whole_or_not_at_all(tmp_path):
     assert list(tmp_path.iterdir()) == []
     with staged_folder(target) as stage:
         (stage / "report.json").write_text("{}")
-    assert [p.name for p in target.iterdir()] == ["report.json"]
+    assert sorted(p.name for p in target.iterdir()) == [MARKER, "report.json"]
     with pytest.raises(AptFiltersError, match="not empty"):
         with staged_folder(target):
             pass
     with staged_folder(target, force=True) as stage:
         (stage / "new.json").write_text("{}")
-    assert [p.name for p in target.iterdir()] == ["new.json"]
+    assert sorted(p.name for p in target.iterdir()) == [MARKER, "new.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 

@@ -5,6 +5,7 @@ import shutil
 import subprocess
 import sys
 from html.parser import HTMLParser
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,7 +41,9 @@ def test_run_writes_every_output(small_run):
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     assert json.loads((out / "report.json").read_text())["ions"]["count"] == report["ions"]["count"]
-    assert not list(out.parent.glob(".*tmp*")), "no staging folder left behind"
+    assert not list(out.parent.glob(".*")), "no staging or claim folder left behind"
+    text = (out / "report.json").read_text()
+    assert "apt-filters-run" not in text and "apt-filters-tmp" not in text, "no path of the vanished staging folder"
 
 
 def test_report_numbers_against_the_truth(small_run):
@@ -111,8 +114,10 @@ def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
     assert counted == {(1, "B"): pytest.approx(shell / 100.0)}
 
 
-def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
+def test_rerun_with_saved_config_is_identical(small_run, tmp_path, monkeypatch):
     out, report, _ = small_run
+    monkeypatch.chdir(tmp_path)  # config.toml holds absolute input paths: it works from anywhere
+    assert Path(cfg.load(out / "config.toml").input.ions).is_absolute()
     again = tmp_path / "again"
     assert main(["run", "--config", str(out / "config.toml"), "--out", str(again), "--quiet"]) == 0
     second = json.loads((again / "report.json").read_text())
@@ -123,17 +128,22 @@ def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
 
 
-def test_existing_output_needs_force(small_run, capsys):
+def test_existing_output_needs_force(small_run, tmp_path, capsys):
     out, _, _ = small_run
-    cfg_file = str(out / "config.toml")
-    assert main(["run", "--config", cfg_file, "--out", str(out), "--quiet"]) == 2
+    cfg_file = tmp_path / "config.toml"
+    cfg_file.write_bytes((out / "config.toml").read_bytes())
+    assert main(["run", "--config", str(cfg_file), "--out", str(out), "--quiet"]) == 2
     assert "not empty" in capsys.readouterr().err
+    # the configuration inside the folder is an input of the run: even --force does not replace it
+    assert main(["run", "--config", str(out / "config.toml"), "--out", str(out), "--quiet", "--force"]) == 2
+    assert "holds the input" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, problem", [
     (["--species", "Xe", "--iso", "0.1"], "unknown iso-surface species 'Xe'; valid names: "),
     (["--species", "al", "--iso", "0.15", "--exclude", "b", "xe"], "unknown species to exclude 'xe'"),
-    (["--density", "1e6"], "outside the atomic density range"),
+    (["--density", "1e6"], "iso = 1000000.0 is outside (0, 1000]"),
+    (["--density", "500"], "outside the atomic density range"),
     (["--species", "Al"], "--species and --iso go together"),
     (["--voxel", "-1", "--species", "Al", "--iso", "0.15"], "voxel"),
 ])

@@ -12,6 +12,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import read_ions, read_ranges
 from apt_filters.pipeline import config as cfg
 from apt_filters.pipeline.run import run_pipeline
+from apt_filters.pipeline.staging import MARKER
 from apt_filters.sweep import Choice, choice_grid, dask_client, match_objects, read_manifest, run_batch, run_sweep
 from apt_filters.sweep.cluster import run_tasks
 from apt_filters.sweep.rows import object_rows
@@ -91,7 +92,7 @@ def test_sweep_rows_equal_separate_runs(base, client, tmp_path):
     excess = [s for s in result.spread if s["figure"] == "excess_B"]
     assert excess and all(np.isfinite(s["counting_se"]) and s["counting_se"] > 0 for s in excess)
     out = tmp_path / "sweep"
-    assert {p.name for p in out.iterdir()} == {"sweep.csv", "sweep.json", "report.html", "spread.png"}
+    assert {p.name for p in out.iterdir()} == {MARKER, "sweep.csv", "sweep.json", "report.html", "spread.png"}
     doc = json.loads((out / "sweep.json").read_text(), parse_constant=lambda c: pytest.fail(f"JSON has {c}"))
     assert len(doc["rows"]) == len(result.rows)
     header = (out / "sweep.csv").read_text().splitlines()[0].split(",")

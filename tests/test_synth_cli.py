@@ -18,7 +18,7 @@ def test_synth_writes_a_specimen_and_refuses_to_overwrite(tmp_path, capsys):
     assert truth["seed"] == 4 and truth["ions"]["total"] * 16 == (out / "specimen.pos").stat().st_size
     assert main(["synth", str(out), "--preset", "small"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "exists already" in err
+    assert len(err.splitlines()) == 1 and "not empty" in err
     assert main(["synth", str(out), "--preset", "small", "--seed", "5", "--force"]) == 0
     assert json.loads((out / "truth.json").read_text())["seed"] == 5
 

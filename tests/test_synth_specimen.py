@@ -281,7 +281,7 @@ def test_existing_files_are_not_overwritten_unless_asked(tmp_path):
     assert (tmp_path / "specimen.pos").read_bytes() == before
     write_specimen(tmp_path, spec, seed=2, overwrite=True, keep_ions=False)
     assert (tmp_path / "specimen.pos").read_bytes() != before
-    assert not [p for p in tmp_path.iterdir() if ".tmp." in p.name]
+    assert not [p for p in tmp_path.iterdir() if "tmp" in p.name]
 
 
 def test_tip_ions_lie_inside_the_tip_and_blur_is_applied_after_species():

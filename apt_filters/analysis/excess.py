@@ -25,7 +25,6 @@ ours. Ours states the summed area it used, so the two can always be told apart.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from apt_filters.analysis.proxigram import POOLED, Proxigram
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 
@@ -293,7 +293,7 @@ def write_excess_json(path: str | os.PathLike, results: list[Excess], overwrite:
            "gamma_detected": "excess per nm² in detected ions (decomposed atoms for an element)",
            "gamma_atoms": "gamma_detected / detection efficiency",
            "results": [asdict(r) for r in results]}
-    return atomic_write_text(path, json.dumps(doc, indent=2) + "\n", overwrite)
+    return atomic_write_text(path, jsontext.dumps(doc, indent=2) + "\n", overwrite)
 
 
 __all__ = ["Excess", "ExcessEstimate", "Level", "INSTRUMENT_EFFICIENCY", "POOLED", "interfacial_excess",

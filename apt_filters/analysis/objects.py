@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
 from dataclasses import asdict, dataclass, field
@@ -29,6 +28,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
@@ -202,18 +202,8 @@ class ObjectTable:
     def write_json(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
         data = {"analysed_volume_nm3": self.analysed_volume, "number_density_per_nm3": self.number_density,
                 "n_dropped": self.n_dropped, "objects": [asdict(o) for o in self.objects]}
-        return atomic_write_text(path, json.dumps(_nan_to_none(data), indent=1, allow_nan=False) + "\n", overwrite)
+        return atomic_write_text(path, jsontext.dumps(data, indent=1) + "\n", overwrite)
 
-
-def _nan_to_none(value: object) -> object:
-    """JSON has no NaN: undefined values become null."""
-    if isinstance(value, float) and math.isnan(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _nan_to_none(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_nan_to_none(v) for v in value]
-    return value
 
 
 def _obb(part: TriMesh, areas: np.ndarray) -> np.ndarray:

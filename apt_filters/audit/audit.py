@@ -24,7 +24,6 @@ The audit never changes the ranges. It
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from typing import Sequence
 
@@ -36,6 +35,7 @@ from apt_filters.audit.isotopes import Composition, canonical
 from apt_filters.audit.model import (CandidatePool, Fit, Species, Windows, excess_clusters, explain_excess, fit,
                                     make_species, refit_without)
 from apt_filters.audit.spectrum import Spectrum, build_spectrum, find_peaks
+from apt_filters.core import jsontext
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.formula import ELEMENTS
 from apt_filters.io.ions import IonTable
@@ -166,7 +166,7 @@ class AuditResult:
                 "species": [asdict(s) for s in self.species]}
 
     def to_json(self) -> str:
-        return json.dumps(_json_safe(self.to_dict()), indent=2)
+        return jsontext.dumps(self.to_dict(), indent=2)
 
     def __str__(self) -> str:
         counts = {s: sum(f.severity == s for f in self.findings) for s in SEVERITIES}
@@ -180,17 +180,6 @@ class AuditResult:
                          + ", ".join(f"{s.name} ({s.ions:.0f} ions)" for s in added))
         return "\n".join(lines)
 
-
-def _json_safe(value):
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
 
 
 def audit_ranges(ions: IonTable | np.ndarray, ranges: RangeTable | Sequence[Range],

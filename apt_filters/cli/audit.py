@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 
+from apt_filters.cli.numbers import number
 from apt_filters.cli.rangeopts import add_range_options, load_ranges
 
 ORDER = 30
@@ -31,7 +32,7 @@ def register(subparsers) -> None:
     parser.add_argument("--range", "-r", dest="range_file", metavar="R", required=True,
                         help="range file (RRNG, RNG, ENV)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
-    parser.add_argument("--resolution", type=float, default=500.0, metavar="M/DM",
+    parser.add_argument("--resolution", type=number("[1, 1e6]"), default=500.0, metavar="M/DM",
                         help="mass resolving power m/dm (FWHM) of the spectrum (default 500)")
     parser.add_argument("--write-ranges", metavar="FIXED.rrng",
                         help="write the corrected range file (RRNG) here; an existing file is not replaced")
@@ -45,8 +46,6 @@ def run(args: argparse.Namespace) -> int:
     from apt_filters.audit.fix import write_corrected_ranges
     from apt_filters.io import read_ions
 
-    if not args.resolution > 0:
-        raise AptFiltersError(f"--resolution must be positive, got {args.resolution:g}")
     if args.write_ranges and os.path.lexists(args.write_ranges):  # refused before the audit, not after it
         raise AptFiltersError("exists already; the corrected range file is never written over a file",
                               args.write_ranges)

@@ -26,6 +26,7 @@ def demo_specimen(outdir: str | Path = DEFAULT_OUT, seed: int = 0, force: bool =
     A folder holding truth.json of the default preset with this seed is reused as it is;
     any other truth.json there needs ``force``.
     """
+    from apt_filters.pipeline.staging import staged_folder
     from apt_filters.synth import preset, write_specimen
     from apt_filters.synth.generate import FORMAT
 
@@ -38,7 +39,8 @@ def demo_specimen(outdir: str | Path = DEFAULT_OUT, seed: int = 0, force: bool =
         if isinstance(truth, dict) and (truth.get("format"), truth.get("name"), truth.get("seed")) == (FORMAT, "default", seed):
             return truth, True
         raise AptFiltersError("holds another specimen; pass --force to replace it", truth_file)
-    return write_specimen(outdir, preset("default"), seed=seed, overwrite=force, keep_ions=False).truth, False
+    with staged_folder(outdir, force=force) as stage:
+        return write_specimen(stage, preset("default"), seed=seed, keep_ions=False).truth, False
 
 
 def demo_config(specimen: Path):
@@ -60,7 +62,6 @@ def _run(args: argparse.Namespace) -> int:
     specimen = out / "specimen"
     if out.is_dir() and any(out.iterdir()) and not specimen.is_dir() and not args.force:
         raise AptFiltersError("output folder holds something else; pass --force or choose -o/--output", out)
-    specimen.mkdir(parents=True, exist_ok=True)
     truth, reused = demo_specimen(specimen, args.seed, args.force)
     report(specimen, truth, "reused" if reused else "wrote")
     result = run_pipeline(demo_config(specimen), out / "run", force=True, quiet=args.quiet, truth=truth)

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 
 from apt_filters.cli.rangeopts import add_range_options, load_ranges
+from apt_filters.core import jsontext
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 10
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
 
     summary = summarize(args.file, ranges)
     if args.json:
-        print(json.dumps(_as_json(args.file, summary, ranges), indent=2))
+        print(jsontext.dumps(_as_json(args.file, summary, ranges), indent=2))
     else:
         print(_as_text(args.file, summary, ranges))
     return 0

@@ -5,19 +5,48 @@ Each sub-command lives in its own module of this package and exposes
 ``ORDER``, an int that places it in ``--help``. Modules are found by discovery, so adding a
 command touches no shared file.
 User mistakes arrive as :class:`~apt_filters.core.errors.AptFiltersError` and are printed
-on one line with exit status 2; no traceback.
+on one line with exit status 2; no traceback. Mistakes argparse finds (an unknown option, a
+number out of range) are one line too.
+
+SIGTERM and SIGHUP end a command the way Ctrl-C does: the exception unwinds every ``with``
+block, so staged output folders and temporary files are removed, and the exit status is
+128 + the signal number. A reader that closes the pipe early (``apt-filters info --json | head``)
+ends the command quietly with status 141, as SIGPIPE ends a C program.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import signal
 import sys
 
 from apt_filters import __version__
 from apt_filters.cli.options import check_output
-from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.errors import AptFiltersError, readable
+
+SIGPIPE_STATUS = 128 + 13
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the program is, like Ctrl-C's KeyboardInterrupt."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _interrupt(signum, frame) -> None:
+    raise Interrupted(signum)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose mistakes are one line on stderr (status 2), pointing at ``--help``."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {readable(message)} (see {self.prog} --help)\n")
 
 
 def command_modules() -> list:
@@ -30,7 +59,7 @@ def command_modules() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="apt-filters",
         description="Atom probe tomography iso-surfaces, MeshLab filter chains and interface chemistry.",
     )
@@ -41,18 +70,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _say(text: str) -> None:
+    """Print to stderr; a closed terminal (SIGHUP) must not turn the message into a traceback."""
+    try:
+        print(text, file=sys.stderr)
+    except OSError:
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     check_output(args)
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return status
     except AptFiltersError as exc:
-        print(f"apt-filters {args.command}: error: {exc}", file=sys.stderr)
+        _say(f"apt-filters {args.command}: error: {exc}")
         return 2
-    except KeyboardInterrupt:
-        print("apt-filters: interrupted", file=sys.stderr)
-        return 130
+    except BrokenPipeError:
+        # Point stdout at /dev/null so that the interpreter's own flush at exit stays quiet.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return SIGPIPE_STATUS
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        _say(f"apt-filters {args.command}: interrupted ({signal.Signals(signum).name})")
+        return 128 + signum
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -11,12 +11,16 @@ import argparse
 from pathlib import Path
 
 from apt_filters.cli.options import add_output
+from apt_filters.cli.numbers import number
+from apt_filters.core.atomic import refuse_inputs
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 80
 INSTRUMENTS = ("EIKOS", "Invizio", "LEAP 5000R", "LEAP 5000S", "LEAP 6000")
 """Names of ``analysis.excess.INSTRUMENT_EFFICIENCY`` (spelled here so ``--help`` imports no analysis code;
 a test checks they agree)."""
+MAX_BINS = 1_000_000
+"""2 × --range-nm / --bin at most."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -31,6 +35,8 @@ def run(args: argparse.Namespace) -> int:
         if not Path(path).is_file():  # before the heavy imports: a mistake is reported at once
             raise AptFiltersError(missing, path)
     ion_format(args.ions)
+    if 2 * args.range_nm / args.bin > MAX_BINS:
+        raise AptFiltersError(f"--range-nm {args.range_nm:g} / --bin {args.bin:g} make more than {MAX_BINS:,} bins")
     ranges = read_ranges(args.range_file)
     if args.solute:
         args.solute = match_species(args.solute, ranges.elements + [i for i in ranges.ions if i not in ranges.elements],
@@ -47,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         efficiency = args.efficiency
     targets = ["proxigram.csv", "proxigram_objects.csv", "proxigram.png"] + (["excess.json"] if args.solute else [])
+    refuse_inputs([out / t for t in targets], [args.ions, args.range_file, args.mesh])
     if not args.force:
         existing = [t for t in targets if (out / t).exists()]
         if existing:
@@ -89,16 +96,18 @@ def register(subparsers) -> None:
     p.add_argument("--mesh", "-m", metavar="MESH", required=True,
                    help="iso-surface (.ply, .obj, .stl, .off), normals out of the region above the iso-value")
     add_output(p, "folder for the outputs", metavar="OUTDIR")
-    p.add_argument("--bin", type=float, default=0.1, help="bin width in nm (default 0.1)")
-    p.add_argument("--range-nm", type=float, default=3.0, help="half range of distances in nm (default 3)")
+    p.add_argument("--bin", type=number("(0, 100]", "nm"), default=0.1, help="bin width in nm (default 0.1)")
+    p.add_argument("--range-nm", type=number("(0, 1000]", "nm"), default=3.0,
+                   help="half range of distances in nm (default 3)")
     p.add_argument("--keep-edge", action="store_true", help="keep ions beyond the rim of an open surface")
-    p.add_argument("--iso", type=float, default=None, help="iso-value as a fraction, marked on the plot")
+    p.add_argument("--iso", type=number("(0, 1000]"), default=None, help="iso-value as a fraction, marked on the plot")
     p.add_argument("--solute", metavar="B", help="element or ion species whose interfacial excess to compute")
-    p.add_argument("--efficiency", type=float, default=0.5, help="detection efficiency (default 0.5)")
+    p.add_argument("--efficiency", type=number("(0, 1]"), default=0.5, help="detection efficiency (default 0.5)")
     p.add_argument("--instrument", choices=INSTRUMENTS,
                    help="take the detection efficiency of this instrument instead of --efficiency")
-    p.add_argument("--inner", type=float, default=1.0,
+    p.add_argument("--inner", type=number("[0, 1000]", "nm"), default=1.0,
                    help="plateau windows start this far from the interface, nm (default 1)")
-    p.add_argument("--outer", type=float, default=None, help="plateau windows end here, nm (default: --range-nm)")
+    p.add_argument("--outer", type=number("(0, 1000]", "nm"), default=None,
+                   help="plateau windows end here, nm (default: --range-nm)")
     p.add_argument("--force", action="store_true", help="replace existing outputs")
     p.set_defaults(func=run)

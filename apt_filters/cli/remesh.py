@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
-
-from apt_filters.cli.options import add_output
 from pathlib import Path
 
+from apt_filters.cli.numbers import number
+from apt_filters.cli.options import add_output
+from apt_filters.core.atomic import refuse_inputs
 from apt_filters.core.errors import AptFiltersError
 
 ORDER = 70
@@ -17,12 +18,11 @@ def run(args: argparse.Namespace) -> int:
     from apt_filters.meshlab.exports import write_mesh
     from apt_filters.remesh import remesh
 
-    if args.feature_angle is not None and not 0 < args.feature_angle <= 180:
-        raise AptFiltersError(f"--feature-angle must be in (0, 180], got {args.feature_angle}")
-    mesh = read_mesh(Path(args.input))
     out = Path(args.output)
+    refuse_inputs([out], [args.input])
     if out.exists() and not args.force:
         raise AptFiltersError("exists already; pass --force to replace it", out)
+    mesh = read_mesh(Path(args.input))
     try:
         result = remesh(mesh, edge_length=args.edge_length, feature_angle=args.feature_angle,
                         bridge_gaps=args.bridge_gaps)
@@ -44,9 +44,9 @@ def register(subparsers) -> None:
                     "sharp edges, corners and open boundaries kept, vertex quality re-interpolated.")
     p.add_argument("input", metavar="IN.ply", help="input triangle mesh (PLY; any format MeshLab reads)")
     add_output(p, "output mesh (written atomically)", metavar="OUT.ply")
-    p.add_argument("--edge-length", type=float, default=None, metavar="L",
+    p.add_argument("--edge-length", type=number("(0, 1000]", "nm"), default=None, metavar="L",
                    help="target edge length in nm (default: the input's mean edge length)")
-    p.add_argument("--feature-angle", type=float, default=40.0, metavar="A",
+    p.add_argument("--feature-angle", type=number("(0, 180]", "degrees"), default=40.0, metavar="A",
                    help="dihedral angle in degrees above which an edge is sharp (default 40; 180 = none)")
     p.add_argument("--bridge-gaps", action="store_true",
                    help="join gaps in creases whose bend is spread over two edges (dual-contouring meshes "

@@ -29,6 +29,10 @@ def _run(args: argparse.Namespace) -> int:
     from apt_filters.pipeline.inputs import check_inputs
 
     config = check_inputs(build_config(args))  # mistakes in milliseconds, before the heavy imports
+    from apt_filters.pipeline.staging import check_output_folder
+
+    # before any work: the configuration file is an input too
+    check_output_folder(args.output, [config.input.ions, config.input.ranges, args.config], args.force)
     from apt_filters.pipeline.run import run_pipeline
 
     report = run_pipeline(config, args.output, force=args.force, quiet=args.quiet, verbose=args.verbose)
@@ -73,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-facets", action="store_true", help="keep edges as refined (no facet sharpening)")
     p.add_argument("--no-marker", action="store_true",
                    help="place objects by their step alone, not also by the peak of the excluded segregants")
-    p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
+    p.add_argument("--force", action="store_true", help="replace an output folder apt-filters wrote before")
     loud = p.add_mutually_exclusive_group()
     loud.add_argument("--quiet", "-q", action="store_true", help="no step summaries")
     loud.add_argument("--verbose", "-v", action="store_true", help="also list every range-file finding")

@@ -28,11 +28,13 @@ def report(outdir, truth: dict, verb: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from apt_filters.pipeline.staging import staged_folder
     from apt_filters.synth import preset, write_specimen
 
     start = time.perf_counter()
-    specimen = write_specimen(args.outdir, preset(args.preset, args.ions), seed=args.seed,
-                              overwrite=args.force, keep_ions=False)
+    spec = preset(args.preset, args.ions)
+    with staged_folder(args.outdir, force=args.force) as stage:
+        specimen = write_specimen(stage, spec, seed=args.seed, keep_ions=False)
     report(args.outdir, specimen.truth, f"wrote in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -45,10 +47,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "and the true surface of every feature as PLY. The same seed gives identical files. "
                     "Presets: default (the demo, ~3.4M ions), gamma-prime (rotated cubes and spheres in a "
                     "tip, ~1.2M ions), small (~270k ions, for tests).")
-    p.add_argument("outdir", help="output folder (created if missing)")
+    p.add_argument("outdir", help="output folder (created; appears whole when every file is written)")
     p.add_argument("--preset", default="default", help="which specimen (default: default; the presets are named above)")
     p.add_argument("--ions", type=ion_count, default=None, metavar="N",
                    help="about N ions: the specimen is lengthened or shortened below its top (features stay put)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the ions (default 0)")
-    p.add_argument("--force", action="store_true", help="overwrite existing files in OUTDIR")
+    p.add_argument("--force", action="store_true", help="replace OUTDIR if apt-filters wrote it before")
     p.set_defaults(func=_run)

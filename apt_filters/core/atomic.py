@@ -1,53 +1,142 @@
-"""Atomic file output: write to a temporary file beside the target, then rename.
+"""Atomic file output and the temporary files it needs.
 
-A crash or an exception while writing leaves no half-written file behind, and an
-existing file is only replaced when the caller allows it.
+A file is written to a temporary name beside the target and renamed onto it, so a crash
+or an exception while writing leaves no half-written file behind, and an existing file is
+only replaced when the caller allows it.
+
+Every temporary name apt-filters makes holds ``.apt-filters-tmp.<host>-<pid>.``
+(:func:`scratch_path`): beside the output it belongs to, hidden, and tagged with the process
+that made it. A process that dies without cleaning up (``kill -9``, power loss) leaves it
+behind; the next apt-filters process that writes into that folder removes it
+(:func:`tidy`) once that process no longer runs. Clean-ups hold off SIGINT, SIGTERM and
+SIGHUP (:func:`signals_held`) so that a second Ctrl-C cannot leave them half done.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
-import tempfile
+import re
+import secrets
+import shutil
+import signal
+import socket
+import threading
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from apt_filters.core.errors import AptFiltersError
+
+TMP_TAG = "apt-filters-tmp"
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Signals that end a run the way Ctrl-C does (see :mod:`apt_filters.cli.main`)."""
+_LEFTOVER = re.compile(rf"^\..*\.{TMP_TAG}\.([0-9a-f]{{6}})-(\d+)\.")
+
+
+def host_tag() -> str:
+    """Six hex digits naming this machine (a folder may be shared between machines)."""
+    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:6]
+
+
+def scratch_path(target: str | os.PathLike, suffix: str = "") -> Path:
+    """A fresh temporary name beside ``target``: ``.NAME.apt-filters-tmp.<host>-<pid>.<token>SUFFIX``."""
+    target = Path(target)
+    return target.parent / f".{target.name}.{TMP_TAG}.{host_tag()}-{os.getpid()}.{secrets.token_hex(4)}{suffix}"
+
+
+def process_runs(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (an unknown answer counts as yes)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # not ours to signal: it runs
+        return True
+    return True
+
+
+def remove(path: Path) -> None:
+    """Delete a file or a folder tree; gone already is fine."""
+    with contextlib.suppress(FileNotFoundError):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+def tidy(folder: str | os.PathLike) -> list[Path]:
+    """Remove the temporary files and folders in ``folder`` left by apt-filters processes of
+    this machine that no longer run; returns what was removed."""
+    removed = []
+    with contextlib.suppress(OSError), os.scandir(folder) as entries:
+        for entry in entries:
+            m = _LEFTOVER.match(entry.name)
+            if m and m.group(1) == host_tag() and not process_runs(int(m.group(2))):
+                remove(Path(entry.path))
+                removed.append(Path(entry.path))
+    return removed
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP back while a clean-up runs; they arrive after it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, INTERRUPTS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def refuse_inputs(outputs: Iterable[str | os.PathLike], inputs: Iterable[str | os.PathLike | None]) -> None:
+    """Raise AptFiltersError if an output path would overwrite an input file or hold one.
+
+    Paths are compared after resolving links, so ``out.ply -> in.ply`` is caught too.
+    """
+    resolved = [(Path(i), Path(i).resolve()) for i in inputs if i]
+    for out in outputs:
+        target = Path(out).resolve()
+        for given, path in resolved:
+            if path == target:
+                raise AptFiltersError(f"would overwrite the input {given}; choose another output", out)
+            if target in path.parents:
+                raise AptFiltersError(f"holds the input {given}, which replacing it would delete; "
+                                      "choose another output", out)
+            if path in target.parents:
+                raise AptFiltersError(f"lies inside the input {given}; choose another output", out)
 
 
 def _check_target(path: Path, overwrite: bool) -> None:
     if path.exists() and not overwrite:
         raise AptFiltersError("exists already; pass overwrite/--force to replace it", path)
+    if path.is_dir():
+        raise AptFiltersError("is a folder; give a file name", path)
     if not path.parent.exists():
         raise AptFiltersError("folder does not exist", path.parent)
-
-
-def _default_mode() -> int:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary path to write; on success it is renamed to ``path``.
 
-    The temporary file keeps the target's extension so that writers which pick the format
-    from the extension (pymeshlab, open3d) still work; its name starts with ``.`` and holds
-    ``.tmp.`` so that a leftover is easy to recognise.
+    The temporary file (:func:`scratch_path`) keeps the target's extension so that writers
+    which pick the format from the extension (pymeshlab, open3d) still work. It is created
+    with the permissions of an ordinary file (0666 less the umask).
     """
     path = Path(path)
     _check_target(path, overwrite)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tidy(path.parent)
+    tmp_path = scratch_path(path, path.suffix)
+    os.close(os.open(tmp_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
     try:
         yield tmp_path
-        os.chmod(tmp_path, _default_mode())  # mkstemp makes 0600 files; outputs are ordinary files
         os.replace(tmp_path, path)
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        with signals_held():
+            remove(tmp_path)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, overwrite: bool = False) -> Path:

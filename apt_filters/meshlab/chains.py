@@ -26,11 +26,13 @@ from typing import Any, Mapping
 import numpy as np
 import pymeshlab
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_output, atomic_write_bytes, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.meshlab.bridge import OBJECT_ID, from_pymeshlab, to_meshset
 from apt_filters.meshlab.filters import FILTERS, MESHLAB_2020
+from apt_filters.meshlab.mlx import canonical_script
 
 
 CAP = "cap"
@@ -244,8 +246,9 @@ def save_script(ms: pymeshlab.MeshSet, run: ChainRun, script: str | os.PathLike,
             raise AptFiltersError("exists already; pass overwrite/--force to replace it", path)
     with atomic_output(script, overwrite) as tmp:
         ms.save_filter_script(str(tmp))
+        tmp.write_bytes(canonical_script(tmp.read_bytes()))  # MeshLab's attribute order varies per process
     atomic_write_bytes(legacy, meshlab2020_script(script.read_bytes()), overwrite)
-    atomic_write_text(record, json.dumps(run.record(label), indent=1) + "\n", overwrite)
+    atomic_write_text(record, jsontext.dumps(run.record(label), indent=1) + "\n", overwrite)
     return script, record
 
 

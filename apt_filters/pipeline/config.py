@@ -1,7 +1,12 @@
 """The pipeline's configuration: defaults, TOML files, and command-line overrides.
 
-Every run writes its fully resolved configuration as ``config.toml``; running again with
-``--config config.toml`` reproduces the same numbers and meshes.
+Every run writes its fully resolved configuration as ``config.toml``, input paths absolute;
+running again with ``--config config.toml`` from any folder reproduces the same numbers and
+meshes. Relative input paths in a configuration file are relative to the file's folder.
+
+Every number is checked against :data:`LIMITS` when the configuration is built, before any
+file is read: NaN, infinities and values no specimen can need (a 10^300 nm voxel) are refused
+in one line.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 import tomli_w
 
 from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.numbers import within
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -157,6 +163,32 @@ class PipelineConfig:
         return tomli_w.dumps(_without_none(dataclasses.asdict(self)))
 
 
+LIMITS: dict[tuple[str, str], tuple[str, str]] = {
+    ("voxel", "size"): ("[0.01, 1000]", "nm"),
+    ("voxel", "delocalization"): ("(0, 1000]", "nm"),
+    ("surface", "iso"): ("(0, 1000]", ""),
+    ("refine", "iterations"): ("[0, 1000]", ""),
+    ("refine", "min_volume"): ("[0, 1e12]", "nm³"),
+    ("refine", "min_area"): ("[0, 1e12]", "nm²"),
+    ("refine", "blur"): ("[0, 100]", "nm"),
+    ("remesh", "edge_length"): ("[0, 1000]", "nm"),
+    ("remesh", "feature_angle"): ("(0, 180]", "degrees"),
+    ("proxigram", "bin"): ("(0, 100]", "nm"),
+    ("proxigram", "extent"): ("(0, 1000]", "nm"),
+    ("analysis", "efficiency"): ("(0, 1]", ""),
+}
+"""Interval of every number (each element of a list), as ``"[lo, hi]"`` with ``(``/``)`` for open ends.
+The bounds are what no APT specimen can need (a voxel of 1 µm covers a whole specimen; no solid
+holds more than ~180 atoms/nm³), so that absurd values fail at once instead of as overflows."""
+
+MAX_PROXIGRAM_BINS = 1_000_000
+"""2 × extent / bin at most."""
+
+ELEMENTS = {("input", "relabel"): str, ("voxel", "delocalization"): float, ("voxel", "exclude"): str,
+            ("refine", "blur"): float,
+            ("proxigram", "solutes"): str}
+"""Type of the elements of list-valued keys."""
+
 CHOICES = {
     ("input", "unknown_species"): ("species", "unranged"),
     ("voxel", "kernel"): ("gaussian", "sawtooth", "square"),
@@ -191,8 +223,50 @@ def _coerce(section: str, cls, values: dict, source: str | None):
         choices = CHOICES.get((section, key))
         if choices and value not in choices:
             raise AptFiltersError(f"[{section}] {key} must be one of {', '.join(choices)}, not {value!r}", source)
+        element = ELEMENTS.get((section, key))
+        if element is not None:
+            ok = (int, float) if element is float else element
+            if not all(isinstance(v, ok) and not isinstance(v, bool) for v in value):
+                raise AptFiltersError(f"[{section}] {key} = {value!r} should be a list of {element.__name__}", source)
+            value = [float(v) for v in value] if element is float else value
+        _check_limit(section, key, value, source)
         setattr(obj, key, float(value) if expected is float else value)
     return obj
+
+
+def _check_limit(section: str, key: str, value, source: str | None) -> None:
+    """Refuse a number (or a list element) outside :data:`LIMITS`."""
+    if (section, key) not in LIMITS:
+        return
+    interval, unit = LIMITS[section, key]
+    for v in value if isinstance(value, list) else [value]:
+        if not within(float(v), interval):
+            raise AptFiltersError(f"[{section}] {key} = {v!r} is outside {interval} {unit}".rstrip(), source)
+
+
+def check(config: PipelineConfig, source: str | None = None) -> None:
+    """Checks that involve several keys (each key alone passed :data:`LIMITS` in :func:`from_dict`).
+
+    Imports nothing heavy: a mistake is reported before numba or scipy load.
+    """
+    v = config.voxel
+    if len(v.delocalization) != 3:
+        raise AptFiltersError(f"[voxel] delocalization must be three numbers (x, y, z nm), got {v.delocalization}",
+                              source)
+    # the gaussian's second pass needs (deloc / 3)² > (voxel / 6)² (voxel.transfer.second_pass_sigma)
+    if v.kernel == "gaussian" and any(d <= v.size / 2 for d in v.delocalization):
+        raise AptFiltersError(f"gaussian delocalization {v.delocalization} nm must exceed half the voxel "
+                              f"({v.size / 2:g} nm) on every axis", source)
+    if len(config.refine.blur) not in (0, 2):
+        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)", source)
+    for s in config.surface:
+        if s.species and not 0 < s.iso < 1:
+            raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}",
+                                  source)
+    p = config.proxigram
+    if 2 * p.extent / p.bin > MAX_PROXIGRAM_BINS:
+        raise AptFiltersError(f"[proxigram] {2 * p.extent / p.bin:.3g} bins (2 × extent / bin): more than "
+                              f"{MAX_PROXIGRAM_BINS:,}", source)
 
 
 def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
@@ -209,6 +283,7 @@ def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
             config.surface = [_coerce(name, SurfaceConfig, v, source) for v in value]
         else:
             setattr(config, name, _coerce(name, type(getattr(config, name)), value, source))
+    check(config, source)
     return config
 
 
@@ -255,13 +330,7 @@ def check_config(config: PipelineConfig) -> None:
         raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
     if not config.surface:
         raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
-    if len(config.refine.blur) not in (0, 2) or any(b < 0 for b in config.refine.blur):
-        raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)")
-    for s in config.surface:
-        if s.species and not 0 < s.iso < 1:
-            raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}")
-        if not s.species and s.iso <= 0:
-            raise AptFiltersError(f"iso-density must be positive atoms/nm³, got {s.iso:g}")
+    check(config)
 
 
 def read_toml(path: str | os.PathLike, what: str = "configuration file") -> dict:
@@ -276,5 +345,11 @@ def read_toml(path: str | os.PathLike, what: str = "configuration file") -> dict
 
 
 def load(path: str | os.PathLike) -> PipelineConfig:
-    """Read a pipeline configuration TOML file."""
-    return from_dict(read_toml(path), str(path))
+    """Read a pipeline configuration TOML file; relative input paths are relative to its folder."""
+    path = Path(path)
+    config = from_dict(read_toml(path), str(path))
+    for key in ("ions", "ranges"):  # relative to the configuration file, not to where it is run from
+        given = getattr(config.input, key)
+        if given:
+            setattr(config.input, key, str(path.parent / Path(given).expanduser()))
+    return config

@@ -16,7 +16,6 @@ from __future__ import annotations
 import base64
 import hashlib
 import html
-import json
 import math
 import os
 import platform
@@ -24,6 +23,7 @@ from importlib import metadata
 from pathlib import Path
 
 from apt_filters import __version__
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
 
 DEPENDENCIES = ("numpy", "scipy", "pymeshlab", "open3d", "fast-simplification", "numba", "matplotlib", "tqdm")
@@ -54,15 +54,8 @@ def versions() -> dict:
 
 
 def write_json(path: Path, data: dict) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False, default=_jsonable) + "\n", overwrite=True)
-
-
-def _jsonable(value):
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    """Strict JSON (:mod:`apt_filters.core.jsontext`), atomically."""
+    atomic_write_text(path, jsontext.dumps(data, indent=2) + "\n", overwrite=True)
 
 
 # --- numbers ---------------------------------------------------------------------------------

@@ -5,21 +5,22 @@ clean (MeshLab chain, saved as .mlx) -> remesh (CVT) -> objects -> proxigram and
 exports (PLY, ion cloud, MeshLab project) -> report.json / report.html / config.toml.
 
 Everything is written into a staging folder that replaces the output folder only when
-the run succeeds (:mod:`.staging`). Runs are deterministic: the same configuration gives
-the same numbers and meshes.
+the run succeeds, and the output folder is checked before any work (:mod:`.staging`). The
+memory the voxel grid may need is checked right after reading, before the audit. Runs are
+deterministic: the same configuration gives the same numbers and meshes.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import tempfile
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from apt_filters.core.atomic import atomic_write_text
+from apt_filters.core.atomic import atomic_write_text, remove, scratch_path, signals_held
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io import read_ions
@@ -125,10 +126,24 @@ def load_ions(config: PipelineConfig, ranges, summary, scratch: Path):
 
 @contextlib.contextmanager
 def scratch_folder(out: str | Path):
-    """A temporary folder beside the output folder (same file system), removed afterwards."""
-    parent = Path(out).resolve().parent
-    with tempfile.TemporaryDirectory(dir=parent, prefix=".apt-filters-scratch-") as tmp:
-        yield Path(tmp)
+    """A temporary folder beside the output folder (same file system), removed afterwards.
+
+    Named after this process (:func:`~apt_filters.core.atomic.scratch_path`), so that a run
+    killed outright leaves a folder the next run there removes (:func:`~apt_filters.core.atomic.tidy`).
+    """
+    folder = scratch_path(Path(out).resolve())
+    folder.mkdir()
+    try:
+        yield folder
+    finally:
+        with signals_held():
+            remove(folder)
+
+
+def _absolute_inputs(config: PipelineConfig) -> PipelineConfig:
+    """``config`` with absolute input paths (its config.toml then works from any folder)."""
+    ions, ranges = (os.path.abspath(Path(p).expanduser()) for p in (config.input.ions, config.input.ranges))
+    return dataclasses.replace(config, input=dataclasses.replace(config.input, ions=ions, ranges=ranges))
 
 
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
@@ -151,11 +166,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
 
     check_config(config)
     config = check_inputs(config)
+    config = _absolute_inputs(config)
     per_surface = 4 + (config.remesh.method == "cvt") + config.analysis.maps
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}
-    with staged_folder(out, force=force) as stage, scratch_folder(out) as scratch:
+    with staged_folder(out, force=force, inputs=[config.input.ions, config.input.ranges]) as stage, \
+            scratch_folder(out) as scratch:
         (stage / "meshes").mkdir()
         with log.step("read") as s:
             ranges = config_ranges(config)

@@ -22,18 +22,18 @@ others finish.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.pipeline import config as cfg
 from apt_filters.pipeline import report as rep
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.sweep.cluster import run_tasks
-from apt_filters.sweep.rows import csv_text, run_task, strict_json
+from apt_filters.sweep.rows import csv_text, run_task
 
 MAX_DATASETS = 100_000
 """More datasets than this in one manifest is a mistake, not a batch."""
@@ -131,7 +131,7 @@ def run_batch(manifest: str | Path, out: str | Path, *, client, force: bool = Fa
         atomic_write_text(stage / "objects.csv", csv_text(objects) if objects else "dataset\n")
         doc = {"apt-filters": rep.versions(), "manifest": str(Path(manifest).resolve()), "wall_seconds": wall,
                "datasets": rows, "objects": objects}
-        atomic_write_text(stage / "batch.json", json.dumps(strict_json(doc), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(stage / "batch.json", jsontext.dumps(doc, indent=1) + "\n")
         failed = sum(r["status"] != "ok" for r in rows)
         text = (f"{len(rows)} datasets, {failed} failed; {wall:.1f} s wall. Each dataset's full report: "
                 f"runs/<dataset>/report.html.")

@@ -9,7 +9,6 @@ uncertainty) is set beside its counting error (the statistical part).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Sequence
@@ -18,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
 from apt_filters.pipeline import config as cfg
 from apt_filters.pipeline import report as rep
@@ -25,7 +25,7 @@ from apt_filters.pipeline.staging import staged_folder
 from apt_filters.sweep.choices import CHOICE_COLUMNS, Choice
 from apt_filters.sweep.cluster import run_tasks
 from apt_filters.sweep.match import match_objects
-from apt_filters.sweep.rows import csv_text, run_task, strict_json
+from apt_filters.sweep.rows import csv_text, run_task
 
 FIGURES = ("volume", "area")
 """Per-object figures besides the compositions (``c_<El>``) and excesses (``excess_<El>``)."""
@@ -156,7 +156,7 @@ def _write(stage: Path, result: SweepResult, base: cfg.PipelineConfig) -> None:
     busy = sum(r["seconds"] or 0.0 for r in result.runs)
     doc = {"apt-filters": rep.versions(), "base_config": dataclasses.asdict(base), "wall_seconds": result.wall_seconds,
            "run_seconds": busy, "runs": result.runs, "rows": result.rows, "spread": result.spread}
-    atomic_write_text(stage / "sweep.json", json.dumps(strict_json(doc), indent=1, allow_nan=False) + "\n")
+    atomic_write_text(stage / "sweep.json", jsontext.dumps(doc, indent=1) + "\n")
     images = [p for p in [_plot(stage / "spread.png", result.spread)] if p is not None]
     failed = [r for r in result.runs if r["status"] != "ok"]
     summary = (f"{len(result.runs)} choices ({len(failed)} failed), run side by side in {result.wall_seconds:.1f} s "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -51,7 +52,7 @@ class Grid:
 
     @property
     def n_voxels(self) -> int:
-        return int(np.prod(self.shape, dtype=np.int64))
+        return math.prod(self.shape)  # Python ints: a huge grid's size must not wrap
 
     @property
     def block_shape(self) -> tuple[int, int, int]:
@@ -109,8 +110,12 @@ class Grid:
         start = np.floor(lower / voxel) * voxel if align else lower.copy()
         origin = start - margin * voxel
         # +1: the top grid point must lie at or above the upper corner
-        shape = np.ceil((upper - origin) / voxel - 1e-9).astype(np.int64) + margin + 1
-        return cls(tuple(origin), voxel, tuple(int(n) for n in shape))
+        steps = np.ceil((upper - origin) / voxel - 1e-9)
+        if not np.all(np.isfinite(steps)):
+            raise AptFiltersError(f"a grid of {voxel:g} nm voxels over {lower.tolist()} .. {upper.tolist()} nm "
+                                  "has too many voxels to count")
+        # Python ints, not int64: a far-away ion makes a grid whose voxel count would wrap int64
+        return cls(tuple(origin), voxel, tuple(int(n) + int(m) + 1 for n, m in zip(steps, margin)))
 
 
 def physical_memory() -> int:
@@ -125,7 +130,7 @@ def default_budget() -> int:
 
 def field_bytes(grid: Grid, n_fields: int, itemsize: int = 8) -> int:
     """Upper bound (bytes) of ``n_fields`` fields on ``grid`` if every leaf block were occupied."""
-    return int(np.prod(grid.block_shape, dtype=np.int64)) * BLOCK**3 * itemsize * n_fields
+    return math.prod(grid.block_shape) * BLOCK**3 * itemsize * n_fields  # Python ints: never wraps
 
 
 def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 8, copies: int = 2) -> int:
@@ -153,7 +158,7 @@ def check_budget(grid: Grid, n_fields: int, budget: int | None, itemsize: int = 
     fields_hint = f"at most {fit_fields} species" if fit_fields >= 1 else "no species at this voxel size"
     raise AptFiltersError(
         f"voxelizing {n_fields} species on {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} voxels of "
-        f"{grid.voxel:g} nm may need {need / 1e9:.2f} GB, over the memory budget of {budget / 1e9:.2f} GB; "
+        f"{grid.voxel:g} nm may need {need / 1e9:.3g} GB, over the memory budget of {budget / 1e9:.2f} GB; "
         f"would fit: voxel >= {fit_voxel:g} nm, or {fields_hint}, or a smaller region "
         f"(sparse storage only helps when the ions fill a small part of the box)"
     )

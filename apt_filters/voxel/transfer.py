@@ -38,8 +38,9 @@ def second_pass_sigma(voxel: float, delocalization) -> np.ndarray:
     Raises AptFiltersError where the delocalization does not exceed the first pass (deloc <= voxel/2).
     """
     deloc = np.broadcast_to(np.asarray(delocalization, dtype=np.float64), (3,))
-    var = (deloc / 3) ** 2 - (voxel / 6) ** 2
-    if not np.all(np.isfinite(deloc)) or np.any(var <= 0):
+    with np.errstate(over="ignore", invalid="ignore"):  # float64: a 1e300 nm voxel gives inf, not OverflowError
+        var = (deloc / 3) ** 2 - (np.float64(voxel) / 6) ** 2
+    if not (np.all(np.isfinite(deloc)) and np.all(np.isfinite(var))) or np.any(var <= 0):
         raise AptFiltersError(
             f"gaussian delocalization {deloc.tolist()} nm must exceed half the voxel ({voxel / 2:g} nm) on every axis"
         )
