@@ -18,21 +18,16 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io import count_ions, iter_ion_chunks
 from apt_filters.io.ranges import RangeTable
-from apt_filters.voxel.fields import ConcentrationBasis, Fields, VoxelPlan, plan_voxelization
+from apt_filters.voxel.fields import Fields, VoxelPlan, chunk_bounds, plan_voxelization
 from apt_filters.voxel.grid import Grid, check_budget
-from apt_filters.voxel.transfer import BlockPartial, finish_partial, kernel_reach
+from apt_filters.voxel.transfer import BlockPartial, finish_partial
 
 SHARE = 1 << 24
 """Ions per map task (16.8 M: ~270 MB of POS, a few seconds of scatter on one core)."""
 
 
 def _bounds(path: str, start: int, stop: int, chunk_size: int) -> tuple[np.ndarray, np.ndarray]:
-    lower, upper = np.full(3, np.inf), np.full(3, -np.inf)
-    for chunk in iter_ion_chunks(path, chunk_size, start=start, stop=stop):
-        if len(chunk):
-            lo, hi = chunk.bounds()
-            lower, upper = np.minimum(lower, lo), np.maximum(upper, hi)
-    return lower, upper
+    return chunk_bounds(iter_ion_chunks(path, chunk_size, start=start, stop=stop))
 
 
 def _scatter_share(path: str, start: int, stop: int, plan: VoxelPlan, chunk_size: int) -> BlockPartial:
@@ -56,17 +51,11 @@ def voxelize_distributed(
     *,
     client,
     grid: Grid | None = None,
-    kernel: str = "gaussian",
-    delocalization=(3.0, 3.0, 1.5),
-    species: str = "elements",
-    voxel: float = 1.0,
-    basis: ConcentrationBasis = ConcentrationBasis(),
-    keep_unranged: bool | None = None,
-    efficiency: float = 1.0,
     memory_budget: int | None = None,
     share: int = SHARE,
     chunk_size: int = 1 << 22,
     threads: int = 1,
+    **options,
 ) -> Fields:
     """Voxelize an ion file on a ``dask.distributed`` cluster; same fields as :func:`voxelize`.
 
@@ -74,8 +63,10 @@ def voxelize_distributed(
     ----------
     path : path-like
         The ion file; every worker must see it at this path (a shared file system).
-    ranges, kernel, delocalization, species, voxel, basis, keep_unranged, efficiency
-        As :func:`~apt_filters.voxel.fields.voxelize`.
+    ranges : RangeTable
+    **options
+        ``kernel``, ``delocalization``, ``species``, ``voxel``, ``basis``, ``keep_unranged``,
+        ``efficiency``: as :func:`~apt_filters.voxel.fields.voxelize`, with its defaults.
     client : distributed.Client
         The cluster (see :func:`apt_filters.sweep.cluster.dask_client`).
     grid : Grid, optional
@@ -105,21 +96,17 @@ def voxelize_distributed(
         raise AptFiltersError(f"share must be at least 1 ion, got {share}")
     spans = [(a, min(a + int(share), n)) for a in range(0, n, int(share))] or [(0, 0)]
     starts, stops = [a for a, _ in spans], [b for _, b in spans]
+    bounds = None
     if grid is None:
         found = client.gather(client.map(_bounds, [path] * len(spans), starts, stops, [chunk_size] * len(spans),
                                          retries=2))
-        lower = np.min([lo for lo, _ in found], axis=0)
-        upper = np.max([hi for _, hi in found], axis=0)
-        if not np.all(np.isfinite([lower, upper])):
-            raise AptFiltersError("no ions to voxelize (or non-finite positions)", path)
-        grid = Grid.covering(lower, upper, voxel, kernel_reach(kernel, voxel, delocalization))
-    plan = plan_voxelization(None, ranges, grid=grid, kernel=kernel, delocalization=delocalization,
-                             species=species, voxel=voxel, basis=basis, keep_unranged=keep_unranged,
-                             efficiency=efficiency)
+        bounds = (np.min([lo for lo, _ in found], axis=0), np.max([hi for _, hi in found], axis=0))
+    plan = plan_voxelization(None, ranges, grid=grid, bounds=bounds, **options)
+    grid = plan.grid
     check_budget(grid, len(plan.names), memory_budget, copies=3)
     [shared_plan] = client.scatter([plan], broadcast=True)
     parts = client.map(_scatter_share, [path] * len(spans), starts, stops, [shared_plan] * len(spans),
                        [chunk_size] * len(spans), retries=2)
     total = tree_sum(client, parts).result()
-    coords, channels = finish_partial(grid, kernel, plan.delocalization, total, threads)
+    coords, channels = finish_partial(grid, plan.kernel, plan.delocalization, total, threads)
     return plan.fields(coords, channels, total.row_count)

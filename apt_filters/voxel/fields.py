@@ -288,9 +288,12 @@ def plan_voxelization(
     basis: ConcentrationBasis = ConcentrationBasis(),
     keep_unranged: bool | None = None,
     efficiency: float = 1.0,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> VoxelPlan:
-    """The :class:`VoxelPlan` of :func:`voxelize`'s arguments (same meanings); the ions are read only
-    to find the covering grid when ``grid`` is not given."""
+    """The :class:`VoxelPlan` of :func:`voxelize`'s arguments (same meanings).
+
+    Without ``grid``, the grid covers ``bounds`` (lower, upper corners in nm) or, without those,
+    the ions' bounds, read from ``ions_or_chunks`` (not a one-shot stream)."""
     check_kernel(kernel)
     if not (0 < efficiency <= 1):
         raise AptFiltersError(f"detection efficiency must be in (0, 1], got {efficiency!r}")
@@ -298,10 +301,14 @@ def plan_voxelization(
     names, rows = decomposition(ranges, species, keep_unranged)
     basis.fields(names)  # refuses an unknown species in the basis up front
     if grid is None:
-        chunks = as_chunks(ions_or_chunks) if ions_or_chunks is not None else None
-        if chunks is None or iter(chunks) is chunks:
-            raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
-        grid = _covering_grid(chunks, voxel, kernel_reach(kernel, voxel, delocalization))
+        if bounds is None:
+            chunks = as_chunks(ions_or_chunks) if ions_or_chunks is not None else None
+            if chunks is None or iter(chunks) is chunks:
+                raise AptFiltersError("voxelizing a one-shot stream of chunks needs a grid (Grid.covering of the bounds)")
+            bounds = chunk_bounds(chunks)
+        if not np.all(np.isfinite(bounds)):
+            raise AptFiltersError("no ions to voxelize (or non-finite positions)")
+        grid = Grid.covering(*bounds, voxel, kernel_reach(kernel, voxel, delocalization))
     return VoxelPlan(grid=grid, kernel=kernel,
                      delocalization=tuple(float(v) for v in np.broadcast_to(delocalization, (3,))),
                      species=species, names=tuple(names), rows=rows, lookup=MzLookup.from_ranges(ranges),
@@ -317,12 +324,11 @@ def _counted(names: list[str], rows: tuple[np.ndarray, ...], per_row: np.ndarray
     return dict(zip(names, out.tolist()))
 
 
-def _covering_grid(chunks: Iterable[IonTable], voxel: float, margin: np.ndarray) -> Grid:
+def chunk_bounds(chunks: Iterable[IonTable]) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) corners (nm) of the ions of some chunks; infinite where there are none."""
     lower, upper = np.full(3, np.inf), np.full(3, -np.inf)
     for chunk in chunks:
         if len(chunk):
             lo, hi = chunk.bounds()
             lower, upper = np.minimum(lower, lo), np.maximum(upper, hi)
-    if not np.all(np.isfinite([lower, upper])):
-        raise AptFiltersError("no ions to voxelize (or non-finite positions)")
-    return Grid.covering(lower, upper, voxel, margin)
+    return lower, upper
