@@ -31,6 +31,7 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.metrics import sample_mesh
 from apt_filters.pipeline.config import PipelineConfig
+from apt_filters.pipeline.run import segregant_basis
 from apt_filters.pipeline.surface import contour_surface
 from apt_filters.refine import (counted_truth, counting_floor, ion_atoms, match_objects, object_excess, object_levels,
                                 refine_surface, remove_specks, split_components, surface_error)
@@ -57,6 +58,11 @@ def defaults_surface(sp, species: str, iso: float):
                       efficiency=config.analysis.efficiency)
     mask = inside_mask(fields).dense()
     mesh = contour_surface(fields, mask, species, iso, config.contour.method, config.contour.close_at_edge)
+    surface_basis, _ = segregant_basis(mesh, sp.ions, sp.ranges, species, basis, v.include)
+    if surface_basis is not basis:
+        mesh = contour_surface(fields, mask, species, iso, config.contour.method, config.contour.close_at_edge,
+                               basis=surface_basis)
+    basis = surface_basis
     mesh, _ = remove_specks(mesh, r.min_volume, r.min_area)
     refined = refine_surface(mesh, sp.ions, sp.ranges, species, basis, iterations=r.iterations, facets=r.facets,
                              blur=tuple(r.blur) or "auto", cross_fit=r.cross_fit, select_modes=r.select_modes,

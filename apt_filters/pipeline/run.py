@@ -84,6 +84,21 @@ def _marker(marks) -> dict | None:
             "shift_nm": _finite(marks.shift)}
 
 
+def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()):
+    """The basis a concentration surface of ``species`` is drawn in: ``basis`` without the segregants its first
+    contour ``mesh`` shows (:func:`~apt_filters.refine.segregants.find_segregants`; those in ``include`` stay).
+    Returns (basis, Segregants), or (``basis``, None) for a density surface; ``basis`` itself where none is found."""
+    from apt_filters.refine.segregants import find_segregants
+    from apt_filters.voxel import ConcentrationBasis
+
+    if not species:
+        return basis, None
+    found = find_segregants(mesh, ions, ranges, species, basis=basis, include=tuple(include))
+    if not found.species:
+        return basis, found
+    return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
+
+
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
                  verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
@@ -149,12 +164,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             with log.step("contour") as s:
                 mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
                                        config.contour.close_at_edge)
-                s.summary = f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+                surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis,
+                                                            config.voxel.include)
+                if surface_basis is not basis:  # contoured again without the segregants' dilution
+                    mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
+                                           config.contour.close_at_edge, basis=surface_basis)
+                s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+                             + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
             raw_area = mesh.area()
             if config.refine.enabled and surface.species:
                 with log.step("refine") as s:
                     mesh, specks = remove_specks(mesh, config.refine.min_volume, config.refine.min_area)
-                    refined = refine_surface(mesh, ions, ranges, surface.species, basis,
+                    refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
                                              iterations=config.refine.iterations, facets=config.refine.facets,
                                              blur=tuple(config.refine.blur) or "auto",
                                              cross_fit=config.refine.cross_fit,
@@ -162,7 +183,9 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                              marker=config.refine.marker)
                     mesh = refined.mesh
                     estimate = refined.blur_estimate
-                    refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
+                    refine_stats = {"basis": surface_basis.describe(),
+                                    "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                                    "specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
                                     "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
                                     "self_intersections": refined.self_intersections, "facets": refined.facets,
                                     "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),

@@ -96,7 +96,8 @@ class Ellipsoid(_Solid):
         self.axes = np.asarray(axes, dtype=np.float64).reshape(3)
         if not (np.isfinite(self.axes).all() and (self.axes > 0).all()):
             raise AptFiltersError("ellipsoid semi-axes must be positive numbers of nm")
-        self._areas: dict[float, float] = {}
+        self._values: np.ndarray | None = None
+        self._areas: np.ndarray | None = None
 
     def _half_extent(self):
         return self.axes.copy()
@@ -107,7 +108,7 @@ class Ellipsoid(_Solid):
         lo = np.full(len(p), -a2[k])
         hi = np.maximum(self.axes.max() * np.linalg.norm(p, axis=1), 0.0)
         ap = self.axes * p
-        for _ in range(64):
+        for _ in range(50):  # the bracket shrinks to 2^-50 of its width
             t = 0.5 * (lo + hi)
             f = np.sum((ap / (t[:, None] + a2)) ** 2, axis=1) - 1
             lo, hi = np.where(f > 0, t, lo), np.where(f > 0, hi, t)
@@ -122,37 +123,36 @@ class Ellipsoid(_Solid):
     def volume(self, within=None):
         return 4.0 / 3.0 * math.pi * float(np.prod(self.axes))
 
-    def _grid_mesh(self, level: float, spacing: float) -> TriMesh:
+    def _grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """The local SDF on a grid of ``GRID`` nm reaching 3.3 nm beyond the axes (computed once), and its origin."""
+        if self._values is None:
+            axes = [np.arange(-r, r + self.GRID, self.GRID) for r in self.axes + 3.3]
+            pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+            self._values = self._local_sdf(pts.reshape(-1, 3)).reshape(pts.shape[:3])
+            self._origin = np.array([a[0] for a in axes])
+        return self._values, self._origin
+
+    def _level_mesh(self, level: float) -> TriMesh:
         from skimage.measure import marching_cubes
 
-        reach = self.axes + max(level, 0.0) + 2 * spacing
-        axes = [np.arange(-r, r + spacing, spacing) for r in reach]
-        pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-        values = self._local_sdf(pts.reshape(-1, 3)).reshape(pts.shape[:3])
-        if not values.min() < level < values.max():
-            return TriMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-        v, f, _, _ = marching_cubes(values, level=level, spacing=(spacing,) * 3)
-        v = v + np.array([a[0] for a in axes])
-        mesh = TriMesh(v, f)
-        return mesh if mesh.signed_volume() >= 0 else TriMesh(v, f[:, ::-1])
+        values, origin = self._grid()
+        v, f, _, _ = marching_cubes(values, level=level, spacing=(self.GRID,) * 3)
+        mesh = TriMesh(v + origin, f)
+        return mesh if mesh.signed_volume() >= 0 else TriMesh(mesh.vertices, f[:, ::-1])
 
     def level_area(self, d, within=None):
         """Areas (nm²) at 17 knots from the centre to 3 nm out, interpolated."""
         d = np.atleast_1d(np.asarray(d, dtype=np.float64))
-        knots = np.linspace(-self.depth(), 3.0, 17)
-        knots = np.union1d(knots, [0.0])
-        areas = []
-        for k in knots:
-            if k not in self._areas:
-                self._areas[k] = self._grid_mesh(float(k), self.GRID).area() if k > -self.depth() else 0.0
-            areas.append(self._areas[k])
-        return np.interp(d, knots, areas)
+        knots = np.union1d(np.linspace(-self.depth(), 3.0, 17), [0.0])
+        if self._areas is None:
+            self._areas = np.array([self._level_mesh(float(k)).area() if k > -self.depth() else 0.0 for k in knots])
+        return np.interp(d, knots, self._areas)
 
     def depth(self):
         return float(self.axes.min())
 
     def _local_mesh(self, spacing):
-        mesh = self._grid_mesh(0.0, min(spacing, self.GRID))
+        mesh = self._level_mesh(0.0)
         return mesh.vertices, mesh.faces
 
     def params(self):
