@@ -59,6 +59,9 @@ def test_report_numbers_against_the_truth(small_run):
         assert abs(row["area_ratio"] - 1) < 0.18, row
         assert abs(row["excess_B_ratio"] - 1) < 0.25, row
     surface = report["surfaces"][0]
+    refine = surface["mesh"]["refine"]
+    assert list(refine["segregants"]["species"]) == ["B"], "the B shell is found and left out of the basis"
+    assert "except B" in refine["basis"]
     assert surface["mesh"]["boundary_edges"] == 0, "precipitates inside the box are closed"
     assert {o["status"] for o in surface["objects"]} == {"closed"}
 
@@ -136,6 +139,7 @@ def test_existing_output_needs_force(small_run, capsys):
     (["--density", "1e6"], "outside the atomic density range"),
     (["--species", "Al"], "--species and --iso go together"),
     (["--voxel", "-1", "--species", "Al", "--iso", "0.15"], "voxel"),
+    (["--species", "Al", "--iso", "0.15", "--exclude", "B", "--include", "B"], "both excluded from and included"),
 ])
 def test_user_mistakes_are_one_line_and_exit_2(specimen, tmp_path, args, problem):
     folder, _ = specimen

@@ -8,7 +8,9 @@ iso-surface of the species drawn inward (gamma-prime-like specimens: object volu
 the 8 % B shell counted, ~0 % without). So :func:`find_segregants` measures, over all the objects
 pooled, each species' fraction in bins of the distance to a first surface and calls it a segregant
 where a bin near that surface stands ``significance`` binomial standard errors above the higher of its
-two plateaus. The surface only has to lie near the interface: the contour of the user's own basis
+two references, all the atoms more than ``GAP`` nm beyond the bin on each side (out to 4 nm): under a
+monotone step no bin exceeds the mean of what lies beyond it on its higher side, however wide the
+interface or thin the object (a 3 nm sphere has few atoms 2-4 nm inside its first contour). The surface only has to lie near the interface: the contour of the user's own basis
 (shrunk by the dilution and the delocalization) has the shell within 1-2 nm of it.
 """
 
@@ -28,7 +30,10 @@ SIGNIFICANCE = 5.0
 """Binomial standard errors by which a species' peak must stand above both of its plateaus."""
 
 REACH = (2.0, 4.0)
-"""nm: the peak is looked for within ``REACH[0]`` of the surface, the plateaus between the two, each side."""
+"""nm: the peak is looked for within ``REACH[0]`` of the surface, its references out to ``REACH[1]``."""
+
+GAP = 1.0
+"""nm between a candidate bin and its references on either side (a shell's sigma with the blur is 0.3-0.5 nm)."""
 
 
 @dataclass
@@ -40,8 +45,9 @@ class Segregants:
     species : tuple of str
         The segregants, most significant first (to be left out of the basis).
     peaks : dict species -> dict
-        Every species tested: ``peak_at_nm`` (bin centre, positive outside), ``peak`` (its fraction of the
-        atoms there), ``plateau`` (the higher plateau), ``z`` (standard errors above it).
+        Every species tested, at its most significant bin: ``peak_at_nm`` (bin centre, positive outside),
+        ``peak`` (its fraction of the atoms there), ``plateau`` (the higher reference), ``z`` (standard errors
+        above it).
     kept : tuple of str
         Segregants kept in the basis because the caller named them (``include``).
     """
@@ -78,7 +84,7 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     bin_width : float, nm
         Profile bins.
     significance : float
-        Binomial standard errors (of the bin and the plateau together) a peak must clear.
+        Binomial standard errors (of the bin and its reference together) a peak must clear.
 
     Returns
     -------
@@ -89,28 +95,39 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     near = NearIons.select(ions, ranges, ConcentrationBasis(), vertices, mesh.faces, far + 1.0)
     band = near.band(vertices, vertex_normals(vertices, mesh.faces), far + 1.0)
     atoms = near.atoms.atoms[band.index].astype(np.float64)
-    total = atoms.sum(axis=1)
-    d = band.distance
-    edges = np.arange(-near_reach, near_reach + 1e-9, bin_width)
-    b = np.digitize(d, edges) - 1
-    in_bins = (b >= 0) & (b < len(edges) - 1)
-    n_bin = np.bincount(b[in_bins], weights=total[in_bins], minlength=len(edges) - 1)
-    sides = [(d <= -near_reach) & (d >= -far), (d >= near_reach) & (d <= far)]
+    # fine bins over [-far, far]: each candidate bin's references are sums of whole fine bins
+    fine = bin_width / 5
+    edges = np.arange(-far, far + fine / 2, fine)
+    b = np.digitize(band.distance, edges) - 1
+    ok = (b >= 0) & (b < len(edges) - 1)
+    n_fine = len(edges) - 1
+    counts = np.stack([np.bincount(b[ok], weights=atoms[ok, k], minlength=n_fine) for k in range(atoms.shape[1])])
+    cum = np.concatenate([np.zeros((len(counts), 1)), np.cumsum(counts, axis=1)], axis=1)
+    cum_total = cum.sum(axis=0)
+    lo = np.arange(round((far - near_reach) / fine), round((far + near_reach - bin_width) / fine) + 1)  # bin starts
+    hi = lo + 5
+    gap = round(GAP / fine)
+    inner_end, outer_start = np.maximum(lo - gap, 0), np.minimum(hi + gap, n_fine)
+
+    def share(k, a, z):  # element k's fraction and the atoms between fine-bin edges a and z
+        n = cum_total[z] - cum_total[a]
+        return (cum[k, z] - cum[k, a]) / np.maximum(n, 1.0), n
+
     found, peaks, kept = [], {}, []
     for k, element in enumerate(near.atoms.elements):
         if element == species or element in basis.exclude:
             continue
-        k_bin = np.bincount(b[in_bins], weights=atoms[in_bins, k], minlength=len(edges) - 1)
-        plateaus = [(atoms[s, k].sum(), total[s].sum()) for s in sides]
-        fractions = [kk / max(n, 1.0) for kk, n in plateaus]
-        high = int(np.argmax(fractions))
-        p, n_p = fractions[high], max(plateaus[high][1], 1.0)
-        f = k_bin / np.maximum(n_bin, 1.0)
-        se = np.sqrt(np.maximum(np.maximum(f * (1 - f), p * (1 - p)), 1e-12) * (1 / np.maximum(n_bin, 1.0) + 1 / n_p))
-        z = np.where(n_bin > 0, (f - p) / se, -np.inf)
+        f, n = share(k, lo, hi)
+        p_in, n_in = share(k, np.zeros_like(lo), inner_end)
+        p_out, n_out = share(k, outer_start, np.full_like(lo, n_fine))
+        # under a monotone step no bin rises above everything beyond it on its higher side
+        higher = p_in > p_out
+        p, n_p = np.where(higher, p_in, p_out), np.where(higher, n_in, n_out)
+        se = np.sqrt(f * (1 - f) / np.maximum(n, 1.0) + p * (1 - p) / np.maximum(n_p, 1.0))
+        z = np.where((n > 0) & (n_p > 0), (f - p) / np.maximum(se, 1e-12), -np.inf)
         j = int(np.argmax(z))
-        peaks[element] = {"peak_at_nm": float(0.5 * (edges[j] + edges[j + 1])), "peak": float(f[j]),
-                          "plateau": float(p), "z": float(z[j])}
+        peaks[element] = {"peak_at_nm": round(float(edges[lo[j]] + bin_width / 2), 3), "peak": float(f[j]),
+                          "plateau": float(p[j]), "z": float(z[j])}
         if z[j] > significance:
             (kept if element in include else found).append(element)
     found.sort(key=lambda e: -peaks[e]["z"])
