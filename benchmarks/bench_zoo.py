@@ -33,8 +33,9 @@ from apt_filters.contour.metrics import sample_mesh
 from apt_filters.pipeline.config import PipelineConfig
 from apt_filters.pipeline.run import segregant_basis
 from apt_filters.pipeline.surface import contour_surface
-from apt_filters.refine import (counted_truth, counting_floor, ion_atoms, match_objects, object_excess, object_levels,
-                                refine_surface, remove_specks, split_components, surface_error)
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import ion_atoms, object_excess, object_levels, refine_surface, remove_specks
+from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error
 from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import NearIons, vertex_normals
+from apt_filters.refine.band import NearIons
 from apt_filters.voxel import ConcentrationBasis
 
 SIGNIFICANCE = 5.0
