@@ -193,16 +193,41 @@ def summary(rows: dict, spurious: dict) -> str:
     return "\n".join(lines)
 
 
+def summary_block(rows: dict) -> str:
+    """The results file's summary block (benchmarks/__main__.py gathers it into RESULTS.md)."""
+    def figures(p):
+        found = [r for r in rows[p] if r["bounded"] and r["found"]]
+        within = sum(abs(r["volume"]) <= max(0.05, 2 * r["volume_sigma"]) for r in found)
+        closed = sum(r["bounded"] for r in rows[p])
+        return within, closed, float(np.mean([r["mean"] for r in found])) if found else np.nan
+
+    (ours, n, d_ours), (peer, _, d_peer) = figures("defaults"), figures("AP")
+    return "\n".join([
+        "<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
+        f"| refine | held-out zoo objects with volume within max(5 %, 2 counting σ) | {ours} of {n} | "
+        f"{peer} of {n} (AP Suite-style) | - |",
+        f"| refine | held-out zoo mean distance to the true surface, mean over objects | {d_ours:.3f} nm | "
+        f"{d_peer:.3f} nm (AP Suite-style) | {d_ours / d_peer:.2f} |",
+        "<!-- /summary -->"])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
     ap.add_argument("--count", type=int, default=16, help="draws, families in turn")
     ap.add_argument("--families", nargs="+", help="only these families (of the split's draws)")
     ap.add_argument("--skip", type=int, default=0, help="leave out the first draws")
+    ap.add_argument("--out", help="also write the results file (summary block first), e.g. benchmarks/results_zoo.md")
     args = ap.parse_args(argv)
     rows = {p: [] for p in PIPELINES}
     spurious = {p: [] for p in PIPELINES}
-    print("machine: 2 cores shared with other jobs; times are wall seconds of one run\n")
+    lines = ["machine: 2 cores shared with other jobs; times are wall seconds of one run", ""]
+    print("\n".join(lines))
+
+    def say(text=""):
+        lines.append(text)
+        print(text, flush=True)
+
     for family, seed in draws(args.split, args.count)[args.skip:]:
         if args.families and family not in args.families:
             continue
@@ -213,21 +238,25 @@ def main(argv=None) -> int:
         iso = user_iso(spec, species)
         f0 = spec.features[0]
         seg = f0.segregation[0] if f0.segregation else None
-        print(f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
-              f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
-              f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
-              f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}")
+        say(f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
+            f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
+            f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
+            f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}")
         truth = truths(sp, species)
         for p, (mesh, seconds, note) in surfaces(sp, species, iso).items():
-            r, s = evaluate(sp, mesh, species, truth, seed)
+            r, n_spurious = evaluate(sp, mesh, species, truth, seed)
             rows[p] += r
-            spurious[p].append(s)
-            print(f"  {p} ({seconds:.1f} s{', ' + note if note else ''}; {s} spurious)")
+            spurious[p].append(n_spurious)
+            say(f"  {p} ({seconds:.1f} s{', ' + note if note else ''}; {n_spurious} spurious)")
             for row, tf in zip(r, sp.truth["features"]):
-                print(f"    {row['name']} ({tf['volume_nm3'] or 0:.0f} nm³): {fmt(row)}")
-        print(flush=True)
-    print(f"## summary: {args.split}, {args.count} draws\n")
-    print(summary(rows, spurious))
+                say(f"    {row['name']} ({tf['volume_nm3'] or 0:.0f} nm³): {fmt(row)}")
+        say()
+    say(f"## summary: {args.split}, {args.count} draws\n")
+    say(summary(rows, spurious))
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write(f"# bench_zoo: the defaults on the specimen zoo ({args.split})\n\n{summary_block(rows)}\n\n"
+                     + "\n".join(lines) + "\n")
     return 0
 
 

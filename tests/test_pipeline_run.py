@@ -114,6 +114,18 @@ def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
     assert counted == {(1, "B"): pytest.approx(shell / 100.0)}
 
 
+def test_an_iso_value_with_only_specks_gives_an_empty_surface_and_says_so(specimen, tmp_path):
+    folder, _ = specimen
+    config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.2)])
+    config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+    config.remesh.method = "none"
+    report = run_pipeline(config, tmp_path / "o", quiet=True)
+    surface = report["surfaces"][0]
+    assert surface["mesh"]["faces"] == 0 and surface["objects"] == []
+    assert any("no surface at this iso-value" in w for w in report["warnings"])
+    assert (tmp_path / "o" / "report.html").is_file()
+
+
 def test_rerun_with_saved_config_is_identical(small_run, tmp_path):
     out, report, _ = small_run
     again = tmp_path / "again"

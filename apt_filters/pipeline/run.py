@@ -202,6 +202,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             else:
                 refine_stats = None
             remesh_stats = None
+            if mesh.n_faces == 0:  # every component was a speck: reported, nothing to clean, measure or export
+                report.setdefault("warnings", []).append(f"no surface at this iso-value: every component of {label} "
+                                                         "was a speck")
+                results.append(SurfaceResult(label, surface, mesh, stats={
+                    "raw_area_nm2": raw_area, "refine": refine_stats, "faces": 0, "vertices": 0, "area_nm2": 0.0,
+                    "boundary_edges": 0}))
+                continue
             with log.step("clean") as s:
                 mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
                 s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
@@ -256,13 +263,14 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:
-            scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in results},
-                                species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in results},
+            drawn = [r for r in results if r.mesh.n_faces]  # a surface of specks only has nothing to show
+            scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in drawn},
+                                species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in drawn},
                                 ions=ions, ranges=ranges)
             sample = ions.positions[:: max(1, len(ions) // 20_000)]
-            render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
+            render_surfaces({r.label: r.mesh for r in drawn}, stage / "surfaces.png", points=sample)
             report["scene"] = scene
-            s.summary = (f"project.mlp: {len(results)} surface(s) coloured by "
+            s.summary = (f"project.mlp: {len(drawn)} surface(s) coloured by "
                          + ", ".join(f"{x['element']} at.%" for x in scene["surfaces"])
                          + f", {len(scene['ion_layers'])} ion layers, legend.png")
         report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,

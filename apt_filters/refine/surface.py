@@ -731,6 +731,9 @@ def refine_surface(
     """
     if not (blur is None or blur == "auto" or (not isinstance(blur, str) and len(blur) == 2 and min(blur) >= 0)):
         raise ValueError(f"blur must be (lateral, depth) sigmas >= 0 nm, 'auto' or None, got {blur!r}")
+    if mesh.n_faces == 0:  # nothing to move (every component was a speck): the empty surface passes through
+        return RefineResult(mesh, [], {"mean": 0.0, "rms": 0.0, "max_abs": 0.0, "last_step_max": 0.0}, 0, 0, 0, 0,
+                            0, score, basis.describe())
     keywords = dict(score=score, half_width=half_width, bin_width=bin_width, pool_radius=pool_radius,
                     normal_power=normal_power, smoothing=smoothing, max_step=max_step, tangential=tangential,
                     iterations=iterations, far_iterations=far_iterations, tolerance=tolerance,
