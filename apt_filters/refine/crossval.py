@@ -75,7 +75,8 @@ class ModeSelection:
         summed over both folds; NaN for ineligible objects or candidates with more modes than vertices.
     facets : dict[int, bool]
         Component -> whether its facets are kept: every object with facets on either half's surface, tried
-        with and without them (the held-out loss of its best candidate each way; the lower one wins).
+        with and without them; dropped where its best candidate without them has a held-out loss lower by more
+        than one standard error than its best with them.
     """
 
     modes: dict[int, int]
@@ -192,8 +193,15 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     chosen, keep_facets = {}, {}
     for c in objects:
         loss = np.where(missing[c], np.inf, sums[c])
-        # facets are a prior on the shape: kept where the held-out ions prefer them at each side's best candidate
-        with_facets = bool(not faceted[c] or loss[:half].min() <= loss[half:].min())
+        # facets are a prior on the shape, found by a rule: dropped where the held-out ions prefer the best
+        # candidate without them to the best with them by more than one standard error of the difference
+        with_facets = True
+        if faceted[c]:
+            jw, jn = int(np.argmin(loss[:half])), half + int(np.argmin(loss[half:]))
+            diff = sums[c][jn] - sums[c][jw]
+            se = np.sqrt(max(gram[c][jw, jw] + gram[c][jn, jn] - 2 * gram[c][jw, jn] - diff ** 2 / max(count[c], 1.0),
+                             0.0))
+            with_facets = bool(np.isfinite(loss[jw]) and not diff < -ONE_SE * se)
         if faceted[c]:
             keep_facets[c] = with_facets
         side = slice(0, half) if with_facets else slice(half, m)
