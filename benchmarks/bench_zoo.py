@@ -113,7 +113,8 @@ def truths(sp, species: str) -> dict:
         n_seg = float(everything.atoms[near][band, k_seg].sum()) if seg else 0.0
         c_in = ct.inside[k_iso]
         out[i] = {"floor": floors.get(i), "counted": ct, "seg": seg, "k_seg": k_seg, "k_iso": k_iso,
-                  "excess_sigma": np.sqrt(max(n_seg, 1.0)), "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(ct.n_inside, 1))}
+                  "excess_sigma": np.sqrt(max(n_seg, 1.0)),
+                  "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(ct.n_inside, 1))}
     return out
 
 

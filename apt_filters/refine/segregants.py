@@ -10,7 +10,8 @@ pooled, each species' fraction in bins of the distance to a first surface and ca
 where a bin near that surface stands ``significance`` binomial standard errors above the higher of its
 two references, all the atoms more than ``GAP`` nm beyond the bin on each side (out to 4 nm): under a
 monotone step no bin exceeds the mean of what lies beyond it on its higher side, however wide the
-interface or thin the object (a 3 nm sphere has few atoms 2-4 nm inside its first contour). The surface only has to lie near the interface: the contour of the user's own basis
+interface or thin the object (a 3 nm sphere has few atoms 2-4 nm inside its first contour). The surface
+only has to lie near the interface: the contour of the user's own basis
 (shrunk by the dilution and the delocalization) has the shell within 1-2 nm of it.
 """
 
@@ -27,7 +28,7 @@ from apt_filters.refine.band import NearIons
 from apt_filters.voxel import ConcentrationBasis
 
 SIGNIFICANCE = 5.0
-"""Binomial standard errors by which a species' peak must stand above both of its plateaus."""
+"""Binomial standard errors by which a species' peak must stand above its references on both sides."""
 
 REACH = (2.0, 4.0)
 """nm: the peak is looked for within ``REACH[0]`` of the surface, its references out to ``REACH[1]``."""
