@@ -124,7 +124,10 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
         # under a monotone step no bin rises above everything beyond it on its higher side
         higher = p_in > p_out
         p, n_p = np.where(higher, p_in, p_out), np.where(higher, n_in, n_out)
-        se = np.sqrt(f * (1 - f) / np.maximum(n, 1.0) + p * (1 - p) / np.maximum(n_p, 1.0))
+        # binomial standard error under the null (the bin holds the reference's fraction); a pseudo-count keeps
+        # a reference with none of the species from making a few atoms significant
+        q = (p * n_p + 0.5) / (n_p + 1.0)
+        se = np.sqrt(q * (1 - q) * (1 / np.maximum(n, 1.0) + 1 / np.maximum(n_p, 1.0)))
         z = np.where((n > 0) & (n_p > 0), (f - p) / np.maximum(se, 1e-12), -np.inf)
         j = int(np.argmax(z))
         peaks[element] = {"peak_at_nm": round(float(edges[lo[j]] + bin_width / 2), 3), "peak": float(f[j]),
