@@ -63,6 +63,9 @@ def test_report_numbers_against_the_truth(small_run):
         assert abs(row["area_ratio"] - 1) < 0.18, row
         assert abs(row["excess_B_ratio"] - 1) < 0.25, row
     surface = report["surfaces"][0]
+    refine = surface["mesh"]["refine"]
+    assert list(refine["segregants"]["species"]) == ["B"], "the B shell is found and left out of the basis"
+    assert "except B" in refine["basis"]
     assert surface["mesh"]["boundary_edges"] == 0, "precipitates inside the box are closed"
     assert {o["status"] for o in surface["objects"]} == {"closed"}
 
@@ -114,6 +117,18 @@ def test_counted_excess_leaves_out_shapes_truth_json_cannot_rebuild():
     assert counted == {(1, "B"): pytest.approx(shell / 100.0)}
 
 
+def test_an_iso_value_with_only_specks_gives_an_empty_surface_and_says_so(specimen, tmp_path):
+    folder, _ = specimen
+    config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.2)])
+    config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
+    config.remesh.method = "none"
+    report = run_pipeline(config, tmp_path / "o", quiet=True)
+    surface = report["surfaces"][0]
+    assert surface["mesh"]["faces"] == 0 and surface["objects"] == []
+    assert any("no surface at this iso-value" in w for w in report["warnings"])
+    assert (tmp_path / "o" / "report.html").is_file()
+
+
 def test_rerun_with_saved_config_is_identical(small_run, tmp_path, monkeypatch):
     out, report, _ = small_run
     monkeypatch.chdir(tmp_path)  # config.toml holds absolute input paths: it works from anywhere
@@ -146,6 +161,7 @@ def test_existing_output_needs_force(small_run, tmp_path, capsys):
     (["--density", "500"], "outside the atomic density range"),
     (["--species", "Al"], "--species and --iso go together"),
     (["--voxel", "-1", "--species", "Al", "--iso", "0.15"], "voxel"),
+    (["--species", "Al", "--iso", "0.15", "--exclude", "B", "--include", "B"], "both excluded from and included"),
 ])
 def test_user_mistakes_are_one_line_and_exit_2(specimen, tmp_path, args, problem):
     folder, _ = specimen

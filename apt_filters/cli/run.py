@@ -57,7 +57,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--species", help="element whose iso-concentration surface is drawn (with --iso)")
     p.add_argument("--iso", type=float, help="iso-concentration as a fraction, e.g. 0.15 for 15 at.%%")
     p.add_argument("--density", type=float, help="iso-density in atoms/nm3 instead of a concentration")
-    p.add_argument("--exclude", nargs="+", help="elements left out of the concentration's denominator")
+    p.add_argument("--exclude", nargs="+", help="elements left out of the concentration's denominator "
+                                                "(segregants found at the surface are left out anyway)")
+    p.add_argument("--include", nargs="+", help="elements kept in the denominator even where they peak at the "
+                                                "surface (default: such segregants are found and left out)")
     p.add_argument("--method", choices=["dc", "mc"], help="marching cubes (default) or dual contouring")
     p.add_argument("--kernel", choices=["gaussian", "sawtooth", "square"], help="transfer function (default gaussian)")
     p.add_argument("--voxel", type=float, help="voxel edge in nm (default 1.0)")

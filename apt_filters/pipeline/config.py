@@ -53,7 +53,12 @@ class VoxelConfig:
     delocalization: list[float] = field(default_factory=lambda: [3.0, 3.0, 1.5])
     """Delocalization as 3 sigma per axis x, y, z in nm (AP Suite default)."""
     exclude: list[str] = field(default_factory=list)
-    """Elements left out of the concentration's denominator (e.g. a segregant)."""
+    """Elements left out of the concentration's denominator besides the segregants found (see ``include``)."""
+    include: list[str] = field(default_factory=list)
+    """Elements kept in the denominator even where they peak at the surface. Otherwise every element whose
+    fraction peaks at a concentration surface above both of its plateaus (5 standard errors; a segregant,
+    which would dilute the species drawn and shrink its objects) is found from a first contour and left out
+    (docs/refine.md, "Segregants")."""
     include_unranged: bool = False
     """Count unranged (background) ions in the denominator."""
 
@@ -289,7 +294,8 @@ def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
 
 OPTIONS = {
     "voxel": ("voxel", "size"), "kernel": ("voxel", "kernel"), "delocalization": ("voxel", "delocalization"),
-    "exclude": ("voxel", "exclude"), "method": ("contour", "method"), "remesh": ("remesh", "method"),
+    "exclude": ("voxel", "exclude"), "include": ("voxel", "include"), "method": ("contour", "method"),
+    "remesh": ("remesh", "method"),
     "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "relabel": ("input", "relabel"),
     "unknown_species": ("input", "unknown_species"), "memory_budget": ("input", "memory_budget"),
 }
@@ -330,6 +336,9 @@ def check_config(config: PipelineConfig) -> None:
         raise AptFiltersError("an ion file and a range file are needed ([input] ions and ranges)")
     if not config.surface:
         raise AptFiltersError("no iso-surface asked for: give --species and --iso, --density, or [[surface]]")
+    both = set(config.voxel.exclude) & set(config.voxel.include)
+    if both:
+        raise AptFiltersError(f"{', '.join(sorted(both))} cannot be both excluded from and included in the basis")
     check(config)
 
 

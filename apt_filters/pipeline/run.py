@@ -146,6 +146,21 @@ def _absolute_inputs(config: PipelineConfig) -> PipelineConfig:
     return dataclasses.replace(config, input=dataclasses.replace(config.input, ions=ions, ranges=ranges))
 
 
+def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()):
+    """The basis a concentration surface of ``species`` is drawn in: ``basis`` without the segregants its first
+    contour ``mesh`` shows (:func:`~apt_filters.refine.segregants.find_segregants`; those in ``include`` stay).
+    Returns (basis, Segregants), or (``basis``, None) for a density surface; ``basis`` itself where none is found."""
+    from apt_filters.refine.segregants import find_segregants
+    from apt_filters.voxel import ConcentrationBasis
+
+    if not species:
+        return basis, None
+    found = find_segregants(mesh, ions, ranges, species, basis=basis, include=tuple(include))
+    if not found.species:
+        return basis, found
+    return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
+
+
 def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, quiet: bool = False,
                  verbose: bool = False, truth: dict | None = None) -> dict:
     """Run every step and write the output folder ``out``; returns the report's content.
@@ -214,12 +229,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             with log.step("contour") as s:
                 mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
                                        config.contour.close_at_edge)
-                s.summary = f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+                surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis,
+                                                            config.voxel.include)
+                if surface_basis is not basis:  # contoured again without the segregants' dilution
+                    mesh = contour_surface(fields, mask, surface.species, surface.iso, config.contour.method,
+                                           config.contour.close_at_edge, basis=surface_basis)
+                s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({config.contour.method})"
+                             + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
             raw_area = mesh.area()
             if config.refine.enabled and surface.species:
                 with log.step("refine") as s:
                     mesh, specks = remove_specks(mesh, config.refine.min_volume, config.refine.min_area)
-                    refined = refine_surface(mesh, ions, ranges, surface.species, basis,
+                    refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
                                              iterations=config.refine.iterations, facets=config.refine.facets,
                                              blur=tuple(config.refine.blur) or "auto",
                                              cross_fit=config.refine.cross_fit,
@@ -227,7 +248,9 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                                              marker=config.refine.marker)
                     mesh = refined.mesh
                     estimate = refined.blur_estimate
-                    refine_stats = {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
+                    refine_stats = {"basis": surface_basis.describe(),
+                                    "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                                    "specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
                                     "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
                                     "self_intersections": refined.self_intersections, "facets": refined.facets,
                                     "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),
@@ -244,6 +267,13 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
             else:
                 refine_stats = None
             remesh_stats = None
+            if mesh.n_faces == 0:  # every component was a speck: reported, nothing to clean, measure or export
+                report.setdefault("warnings", []).append(f"no surface at this iso-value: every component of {label} "
+                                                         "was a speck")
+                results.append(SurfaceResult(label, surface, mesh, stats={
+                    "raw_area_nm2": raw_area, "refine": refine_stats, "faces": 0, "vertices": 0, "area_nm2": 0.0,
+                    "boundary_edges": 0}))
+                continue
             with log.step("clean") as s:
                 mesh, _ = apply_chain(mesh, "clean", script=stage / f"clean_{label}.mlx")
                 s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
@@ -305,14 +335,15 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
                          "boundary_edges": len(mesh.boundary_edges())}
             results.append(res)
         with log.step("export") as s:
-            scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in results},
-                                species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in results},
+            drawn = [r for r in results if r.mesh.n_faces]  # a surface of specks only has nothing to show
+            scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in drawn},
+                                species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary) for r in drawn},
                                 ions=ions, ranges=ranges,
-                                quality={r.label: r.quality for r in results if r.quality is not None})
+                                quality={r.label: r.quality for r in drawn if r.quality is not None})
             sample = ions.positions[:: max(1, len(ions) // 20_000)]
-            render_surfaces({r.label: r.mesh for r in results}, stage / "surfaces.png", points=sample)
+            render_surfaces({r.label: r.mesh for r in drawn}, stage / "surfaces.png", points=sample)
             report["scene"] = scene
-            s.summary = (f"project.mlp: {len(results)} surface(s) coloured by "
+            s.summary = (f"project.mlp: {len(drawn)} surface(s) coloured by "
                          + ", ".join(f"{x['element']} at.%" for x in scene["surfaces"])
                          + f", {len(scene['ion_layers'])} ion layers, legend.png")
         report["surfaces"] = [{"label": r.label, "species": r.surface.species, "iso": r.surface.iso,

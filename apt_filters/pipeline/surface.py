@@ -17,10 +17,11 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.io import IonTable, RangeTable
 
 
-def field_values(fields, species: str, iso: float) -> np.ndarray:
-    """Dense (nx, ny, nz) field to contour: the concentration of ``species`` (a fraction) or, for
-    ``species == ""``, the atomic density (atoms/nm³); refused when ``iso`` is outside its range."""
-    field = fields.concentration(species) if species else fields.density()
+def field_values(fields, species: str, iso: float, basis=None) -> np.ndarray:
+    """Dense (nx, ny, nz) field to contour: the concentration of ``species`` (a fraction; in ``basis``, default
+    the voxelization's) or, for ``species == ""``, the atomic density (atoms/nm³); refused when ``iso`` is
+    outside its range."""
+    field = fields.concentration(species, basis) if species else fields.density()
     values = field.dense()
     finite = values[np.isfinite(values)]
     if not len(finite) or not finite.min() < iso < finite.max():
@@ -31,12 +32,13 @@ def field_values(fields, species: str, iso: float) -> np.ndarray:
 
 
 def contour_surface(fields, mask: np.ndarray, species: str, iso: float, method: str = "dc",
-                    close: bool = False) -> TriMesh:
-    """The iso-surface of ``species`` at ``iso`` by dual contouring (``"dc"``) or marching cubes
-    (``"mc"``), open where it meets the specimen edge (``mask`` False) unless ``close``."""
+                    close: bool = False, basis=None) -> TriMesh:
+    """The iso-surface of ``species`` at ``iso`` (its concentration in ``basis``, default the voxelization's)
+    by dual contouring (``"dc"``) or marching cubes (``"mc"``), open where it meets the specimen edge
+    (``mask`` False) unless ``close``."""
     from apt_filters.contour import dual_contouring, marching_cubes
 
-    values = field_values(fields, species, iso)
+    values = field_values(fields, species, iso, basis)
     contour = dual_contouring if method == "dc" else marching_cubes
     mesh = contour(values, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask, close=close)
     if mesh.n_faces == 0:

@@ -36,7 +36,7 @@ float64 of harmonics per object.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -73,11 +73,16 @@ class ModeSelection:
     losses : (c, len(candidates) + 1) float64
         Held-out loss of each candidate minus that of the shape as it is (atoms; negative: better),
         summed over both folds; NaN for ineligible objects or candidates with more modes than vertices.
+    facets : dict[int, bool]
+        Component -> whether its facets are kept: every object with facets on either half's surface, tried
+        with and without them; dropped where its best candidate without them has a held-out loss lower by more
+        than one standard error than its best with them.
     """
 
     modes: dict[int, int]
     candidates: tuple[int, ...]
     losses: np.ndarray
+    facets: dict[int, bool] = field(default_factory=dict)
 
 
 def object_harmonics(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, k: int
@@ -113,7 +118,7 @@ def basis_size(k: int) -> int:
 def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
                           halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis,
                           scores: ObjectScores, widths: np.ndarray, finisher: Callable[[int], Callable],
-                          candidates: tuple[int, ...] = CANDIDATES) -> ModeSelection:
+                          candidates: tuple[int, ...] = CANDIDATES, faceted_objects=()) -> ModeSelection:
     """Each object's number of modes by two-fold cross-validation (module docstring).
 
     Parameters
@@ -134,20 +139,27 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     widths : (c,) float64, nm
         Each object's profile width (error-function sigma).
     finisher : callable
-        ``finisher(k)(vertices)[0]``: the vertices after what follows the low-pass on the final surface
-        (blur, facets), for the surface half ``k`` placed (``fits[k]`` before the low-pass).
+        ``finisher(k, facets)(vertices)[0]``: the vertices after what follows the low-pass on the final surface
+        (blur, and the facets if ``facets``), for the surface half ``k`` placed (``fits[k]`` before the
+        low-pass).
     candidates : tuple of int
+    faceted_objects : iterable of int
+        Objects with facets on either half's surface: tried without them too.
     """
     n_comp = len(scores.usable)
-    columns = list(candidates) + [0]
+    plain = list(candidates) + [0]
+    # each candidate finished with the facets, then without them (the second set only where there are facets)
+    columns = [(k, True) for k in plain] + [(k, False) for k in plain]
     m = len(columns)
+    faceted = np.zeros(n_comp, dtype=bool)
+    faceted[list(faceted_objects)] = True
     # per object: sums and the Gram matrix of the per-ion losses, for the losses and their differences' errors
     sums, gram, count = np.zeros((n_comp, m)), np.zeros((n_comp, m, m)), np.zeros(n_comp)
     missing = np.zeros((n_comp, m), dtype=bool)
     top = basis_size(max(candidates))
     for k, fit in enumerate(fits):
         bases = object_harmonics(fit, faces, components, objects, top)
-        finish = finisher(k)
+        finish = {True: finisher(k, True), False: finisher(k, False)}
         held = NearIons.select(halves[1 - k], ranges, basis, fit, faces, SCORED + 1.0)
         start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
         keep = np.abs(start.distance) < SCORED
@@ -158,10 +170,13 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         lo, hi = scores.outside[comp], scores.inside[comp]
         sigma = np.sqrt(2) * widths[comp]
         per_ion = np.empty((len(rows), m))
-        for j, modes in enumerate(columns):
+        for j, (modes, with_facets) in enumerate(columns):
             trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
             missing[[c for c in objects if c not in trial and modes], j] = True
-            vertices = finish(apply_modes(fit, bases, trial))[0]
+            if not with_facets and not faceted.any():
+                missing[:, j] = True
+                continue
+            vertices = finish[with_facets](apply_modes(fit, bases, trial))[0]
             band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
             distance = np.full(len(held.positions), SCORED + 1.0)
             distance[band.index] = band.distance
@@ -172,15 +187,30 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
             sums[c] += mine.sum(axis=0)
             gram[c] += mine.T @ mine
             count[c] += len(mine)
-    losses = np.full((n_comp, m), np.nan)
-    chosen = {}
+    half = len(plain)
+    missing[~faceted, half:] = True
+    losses = np.full((n_comp, half), np.nan)
+    chosen, keep_facets = {}, {}
     for c in objects:
         loss = np.where(missing[c], np.inf, sums[c])
+        # facets are a prior on the shape, found by a rule: dropped where the held-out ions prefer the best
+        # candidate without them to the best with them by more than one standard error of the difference
+        with_facets = True
+        if faceted[c]:
+            jw, jn = int(np.argmin(loss[:half])), half + int(np.argmin(loss[half:]))
+            diff = sums[c][jn] - sums[c][jw]
+            se = np.sqrt(max(gram[c][jw, jw] + gram[c][jn, jn] - 2 * gram[c][jw, jn] - diff ** 2 / max(count[c], 1.0),
+                             0.0))
+            with_facets = bool(np.isfinite(loss[jw]) and not diff < -ONE_SE * se)
+        if faceted[c]:
+            keep_facets[c] = with_facets
+        side = slice(0, half) if with_facets else slice(half, m)
+        loss, g, s_c = loss[side], gram[c][side, side], sums[c][side]
         best = int(np.argmin(loss))
         # standard error of each candidate's loss minus the best one's (sum over ions of the difference)
-        diff_sq = np.diag(gram[c]) + gram[c][best, best] - 2 * gram[c][:, best]
-        se = np.sqrt(np.maximum(diff_sq - (sums[c] - sums[c][best]) ** 2 / max(count[c], 1.0), 0.0))
+        diff_sq = np.diag(g) + g[best, best] - 2 * g[:, best]
+        se = np.sqrt(np.maximum(diff_sq - (s_c - s_c[best]) ** 2 / max(count[c], 1.0), 0.0))
         # the smoothest candidate within one standard error of the best (columns run smooth to rough)
-        chosen[c] = columns[int(np.flatnonzero(loss <= loss[best] + ONE_SE * se)[0])]
-        losses[c] = np.where(missing[c], np.nan, sums[c] - sums[c][-1])
-    return ModeSelection(chosen, tuple(candidates), losses)
+        chosen[c] = plain[int(np.flatnonzero(loss <= loss[best] + ONE_SE * se)[0])]
+        losses[c] = np.where(np.isinf(loss), np.nan, s_c - s_c[-1])
+    return ModeSelection(chosen, tuple(candidates), losses, keep_facets)

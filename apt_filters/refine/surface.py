@@ -731,6 +731,9 @@ def refine_surface(
     """
     if not (blur is None or blur == "auto" or (not isinstance(blur, str) and len(blur) == 2 and min(blur) >= 0)):
         raise ValueError(f"blur must be (lateral, depth) sigmas >= 0 nm, 'auto' or None, got {blur!r}")
+    if mesh.n_faces == 0:  # nothing to move (every component was a speck): the empty surface passes through
+        return RefineResult(mesh, [], {"mean": 0.0, "rms": 0.0, "max_abs": 0.0, "last_step_max": 0.0}, 0, 0, 0, 0,
+                            0, score, basis.describe())
     keywords = dict(score=score, half_width=half_width, bin_width=bin_width, pool_radius=pool_radius,
                     normal_power=normal_power, smoothing=smoothing, max_step=max_step, tangential=tangential,
                     iterations=iterations, far_iterations=far_iterations, tolerance=tolerance,
@@ -759,11 +762,12 @@ def refine_surface(
     vertices, guarded = placed.vertices, placed.guarded
     if select_modes and cross_fit and objects:
         # candidates are finished with the blur given, or without one while it is still to be estimated
+        half_facets = [_placed_facets(fit, faces, components, scores, facets, half_width, distance) for fit in fits]
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, halves, ranges,
                                           basis, scores, placed.widths,
-                                          lambda k: _finisher(_placed_facets(fits[k], faces, components, scores,
-                                                                             facets, half_width, distance),
-                                                              faces, pairs, None if auto else blur))
+                                          lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
+                                                                    None if auto else blur),
+                                          faceted_objects={f.component for found in half_facets for f in found})
         kept = {c: k for c, k in selection.modes.items() if k}
         if kept:
             bases = object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
@@ -775,6 +779,8 @@ def refine_surface(
                 guarded += g
             vertices = target
     found = _placed_facets(placed, faces, components, scores, facets, half_width, distance)
+    if selection is not None:  # facets only where held-out ions preferred them
+        found = [f for f in found if selection.facets.get(f.component, True)]
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]

@@ -1,0 +1,265 @@
+"""The surface estimator's defaults on specimens it was not tuned on (issue 25): the specimen zoo.
+
+    /work/venv/bin/python -m benchmarks.bench_zoo [--split heldout] [--count 16] [--families rod plate]
+
+Each draw of :mod:`apt_filters.synth.zoo` (randomised shapes, sizes, contrasts, interface widths,
+segregants, efficiencies, blurs; ``dev`` and ``heldout`` splits by seed and by family) is generated and
+two surfaces are drawn on the same ions at the iso-value a user would give, the midpoint of the iso
+species' two phases (all ranged species in the denominator):
+
+``AP``        AP Suite-style: 1 nm voxels, Gaussian 3 x 3 x 1.5 nm delocalization, all ranged species in the
+              denominator, marching cubes; specks removed by the pipeline's rule.
+``defaults``  What ``apt-filters run INPUT -r R -o OUT --species EL --iso C`` draws before its clean and
+              remesh steps, every option at its default.
+
+Per true object: volume and area errors with their counting sigma (the Cramér-Rao floor of
+:func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one), mean and
+Hausdorff distance to the true surface, the segregant's excess per area against what the object's own ions
+hold in its true frame (:func:`~apt_filters.refine.evaluate.counted_truth`) with that count's Poisson sigma,
+and the iso species' inside plateau (0.75-3 nm) against the count. An open interface: the mean and largest
+distance of the surface to the true plane, and the excess per area. Per specimen: objects not found and
+spurious objects (components that match no true object). The summary checks the issue's targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from apt_filters.contour import marching_cubes
+from apt_filters.contour.metrics import sample_mesh
+from apt_filters.pipeline.config import PipelineConfig
+from apt_filters.pipeline.run import segregant_basis
+from apt_filters.pipeline.surface import contour_surface
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import ion_atoms, object_excess, object_levels, refine_surface, remove_specks
+from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error
+from apt_filters.synth import generate
+from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+
+PIPELINES = ("AP", "defaults")
+
+
+def user_iso(spec, species: str) -> float:
+    """The iso-value a user would give: midway between the matrix and the objects (all species counted)."""
+    inside = spec.features[0].composition.get(species, 0.0)
+    return 0.5 * (inside + spec.matrix.get(species, 0.0))
+
+
+def defaults_surface(sp, species: str, iso: float):
+    """The refined surface of ``apt-filters run`` with every option at its default (before its clean chain and
+    remesher), and the concentration basis it used."""
+    config = PipelineConfig()
+    v, r = config.voxel, config.refine
+    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
+    fields = voxelize(sp.ions, sp.ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size, basis=basis,
+                      efficiency=config.analysis.efficiency)
+    mask = inside_mask(fields).dense()
+    mesh = contour_surface(fields, mask, species, iso, config.contour.method, config.contour.close_at_edge)
+    surface_basis, _ = segregant_basis(mesh, sp.ions, sp.ranges, species, basis, v.include)
+    if surface_basis is not basis:
+        mesh = contour_surface(fields, mask, species, iso, config.contour.method, config.contour.close_at_edge,
+                               basis=surface_basis)
+    basis = surface_basis
+    mesh, _ = remove_specks(mesh, r.min_volume, r.min_area)
+    refined = refine_surface(mesh, sp.ions, sp.ranges, species, basis, iterations=r.iterations, facets=r.facets,
+                             blur=tuple(r.blur) or "auto", cross_fit=r.cross_fit, select_modes=r.select_modes,
+                             marker=r.marker)
+    return refined.mesh, basis.describe()
+
+
+def surfaces(sp, species: str, iso: float) -> dict:
+    """(mesh, seconds, note) of each pipeline."""
+    t = time.perf_counter()
+    fields = voxelize(sp.ions, sp.ranges)
+    c = fields.concentration(species).dense()
+    mask = inside_mask(fields).dense()
+    ap, _ = remove_specks(marching_cubes(c, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask))
+    out = {"AP": (ap, time.perf_counter() - t, "")}
+    t = time.perf_counter()
+    mesh, basis = defaults_surface(sp, species, iso)
+    out["defaults"] = (mesh, time.perf_counter() - t, f"basis: {basis}")
+    return out
+
+
+def truths(sp, species: str) -> dict:
+    """Per feature: counting floor (volume and area sigma), counted truth and its sigmas."""
+    spec = sp.spec
+    seg = spec.features[0].segregation[0].species if spec.features[0].segregation else None
+    everything = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
+    basis = ConcentrationBasis(exclude=(seg,) if seg else ())
+    atoms = ion_atoms(sp.ions, sp.ranges, basis).atoms
+    k_seg = everything.elements.index(seg) if seg else None
+    k_iso = everything.elements.index(species)
+    pos = sp.ions.positions
+    bounded = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
+    floors = {}
+    if bounded:
+        fl = counting_floor([sp.feature_sdf(i) for i in bounded], [spec.features[i].shape.level_area for i in bounded],
+                            [sp.truth["features"][i]["volume_nm3"] for i in bounded], pos, atoms,
+                            marker=None if seg is None else everything.atoms[:, k_seg])
+        floors = dict(zip(bounded, fl))
+    out = {}
+    for i, tf in enumerate(sp.truth["features"]):
+        inside = np.array([tf["composition_inside"].get(e, 0.0) for e in everything.elements])
+        outside = np.array([tf["composition_outside"].get(e, 0.0) for e in everything.elements])
+        d = sp.feature_sdf(i)(pos.astype(np.float64))
+        near = np.abs(d) < 3.5
+        ct = counted_truth(lambda p, d=d[near]: d, pos[near], everything.atoms[near], inside, outside)
+        band = np.abs(d[near]) <= 1.5
+        n_seg = float(everything.atoms[near][band, k_seg].sum()) if seg else 0.0
+        c_in = ct.inside[k_iso]
+        out[i] = {"floor": floors.get(i), "counted": ct, "seg": seg, "k_seg": k_seg, "k_iso": k_iso,
+                  "excess_sigma": np.sqrt(max(n_seg, 1.0)),
+                  "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(ct.n_inside, 1))}
+    return out
+
+
+def evaluate(sp, mesh, species: str, truth: dict, seed: int) -> tuple[list[dict], int]:
+    """Rows per true feature, and the number of spurious objects."""
+    parts = split_components(mesh) if mesh.n_faces else []
+    feats = list(range(len(sp.truth["features"])))
+    match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
+    seg = truth[0]["seg"]
+    excess = object_excess(mesh, sp.ions, sp.ranges, seg) if seg and parts else []
+    levels = object_levels(mesh, sp.ions, sp.ranges, species, prior=0.0) if parts else []
+    rows = []
+    for i, m in zip(feats, match):
+        tf, tr = sp.truth["features"][i], truth[i]
+        row = {"name": tf["name"], "bounded": tf["bounded"], "found": m is not None, "true_volume": tf["volume_nm3"]}
+        if m is None:
+            rows.append(row)
+            continue
+        part = parts[m]
+        ct = tr["counted"]
+        if tf["bounded"]:
+            err = surface_error(part, sp.feature_sdf(i), sp.meshes[i], tf["volume_nm3"], tf["area_nm2"], seed=seed)
+            row |= {"volume": err.volume_error, "area": err.area_error, "mean": err.mean_distance,
+                    "hausdorff": err.hausdorff, "volume_sigma": tr["floor"].volume, "area_sigma": tr["floor"].area}
+        else:  # an open interface: distances from the surface to the true plane
+            pts, _ = sample_mesh(part, 20.0, np.random.default_rng(seed))
+            dist = np.abs(sp.feature_sdf(i)(pts))
+            row |= {"mean": float(dist.mean()), "hausdorff": float(dist.max())}
+        if seg:  # per area, scaled to the true area (an open surface ends at the mask: per area compares alike)
+            held, measured = ct.excess_ions[tr["k_seg"]], excess[m].ions_per_nm2 * tf["area_nm2"]
+            row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
+        k = levels[m].elements.index(species)
+        row |= {"plateau_in": levels[m].inside[k] - ct.inside[tr["k_iso"]], "plateau_sigma": tr["plateau_sigma"]}
+        rows.append(row)
+    matched = {m for m in match if m is not None}
+    spurious = sum(1 for j in range(len(parts)) if j not in matched)
+    return rows, spurious
+
+
+def fmt(r: dict) -> str:
+    if not r["found"]:
+        return "not found"
+    cells = []
+    if "volume" in r:
+        cells += [f"V {100 * r['volume']:+.1f}% (σ {100 * r['volume_sigma']:.1f})",
+                  f"A {100 * r['area']:+.1f}% (σ {100 * r['area_sigma']:.1f})"]
+    cells += [f"d {r['mean']:.3f}", f"H {r['hausdorff']:.2f}"]
+    if "excess_rel" in r:
+        cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
+    cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / max(r['plateau_sigma'], 1e-9):+.1f}σ)")
+    return ", ".join(cells)
+
+
+def summary(rows: dict, spurious: dict) -> str:
+    lines = ["| pipeline | objects (found / of) | spurious | volume within max(5 %, 2σ) | area within | worst volume "
+             "| mean d <= 0.15 | Hausdorff <= 1 | excess within 2σ | plateau within 2σ | open: mean d <= 0.1 |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for p in PIPELINES:
+        closed = [r for r in rows[p] if r["bounded"]]
+        found = [r for r in closed if r["found"]]
+        big = [r for r in closed if r["true_volume"] >= 30]
+        opened = [r for r in rows[p] if not r["bounded"] and r["found"]]
+
+        def within(key, sig):
+            return sum(abs(r[key]) <= max(0.05, 2 * r[sig]) for r in found)
+        ex = [r for r in rows[p] if r["found"] and "excess" in r]
+        pl = [r for r in rows[p] if r["found"]]
+        worst = max((abs(r["volume"]) for r in found), default=np.nan)
+        lines.append(
+            f"| {p} | {len(found)} / {len(closed)} (>= 30 nm³: {sum(r['found'] for r in big)} / {len(big)}) | "
+            f"{sum(spurious[p])} | {within('volume', 'volume_sigma')} of {len(found)} | "
+            f"{within('area', 'area_sigma')} of {len(found)} | {100 * worst:.1f}% | "
+            f"{sum(r['mean'] <= 0.15 for r in found)} of {len(found)} | {sum(r['hausdorff'] <= 1 for r in found)} of "
+            f"{len(found)} | {sum(abs(r['excess']) <= 2 * r['excess_sigma'] for r in ex)} of {len(ex)} | "
+            f"{sum(abs(r['plateau_in']) <= 2 * r['plateau_sigma'] for r in pl)} of {len(pl)} | "
+            f"{sum(r['mean'] <= 0.1 for r in opened)} of {len(opened)} |")
+    return "\n".join(lines)
+
+
+def summary_block(rows: dict) -> str:
+    """The results file's summary block (benchmarks/__main__.py gathers it into RESULTS.md)."""
+    def figures(p):
+        found = [r for r in rows[p] if r["bounded"] and r["found"]]
+        within = sum(abs(r["volume"]) <= max(0.05, 2 * r["volume_sigma"]) for r in found)
+        closed = sum(r["bounded"] for r in rows[p])
+        return within, closed, float(np.mean([r["mean"] for r in found])) if found else np.nan
+
+    (ours, n, d_ours), (peer, _, d_peer) = figures("defaults"), figures("AP")
+    return "\n".join([
+        "<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
+        f"| refine | held-out zoo objects with volume within max(5 %, 2 counting σ) | {ours} of {n} | "
+        f"{peer} of {n} (AP Suite-style) | - |",
+        f"| refine | held-out zoo mean distance to the true surface, mean over objects | {d_ours:.3f} nm | "
+        f"{d_peer:.3f} nm (AP Suite-style) | {d_ours / d_peer:.2f} |",
+        "<!-- /summary -->"])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--split", default="heldout", choices=list(SPLITS))
+    ap.add_argument("--count", type=int, default=16, help="draws, families in turn")
+    ap.add_argument("--families", nargs="+", help="only these families (of the split's draws)")
+    ap.add_argument("--skip", type=int, default=0, help="leave out the first draws")
+    ap.add_argument("--out", help="also write the results file (summary block first), e.g. benchmarks/results_zoo.md")
+    args = ap.parse_args(argv)
+    rows = {p: [] for p in PIPELINES}
+    spurious = {p: [] for p in PIPELINES}
+    lines = ["machine: 2 cores shared with other jobs; times are wall seconds of one run", ""]
+    print("\n".join(lines))
+
+    def say(text=""):
+        lines.append(text)
+        print(text, flush=True)
+
+    for family, seed in draws(args.split, args.count)[args.skip:]:
+        if args.families and family not in args.families:
+            continue
+        spec = zoo_specimen(family, seed)
+        sp = generate(spec, seed)
+        species = sp.truth["features"][0]["composition_inside"]
+        species = max(species, key=lambda e: species[e] - spec.matrix.get(e, 0.0))
+        iso = user_iso(spec, species)
+        f0 = spec.features[0]
+        seg = f0.segregation[0] if f0.segregation else None
+        say(f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
+            f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
+            f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
+            f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}")
+        truth = truths(sp, species)
+        for p, (mesh, seconds, note) in surfaces(sp, species, iso).items():
+            r, n_spurious = evaluate(sp, mesh, species, truth, seed)
+            rows[p] += r
+            spurious[p].append(n_spurious)
+            say(f"  {p} ({seconds:.1f} s{', ' + note if note else ''}; {n_spurious} spurious)")
+            for row, tf in zip(r, sp.truth["features"]):
+                say(f"    {row['name']} ({tf['volume_nm3'] or 0:.0f} nm³): {fmt(row)}")
+        say()
+    say(f"## summary: {args.split}, {args.count} draws\n")
+    say(summary(rows, spurious))
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write(f"# bench_zoo: the defaults on the specimen zoo ({args.split})\n\n{summary_block(rows)}\n\n"
+                     + "\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
