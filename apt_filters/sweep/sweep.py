@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -129,8 +130,8 @@ def run_sweep(base: cfg.PipelineConfig, choices: Sequence[Choice], out: str | Pa
         rows = _matched(per_run)
         result = SweepResult(runs, rows, spread_table(rows), wall)
         _write(stage, result, base)
-        if not keep_runs:
-            (stage / "runs").rmdir()
+        if not keep_runs:  # what a run killed with its worker left there goes too
+            shutil.rmtree(stage / "runs")
     return result
 
 
