@@ -16,18 +16,17 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from apt_filters.contour import marching_cubes
-from apt_filters.core.atomic import atomic_write_text
 from apt_filters.core.nearby import select_near
 from apt_filters.refine import remove_specks, subdivide
 from apt_filters.refine.band import NearIons
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from benchmarks.results import ratio, write_results
 
 REACH = 4.0
 NO_B = ConcentrationBasis(exclude=("B",))
@@ -60,21 +59,16 @@ def main(argv: list[str] | None = None) -> str:
     tree = cKDTree(mesh.vertices)
     peer, (d, _) = best_of(lambda: tree.query(positions, distance_upper_bound=REACH))
     n = len(positions)
-    lines = [
-        "<!-- summary -->",
-        "| step | measure | ours | peer | ours / peer |",
-        "|---|---|---:|---:|---:|",
-        f"| core | ions within {REACH:g} nm of a {mesh.n_faces:,}-face surface, {n:,} ions | {ours:.2f} s | "
-        f"{peer:.2f} s (cKDTree, nearest vertex) | {ours / peer:.2f} |",
-        f"| core | refinement's ion selection (NearIons.select) | {whole:.2f} s | - | - |",
-        "<!-- /summary -->",
-        "",
+    rows = [("core", f"ions within {REACH:g} nm of a {mesh.n_faces:,}-face surface, {n:,} ions", f"{ours:.2f} s",
+             f"{peer:.2f} s (cKDTree, nearest vertex)", ratio(ours, peer)),
+            ("core", "refinement's ion selection (NearIons.select, same ions)", f"{whole:.2f} s", "-", "-")]
+    detail = "\n".join([
+        "## Near-surface selection", "",
         f"Specimen: `{name}` seed 1, {n:,} ions; surface {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces. "
-        f"Selected within {REACH:g} nm of the surface: {len(near.rows):,} ions (exact distance); "
-        f"within {REACH:g} nm of a vertex: {int(np.isfinite(d).sum()):,}. Best of 3, wall time.",
-    ]
-    text = "\n".join(lines) + "\n"
-    atomic_write_text(Path(__file__).with_name("results_core.md"), text, overwrite=True)
+        f"Within {REACH:g} nm of the surface: {len(near.rows):,} ions (exact distance); within {REACH:g} nm of a "
+        f"vertex: {int(np.isfinite(d).sum()):,}. Best of 3, wall time."])
+    path = write_results("core", "Core: the ions near a surface", rows, [detail], intro=__doc__.split("\n\n", 2)[2])
+    text = path.read_text()
     print(text)
     return text
 
