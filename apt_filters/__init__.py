@@ -1,7 +1,8 @@
 """apt-filters: atom probe tomography iso-surfaces, MeshLab filter chains and interface chemistry.
 
 One package per step; the steps and their order are in docs/index.md ("The steps, in the order a
-run takes them"). ``core`` holds what every step shares.
+run takes them"). ``core`` holds what every step shares;
+:func:`apt_filters.pipeline.surface.finished_surface` is the one way from ions to a finished surface.
 """
 
 import warnings

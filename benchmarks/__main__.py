@@ -21,7 +21,7 @@ from apt_filters.core.atomic import atomic_write_text
 from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["cli", "io", "ranges", "synth", "audit", "voxel", "contour", "meshlab", "remesh", "proxigram", "maps",
+ORDER = ["cli", "io", "ranges", "synth", "audit", "voxel", "core", "contour", "meshlab", "remesh", "proxigram", "maps",
          "refine", "pipeline", "sweep"]
 
 

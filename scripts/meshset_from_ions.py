@@ -3,9 +3,10 @@
 Run: ``python scripts/meshset_from_ions.py IONS RANGES SPECIES ISO OUTDIR``, e.g.
 ``python scripts/meshset_from_ions.py ../shared/data/real/apav-si/Si.pos ../shared/data/real/apav-si/Si.RRNG Cr 0.3 out``.
 
-1. ``add_iso_surface`` voxelizes the ions (AP Suite's Gaussian, 1 nm voxels), draws the
-   dual-contoured iso-surface, cleans it with the ``clean`` chain (saved as ``clean.mlx``),
-   remeshes it (CVT) and adds it to the MeshSet;
+1. ``add_iso_surface`` voxelizes the ions (AP Suite's Gaussian, 1 nm voxels) and makes the
+   finished surface as ``apt-filters run`` does (``finished_surface``: marching cubes, specks
+   removed, refined against the ions, cleaned with the ``clean`` chain saved as ``clean.mlx``,
+   remeshed by CVT), then adds it to the MeshSet;
 2. the saved chain is applied again with MeshLab's own engine to the user's MeshSet
    (``replay_on_meshset``), as one would apply it to another dataset's surface;
 3. the proxigram across the surface is computed from the TriMesh, and the MeshSet is saved

@@ -108,3 +108,62 @@ def test_face_components_numbered_by_first_face():
     assert labels.tolist() == [0] * 12 + [1] * 12
     shuffled = TriMesh(both.vertices, both.faces[::-1])
     assert shuffled.face_components().tolist() == [0] * 12 + [1] * 12
+
+
+def _box(half, center=(0.0, 0.0, 0.0)) -> TriMesh:
+    m = unit_cube()
+    v = (m.vertices / [2.0, 3.0, 5.0] * 2 - 1) * np.asarray(half) + np.asarray(center)
+    return TriMesh(v, m.faces)
+
+
+def _box_sdf(p, half, center=(0.0, 0.0, 0.0)):
+    q = np.abs(p - np.asarray(center)) - np.asarray(half)
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+
+
+def test_topology_of_a_cube_a_holed_cube_and_a_torus():
+    from tests.meshlab_shapes import torus
+
+    cube = unit_cube()
+    top = cube.topology
+    assert (top.n_components, top.boundary_loops, top.genus, len(top.face_pairs)) == (1, 0, 0, 18)
+    assert top.closed_component.tolist() == [True] and cube.topology is top  # cached on the faces array
+    holed = TriMesh(cube.vertices, cube.faces[1:])
+    assert (holed.topology.boundary_loops, holed.topology.closed_component.tolist()) == (1, [False])
+    assert holed.topology.boundary_vertex.sum() == 3
+    ring = torus().topology
+    assert (ring.n_components, ring.boundary_loops, ring.genus) == (1, 0, 1)
+    with pytest.raises(ValueError):
+        top.components[0] = 5  # shared by every caller: read-only
+
+
+def test_signed_distance_is_positive_along_the_normals_and_exact_on_a_box():
+    half = np.array([1.0, 2.0, 3.0])
+    rng = np.random.default_rng(0)
+    p = rng.uniform(-5, 5, size=(20_000, 3))
+    from apt_filters.core.distance import SurfaceDistance
+
+    d = SurfaceDistance(_box(half)).query(p).distance
+    np.testing.assert_allclose(d, _box_sdf(p, half), atol=1e-5)  # outside > 0, inside < 0
+
+
+def test_near_surface_selection_streams_a_memory_map_and_serves_a_moved_mesh(tmp_path):
+    from apt_filters.core.nearby import select_near
+
+    half, reach = np.array([2.0, 3.0, 4.0]), 1.5
+    rng = np.random.default_rng(1)
+    path = tmp_path / "p.f32"
+    rng.uniform(-7, 7, size=(50_000, 3)).astype(np.float32).tofile(path)
+    positions = np.memmap(path, dtype=np.float32, mode="r").reshape(-1, 3)
+    near = select_near(positions, _box(half), reach, chunk=6_007)
+    truth = np.flatnonzero(np.abs(_box_sdf(positions.astype(np.float64), half)) <= reach)
+    assert np.array_equal(near.rows, truth) and len(truth) > 5_000
+    np.testing.assert_allclose(near.positions, positions[truth])
+    # the same mesh moved by 0.3 nm: every ion within 1.0 nm of it is among those selected within 1.5 nm
+    moved = _box(half, center=(0.3, 0.0, 0.0))
+    index, sd = near.within(moved, 1.0)
+    again = np.flatnonzero(np.abs(_box_sdf(positions.astype(np.float64), half, (0.3, 0, 0))) <= 1.0)
+    assert np.array_equal(near.rows[index], again)
+    np.testing.assert_allclose(sd.distance, _box_sdf(near.positions[index], half, (0.3, 0, 0)), atol=1e-5)
+    with pytest.raises(ValueError):
+        near.within(moved, 1.4)  # 1.4 + 0.3 > 1.5: ions outside the selection could be missed

@@ -6,6 +6,7 @@ import numpy as np
 import pymeshlab
 
 from apt_filters.io import read_ions, read_ranges
+from apt_filters.pipeline.config import PipelineConfig
 from apt_filters.pipeline.surface import add_iso_surface
 from tests.conftest import ROOT
 
@@ -14,7 +15,9 @@ def test_add_iso_surface_puts_the_real_interface_in_a_meshset(real_si, tmp_path)
     ions, ranges = read_ions(real_si / "Si.pos"), read_ranges(real_si / "Si.RRNG")
     ms = pymeshlab.MeshSet()
     ms.create_icosahedron()  # the user's own mesh stays
-    mesh = add_iso_surface(ms, ions, ranges, "Cr", 0.3, clean_script=tmp_path / "clean.mlx", edge_length=0)
+    config = PipelineConfig()
+    config.remesh.method = "none"
+    mesh = add_iso_surface(ms, ions, ranges, "Cr", 0.3, config=config, clean_script=tmp_path / "clean.mlx")
     assert ms.mesh_number() == 2 and ms.current_mesh().label() == "Cr 30 at.%"
     assert ms.current_mesh().face_number() == mesh.n_faces > 0
     assert (tmp_path / "clean.mlx").is_file()

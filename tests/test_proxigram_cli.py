@@ -9,7 +9,8 @@ import pytest
 from apt_filters.cli.main import main
 from apt_filters.meshlab.bridge import read_mesh
 from apt_filters.core.mesh import TriMesh
-from apt_filters.synth import preset, write_ply, write_specimen
+from apt_filters.meshlab.exports import write_ply
+from apt_filters.synth import preset, write_specimen
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +21,8 @@ def small_specimen(tmp_path_factory):
     spec = write_specimen(out, preset("small"), seed=3)
     meshes = [read_mesh(out / f["mesh"]["file"]) for f in spec.truth["features"]]
     offsets = np.cumsum([0] + [m.n_vertices for m in meshes])
-    write_ply(out / "all.ply", TriMesh(np.concatenate([m.vertices for m in meshes]),
-                                       np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])))
+    write_ply(TriMesh(np.concatenate([m.vertices for m in meshes]),
+                      np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])), out / "all.ply")
     return out, spec.truth
 
 

@@ -15,7 +15,7 @@ RADIUS = 5.0  # nm: the interface is flat to within a voxel over the central cyl
 def test_proxigram_matches_central_cylinder_profile(real_si):
     ions, ranges = read_ions(real_si / "Si.pos"), read_ranges(real_si / "Si.RRNG")
     fields = voxelize(ions, ranges, efficiency=0.5)
-    mesh, _ = apply_chain(contour_surface(fields, inside_mask(fields).dense(), "Cr", 0.3), "clean")
+    mesh, _ = apply_chain(contour_surface(fields, inside_mask(fields).dense(), "Cr", 0.3, "dc"), "clean")
     assert len(mesh.boundary_edges()) > 0, "the interface meets the specimen edge: open"
     prox = compute_proxigram(ions, ranges, mesh)
     c, err = prox.pooled().concentration()

@@ -1,20 +1,28 @@
-"""Iso-surfaces as the pipeline draws them, also for pymeshlab scripts.
+"""The one way from ions to a finished iso-surface, used by ``apt-filters run``, Python and pymeshlab scripts.
 
-:func:`contour_surface` turns voxelized fields into the raw iso-surface of one species (or
-of the atomic density); :func:`add_iso_surface` runs voxelize -> contour -> clean chain ->
-CVT remesh on ions and adds the result to a ``pymeshlab.MeshSet``, the way a MeshLab user's
-script would call one step.
+:func:`finished_surface` runs, for one species and iso-value, contour -> specks -> refinement against
+the ions -> clean chain -> CVT remesh, with the command line's defaults (:class:`PipelineConfig`:
+marching cubes, refinement on), and returns the mesh with a :class:`SurfaceRecord` of what each step
+did (report.json's ``mesh`` of the surface). :func:`contour_surface` is its first step alone;
+:func:`add_iso_surface` voxelizes, calls :func:`finished_surface` and adds the result to a
+``pymeshlab.MeshSet``, the way a MeshLab user's script calls one step.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import os
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Callable, ContextManager
 
 import numpy as np
 
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, split_components
 from apt_filters.io import IonTable, RangeTable
+from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 
 
 def field_values(fields, species: str, iso: float, basis=None) -> np.ndarray:
@@ -31,10 +39,10 @@ def field_values(fields, species: str, iso: float, basis=None) -> np.ndarray:
     return values
 
 
-def contour_surface(fields, mask: np.ndarray, species: str, iso: float, method: str = "dc",
+def contour_surface(fields, mask: np.ndarray, species: str, iso: float, method: str = "mc",
                     close: bool = False, basis=None) -> TriMesh:
     """The iso-surface of ``species`` at ``iso`` (its concentration in ``basis``, default the voxelization's)
-    by dual contouring (``"dc"``) or marching cubes (``"mc"``), open where it meets the specimen edge
+    by marching cubes (``"mc"``) or dual contouring (``"dc"``), open where it meets the specimen edge
     (``mask`` False) unless ``close``."""
     from apt_filters.contour import dual_contouring, marching_cubes
 
@@ -46,11 +54,195 @@ def contour_surface(fields, mask: np.ndarray, species: str, iso: float, method: 
     return mesh
 
 
-def add_iso_surface(ms, ions: IonTable, ranges: RangeTable, species: str, iso: float, *, voxel: float = 1.0,
-                    kernel: str = "gaussian", delocalization=(3.0, 3.0, 1.5), method: str = "dc",
-                    edge_length: float | None = None, clean_script: str | os.PathLike | None = None,
+def surface_label(surface: SurfaceConfig) -> str:
+    """File-name label of an iso-surface: ``Al15`` (15 at.% Al) or ``density40`` (atoms/nm³)."""
+    if surface.species:
+        return f"{surface.species}{surface.iso * 100:g}"
+    return f"density{surface.iso:g}"
+
+
+@dataclass
+class SurfaceRecord:
+    """What each step did to one iso-surface; :meth:`as_dict` is report.json's ``mesh`` of that surface.
+
+    Attributes
+    ----------
+    raw_area : float
+        Area of the contoured surface, nm².
+    refine : dict or None
+        Specks removed and the refinement's figures (None where the surface was not refined).
+    remesh : dict or None
+        Components remeshed, those that kept the cleaned mesh and the failed checks (None where
+        not remeshed).
+    warnings : list of str
+        Steps that fell back (a remeshed component that changed the surface keeps the cleaned mesh).
+    """
+
+    raw_area: float = 0.0
+    refine: dict | None = None
+    remesh: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self, mesh: TriMesh) -> dict:
+        return {"raw_area_nm2": self.raw_area, "refine": self.refine, "remesh": self.remesh, "faces": mesh.n_faces,
+                "vertices": mesh.n_vertices, "area_nm2": mesh.area(), "boundary_edges": len(mesh.boundary_edges())}
+
+
+@contextlib.contextmanager
+def _quiet_step(name: str):
+    yield SimpleNamespace(summary="")
+
+
+def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()):
+    """The basis a concentration surface of ``species`` is drawn in: ``basis`` without the segregants its first
+    contour ``mesh`` shows (:func:`~apt_filters.refine.segregants.find_segregants`; those in ``include`` stay).
+    Returns (basis, Segregants), or (``basis``, None) for a density surface; ``basis`` itself where none is found."""
+    from apt_filters.refine.segregants import find_segregants
+    from apt_filters.voxel import ConcentrationBasis
+
+    if not species:
+        return basis, None
+    found = find_segregants(mesh, ions, ranges, species, basis=basis, include=tuple(include))
+    if not found.species:
+        return basis, found
+    return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
+
+
+def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, surface: SurfaceConfig, *,
+                     config: PipelineConfig | None = None, basis=None, clean_script: str | os.PathLike | None = None,
+                     step: Callable[[str], ContextManager] = _quiet_step) -> tuple[TriMesh, SurfaceRecord]:
+    """The finished iso-surface of ``surface`` from voxelized ``fields`` and their ``ions``.
+
+    Parameters
+    ----------
+    fields : voxel.Fields
+        The voxelized ions (:func:`apt_filters.voxel.voxelize`).
+    mask : (nx, ny, nz) bool
+        Inside the specimen (:func:`apt_filters.voxel.inside_mask`).
+    ions, ranges : IonTable, RangeTable
+        The ions the refinement reads (a memory map is streamed).
+    surface : SurfaceConfig
+        Species (empty: atomic density) and iso-value.
+    config : PipelineConfig, optional
+        ``[contour]``, ``[refine]``, ``[remesh]`` settings; default the command line's.
+    basis : voxel.ConcentrationBasis, optional
+        The concentration basis of ``fields`` (default from ``config.voxel``).
+    clean_script : path, optional
+        Where the clean chain's ``.mlx`` is recorded.
+    step : callable, optional
+        ``step(name)`` gives a context manager around each step whose ``summary`` it may set
+        (``StepLog.step`` times and prints them).
+
+    Returns
+    -------
+    TriMesh, SurfaceRecord
+        The surface (refined only for a concentration surface with ``[refine] enabled``) and what each
+        step did.
+    """
+    from apt_filters.meshlab.chains import apply_chain
+    from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.remesh import remesh
+    from apt_filters.voxel import ConcentrationBasis
+
+    config = PipelineConfig() if config is None else config
+    basis = ConcentrationBasis(tuple(config.voxel.exclude), config.voxel.include_unranged) if basis is None else basis
+    label = surface_label(surface)
+    record = SurfaceRecord()
+    with step("contour") as s:
+        c = config.contour
+        mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge)
+        surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis, config.voxel.include)
+        if surface_basis is not basis:  # contoured again without the segregants' dilution
+            mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
+                                   basis=surface_basis)
+        record.raw_area = mesh.area()
+        s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
+                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
+    if config.refine.enabled and surface.species:
+        with step("refine") as s:
+            r = config.refine
+            mesh, specks = remove_specks(mesh, r.min_volume, r.min_area)
+            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis, iterations=r.iterations,
+                                     facets=r.facets, blur=tuple(r.blur) or "auto", cross_fit=r.cross_fit,
+                                     select_modes=r.select_modes, marker=r.marker)
+            mesh = refined.mesh
+            record.refine = {"basis": surface_basis.describe(),
+                             "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                             **_refine_record(specks, refined, r.cross_fit)}
+            s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
+                         f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+    if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
+        record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")
+        mesh.face_scalars["object_id"] = np.zeros(0, dtype=np.int64)
+        return mesh, record
+    with step("clean") as s:
+        mesh, _ = apply_chain(mesh, "clean", script=clean_script, overwrite=True)
+        s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
+    if config.remesh.method == "cvt":
+        with step("remesh") as s:
+            edge = config.remesh.edge_length or fields.grid.voxel / 2
+            try:
+                remeshed = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle)
+                mesh, kept = remeshed.mesh, remeshed.kept_input
+                record.remesh = {"components": len(remeshed.checks), "kept_input": kept,
+                                 "failed": [dataclasses.asdict(c) for c in remeshed.checks if not c.ok]}
+                s.summary = f"{label}: {mesh.n_faces:,} faces at edge length {edge:g} nm"
+                if kept:  # each component whose remesh changed the surface keeps its input
+                    warning = (f"remeshing {label}: {kept} of {len(remeshed.checks)} components changed "
+                               f"the surface and keep the cleaned mesh")
+                    record.warnings.append(warning)
+                    s.summary += "; WARNING " + warning
+            except Exception as exc:  # noqa: BLE001 - a remesher failure must not cost the whole run
+                warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
+                record.warnings.append(" ".join(warning.split()))
+                s.summary = "WARNING " + record.warnings[-1]
+    # One object numbering for the object table, the proxigram and the excess.
+    mesh.face_scalars["object_id"] = mesh.face_components()
+    return mesh, record
+
+
+def _finite(values) -> list:
+    """Floats for JSON, which has no NaN: None where not finite."""
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+def _refine_record(specks, refined, cross_fit: bool) -> dict:
+    """The refinement's figures in report.json."""
+    estimate, marks = refined.blur_estimate, refined.marker
+    return {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
+            "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
+            "self_intersections": refined.self_intersections, "facets": refined.facets,
+            "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),
+            "blur_estimate": None if estimate is None else
+            {"lateral_nm": estimate.lateral, "slope_nm2": estimate.slope, "slope_se_nm2": estimate.slope_se,
+             "source": estimate.source},
+            "cross_fit": cross_fit,
+            "modes": None if refined.modes is None else {str(c): k for c, k in sorted(refined.modes.modes.items())},
+            "marker": None if marks is None else
+            {"species": marks.name, "objects_moved": marks.marked,
+             "layer_offset_nm": _finite([marks.layer_offset])[0],
+             "layer_offset_se_nm": _finite([marks.layer_offset_se])[0],
+             "peak_centre_nm": _finite(marks.centre), "peak_centre_se_nm": _finite(marks.centre_se),
+             "shift_nm": _finite(marks.shift)},
+            "counting_errors": _counting_errors(refined.mesh, refined.offset_errors)}
+
+
+def _counting_errors(mesh: TriMesh, offset_errors) -> list[dict]:
+    """Per refined object: the counting-statistics standard error of its mean offset and, if closed, of its volume."""
+    out = []
+    for c, (e, part) in enumerate(zip(offset_errors, split_components(mesh))):
+        if np.isfinite(e):
+            closed = len(part.boundary_edges()) == 0  # an open interface encloses no volume
+            out.append({"component": c, "offset_se_nm": float(e), "area_nm2": part.area(),
+                        "volume_nm3": part.signed_volume() if closed else None,
+                        "volume_se_nm3": float(e) * part.area() if closed else None})
+    return out
+
+
+def add_iso_surface(ms, ions: IonTable, ranges: RangeTable, species: str, iso: float, *,
+                    config: PipelineConfig | None = None, clean_script: str | os.PathLike | None = None,
                     label: str | None = None) -> TriMesh:
-    """Add the cleaned, remeshed iso-surface of ``species`` at ``iso`` to the MeshSet ``ms``.
+    """Add the finished iso-surface of ``species`` at ``iso`` (:func:`finished_surface`) to the MeshSet ``ms``.
 
     Parameters
     ----------
@@ -61,10 +253,9 @@ def add_iso_surface(ms, ions: IonTable, ranges: RangeTable, species: str, iso: f
         Element whose concentration is contoured (``""``: atomic density, atoms/nm³).
     iso : float
         Fraction (or atoms/nm³).
-    voxel, kernel, delocalization, method
-        As for ``apt-filters run`` (nm; 3 sigma per axis).
-    edge_length : float, optional
-        CVT target edge in nm (default half a voxel); 0 skips remeshing.
+    config : PipelineConfig, optional
+        Voxelization, contouring, refinement and remeshing settings, as for ``apt-filters run``
+        (default: its defaults, e.g. 1 nm voxels, marching cubes, refinement on, CVT at half a voxel).
     clean_script : path, optional
         Where the clean chain's ``.mlx`` is saved.
     label : str, optional
@@ -76,15 +267,14 @@ def add_iso_surface(ms, ions: IonTable, ranges: RangeTable, species: str, iso: f
         The surface as added.
     """
     from apt_filters.meshlab.bridge import to_meshset
-    from apt_filters.meshlab.chains import apply_chain
-    from apt_filters.remesh import remesh
-    from apt_filters.voxel import inside_mask, voxelize
+    from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
-    fields = voxelize(ions, ranges, kernel=kernel, delocalization=delocalization, voxel=voxel)
-    mesh = contour_surface(fields, inside_mask(fields).dense(), species, iso, method)
-    mesh, _ = apply_chain(mesh, "clean", script=clean_script, overwrite=True)
-    edge = voxel / 2 if edge_length is None else edge_length
-    if edge > 0:
-        mesh = remesh(mesh, edge_length=edge).mesh
+    config = PipelineConfig() if config is None else config
+    v = config.voxel
+    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
+    fields = voxelize(ions, ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size, basis=basis,
+                      efficiency=config.analysis.efficiency)
+    mesh, _ = finished_surface(fields, inside_mask(fields).dense(), ions, ranges, SurfaceConfig(species, iso),
+                               config=config, basis=basis, clean_script=clean_script)
     to_meshset(mesh, label or (f"{species} {100 * iso:g} at.%" if species else f"density {iso:g}"), meshset=ms)
     return mesh

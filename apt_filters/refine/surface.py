@@ -65,8 +65,8 @@ crossings of faces farther apart, and any fold left, are smoothed away at the en
 
 Peak memory: one chunk of the ion table at a time (it may be memory-mapped), then the ions within
 ``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: positions (float64),
-nearest vertex (int64) and atoms per basis element (float32), ~50 bytes per ion; the cell grid
-of the pre-filter (~40 bytes per nm³ of the mesh's bounding box while it is built) and a few (vertices × bins)
+nearest vertex (int64) and atoms per basis element (float32), ~50 bytes per ion; the triangle grid
+of the distance engine (:mod:`apt_filters.core.distance`, ~170 bytes per triangle) and a few (vertices × bins)
 float64 arrays.
 """
 

@@ -14,7 +14,6 @@ from apt_filters.synth.geometry import Box, Tip
 from apt_filters.synth.instruments import DETECTION_EFFICIENCY
 from apt_filters.synth.modulation import (MAP_SPECIMENS, FacetModulation, LinearModulation, map_specimen, map_surface,
                                           true_excess_map)
-from apt_filters.synth.ply import write_ply
 from apt_filters.synth.presets import PRESETS, preset, with_ions
 from apt_filters.synth.shapes import (Capsule, Cuboid, CustomShape, Cylinder, HalfSpace, Shape, Sphere, rotation_matrix,
                                       shape_from_params)
@@ -26,5 +25,5 @@ __all__ = [
     "HalfSpace", "LinearModulation", "MAP_SPECIMENS", "map_specimen", "map_surface",
     "PRESETS", "Segregation", "Shape", "Specimen", "SpecimenSpec", "SpectrumModel", "Sphere", "Tip",
     "build_truth", "composition_at", "generate", "iter_ions", "preset", "rotation_matrix", "shape_from_params",
-    "summary", "true_excess_map", "with_ions", "write_ply", "write_specimen",
+    "summary", "true_excess_map", "with_ions", "write_specimen",
 ]

@@ -29,7 +29,6 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.io.writers import write_rrng
 from apt_filters.synth import specimen as model
-from apt_filters.synth.ply import write_ply
 from apt_filters.synth.spectrum import MzSampler, noise_window, peaks, range_table, ranged_noise_fraction
 
 CHUNK = 1 << 20
@@ -244,8 +243,10 @@ def write_specimen(outdir: str | os.PathLike, spec: model.SpecimenSpec, seed: in
     with atomic_output(out / "specimen.pos", overwrite) as tmp, open(tmp, "wb") as fh:
         result = _generate(spec, seed, keep_ions, pos_file=fh)
     write_rrng(out / "specimen.rrng", result.ranges, overwrite)
+    from apt_filters.meshlab.exports import write_ply  # the one mesh writer (pymeshlab loads only here)
+
     for feature, mesh in zip(result.truth["features"], result.meshes):
-        write_ply(out / feature["mesh"]["file"], mesh, overwrite)
+        write_ply(mesh, out / feature["mesh"]["file"], quality=None, cmap=None, overwrite=overwrite)
     result.truth["files"] = {"pos": names[0], "rrng": names[1], "meshes": names[3:]}
     atomic_write_text(out / "truth.json", json.dumps(result.truth, indent=1, allow_nan=False) + "\n", overwrite)
     return result
