@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from apt_filters.pipeline.run import segregant_basis
+from apt_filters.pipeline.surface import segregant_basis
 from apt_filters.pipeline.surface import contour_surface
 from apt_filters.refine.segregants import find_segregants
 from apt_filters.synth import generate, preset
