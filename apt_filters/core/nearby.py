@@ -75,7 +75,7 @@ class NearSurface:
         if not self.covers(mesh, reach, moved):
             raise ValueError(f"ions were selected within {self.reach:g} nm; {reach:g} nm of a surface moved by "
                              f"{self.moved(mesh.vertices) if moved is None else moved:g} nm needs a new selection")
-        sd = SurfaceDistance(mesh).query(self.positions, max_distance=reach)
+        sd = SurfaceDistance(mesh, reach=reach).query(self.positions, max_distance=reach)
         keep = np.flatnonzero(np.abs(sd.distance) <= reach)
         return keep, SignedDistanceRows(sd.distance[keep], sd.face[keep], sd.on_boundary[keep])
 
@@ -109,7 +109,7 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     NearSurface
         Memory: 48 bytes per selected ion.
     """
-    engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh)
+    engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh, reach=reach)
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
     for start in range(0, len(positions), chunk):
