@@ -21,8 +21,8 @@ from apt_filters.core.atomic import atomic_write_text
 from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["cli", "io", "ranges", "synth", "audit", "voxel", "core", "contour", "meshlab", "remesh", "proxigram", "maps",
-         "refine", "pipeline", "sweep"]
+ORDER = ["cli", "io", "ranges", "fuzz_ranges", "synth", "audit", "voxel", "scale", "core", "contour", "meshlab",
+         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "zoo", "pipeline", "sweep"]
 
 
 def machine() -> str:
