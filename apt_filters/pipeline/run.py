@@ -251,7 +251,7 @@ def _export(results: list[SurfaceResult], inputs: Inputs, stage: Path, log: Step
         sample = inputs.ions.positions[:: max(1, len(inputs.ions) // 20_000)]
         render_surfaces({r.label: r.mesh for r in drawn}, stage / "surfaces.png", points=sample)
         s.summary = (f"project.mlp: {len(drawn)} surface(s) coloured by "
-                     + ", ".join(f"{x['element']} at.%" for x in scene["surfaces"])
+                     + ", ".join(x["quantity"].split("\n")[0] for x in scene["surfaces"])
                      + f", {len(scene['ion_layers'])} ion layers, legend.png")
     return scene
 
