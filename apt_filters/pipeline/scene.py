@@ -218,7 +218,7 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
             visible.append(True)
         scene_surfaces.append(SceneSurface(label, element, limits, files,
                                            quantity=f"{shown}\nnear the surface" if shown.endswith("at.%") else
-                                           f"{shown}\n(atoms/nm², map)"))
+                                           f"{shown}\n(detected atoms/nm², map)"))
     counts = _species_counts(ions, ranges)
     quotas = layer_quotas(counts, view_points)
     ion_layers = []
