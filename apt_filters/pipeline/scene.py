@@ -152,7 +152,7 @@ class SceneSurface:
 
 def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str, str], ions: IonTable,
                 ranges: RangeTable, quality: dict[str, tuple] | None = None, lod_faces: int = LOD_FACES,
-                view_points: int = VIEW_POINTS) -> dict:
+                view_points: int = VIEW_POINTS, near: dict[str, IonTable] | None = None) -> dict:
     """Write the scene into ``folder`` (meshes/, project.mlp, legend.png); returns what it wrote.
 
     Parameters
@@ -164,6 +164,7 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
     species : dict
         Label -> element the surface is coloured by (its local at.%, see :func:`vertex_composition`).
     ions, ranges : IonTable, RangeTable
+        All the ions (sampled for the ion layers) and their ranging.
     quality : dict, optional
         Label -> (vertex scalar, (low, high), meaning): a map the surface already carries (the
         excess map of :mod:`apt_filters.analysis.maps`) shown as quality instead of the local at.%.
@@ -171,6 +172,11 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         Meshes with more faces get a level of detail (:data:`LOD_FACES`).
     view_points : int
         Ions drawn over all ion layers (:data:`VIEW_POINTS`).
+    near : dict, optional
+        Label -> the ions near that surface (:func:`~apt_filters.pipeline.surface.analysis_ions`), from
+        which its local composition is taken instead of ``ions``: the same wherever a vertex's
+        :data:`NEAREST_IONS` nearest ions lie within the selection's reach of it (at APT densities they
+        lie within about 1.5 nm).
 
     Returns
     -------
@@ -186,7 +192,8 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
     for label, mesh in surfaces.items():
         element = species[label]
         elements = list(dict.fromkeys([element, *(e for e in species.values() if e in ranges.elements)]))
-        comp = vertex_composition(vertices=mesh.vertices, ions=ions, ranges=ranges, elements=elements)
+        comp = vertex_composition(vertices=mesh.vertices, ions=(near or {}).get(label, ions), ranges=ranges,
+                                  elements=elements)
         mesh = mesh.copy()
         for e, values in comp.items():
             mesh.vertex_scalars[f"at_pct_{e}"] = values
