@@ -53,6 +53,7 @@ class Inputs:
     ranges: object
     report: dict
     hull: object = None
+    ion_counts: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -159,7 +160,7 @@ def _read(config: PipelineConfig, log: StepLog, scratch: Path) -> Inputs:
                   "composition": summary.composition()}
         s.summary = (f"{len(ions):,} ions{' (memory-mapped)' if isinstance(ions.mz, np.memmap) else ''}, "
                      f"{summary.ranged_fraction:.1%} ranged, {len(ranges)} ranges")
-    return Inputs(ions, ranges, report, hull)
+    return Inputs(ions, ranges, report, hull, summary.ion_counts)
 
 
 def _audit(inputs: Inputs, log: StepLog, verbose: bool) -> list[dict]:
@@ -259,6 +260,7 @@ def _export(results: list[SurfaceResult], inputs: Inputs, stage: Path, log: Step
                             species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary)
                                      for r in drawn},
                             ions=inputs.ions, ranges=ranges, near={r.label: r.near for r in drawn},
+                            counts=inputs.ion_counts,
                             quality={r.label: r.quality for r in drawn if r.quality is not None})
         sample = inputs.ions.positions[:: max(1, len(inputs.ions) // 20_000)]
         render_surfaces({r.label: r.mesh for r in drawn}, stage / "surfaces.png", points=sample)

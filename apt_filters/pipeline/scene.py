@@ -152,7 +152,8 @@ class SceneSurface:
 
 def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str, str], ions: IonTable,
                 ranges: RangeTable, quality: dict[str, tuple] | None = None, lod_faces: int = LOD_FACES,
-                view_points: int = VIEW_POINTS, near: dict[str, IonTable] | None = None) -> dict:
+                view_points: int = VIEW_POINTS, near: dict[str, IonTable] | None = None,
+                counts: dict[str, int] | None = None) -> dict:
     """Write the scene into ``folder`` (meshes/, project.mlp, legend.png); returns what it wrote.
 
     Parameters
@@ -177,6 +178,8 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         which its local composition is taken instead of ``ions``: the same wherever a vertex's
         :data:`NEAREST_IONS` nearest ions lie within the selection's reach of it (at APT densities they
         lie within about 1.5 nm).
+    counts : dict, optional
+        Ion species -> ions of that species in ``ions`` (the read step's summary; counted here if not given).
 
     Returns
     -------
@@ -185,7 +188,7 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         drawn, total) and ``legend`` (file name), JSON-ready.
     """
     from apt_filters.meshlab.decimation import decimate
-    from apt_filters.meshlab.exports import SIDE_VIEW, colormap_rgba, write_ion_cloud, write_ply, write_project
+    from apt_filters.meshlab.exports import SIDE_VIEW, colormap_rgba, write_ion_clouds, write_ply, write_project
 
     meshes_dir = folder / "meshes"
     layers, labels, visible, scene_surfaces = [], [], [], []
@@ -226,14 +229,13 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         scene_surfaces.append(SceneSurface(label, element, limits, files,
                                            quantity=f"{shown}\nnear the surface" if shown.endswith("at.%") else
                                            f"{shown}\n(detected atoms/nm², map)"))
-    counts = _species_counts(ions, ranges)
+    counts = _species_counts(ions, ranges) if counts is None else counts
     quotas = layer_quotas(counts, view_points)
+    # every layer in the same two passes over the ions
+    clouds = write_ion_clouds(ions, ranges, {ion: (meshes_dir / f"ions_{_file_name(ion)}.ply", quota)
+                                             for ion, quota in quotas.items() if quota}, overwrite=True)
     ion_layers = []
-    for ion, quota in quotas.items():
-        if quota == 0:
-            continue
-        cloud = write_ion_cloud(ions, ranges, meshes_dir / f"ions_{_file_name(ion)}.ply", max_points=quota,
-                                species=ion, overwrite=True)
+    for ion, cloud in clouds.items():
         layers.append(cloud.path)
         labels.append(f"ions {ion} ({cloud.n_written:,} of {cloud.n_ions:,})")
         shown = cloud.n_ions < MATRIX_FRACTION * sum(counts.values())
