@@ -82,6 +82,29 @@ def test_open_object_is_proxy_when_capped_and_open_otherwise():
     assert set(loop) == {0}
 
 
+def test_a_wavy_sheet_whose_cap_crosses_it_stays_open():
+    """An interface across the specimen, capped by the plane of its rim, encloses no region (the cap cuts
+    through the waves, the sides alternate): it stays open, without volume or ions. A sheet with a flat rim
+    that bulges to one side only is a proxy."""
+    n = 41
+    x, y = np.meshgrid(np.linspace(0, 20, n), np.linspace(0, 20, n), indexing="ij")
+    quads = np.array([[i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1]
+                      for i in range(n - 1) for j in range(n - 1)])
+    faces = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    rng = np.random.default_rng(4)
+    ions = IonTable(rng.uniform([0, 0, -3], [20, 20, 3], (20_000, 3)).astype(np.float32),
+                    np.full(20_000, MZ["Fe"], dtype=np.float32))
+    for z, status in ((np.sin(x / 2) * np.sin(y / 2), "open"), (np.sin(np.pi * x / 20) * np.sin(np.pi * y / 20),
+                                                                   "proxy")):
+        sheet = TriMesh(np.column_stack([x.ravel(), y.ravel(), z.ravel()]), faces)
+        o = object_table(sheet, ions, RANGES, specimen=SpecimenHull.from_points(ions.positions)).objects
+        assert len(o) == 1 and o[0].status == status
+        if status == "open":
+            assert math.isnan(o[0].volume) and o[0].n_ions == -1
+        else:  # the dome under a sin x sin bump: 4 A / pi^2 of the 20 x 20 square
+            assert abs(o[0].volume) == pytest.approx(4 * 400 / np.pi ** 2, rel=0.01) and o[0].n_ions > 0
+
+
 def _specimen_ions(seed: int = 5) -> tuple[IonTable, dict[str, np.ndarray]]:
     """Uniform ions in the specimen box: CrO2 or Fe (1:1) inside the ball and the ring,
     O elsewhere; none near the speck. Ions within 0.05 nm of an analytic surface are left

@@ -256,11 +256,13 @@ MULTI = np.iinfo(np.int32).min
 class _LabelGrid:
     """Voxels over the union of the objects' boxes: ``k + 1`` wholly inside object ``k`` only,
     ``-(k + 1)`` crossed by object ``k``'s surface only, :data:`MULTI` more than one object,
-    0 outside every object. Voxel ``(i, j, k)`` covers ``origin + [i, i + 1) * voxel`` (x, y, z)."""
+    0 outside every object. Voxel ``(i, j, k)`` covers ``origin + [i, i + 1) * voxel`` (x, y, z).
+    ``encloses[k]``: whether object ``k`` encloses a region (else it has no label)."""
 
     labels: np.ndarray
     origin: np.ndarray
     voxel: float
+    encloses: list[bool] = field(default_factory=list)
 
     @classmethod
     def build(cls, shapes: list[_Shape], voxel: float = COUNT_VOXEL) -> "_LabelGrid":
@@ -269,11 +271,11 @@ class _LabelGrid:
         voxel = max(voxel, float(np.prod(upper - lower) / MAX_LABEL_VOXELS) ** (1 / 3))
         labels = np.zeros(tuple(np.floor((upper - lower) / voxel).astype(int) + 1), dtype=np.int32)
         grid = cls(labels, lower, voxel)
-        for k, shape in enumerate(shapes):
-            grid._add(k, shape)
+        grid.encloses = [grid._add(k, shape) for k, shape in enumerate(shapes)]
         return grid
 
-    def _add(self, k: int, shape: _Shape) -> None:
+    def _add(self, k: int, shape: _Shape) -> bool:
+        """Label object ``k``'s voxels; False (and nothing labelled) where its surface encloses no region."""
         lo = self._cell(shape.lower - LABEL_MARGIN)
         hi = self._cell(shape.upper + LABEL_MARGIN) + 1
         region = self.labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
@@ -282,18 +284,28 @@ class _LabelGrid:
         _mark_boxes(shape.triangles.min(axis=1) - corner, shape.triangles.max(axis=1) - corner,
                     1.0 / self.voxel, LABEL_MARGIN, crossed)
         # The surface crosses no voxel left unmarked, so each face-connected region of unmarked voxels lies
-        # wholly inside or wholly outside: one voxel centre per region decides it.
+        # wholly inside or wholly outside: the signed distance of a few voxel centres spread over each region
+        # decides it. Centres of one region that disagree, or a region on the box's outermost voxels (which
+        # reach beyond the object's box) judged inside, mean that the surface changes sides where it is not
+        # crossed: it encloses no region (a cap through a wavy sheet across the specimen).
         regions, n_regions = ndimage.label(~crossed)
-        _, first = np.unique(regions.ravel(), return_index=True)
-        first = first[1:] if regions.ravel()[first[0]] == 0 else first  # label 0: the crossed voxels
-        centres = corner + (np.column_stack(np.unravel_index(first, region.shape)) + 0.5) * self.voxel
-        region_inside = np.zeros(n_regions + 1, dtype=bool)
-        region_inside[regions.ravel()[first]] = shape.inside(centres)
+        flat = regions.ravel()
+        order = np.argsort(flat, kind="stable")
+        size = np.bincount(flat, minlength=n_regions + 1)
+        start = np.cumsum(size) - size
+        picks = start[1:, None] + (np.arange(REGION_SAMPLES) * (size[1:, None] - 1)) // (REGION_SAMPLES - 1)
+        cells = np.column_stack(np.unravel_index(order[picks.ravel()], region.shape))
+        votes = shape.inside(corner + (cells + 0.5) * self.voxel).reshape(n_regions, REGION_SAMPLES)
+        region_inside = np.concatenate([[False], votes[:, 0]])
+        border = np.concatenate([regions[[0, -1]].ravel(), regions[:, [0, -1]].ravel(), regions[:, :, [0, -1]].ravel()])
+        if np.any(votes != votes[:, :1]) or region_inside[border].any():
+            return False
         inside = region_inside[regions]
         free = region == 0
         region[crossed & free] = -(k + 1)
         region[inside & free] = k + 1
         region[(crossed | inside) & ~free] = MULTI
+        return True
 
     def _cell(self, points: np.ndarray) -> np.ndarray:
         return np.clip(np.floor((points - self.origin) / self.voxel).astype(int), 0, np.array(self.labels.shape) - 1)
@@ -307,6 +319,9 @@ class _LabelGrid:
         out[within] = self.labels[i, j, k] != 0
         return out
 
+
+REGION_SAMPLES = 8
+"""Voxel centres, spread over each region of voxels no surface crosses, whose signed distances must agree."""
 
 LABEL_MARGIN = 1e-3
 """nm added around each triangle's box when marking crossed voxels: covers the rounding of
@@ -420,7 +435,10 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
     cap_open : bool
         Cap open objects at their boundary loops and report them as ``proxy`` with a
         volume; otherwise they stay ``open`` without volume. Objects closed by faces flagged
-        in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too.
+        in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too. A capped
+        object that encloses no region (its caps cross its surface, so that its signed distance
+        changes sign without crossing it: an interface across the specimen capped by the plane of
+        its rim) stays ``open``.
 
     Memory: a few copies of the face array, the label grid of :func:`_count_ions` and
     :data:`ION_CHUNK`-sized work arrays; the ions are read chunk by chunk (a memory-mapped
@@ -502,6 +520,8 @@ def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
         surface = whole if own is index else _submesh(mesh.vertices, mesh.faces[own])
         closed = cap_boundaries(whole)[0] if cap_open else whole
         status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
+        if status == "proxy" and not _LabelGrid.build([_Shape(closed.vertices, closed.faces)]).encloses[0]:
+            closed, status = surface, "open"  # its caps cross its surface: no region to measure or count in
         parts.append(_Part(int(ids[k]), own, surface, closed, status))
     return parts
 
