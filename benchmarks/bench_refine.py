@@ -21,8 +21,8 @@ Per precipitate: volume, area and B excess per own area (relative to the truth; 
 1-3 nm from the surface, ``object_excess``'s default), mean and Hausdorff distance to the true surface,
 the Al plateaus 0.75-3 nm inside/outside (``object_levels``' default; all
 species in the denominator, at.% absolute error), proxigram sign errors (ions within 2 nm whose exact
-signed distance to the surface, ``apt_filters.core.distance``, disagrees with a ray-parity
-inside test), folded triangle pairs; per run the specks and the time of each pipeline. ``floor``: the
+signed distance to the surface, ``apt_filters.core.distance``, disagrees with the winding-number
+inside test, ``apt_filters.truth.precipitates``), folded triangle pairs; per run the specks and the time of each pipeline. ``floor``: the
 counting-statistics floor of the object's volume (:func:`~apt_filters.truth.counting_floor`,
 the Cramér-Rao bound of its size from its ions with the true profile known: no method can have a smaller
 standard deviation), and ``z``, the volume error in units of it. ``counted``: the B excess and the Al
@@ -39,16 +39,11 @@ import time
 
 import numpy as np
 
-from apt_filters.contour import marching_cubes
-from apt_filters.core.checks import folded_pairs
-from apt_filters.core.deps import open3d
-from apt_filters.truth.specimen import counted_truths
-from apt_filters.core.mesh import split_components
-from apt_filters.refine import (ion_atoms, merge, object_excess, object_levels, per_object_iso, recontour,
-                                refine_surface, remove_specks)
-from apt_filters.truth import counting_floor, match_objects, surface_error
+from apt_filters.refine import merge, refine_surface, remove_specks
 from apt_filters.synth import generate, preset
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from apt_filters.truth.precipitates import (counted_errors, evaluate_precipitates, per_object_start,
+                                            reference_surface, volume_floors)
+from apt_filters.voxel import ConcentrationBasis, voxelize
 
 ISO = 0.15
 SPECIES, SOLUTE = "Al", "B"
@@ -56,32 +51,17 @@ PIPELINES = ("true", "AP", "basis", "iso", "s5", "refined")
 NO_B = ConcentrationBasis(exclude=(SOLUTE,))
 
 
-def contour(fields, basis, iso=ISO):
-    c = fields.concentration(SPECIES, basis).dense()
-    mask = inside_mask(fields).dense()
-    return c, mask, marching_cubes(c, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
-
-
-def iso_start(sp, fields, basis_surface):
-    """The ``iso`` pipeline from the ``basis`` one's surface: specks removed, each object contoured again at its
-    own plateaus' midpoint. Returns (mesh, specks)."""
-    c = fields.concentration(SPECIES, NO_B).dense()
-    clean, specks = remove_specks(basis_surface)
-    isos = per_object_iso(clean, sp.ions, sp.ranges, SPECIES, NO_B)
-    return recontour(c, isos, clean, fields.grid.voxel, fields.grid.origin, inside_mask(fields).dense()), specks
-
-
 def run_pipelines(sp, fields) -> dict:
     """Mesh, specks and seconds of each pipeline (voxelization shared, timed once into AP)."""
     out = {"true": (merge([m for m, f in zip(sp.meshes, sp.truth["features"]) if f["bounded"]]), 0, 0.0)}
     t = time.perf_counter()
-    _, _, mesh = contour(fields, ConcentrationBasis())
+    mesh = reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=ConcentrationBasis())
     out["AP"] = (mesh, remove_specks(mesh)[1].count, time.perf_counter() - t)
     t = time.perf_counter()
-    _, _, mesh = contour(fields, NO_B)
+    mesh = reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=NO_B)
     out["basis"] = (mesh, remove_specks(mesh)[1].count, time.perf_counter() - t)
     t = time.perf_counter()
-    mesh, specks = iso_start(sp, fields, mesh)
+    mesh, specks = per_object_start(specimen=sp, fields=fields, mesh=mesh, species=SPECIES, basis=NO_B)
     out["iso"] = (mesh, specks.count, out["basis"][2] + time.perf_counter() - t)
     t = time.perf_counter()
     previous = refine_surface(mesh, sp.ions, sp.ranges, SPECIES, NO_B, cross_fit=False, select_modes=False, blur=None)
@@ -91,81 +71,6 @@ def run_pipelines(sp, fields) -> dict:
     out["refined"] = (result.mesh, specks.count, out["iso"][2] + time.perf_counter() - t)
     out["result"] = result
     return out
-
-
-def sign_errors(mesh, part_faces, points) -> int:
-    """Ions whose signed distance sign (core.distance) disagrees with a ray-parity inside test."""
-    from apt_filters.core.distance import SurfaceDistance
-    from apt_filters.core.mesh import TriMesh
-
-    part = TriMesh(mesh.vertices, part_faces)
-    signed = SurfaceDistance(part).query(points).distance
-    o3d = open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(part.vertices.astype(np.float32)),
-                        o3d.core.Tensor(part.faces.astype(np.uint32)))
-    inside = scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=3).numpy().astype(bool)
-    near = np.abs(signed) > 1e-4
-    return int(np.sum(near & ((signed < 0) != inside)))  # negative inside
-
-
-def floors(sp) -> list:
-    """Counting floor (:func:`counting_floor`) of each true precipitate, B out of the basis and marking the
-    interface (as the refinement reads it, ``marker``)."""
-    feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
-    everything = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
-    atoms = ion_atoms(sp.ions, sp.ranges, NO_B).atoms
-    return counting_floor([sp.feature_sdf(i) for i in feats], [sp.spec.features[i].shape.level_area for i in feats],
-                          [sp.truth["features"][i]["volume_nm3"] for i in feats], sp.ions.positions, atoms,
-                          marker=everything.atoms[:, everything.elements.index(SOLUTE)])
-
-
-def counted(sp) -> list[dict]:
-    """Per true precipitate: the B excess (relative) and Al inside plateau (at.%) errors against the model of
-    what its own ions hold (:func:`~apt_filters.truth.counted_truths`: all species in the basis, as
-    ``evaluate`` measures them)."""
-    elements, counts = counted_truths(sp.truth, sp.ions, sp.ranges)
-    kb, kal = elements.index(SOLUTE), elements.index(SPECIES)
-    return [{"excess": counts[i].excess_ions[kb] / tf["excess"][SOLUTE]["excess_ions"] - 1,
-             "plateau_in": 100 * (counts[i].inside[kal] - tf["composition_inside"][SPECIES])}
-            for i, tf in enumerate(sp.truth["features"]) if tf["bounded"]]
-
-
-def evaluate(sp, mesh, seed: int, floor: list | None = None, count: list | None = None) -> list[dict]:
-    """Per true precipitate: the figures of the module docstring."""
-    feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
-    floor = floors(sp) if floor is None else floor
-    count = counted(sp) if count is None else count
-    clean, _ = remove_specks(mesh)
-    parts = split_components(clean)
-    match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
-    excess_all = object_excess(clean, sp.ions, sp.ranges, SOLUTE)
-    levels = object_levels(clean, sp.ions, sp.ranges, SPECIES, prior=0.0)
-    k = levels[0].elements.index(SPECIES) if levels else 0
-    pos = sp.ions.positions.astype(np.float64)
-    rows = []
-    for fi, m, fl, co in zip(feats, match, floor, count):
-        tf = sp.truth["features"][fi]
-        if m is None:
-            rows.append({"name": tf["name"], "found": False})
-            continue
-        err = surface_error(parts[m], sp.feature_sdf(fi), sp.meshes[fi], tf["volume_nm3"], tf["area_nm2"], seed=seed)
-        near = pos[np.abs(sp.feature_sdf(fi)(pos)) < 2.0]
-        excess = excess_all[m].ions_per_nm2 / tf["excess"][SOLUTE]["ions_per_nm2"] - 1
-        plateau_in = 100 * (levels[m].inside[k] - tf["composition_inside"][SPECIES])
-        rows.append({
-            "name": tf["name"], "found": True, "volume": err.volume_error, "area": err.area_error,
-            "mean": err.mean_distance, "hausdorff": err.hausdorff,
-            "excess": excess, "excess_count": excess_all[m].excess_ions / tf["excess"][SOLUTE]["excess_ions"] - 1,
-            "plateau_in": plateau_in,
-            "plateau_out": 100 * (levels[m].outside[k] - tf["composition_outside"][SPECIES]),
-            "sign_errors": sign_errors(clean, parts[m].faces, near),
-            "folds": len(folded_pairs(parts[m].vertices, parts[m].faces)),
-            "floor": fl.volume, "z": err.volume_error / fl.volume,
-            "excess_counted": co["excess"], "plateau_in_counted": co["plateau_in"],
-            "excess_beyond": (1 + excess) / (1 + co["excess"]) - 1, "plateau_in_beyond": plateau_in - co["plateau_in"],
-        })
-    return rows
 
 
 def table(rows_by_pipe: dict, specks: dict, times: dict) -> str:
@@ -257,8 +162,10 @@ def main(argv=None) -> int:
         fields = voxelize(sp.ions, sp.ranges)
         t_vox = time.perf_counter() - t
         runs = run_pipelines(sp, fields)
-        floor, count = floors(sp), counted(sp)
-        rows = {p: evaluate(sp, runs[p][0], seed, floor, count) for p in PIPELINES}
+        floor = volume_floors(sp, species=SPECIES, marker=SOLUTE)
+        count = counted_errors(sp, species=SPECIES, solute=SOLUTE)
+        rows = {p: evaluate_precipitates(sp, runs[p][0], species=SPECIES, solute=SOLUTE, seed=seed, floor=floor,
+                                         count=count) for p in PIPELINES}
         r = runs["result"]
         print(f"## {args.preset}, seed {seed}: {len(sp.ions):,} ions, voxelization {t_vox:.1f} s; refinement "
               f"{r.iterations} iterations, displacement mean {r.displacement['mean']:+.3f} rms "

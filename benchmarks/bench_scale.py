@@ -1,6 +1,8 @@
 """Scale: the streaming steps on 10^7-10^9 ions, their thread scaling and peak memory, and ``apt-filters run``.
 
-Run: ``python -m benchmarks.bench_scale --ions 1e7 [--threads 1,2] [--run] [--big 1e9] [--out results.md]``.
+Run: ``python -m benchmarks.bench_scale --ions 1e7 [--threads 1,2] [--run] [--big 1e9]``; writes
+``benchmarks/results_scale.md`` (:func:`benchmarks.results.write_results`, merged with the previous file:
+the summary rows and sections of sizes not measured again are kept) after every section.
 
 1. A synthetic POS file of N ions is written chunk by chunk (any N; 16 bytes per ion on disk,
    one chunk in memory): an Al matrix (96 % Al, 1 % Cu, 3 % unranged background) in a box
@@ -42,11 +44,14 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.results import ratio, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
 DENSITY = 40.0  # ions / nm³
 SPACING, RADIUS = 15.0, 3.0  # Cu-rich spheres: lattice spacing and radius, nm
 FRACTIONS = {"matrix": (0.96, 0.01), "sphere": (0.57, 0.40)}  # (Al, Cu); the rest unranged
 GEN_CHUNK = 1 << 22
+TITLE = "Scale: streaming steps, thread scaling, marching cubes (`benchmarks/bench_scale.py`)"
 STEPS = ("read", "read + ranging", "voxelize square", "voxelize gaussian", "voxelize gaussian, chunks in memory")
 RRNG = """[Ions]
 Number=2
@@ -156,10 +161,13 @@ def in_child(name: str, pos: Path, threads: int) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def streaming_table(pos: Path, n: int, thread_counts: list[int]) -> list[str]:
-    rows = [f"{n:,} ions ({os.path.getsize(pos) / 1e9:.1f} GB POS), box {' × '.join(f'{v:.0f}' for v in box_of(n))} nm:",
+def streaming_table(pos: Path, n: int, thread_counts: list[int]) -> tuple[list[str], list[tuple]]:
+    """The streaming steps' table and its summary rows: gaussian voxelization at the most threads against
+    reading the file alone, and its peak RSS."""
+    rows = [f"## Streaming steps, {n:,} ions", "", f"{n:,} ions ({os.path.getsize(pos) / 1e9:.1f} GB POS), box {' × '.join(f'{v:.0f}' for v in box_of(n))} nm:",
             "", "| step | threads | wall (s) | M ions/s | × 1 thread | CPU / wall | peak RSS (MiB) |",
             "|---|---:|---:|---:|---:|---:|---:|"]
+    last = {}
     for name in STEPS if n * 16 <= 4e9 else STEPS[:-1]:  # holding the chunks: only while they fit easily
         base = None
         for t in thread_counts if not name.endswith("in memory") else thread_counts[-1:]:
@@ -173,20 +181,29 @@ def streaming_table(pos: Path, n: int, thread_counts: list[int]) -> list[str]:
             rows.append(f"| {name} | {t} | {r['wall']:.2f} | {n / r['wall'] / 1e6:.1f} | {speedup} | "
                         f"{r['cpu'] / r['wall']:.2f} | {r['rss_mib']:,.0f} |")
             print(rows[-1], flush=True)
-    return rows
+            last[name] = (t, r)
+    summary = []
+    if "voxelize gaussian" in last and "read" in last:
+        (t, g), (_, read) = last["voxelize gaussian"], last["read"]
+        summary = [("scale", f"gaussian voxelization streamed from a {n / 1e6:g}M-ion POS, {t} threads, wall",
+                    f"{g['wall']:.2f} s ({n / g['wall'] / 1e6:.1f} M ions/s)", f"{read['wall']:.2f} s (reading alone)",
+                    ratio(g["wall"], read["wall"])),
+                   ("scale", f"gaussian voxelization streamed from a {n / 1e6:g}M-ion POS, peak RSS",
+                    f"{g['rss_mib']:,.0f} MiB", "-", "-")]
+    return rows, summary
 
 
 def dense_fields(n: int) -> dict[str, tuple[np.ndarray, float]]:
     from scipy.ndimage import gaussian_filter
 
-    from apt_filters.contour.shapes import benchmark_shapes
+    from apt_filters.truth.shapes import benchmark_shapes, grid
 
     noise = gaussian_filter(np.random.default_rng(0).standard_normal((n, n, n)), 1.5)
-    shape = benchmark_shapes()[4]
-    return {"smoothed noise": (noise, 0.0), shape.name: (shape.grid(n)[0], 0.0)}
+    return {"smoothed noise": (noise, 0.0), "box_minus_sphere": (grid(benchmark_shapes()["box_minus_sphere"], n)[0], 0.0)}
 
 
-def mc_table(sizes=(128, 256), repeats: int = 3) -> list[str]:
+def mc_table(sizes=(128, 256), repeats: int = 3) -> tuple[list[str], list[tuple]]:
+    """The marching-cubes table and its summary row (the largest dense noise field against scikit-image)."""
     from apt_filters.contour import marching_cubes
     from apt_filters.contour.cells import find_active_cells, prepare_field
 
@@ -195,8 +212,10 @@ def mc_table(sizes=(128, 256), repeats: int = 3) -> list[str]:
     except ImportError:
         sk = None
     marching_cubes(np.random.default_rng(1).random((8, 8, 8)), 0.5)  # compile outside the timing
-    rows = ["| field | size | active cells | ours MC (s) | active-cell scan (s) | skimage lewiner (s) | ours / skimage |",
+    rows = ["## Marching cubes on dense fields, ours beside scikit-image (Lewiner), same process, best of 3", "",
+            "| field | size | active cells | ours MC (s) | active-cell scan (s) | skimage lewiner (s) | ours / skimage |",
             "|---|---:|---:|---:|---:|---:|---:|"]
+    summary = []
     for n in sizes:
         for name, (values, iso) in dense_fields(n).items():
             def best(fn):
@@ -208,7 +227,10 @@ def mc_table(sizes=(128, 256), repeats: int = 3) -> list[str]:
             t_sk = best(lambda: sk(values, iso, method="lewiner")) if sk else float("nan")
             rows.append(f"| {name} | {n}³ | {active:,} | {t_ours:.3f} | {t_scan:.3f} | {t_sk:.3f} | {t_ours / t_sk:.2f} |")
             print(rows[-1], flush=True)
-    return rows
+            if name == "smoothed noise" and n == max(sizes):
+                summary = [("scale", f"marching cubes, smoothed noise {n}³ (every cell active; target <= 1.0x)",
+                            f"{t_ours:.2f} s", f"{t_sk:.2f} s (skimage Lewiner)", ratio(t_ours, t_sk))]
+    return rows, summary
 
 
 def _timed(fn) -> float:
@@ -217,7 +239,8 @@ def _timed(fn) -> float:
     return time.perf_counter() - t
 
 
-def run_table(pos: Path, n: int, work: Path, budget: float | None) -> list[str]:
+def run_table(pos: Path, n: int, work: Path, budget: float | None) -> tuple[list[str], list[tuple]]:
+    """``apt-filters run``'s table (each step's time and peak RSS) and its summary row."""
     cmd = [sys.executable, "-m", "apt_filters", "run", str(pos), "-r", str(pos.with_suffix(".rrng")),
            "-o", str(work / "run"), "--species", "Cu", "--iso", "0.2", "-q", "--force"]
     cmd += ["--memory-budget", str(budget)] if budget else []
@@ -226,12 +249,14 @@ def run_table(pos: Path, n: int, work: Path, budget: float | None) -> list[str]:
     wall = time.perf_counter() - t
     report = json.loads((work / "run" / "report.json").read_text())
     peak = max(s["peak_mib"] for s in report["steps"])
-    rows = [f"`apt-filters run` (Cu 20 at.%{f', memory budget {budget:g} GB' if budget else ''}), {n:,} ions: "
+    rows = [f"## `apt-filters run`, {n:,} ions", "", f"`apt-filters run` (Cu 20 at.%{f', memory budget {budget:g} GB' if budget else ''}), {n:,} ions: "
             f"{wall:.1f} s, {n / wall / 1e6:.2f} M ions/s, peak RSS {peak:,.0f} MiB.", "",
             "| step | time (s) | peak (MiB) |", "|---|---:|---:|"]
     rows += [f"| {s['step']} | {s['seconds']:.1f} | {s['peak_mib']:,.0f} |" for s in report["steps"]]
     print("\n".join(rows), flush=True)
-    return rows
+    mapped = " (ions memory-mapped)" if "memory-mapped" in report["steps"][0]["summary"] else ""
+    return rows, [("scale", f"`apt-filters run`, {n / 1e6:g}M ions{mapped}, wall / peak RSS",
+                   f"{wall:.0f} s / {peak:,.0f} MiB", "-", "-")]
 
 
 def machine() -> str:
@@ -251,7 +276,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="store_true", help="also time `apt-filters run` on the main file")
     parser.add_argument("--memory-budget", type=float, help="GB, for --run (default: the run's own)")
     parser.add_argument("--work", help="folder for the generated files (default: a temporary one, removed)")
-    parser.add_argument("--out", help="also write the tables to this markdown file")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -263,16 +287,18 @@ def main(argv: list[str] | None = None) -> int:
     cores = available_cores()
     counts = ([int(t) for t in args.threads.split(",")] if args.threads else
               sorted({1 << k for k in range(cores.bit_length()) if 1 << k <= cores} | {cores}))
-    lines = ["# bench_scale: streaming steps, thread scaling, marching cubes", "", f"Machine: {machine()}.", ""]
-    print("\n".join(lines), flush=True)
+    intro = f"Machine: {machine()}."
+    print(intro, flush=True)
+    sections, summary = [], []
 
-    def section(rows: list[str]) -> None:
-        lines.extend(rows + [""])
-        if args.out:  # after every section: a run stopped part-way keeps what it measured
-            Path(args.out).write_text("\n".join(lines) + "\n")
+    def section(table: tuple[list[str], list[tuple]]) -> None:
+        sections.append("\n".join(table[0]))
+        summary.extend(table[1])
+        # after every section: a run stopped part-way keeps what it measured
+        write_results("scale", TITLE, summary, sections, intro=intro, merge=True)
 
     if not args.no_mc:
-        section(["Marching cubes on dense fields (best of 3, same process):", ""] + mc_table())
+        section(mc_table())
     with tempfile.TemporaryDirectory(dir=args.work) as tmp:
         work = Path(tmp)
         for n, counts_n in ((int(args.ions), counts), (int(args.big), counts[-1:])):

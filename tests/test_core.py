@@ -167,3 +167,23 @@ def test_near_surface_selection_streams_a_memory_map_and_serves_a_moved_mesh(tmp
     np.testing.assert_allclose(sd.distance, _box_sdf(near.positions[index], half, (0.3, 0, 0)), atol=1e-5)
     with pytest.raises(ValueError):
         near.within(moved, 1.4)  # 1.4 + 0.3 > 1.5: ions outside the selection could be missed
+
+
+def test_near_surface_selection_keeps_what_it_is_also_asked_and_carries_columns(tmp_path):
+    """``also`` adds rows beyond the reach (distance NaN, face -1) in the same pass; ``carry`` reads
+    further columns (a memory map too) for the selected rows."""
+    from apt_filters.core.nearby import select_near
+
+    half, reach = np.array([2.0, 3.0, 4.0]), 1.0
+    rng = np.random.default_rng(2)
+    positions = rng.uniform(-7, 7, size=(30_000, 3)).astype(np.float32)
+    path = tmp_path / "mz.f32"
+    rng.uniform(1, 100, size=len(positions)).astype(np.float32).tofile(path)
+    mz = np.memmap(path, dtype=np.float32, mode="r")
+    far = positions[:, 0] > 6.0
+    near = select_near(positions, _box(half), reach, chunk=4_001, also=lambda p: p[:, 0] > 6.0, carry=(mz,))
+    within = np.abs(_box_sdf(positions.astype(np.float64), half)) <= reach
+    assert np.array_equal(near.rows, np.flatnonzero(within | far)) and far.sum() > 1_000
+    assert np.array_equal(near.carried[0], mz[near.rows])
+    extra = ~within[near.rows]
+    assert np.all(np.isnan(near.distance[extra])) and np.all(near.face[extra] == -1)

@@ -13,6 +13,7 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.meshlab.decimation import decimate
+from apt_filters.meshlab import exports
 from apt_filters.meshlab.exports import (colormap_rgba, read_ply, species_colors, write_ion_cloud, write_mesh,
                                          write_ply, write_project)
 from tests.meshlab_shapes import cut_below, merge, sphere
@@ -109,6 +110,22 @@ def test_ion_cloud_colours_species_and_states_the_ratio(tmp_path, ions_ranges):
     pts = m.vertex_matrix().astype(np.float32)
     assert all(lookup[tuple(p)] == k for p, k in zip(pts, s))
     assert np.ptp(pts[:, 2]) > 3 * np.ptp(pts[:, 1])
+
+
+def test_ion_clouds_written_together_equal_each_written_alone(tmp_path, ions_ranges, monkeypatch):
+    """One layer per species in the same two passes (several chunks): each file is the one its species alone
+    gives, so a layer does not depend on which others are written with it."""
+    ions, ranges = ions_ranges
+    monkeypatch.setattr(exports, "CLOUD_CHUNK", len(ions) // 3 + 1)
+    layers = {ion: (tmp_path / f"together_{k}.ply", 700 + 300 * k) for k, ion in enumerate(ranges.ions)}
+    together = exports.write_ion_clouds(ions, ranges, layers, seed=5)
+    assert list(together) == ranges.ions
+    for k, ion in enumerate(ranges.ions):
+        alone = write_ion_cloud(ions, ranges, tmp_path / f"alone_{k}.ply", max_points=700 + 300 * k, species=ion,
+                                seed=5)
+        assert (together[ion].n_written, together[ion].n_ions) == (alone.n_written, alone.n_ions)
+        assert layers[ion][0].read_bytes() == alone.path.read_bytes()
+        assert together[ion].n_written == min(700 + 300 * k, int((ranges.ion_index(ions.mz) == k).sum()))
 
 
 def test_project_opens_iso_surface_and_ion_cloud_together(tmp_path, iso, ions_ranges):

@@ -5,8 +5,8 @@ capped at its boundary loops to estimate a volume), surface area, signed volume 
 sum, positive for outward normals), equivalent-sphere radius, sphericity
 pi^(1/3) (6V)^(2/3) / A, centroid, oriented-bounding-box extents and aspect ratios, Euler
 characteristic and genus, ions inside by species and the element composition inside
-(vectorised point-in-closed-mesh test by ray parity, open3d ``RaycastingScene``), and the
-distance to the specimen edge. The table also gives the object number density in the
+(the sign of the exact signed distance to the closed object, :mod:`apt_filters.core.distance`:
+negative inside), and the distance to the specimen edge. The table also gives the object number density in the
 analysed volume; objects that enclose no ion (marching-cubes specks) are dropped.
 
 Units: nm, nm², nm³; compositions as fractions (at.% only in reports).
@@ -20,7 +20,7 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 from numba import njit
@@ -30,7 +30,7 @@ from scipy.sparse.csgraph import connected_components
 
 from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
-from apt_filters.core.deps import open3d
+from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.hull import ION_CHUNK, SpecimenHull, native_points
 from apt_filters.core.mesh import TriMesh
@@ -227,25 +227,25 @@ def _obb(part: TriMesh, areas: np.ndarray) -> np.ndarray:
 
 
 class _Shape:
-    """One closed object for the point-in-object test: a ray-casting scene (open3d) and its box."""
+    """One closed object for the point-in-object test: its signed distance and its box."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        o3d = open3d()
-        corners = vertices[faces].reshape(-1, 3)
-        self.lower, self.upper = corners.min(axis=0), corners.max(axis=0)
         self.triangles = vertices[faces]
-        self.ref = vertices.mean(axis=0)  # float32 coordinates near the object, not near 0
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor((vertices - self.ref).astype(np.float32)),
-                                 o3d.core.Tensor(faces.astype(np.uint32)))
+        corners = self.triangles.reshape(-1, 3)
+        self.lower, self.upper = corners.min(axis=0), corners.max(axis=0)
+        mesh = TriMesh(vertices, faces)
+        self.surface = SurfaceDistance(mesh)
+        # a cavity's surface faces into the cavity (out of the region above the iso-value): what it
+        # encloses lies along its normals
+        self.enclosed_sign = 1.0 if mesh.signed_volume() < 0 else -1.0
 
     def inside(self, points: np.ndarray) -> np.ndarray:
-        """(n,) bool: points inside (ray parity, majority of 3 rays)."""
+        """(n,) bool: points the closed surface encloses, by the sign of their exact signed distance
+        (the angle-weighted pseudo-normal at the closest point: exact for a closed manifold). The
+        search has no limit, so every point is decided; those asked lie near the surface."""
         if not len(points):
             return np.zeros(0, dtype=bool)
-        o3d = open3d()
-        occ = self.scene.compute_occupancy(o3d.core.Tensor((points - self.ref).astype(np.float32)), nsamples=3)
-        return occ.numpy().astype(bool)
+        return self.surface.query(np.asarray(points, dtype=np.float64)).distance * self.enclosed_sign > 0
 
 
 MULTI = np.iinfo(np.int32).min
@@ -256,11 +256,13 @@ MULTI = np.iinfo(np.int32).min
 class _LabelGrid:
     """Voxels over the union of the objects' boxes: ``k + 1`` wholly inside object ``k`` only,
     ``-(k + 1)`` crossed by object ``k``'s surface only, :data:`MULTI` more than one object,
-    0 outside every object. Voxel ``(i, j, k)`` covers ``origin + [i, i + 1) * voxel`` (x, y, z)."""
+    0 outside every object. Voxel ``(i, j, k)`` covers ``origin + [i, i + 1) * voxel`` (x, y, z).
+    ``encloses[k]``: whether object ``k`` encloses a region (else it has no label)."""
 
     labels: np.ndarray
     origin: np.ndarray
     voxel: float
+    encloses: list[bool] = field(default_factory=list)
 
     @classmethod
     def build(cls, shapes: list[_Shape], voxel: float = COUNT_VOXEL) -> "_LabelGrid":
@@ -269,11 +271,11 @@ class _LabelGrid:
         voxel = max(voxel, float(np.prod(upper - lower) / MAX_LABEL_VOXELS) ** (1 / 3))
         labels = np.zeros(tuple(np.floor((upper - lower) / voxel).astype(int) + 1), dtype=np.int32)
         grid = cls(labels, lower, voxel)
-        for k, shape in enumerate(shapes):
-            grid._add(k, shape)
+        grid.encloses = [grid._add(k, shape) for k, shape in enumerate(shapes)]
         return grid
 
-    def _add(self, k: int, shape: _Shape) -> None:
+    def _add(self, k: int, shape: _Shape) -> bool:
+        """Label object ``k``'s voxels; False (and nothing labelled) where its surface encloses no region."""
         lo = self._cell(shape.lower - LABEL_MARGIN)
         hi = self._cell(shape.upper + LABEL_MARGIN) + 1
         region = self.labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
@@ -281,25 +283,45 @@ class _LabelGrid:
         corner = self.origin + lo * self.voxel
         _mark_boxes(shape.triangles.min(axis=1) - corner, shape.triangles.max(axis=1) - corner,
                     1.0 / self.voxel, LABEL_MARGIN, crossed)
-        inside = np.zeros(region.shape, dtype=bool)
-        step = max(1, CENTRE_BATCH // (region.shape[1] * region.shape[2]))  # bounded memory for large boxes
-        for i in range(0, region.shape[0], step):
-            slab = inside[i:i + step]
-            centres = np.stack(np.meshgrid(*[np.arange(n) + 0.5 for n in slab.shape], indexing="ij"), axis=-1)
-            centres[..., 0] += i
-            slab[...] = shape.inside(corner + centres.reshape(-1, 3) * self.voxel).reshape(slab.shape)
-        inside &= ~crossed
+        # The surface crosses no voxel left unmarked, so each face-connected region of unmarked voxels lies
+        # wholly inside or wholly outside: the signed distance of a few voxel centres spread over each region
+        # decides it. Centres of one region that disagree, or a region on the box's outermost voxels (which
+        # reach beyond the object's box) judged inside, mean that the surface changes sides where it is not
+        # crossed: it encloses no region (a cap through a wavy sheet across the specimen).
+        regions, n_regions = ndimage.label(~crossed)
+        flat = regions.ravel()
+        order = np.argsort(flat, kind="stable")
+        size = np.bincount(flat, minlength=n_regions + 1)
+        start = np.cumsum(size) - size
+        picks = start[1:, None] + (np.arange(REGION_SAMPLES) * (size[1:, None] - 1)) // (REGION_SAMPLES - 1)
+        cells = np.column_stack(np.unravel_index(order[picks.ravel()], region.shape))
+        votes = shape.inside(corner + (cells + 0.5) * self.voxel).reshape(n_regions, REGION_SAMPLES)
+        region_inside = np.concatenate([[False], votes[:, 0]])
+        border = np.concatenate([regions[[0, -1]].ravel(), regions[:, [0, -1]].ravel(), regions[:, :, [0, -1]].ravel()])
+        if np.any(votes != votes[:, :1]) or region_inside[border].any():
+            return False
+        inside = region_inside[regions]
         free = region == 0
         region[crossed & free] = -(k + 1)
         region[inside & free] = k + 1
         region[(crossed | inside) & ~free] = MULTI
+        return True
 
     def _cell(self, points: np.ndarray) -> np.ndarray:
         return np.clip(np.floor((points - self.origin) / self.voxel).astype(int), 0, np.array(self.labels.shape) - 1)
 
+    def touched(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points in a voxel inside or crossed by an object (all the ions any object may hold)."""
+        cell = np.floor((np.asarray(points, dtype=np.float64) - self.origin) / self.voxel)
+        within = np.all((cell >= 0) & (cell < np.array(self.labels.shape)), axis=1)
+        out = np.zeros(len(cell), dtype=bool)
+        i, j, k = cell[within].astype(np.int64).T
+        out[within] = self.labels[i, j, k] != 0
+        return out
 
-CENTRE_BATCH = 1 << 20
-"""Voxel centres tested per batch when labelling an object's box (24 MB of float64)."""
+
+REGION_SAMPLES = 8
+"""Voxel centres, spread over each region of voxels no surface crosses, whose signed distances must agree."""
 
 LABEL_MARGIN = 1e-3
 """nm added around each triangle's box when marking crossed voxels: covers the rounding of
@@ -357,7 +379,7 @@ def _count_ions(ions: IonTable, ranges: RangeTable, shapes: list[tuple[np.ndarra
 
     One streamed pass over chunks of ions through a :class:`_LabelGrid`: an ion in a voxel
     wholly inside one object is counted at once; only ions in voxels that a surface crosses
-    (or that several objects share) are tested by ray parity, all together at the end.
+    (or that several objects share) are tested by their signed distance, all together at the end.
     An ion inside nested objects counts for each. Memory: the grid (int32, at most
     :data:`MAX_LABEL_VOXELS`), a chunk's work arrays (20 bytes per ion), and 36 bytes per ion left
     to test.
@@ -405,13 +427,18 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         Iso-surface, outward normals (nm).
     ions, ranges : IonTable, RangeTable, optional
         Ions to count inside each closed or proxy object; objects enclosing none are dropped.
+        Any subset holding every ion :func:`ions_in_objects` selects gives the same counts (the
+        pipeline passes the ions it selected once, :func:`~apt_filters.core.nearby.select_near`).
     specimen : SpecimenHull or SpecimenMask, optional
         The analysed volume, for edge distances and the number density; default: the convex
-        hull of the ions (if given).
+        hull of the ions (if given; pass it with a subset of the ions).
     cap_open : bool
         Cap open objects at their boundary loops and report them as ``proxy`` with a
         volume; otherwise they stay ``open`` without volume. Objects closed by faces flagged
-        in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too.
+        in the face scalar :data:`CAP` (the meshlab ``close`` chain) are ``proxy`` too. A capped
+        object that encloses no region (its caps cross its surface, so that its signed distance
+        changes sign without crossing it: an interface across the specimen capped by the plane of
+        its rim) stays ``open``.
 
     Memory: a few copies of the face array, the label grid of :func:`_count_ions` and
     :data:`ION_CHUNK`-sized work arrays; the ions are read chunk by chunk (a memory-mapped
@@ -421,30 +448,15 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         raise AptFiltersError("counting ions inside objects needs both the ions and the range table")
     if specimen is None and ions is not None and len(ions) >= 4:
         specimen = SpecimenHull.from_points(ions.positions)
-    # The same numbering as the proxigram and excess: the face scalar if given, else components.
-    labels = (np.asarray(mesh.face_scalars["object_id"], dtype=np.int64) if "object_id" in mesh.face_scalars
-              else mesh.face_components())
-    ids, face_label = np.unique(labels, return_inverse=True)
-    n_obj = len(ids)
-    order = np.argsort(face_label, kind="stable")
-    starts = np.searchsorted(face_label[order], np.arange(n_obj + 1))
-    is_cap = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces)), dtype=bool)
     # every vertex's distance once (numba, no (n, facets) temporary); an object's is its smallest
     edge = specimen.distance(mesh.vertices) if specimen is not None else None
     objects: list[ObjectStats] = []
     shapes: list[tuple[np.ndarray, np.ndarray]] = []
-    for k in range(n_obj):
-        index = order[starts[k]:starts[k + 1]]
-        capped = is_cap[index]
-        own = index[~capped] if capped.any() and not capped.all() else index  # the iso-surface's faces
-        whole = _submesh(mesh.vertices, mesh.faces[index])
-        surface = whole if own is index else _submesh(mesh.vertices, mesh.faces[own])
-        closed = cap_boundaries(whole)[0] if cap_open else whole
-        status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
-        objects.append(_stats(int(ids[k]), surface, closed, status))
-        shapes.append((closed.vertices, closed.faces))
+    for part in _objects(mesh, cap_open):
+        objects.append(_stats(part.object_id, part.surface, part.closed, part.status))
+        shapes.append((part.closed.vertices, part.closed.faces))
         if edge is not None:
-            objects[-1].edge_distance = float(edge[mesh.faces[own]].min())
+            objects[-1].edge_distance = float(edge[mesh.faces[part.own]].min())
     n_dropped = 0
     if ions is not None:
         countable = [i for i, o in enumerate(objects) if o.status != "open"]
@@ -462,6 +474,56 @@ def object_table(mesh: TriMesh, ions: IonTable | None = None, ranges: RangeTable
         objects = keep
     volume = specimen.volume if specimen is not None else math.nan
     return ObjectTable(objects, volume, n_dropped)
+
+
+def ions_in_objects(mesh: TriMesh, cap_open: bool = True) -> Callable[[np.ndarray], np.ndarray]:
+    """Which points may lie inside an object of ``mesh``'s table: ``test(points)`` (n, 3) nm -> (n,) bool.
+
+    True in every voxel of the table's label grid that lies inside or is crossed by a closed or capped
+    object (:func:`object_table` with the same ``cap_open``): a superset of the ions the table counts, so
+    that one streamed pass can select them beside the ions near the surface
+    (:func:`~apt_filters.core.nearby.select_near`'s ``also``). Memory: the label grid.
+    """
+    closed = [(p.closed.vertices, p.closed.faces) for p in _objects(mesh, cap_open) if p.status != "open"]
+    if not closed:
+        return lambda points: np.zeros(len(points), dtype=bool)
+    return _LabelGrid.build([_Shape(v, f) for v, f in closed]).touched
+
+
+@dataclass
+class _Part:
+    """One object of a mesh: its id, the faces of its own iso-surface (``own``, rows of the mesh's faces),
+    that surface, the same closed by its caps, and its status."""
+
+    object_id: int
+    own: np.ndarray
+    surface: TriMesh
+    closed: TriMesh
+    status: str
+
+
+def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
+    """The objects of ``mesh``, in increasing id: the face scalar ``object_id`` if given, else the components
+    (the same numbering as the proxigram and excess)."""
+    labels = (np.asarray(mesh.face_scalars["object_id"], dtype=np.int64) if "object_id" in mesh.face_scalars
+              else mesh.face_components())
+    ids, face_label = np.unique(labels, return_inverse=True)
+    order = np.argsort(face_label, kind="stable")
+    starts = np.searchsorted(face_label[order], np.arange(len(ids) + 1))
+    is_cap = np.asarray(mesh.face_scalars.get(CAP, np.zeros(mesh.n_faces)), dtype=bool)
+    parts = []
+    for k in range(len(ids)):
+        index = order[starts[k]:starts[k + 1]]
+        capped = is_cap[index]
+        own = index[~capped] if capped.any() and not capped.all() else index  # the iso-surface's faces
+        whole = _submesh(mesh.vertices, mesh.faces[index])
+        surface = whole if own is index else _submesh(mesh.vertices, mesh.faces[own])
+        closed = cap_boundaries(whole)[0] if cap_open else whole
+        status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
+        if status == "proxy" and not _LabelGrid.build([_Shape(closed.vertices, closed.faces)]).encloses[0]:
+            closed, status = surface, "open"  # its caps cross its surface: no region to measure or count in
+        parts.append(_Part(int(ids[k]), own, surface, closed, status))
+    return parts
 
 
 def _submesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:

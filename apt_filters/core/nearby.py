@@ -13,6 +13,7 @@ complete as long as the mesh has moved less than the slack between the two reach
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -42,6 +43,8 @@ class NearSurface:
         Selection distance, nm.
     anchor : (n, 3) float64
         The mesh's vertices at selection.
+    carried : tuple of arrays
+        The selected rows of the columns given as ``carry`` to :func:`select_near` (e.g. m/z).
     """
 
     rows: np.ndarray
@@ -50,6 +53,7 @@ class NearSurface:
     face: np.ndarray
     reach: float
     anchor: np.ndarray
+    carried: tuple = ()
 
     def moved(self, vertices: np.ndarray) -> float:
         """Largest move (nm) of a vertex of the same mesh since the selection."""
@@ -90,7 +94,8 @@ class SignedDistanceRows:
 
 
 def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: float,
-                chunk: int = CHUNK) -> NearSurface:
+                chunk: int = CHUNK, *, also: Callable[[np.ndarray], np.ndarray] | None = None,
+                carry: tuple[np.ndarray, ...] = ()) -> NearSurface:
     """The rows of ``positions`` within ``reach`` nm of a mesh, in one streamed pass.
 
     Parameters
@@ -103,22 +108,32 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         Largest unsigned distance kept, nm.
     chunk : int
         Rows read at a time.
+    also : callable, optional
+        ``also(points)`` for a chunk's (k, 3) positions gives (k,) bool: further rows to keep beyond
+        ``reach`` (their distance NaN and face -1), such as the ions inside closed objects.
+    carry : tuple of arrays, optional
+        Further columns of the same table (N rows each, e.g. m/z; memory maps too), read in the same
+        pass: :attr:`NearSurface.carried` holds their selected rows.
 
     Returns
     -------
     NearSurface
-        Memory: 48 bytes per selected ion.
+        Memory: 48 bytes per selected ion, and those of the carried columns.
     """
     engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh, reach=reach)
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
+    carried = [[np.zeros((0, *np.shape(c)[1:]), np.asarray(c[:0]).dtype)] for c in carry]
     for start in range(0, len(positions), chunk):
         part = np.asarray(positions[start:start + chunk])
         sd = engine.query(part, max_distance=reach)
-        keep = np.flatnonzero(np.abs(sd.distance) <= reach)
+        near = np.abs(sd.distance) <= reach
+        keep = np.flatnonzero(near if also is None else near | also(part))
         rows.append(start + keep)
         points.append(part[keep].astype(np.float64))
         dist.append(sd.distance[keep])
         face.append(sd.face[keep])
+        for column, out in zip(carry, carried):
+            out.append(np.asarray(column[start:start + chunk])[keep])
     return NearSurface(np.concatenate(rows), np.concatenate(points), np.concatenate(dist), np.concatenate(face),
-                       float(reach), engine.mesh.vertices.copy())
+                       float(reach), engine.mesh.vertices.copy(), tuple(np.concatenate(c) for c in carried))

@@ -7,7 +7,7 @@
 - :func:`write_mesh`: OBJ, STL, OFF (or PLY) through pymeshlab, when asked for.
 - :func:`write_ion_cloud`: ions as a coloured point cloud PLY, one colour per species
   (from the range file), subsampled to a size the GUI handles; the ratio is stated in the
-  header comment and returned.
+  header comment and returned. :func:`write_ion_clouds`: several such layers in the same two passes.
 - :func:`write_project`: a MeshLab project ``.mlp`` opening several files together.
 
 Every file is written atomically and never replaces an existing one unless asked.
@@ -187,14 +187,12 @@ _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1")
                          ("quality", "<f4")])
 
 
-def _pool(ranges: RangeTable, mz: np.ndarray, include_unranged: bool,
-          only: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Species of a chunk of ions and the chunk-local indices eligible for the cloud (all
-    ranged ions, unranged too if asked, or only the ion species of index ``only``)."""
-    species = ranges.ion_index(mz)
+def _pool(species: np.ndarray, include_unranged: bool, only: int | None = None) -> np.ndarray:
+    """Chunk-local indices of the ions (``species``: their ion index, -1 unranged) eligible for a cloud:
+    all ranged ions, unranged too if asked, or only the ion species of index ``only``."""
     if only is not None:
-        return species, np.flatnonzero(species == only)
-    return species, (np.arange(len(mz)) if include_unranged else np.flatnonzero(species >= 0))
+        return np.flatnonzero(species == only)
+    return np.arange(len(species)) if include_unranged else np.flatnonzero(species >= 0)
 
 
 def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike, max_points: int = GUI_POINTS,
@@ -205,40 +203,68 @@ def write_ion_cloud(ions: IonTable, ranges: RangeTable, path: str | os.PathLike,
     At most ``max_points`` ions, drawn uniformly without replacement (reproducible with
     ``seed``) and kept in file order; the header comment states the sampling ratio.
     ``species`` (an ion name of ``ranges``) writes that species only: one MeshLab layer per
-    species, which the GUI shows and hides one by one.
-    Two passes over chunks of :data:`CLOUD_CHUNK` ions: count the eligible ions per chunk,
-    split the sample between chunks (multivariate hypergeometric, so the draw is uniform over
-    all ions), then draw inside each chunk. Memory: one chunk's work arrays plus the written
-    rows (19 bytes per point), whatever the number of ions.
+    species, which the GUI shows and hides one by one (:func:`write_ion_clouds` writes them all in
+    the same two passes). Two passes over chunks of :data:`CLOUD_CHUNK` ions: count the eligible
+    ions per chunk, split the sample between chunks (multivariate hypergeometric, so the draw is
+    uniform over all ions), then draw inside each chunk. Memory: one chunk's work arrays plus the
+    written rows (19 bytes per point), whatever the number of ions.
     """
-    if max_points < 1:
-        raise AptFiltersError(f"max_points must be at least 1, got {max_points}")
-    if species is not None and species not in ranges.ions:
-        raise AptFiltersError(f"no ion {species!r} in the range file; ions: {', '.join(ranges.ions)}")
-    only = None if species is None else ranges.ions.index(species)
+    return write_ion_clouds(ions, ranges, {species: (path, max_points)}, include_unranged=include_unranged,
+                            seed=seed, overwrite=overwrite)[species]
+
+
+def write_ion_clouds(ions: IonTable, ranges: RangeTable, layers: dict[str | None, tuple[str | os.PathLike, int]], *,
+                     include_unranged: bool = False, seed: int = 0,
+                     overwrite: bool = False) -> dict[str | None, CloudExport]:
+    """Write several point clouds of ``ions`` in the same two streamed passes.
+
+    ``layers`` maps an ion species of ``ranges`` (None: every ranged ion, unranged too with
+    ``include_unranged``) to its file and its most points; each file is the one
+    :func:`write_ion_cloud` writes for that species alone, with the same ``seed`` (each layer draws
+    from its own generator, in the same order). Returns the exports by species.
+    """
+    for species, (_, max_points) in layers.items():
+        if max_points < 1:
+            raise AptFiltersError(f"max_points must be at least 1, got {max_points}")
+        if species is not None and species not in ranges.ions:
+            raise AptFiltersError(f"no ion {species!r} in the range file; ions: {', '.join(ranges.ions)}")
+    only = {sp: None if sp is None else ranges.ions.index(sp) for sp in layers}
     chunks = [slice(i, i + CLOUD_CHUNK) for i in range(0, len(ions), CLOUD_CHUNK)]
-    counts = np.array([len(_pool(ranges, ions.mz[c], include_unranged, only)[1]) for c in chunks], dtype=np.int64)
-    n_pool = int(counts.sum())
-    rng = np.random.default_rng(seed)
-    take = counts if n_pool <= max_points else rng.multivariate_hypergeometric(counts, max_points)
-    rows = []
-    for c, k in zip(chunks, take):
-        index, pool = _pool(ranges, ions.mz[c], include_unranged, only)
-        chosen = pool if k == len(pool) else np.sort(rng.choice(pool, size=k, replace=False))
-        part = np.empty(len(chosen), dtype=_CLOUD_DTYPE)
-        part["x"], part["y"], part["z"] = ions.positions[c][chosen].T
-        part["red"], part["green"], part["blue"] = species_colors(ranges)[index[chosen]].T  # -1: unranged row
-        part["quality"] = index[chosen]
-        rows.append(part)
-    v = np.concatenate(rows) if rows else np.empty(0, dtype=_CLOUD_DTYPE)
-    n = len(v)
-    what = f"{species} ions" if species is not None else "ions" if include_unranged else "ranged ions"
-    comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} {what} (sampling ratio {n / max(n_pool, 1):.6g})",
-                "quality = species index: " + ", ".join(f"{i}={name}" for i, name in enumerate(ranges.ions))
-                + (", -1=unranged" if include_unranged else "")]
-    header = _ply_header(n, v.dtype, None, None, comments)
-    out = atomic_write_bytes(path, header + v.tobytes(), overwrite)
-    return CloudExport(out, n, n_pool)
+    counts = {sp: np.zeros(len(chunks), dtype=np.int64) for sp in layers}
+    for c, chunk in enumerate(chunks):
+        species = ranges.ion_index(ions.mz[chunk])
+        for sp in layers:
+            counts[sp][c] = len(_pool(species, include_unranged, only[sp]))
+    rngs = {sp: np.random.default_rng(seed) for sp in layers}
+    take = {sp: counts[sp] if counts[sp].sum() <= n else rngs[sp].multivariate_hypergeometric(counts[sp], n)
+            for sp, (_, n) in layers.items()}
+    rows = {sp: [] for sp in layers}
+    colors = species_colors(ranges)
+    for c, chunk in enumerate(chunks):
+        index = ranges.ion_index(ions.mz[chunk])
+        positions = None
+        for sp in layers:
+            pool, k = _pool(index, include_unranged, only[sp]), take[sp][c]
+            chosen = pool if k == len(pool) else np.sort(rngs[sp].choice(pool, size=k, replace=False))
+            if positions is None and len(chosen):
+                positions = np.asarray(ions.positions[chunk])
+            part = np.empty(len(chosen), dtype=_CLOUD_DTYPE)
+            if len(chosen):
+                part["x"], part["y"], part["z"] = positions[chosen].T
+            part["red"], part["green"], part["blue"] = colors[index[chosen]].T  # -1: unranged row
+            part["quality"] = index[chosen]
+            rows[sp].append(part)
+    out = {}
+    for sp, (path, _) in layers.items():
+        v = np.concatenate(rows[sp]) if rows[sp] else np.empty(0, dtype=_CLOUD_DTYPE)
+        n, n_pool = len(v), int(counts[sp].sum())
+        what = f"{sp} ions" if sp is not None else "ions" if include_unranged else "ranged ions"
+        comments = [f"apt-filters ion cloud; units nm; {n} of {n_pool} {what} (sampling ratio {n / max(n_pool, 1):.6g})",
+                    "quality = species index: " + ", ".join(f"{i}={name}" for i, name in enumerate(ranges.ions))
+                    + (", -1=unranged" if include_unranged else "")]
+        header = _ply_header(n, v.dtype, None, None, comments)
+        out[sp] = CloudExport(atomic_write_bytes(path, header + v.tobytes(), overwrite), n, n_pool)
+    return out
 
 
 POINTS_RENDERING = "0001" + "100100000" + "000000000" * 3 + "10000000000100011010110000010101"

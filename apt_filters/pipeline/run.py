@@ -3,8 +3,10 @@
 A short list of steps, each returning a typed record that the report serialises: read
 (:class:`Inputs`) -> audit -> voxelize (:class:`Voxels`) -> per iso-surface the finished surface
 (:func:`~apt_filters.pipeline.surface.finished_surface`: contour, specks, refinement, clean chain,
-remesh), its objects, proxigram and excess (:class:`SurfaceResult`) -> exports (PLY, ion cloud,
-MeshLab project) -> report.json / report.html / config.toml.
+remesh), the ions near it or inside its objects selected in one streamed pass
+(:func:`~apt_filters.pipeline.surface.analysis_ions`), and from them its objects, proxigram, excess
+and maps (:class:`SurfaceResult`) -> exports (PLY, ion cloud, MeshLab project) -> report.json /
+report.html / config.toml.
 
 Everything is written into a staging folder that replaces the output folder only when
 the run succeeds, and the output folder is checked before any work (:mod:`.staging`). The
@@ -24,6 +26,7 @@ import numpy as np
 
 from apt_filters.core.atomic import atomic_write_text, remove, scratch_path, signals_held
 from apt_filters.core.errors import AptFiltersError
+from apt_filters.core.hull import SpecimenHull
 from apt_filters.core.mesh import TriMesh
 from apt_filters.io import read_ions
 from apt_filters.io.summary import summarize
@@ -34,7 +37,7 @@ from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.pipeline.steps import StepLog
 from apt_filters.pipeline.summary import surface_summary
-from apt_filters.pipeline.surface import SurfaceRecord, finished_surface, surface_label
+from apt_filters.pipeline.surface import SurfaceRecord, analysis_ions, finished_surface, surface_label
 
 __all__ = ["MINORITY", "run_pipeline", "surface_label"]
 
@@ -44,11 +47,13 @@ MINORITY = 0.10
 
 @dataclass
 class Inputs:
-    """The read step: ions, ranges and what report.json says of them."""
+    """The read step: ions, ranges, the specimen's hull and what report.json says of them."""
 
     ions: object
     ranges: object
     report: dict
+    hull: object = None
+    ion_counts: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -75,6 +80,8 @@ class SurfaceResult:
     stats: dict = field(default_factory=dict)
     summary: list[dict] = field(default_factory=list)
     maps: list[dict] = field(default_factory=list)
+    near: object = None
+    """The ions the analyses read (:func:`~apt_filters.pipeline.surface.analysis_ions`)."""
     quality: tuple | None = None
     """(vertex scalar, colour range, meaning) MeshLab shows as quality; None: the scene's local composition."""
 
@@ -145,6 +152,7 @@ def _read(config: PipelineConfig, log: StepLog, scratch: Path) -> Inputs:
         ranges = config_ranges(config)
         summary = summarize(config.input.ions, ranges)  # streamed from the file: nothing kept
         ions = load_ions(config, ranges, summary, scratch)
+        hull = SpecimenHull.from_points(ions.positions)  # the analysed volume, for every surface's objects
         report = {"range_file": [dataclasses.asdict(n) for n in ranges.notes],
                   "inputs": [rep.file_record(config.input.ions), rep.file_record(config.input.ranges)],
                   "ions": {"count": summary.ions, "ranged_fraction": summary.ranged_fraction,
@@ -152,7 +160,7 @@ def _read(config: PipelineConfig, log: StepLog, scratch: Path) -> Inputs:
                   "composition": summary.composition()}
         s.summary = (f"{len(ions):,} ions{' (memory-mapped)' if isinstance(ions.mz, np.memmap) else ''}, "
                      f"{summary.ranged_fraction:.1%} ranged, {len(ranges)} ranges")
-    return Inputs(ions, ranges, report)
+    return Inputs(ions, ranges, report, hull, summary.ion_counts)
 
 
 def _audit(inputs: Inputs, log: StepLog, verbose: bool) -> list[dict]:
@@ -202,15 +210,20 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
     res = SurfaceResult(label, surface, mesh, record)
     if mesh.n_faces == 0:  # every component was a speck: reported, nothing to measure or export
         return res
+    with log.step("select") as s:
+        near = res.near = analysis_ions(ions, mesh, reach=config.proxigram.extent,
+                                        cap_open=config.contour.close_at_edge)
+        s.summary = (f"{label}: {len(near):,} ions within {config.proxigram.extent:g} nm or inside objects "
+                     f"({len(near) / max(len(ions), 1):.1%}), one pass")
     with log.step("objects") as s:
-        table = object_table(mesh, ions, ranges, cap_open=config.contour.close_at_edge)
+        table = object_table(mesh, near, ranges, specimen=inputs.hull, cap_open=config.contour.close_at_edge)
         table.write_csv(stage / f"objects_{label}.csv")
         table.write_json(stage / f"objects_{label}.json")
         res.objects = table.rows()
         res.stats["objects_dropped"] = table.n_dropped
         s.summary = f"{label}: {len(res.objects)} objects"
     with log.step("proxigram") as s:
-        prox = compute_proxigram(ions, ranges, mesh, bin_width=config.proxigram.bin,
+        prox = compute_proxigram(near, ranges, mesh, bin_width=config.proxigram.bin,
                                  max_distance=config.proxigram.extent, keep_edge=not config.proxigram.exclude_edge,
                                  iso_value=surface.iso if surface.species else None)
         prox.write_csv(stage / f"proxigram_{label}.csv")
@@ -229,7 +242,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
                      f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
     if config.analysis.maps:
         with log.step("maps") as s:
-            res.maps = _maps(res, ions, ranges, solutes, config, stage / f"map_{label}.png")
+            res.maps = _maps(res, near, ranges, solutes, config, stage / f"map_{label}.png")
             tested = [m for m in res.maps if m["p_value"] is not None]
             s.summary = f"{label}: " + ("; ".join(
                 f"{m['solute']} on object {m['object_id']}: p = {m['p_value']:.2g}" for m in tested[:4])
@@ -246,7 +259,8 @@ def _export(results: list[SurfaceResult], inputs: Inputs, stage: Path, log: Step
         scene = write_scene(folder=stage, surfaces={r.label: r.mesh for r in drawn},
                             species={r.label: scene_species(r.surface.species or ranges.elements[0], r.summary)
                                      for r in drawn},
-                            ions=inputs.ions, ranges=ranges,
+                            ions=inputs.ions, ranges=ranges, near={r.label: r.near for r in drawn},
+                            counts=inputs.ion_counts,
                             quality={r.label: r.quality for r in drawn if r.quality is not None})
         sample = inputs.ions.positions[:: max(1, len(inputs.ions) // 20_000)]
         render_surfaces({r.label: r.mesh for r in drawn}, stage / "surfaces.png", points=sample)
@@ -267,7 +281,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
     check_config(config)
     config = check_inputs(config)
     config = _absolute_inputs(config)
-    per_surface = 4 + (config.remesh.method == "cvt") + config.analysis.maps
+    per_surface = 5 + (config.remesh.method == "cvt") + config.analysis.maps
     n_refined = sum(bool(config.refine.enabled and s.species) for s in config.surface)
     log = StepLog(quiet=quiet, total=3 + config.analysis.audit + per_surface * len(config.surface) + n_refined)
     report: dict = {"apt-filters": rep.versions(), "config": dataclasses.asdict(config)}

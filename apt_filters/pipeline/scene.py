@@ -152,7 +152,8 @@ class SceneSurface:
 
 def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str, str], ions: IonTable,
                 ranges: RangeTable, quality: dict[str, tuple] | None = None, lod_faces: int = LOD_FACES,
-                view_points: int = VIEW_POINTS) -> dict:
+                view_points: int = VIEW_POINTS, near: dict[str, IonTable] | None = None,
+                counts: dict[str, int] | None = None) -> dict:
     """Write the scene into ``folder`` (meshes/, project.mlp, legend.png); returns what it wrote.
 
     Parameters
@@ -164,6 +165,7 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
     species : dict
         Label -> element the surface is coloured by (its local at.%, see :func:`vertex_composition`).
     ions, ranges : IonTable, RangeTable
+        All the ions (sampled for the ion layers) and their ranging.
     quality : dict, optional
         Label -> (vertex scalar, (low, high), meaning): a map the surface already carries (the
         excess map of :mod:`apt_filters.analysis.maps`) shown as quality instead of the local at.%.
@@ -171,6 +173,13 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         Meshes with more faces get a level of detail (:data:`LOD_FACES`).
     view_points : int
         Ions drawn over all ion layers (:data:`VIEW_POINTS`).
+    near : dict, optional
+        Label -> the ions near that surface (:func:`~apt_filters.pipeline.surface.analysis_ions`), from
+        which its local composition is taken instead of ``ions``: the same wherever a vertex's
+        :data:`NEAREST_IONS` nearest ions lie within the selection's reach of it (at APT densities they
+        lie within about 1.5 nm).
+    counts : dict, optional
+        Ion species -> ions of that species in ``ions`` (the read step's summary; counted here if not given).
 
     Returns
     -------
@@ -179,14 +188,15 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         drawn, total) and ``legend`` (file name), JSON-ready.
     """
     from apt_filters.meshlab.decimation import decimate
-    from apt_filters.meshlab.exports import SIDE_VIEW, colormap_rgba, write_ion_cloud, write_ply, write_project
+    from apt_filters.meshlab.exports import SIDE_VIEW, colormap_rgba, write_ion_clouds, write_ply, write_project
 
     meshes_dir = folder / "meshes"
     layers, labels, visible, scene_surfaces = [], [], [], []
     for label, mesh in surfaces.items():
         element = species[label]
         elements = list(dict.fromkeys([element, *(e for e in species.values() if e in ranges.elements)]))
-        comp = vertex_composition(vertices=mesh.vertices, ions=ions, ranges=ranges, elements=elements)
+        comp = vertex_composition(vertices=mesh.vertices, ions=(near or {}).get(label, ions), ranges=ranges,
+                                  elements=elements)
         mesh = mesh.copy()
         for e, values in comp.items():
             mesh.vertex_scalars[f"at_pct_{e}"] = values
@@ -219,14 +229,13 @@ def write_scene(*, folder: Path, surfaces: dict[str, TriMesh], species: dict[str
         scene_surfaces.append(SceneSurface(label, element, limits, files,
                                            quantity=f"{shown}\nnear the surface" if shown.endswith("at.%") else
                                            f"{shown}\n(detected atoms/nm², map)"))
-    counts = _species_counts(ions, ranges)
+    counts = _species_counts(ions, ranges) if counts is None else counts
     quotas = layer_quotas(counts, view_points)
+    # every layer in the same two passes over the ions
+    clouds = write_ion_clouds(ions, ranges, {ion: (meshes_dir / f"ions_{_file_name(ion)}.ply", quota)
+                                             for ion, quota in quotas.items() if quota}, overwrite=True)
     ion_layers = []
-    for ion, quota in quotas.items():
-        if quota == 0:
-            continue
-        cloud = write_ion_cloud(ions, ranges, meshes_dir / f"ions_{_file_name(ion)}.ply", max_points=quota,
-                                species=ion, overwrite=True)
+    for ion, cloud in clouds.items():
         layers.append(cloud.path)
         labels.append(f"ions {ion} ({cloud.n_written:,} of {cloud.n_ions:,})")
         shown = cloud.n_ions < MATRIX_FRACTION * sum(counts.values())

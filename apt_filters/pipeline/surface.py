@@ -5,7 +5,8 @@ the ions -> clean chain -> CVT remesh, with the command line's defaults (:class:
 marching cubes, refinement on), and returns the mesh with a :class:`SurfaceRecord` of what each step
 did (report.json's ``mesh`` of the surface). :func:`contour_surface` is its first step alone;
 :func:`add_iso_surface` voxelizes, calls :func:`finished_surface` and adds the result to a
-``pymeshlab.MeshSet``, the way a MeshLab user's script calls one step.
+``pymeshlab.MeshSet``, the way a MeshLab user's script calls one step. :func:`analysis_ions` selects,
+in one streamed pass, the ions that every analysis of the finished surface reads.
 """
 
 from __future__ import annotations
@@ -199,6 +200,39 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     # One object numbering for the object table, the proxigram and the excess.
     mesh.face_scalars["object_id"] = mesh.face_components()
     return mesh, record
+
+
+def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool = True) -> IonTable:
+    """The ions the analyses of a finished surface read, selected in one streamed pass over ``ions``.
+
+    Those within ``reach`` nm of ``mesh`` (what the proxigram, the excess, the maps and the scene's
+    local composition read) and those that may lie inside its closed or capped objects (what the
+    object table counts, :func:`~apt_filters.analysis.objects.ions_in_objects`), in file order:
+    :func:`~apt_filters.core.nearby.select_near` reads positions and m/z chunk by chunk (a memory-mapped
+    table is read once, in bounded memory). Each analysis given this subset gives the figures it gives
+    with the whole table.
+
+    Parameters
+    ----------
+    ions : IonTable
+        The whole table (a memory map is streamed).
+    mesh : TriMesh
+        The finished surface (face scalar ``object_id``).
+    reach : float
+        nm; the proxigram's and maps' range.
+    cap_open : bool
+        As for the object table (``[contour] close_at_edge``).
+
+    Returns
+    -------
+    IonTable
+        Positions and m/z of the selected ions (16 bytes each; 64 while selecting).
+    """
+    from apt_filters.analysis.objects import ions_in_objects
+    from apt_filters.core.nearby import select_near
+
+    near = select_near(ions.positions, mesh, reach, also=ions_in_objects(mesh, cap_open), carry=(ions.mz,))
+    return IonTable(near.positions.astype(np.float32), near.carried[0], source=ions.source)
 
 
 def _finite(values) -> list:

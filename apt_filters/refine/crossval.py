@@ -26,8 +26,8 @@ without knowing the truth.
 Eligible objects are closed (an open interface meets the specimen edge, where its rim must stay) with
 both plateaus measured. On the gamma-prime specimen (seeds 1-8) the 3 nm spheres chose 4 modes (13 of 16)
 or 9, the cubes 4 (9 of 16) to 36, their edges and corners then rebuilt by the facets; the spheres' mean
-distance to the truth went from 0.15-0.20 to 0.08-0.13 nm and their area errors from +2-8 % to within
-their volume's (benchmarks/results_refine.md, session 6).
+distance to the truth is 0.08-0.13 nm with the selection (0.15-0.20 without) and their area errors within
+their volume's (+2-8 % without; benchmarks/results_refine.md).
 
 Cost: per half, one eigensolve per eligible object and one finish and band per candidate; memory: the
 held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 47``
@@ -51,9 +51,9 @@ from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
 from apt_filters.voxel import ConcentrationBasis
 
 CANDIDATES = (4, 9, 16, 25, 36)
-"""Numbers of modes tried: complete spherical-harmonic degrees 1-5 on a sphere. 64 was tried too and chosen
-for none of 32 gamma-prime precipitates (seeds 1-8); its 82-mode eigensolves took 12 of the 72 s the
-refinement of the 10M-ion ``many`` specimen (47 objects) took."""
+"""Numbers of modes tried: complete spherical-harmonic degrees 1-5 on a sphere. 64 modes would be chosen for
+none of 32 gamma-prime precipitates (seeds 1-8) and their 82-mode eigensolves cost a sixth of the
+refinement of the 10M-ion ``many`` specimen (47 objects)."""
 ONE_SE = 1.0
 """Standard errors within which the smoothest candidate is preferred to the best (the one-standard-error rule)."""
 SCORED = 2.0
