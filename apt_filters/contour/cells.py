@@ -193,16 +193,14 @@ def _scan_cells(words: np.ndarray, nz: int, x0: int, x1: int) -> tuple[np.ndarra
                         if word == 0 or word == valid:  # 8 cells all outside or all inside
                             continue
                         row = (i * ny + j) * nz + bw * BLOCK
-                        for k in range(n_valid):
+                        if n + 8 > len(cells):
+                            cells = np.concatenate((cells, np.empty_like(cells)))
+                            cases = np.concatenate((cases, np.empty_like(cases)))
+                        for k in range(8):  # without branches: every byte written, the count kept for cases 1-254
                             case = np.int64(word >> np.uint64(8 * k) & np.uint64(255))
-                            if case == 0 or case == 255:
-                                continue
-                            if n == len(cells):
-                                cells = np.concatenate((cells, np.empty_like(cells)))
-                                cases = np.concatenate((cases, np.empty_like(cases)))
                             cells[n] = row + k
                             cases[n] = case
-                            n += 1
+                            n += np.int64(np.uint64(case - 1) < np.uint64(254))
     return cells[:n].copy(), cases[:n].copy()
 
 
