@@ -159,7 +159,9 @@ def marching_cubes(values, iso: float, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0
     Notes
     -----
     Time and memory scale with the number of active cells plus one thresholding pass over
-    the box; peak extra memory is about three bytes per voxel plus ~0.5 kB per active cell.
+    the box; peak extra memory is about three bytes per voxel plus ~24 bytes per active cell,
+    besides the output (32 bytes per vertex and per face). The scan, the triangles and the
+    vertex positions run on threads; the result does not depend on their number.
     """
     field = prepare_field(values, iso, spacing, origin, mask, close)
     mesh = triangulate_cells(field, find_active_cells(field))
