@@ -133,6 +133,27 @@ def test_vertex_composition_reads_the_local_fraction_from_the_nearest_ions():
     np.testing.assert_allclose(comp["B"] + comp["Al"], 100.0)
 
 
+def test_vertex_composition_is_the_nearest_ions_of_the_whole_box():
+    """Searching only near the vertices gives the k nearest ranged ions of every ion in the box, also for
+    vertices out in the sparse corner and beyond the ions, where the first reach holds too few."""
+    from scipy.spatial import cKDTree
+
+    ions, ranges = _layered_ions(40_000, seed=3)
+    mz = ions.mz.copy()
+    mz[::7] = 50.0  # unranged: never counted
+    ions = IonTable(ions.positions, mz)
+    rng = np.random.default_rng(4)
+    vertices = np.concatenate([rng.uniform(-9, 9, (200, 3)), [[14.0, 14.0, 14.0], [10.0, -10.0, 0.5]]])
+    comp = vertex_composition(vertices=vertices, ions=ions, ranges=ranges, elements=["B", "Al"], k=50)
+    ranged = ranges.ion_index(mz) >= 0
+    lo, hi = vertices.min(axis=0) - 5.0, vertices.max(axis=0) + 5.0
+    pos = ions.positions.astype(np.float64)
+    keep = ranged & np.all((pos >= lo) & (pos <= hi), axis=1)
+    _, idx = cKDTree(pos[keep]).query(vertices, k=50)
+    boron = 100 * (ranges.ion_index(mz[keep])[idx] == 0).mean(axis=1)
+    np.testing.assert_allclose(comp["B"], boron, atol=1e-9)
+
+
 def test_scene_colours_by_the_most_significant_excess():
     rows = [{"excess": {"B": {"gamma_atoms_nm2": 4.0, "error": 0.2}, "C": {"gamma_atoms_nm2": 1.0, "error": 0.01},
                         "O": None}}]

@@ -127,3 +127,21 @@ def test_the_run_maps_the_ions_when_they_do_not_fit_and_refuses_when_the_fields_
         load_ions(_config(path, 0.99 * fields_gb), ranges(), summary, tmp_path)
     with pytest.raises(AptFiltersError, match="memory budget must be a positive"):
         load_ions(_config(path, -1.0), ranges(), summary, tmp_path)
+
+
+def test_marching_cubes_does_not_depend_on_the_thread_count(monkeypatch):
+    """Triangles, loop centres and vertex positions are written by ranges of cells on threads, each
+    starting where the previous range ends: the mesh is the same for 1, 2 and 3 ranges."""
+    import importlib
+
+    mc = importlib.import_module("apt_filters.contour.marching_cubes")  # the module, not the function
+    values = gaussian_filter(np.random.default_rng(11).standard_normal((72, 80, 88)), 1.5)
+    meshes = []
+    for cores in (1, 2, 3):
+        monkeypatch.setattr(mc, "available_cores", lambda cores=cores: cores)
+        meshes.append(mc.marching_cubes(values, 0.0, spacing=(0.5, 1.0, 2.0), origin=(1.0, 2.0, 3.0)))
+    assert len(find_active_cells(prepare_field(values, 0.0, 1.0, 0.0, None, False)).cell) >= 3 * 65536  # 3 ranges
+    for other in meshes[1:]:
+        assert np.array_equal(other.vertices, meshes[0].vertices) and np.array_equal(other.faces, meshes[0].faces)
+        assert np.array_equal(other.vertex_scalars["value"], meshes[0].vertex_scalars["value"])
+        assert np.array_equal(other.face_scalars["component"], meshes[0].face_scalars["component"])

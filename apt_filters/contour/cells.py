@@ -11,6 +11,7 @@ the public functions map to world coordinates at the end.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,31 +105,47 @@ class ActiveCells:
 
     Attributes
     ----------
+    shape : (3,) int
+        Grid points per axis of the field the cells come from.
     cell : (A,) int64
         Flat point index of each active cell's corner 0.
     key : (A,) int64
         Table key ``case * 64 + face_bits``.
-    edge_crossing : (A, 12) int64
-        Crossing id of each crossed cube edge, -1 elsewhere.
     crossing_start : (V,) int64
         Flat point index where each crossed grid edge starts.
     crossing_axis : (V,) int64
     crossing_t : (V,) float64
         Fraction along the edge (linear interpolation).
+    edge_marks : (ceil(N / 8),) uint64
+        Bit ``8 * (p % 8) + axis`` of word ``p // 8`` is set where grid edge (point ``p``, ``axis``)
+        is crossed (N grid points).
+    edge_rank : (ceil(N / 8),) int64
+        Crossings numbered before each word; valid in the runs of 64 words that hold a crossing.
+        With ``edge_marks`` it numbers any crossed edge in O(1).
     """
 
+    shape: tuple[int, int, int]
     cell: np.ndarray
     key: np.ndarray
-    edge_crossing: np.ndarray
     crossing_start: np.ndarray
     crossing_axis: np.ndarray
     crossing_t: np.ndarray
+    edge_marks: np.ndarray
+    edge_rank: np.ndarray
+
+    @functools.cached_property
+    def edge_crossing(self) -> np.ndarray:
+        """(A, 12) int64 crossing id of each crossed cube edge of each cell, -1 elsewhere (built on
+        first use: 96 bytes per active cell, which marching cubes does without)."""
+        return _edge_crossing(self.cell, self.key >> 6, crossed_bits(), EDGE_START @ strides(self.shape), EDGE_AXIS,
+                              self.edge_marks, self.edge_rank)
 
     def crossing_points(self, shape: tuple[int, int, int]) -> np.ndarray:
         """(V, 3) crossing positions in index space."""
-        pts = np.stack(np.unravel_index(self.crossing_start, shape), axis=1).astype(np.float64)
-        pts[np.arange(len(pts)), self.crossing_axis] += self.crossing_t
-        return pts
+        out = np.empty((len(self.crossing_start), 3))
+        world_points(self.crossing_start, self.crossing_axis, self.crossing_t, strides(shape), np.ones(3),
+                     np.zeros(3), out)
+        return out
 
 
 def strides(shape: tuple[int, int, int]) -> np.ndarray:
@@ -176,30 +193,27 @@ def _scan_cells(words: np.ndarray, nz: int, x0: int, x1: int) -> tuple[np.ndarra
                         if word == 0 or word == valid:  # 8 cells all outside or all inside
                             continue
                         row = (i * ny + j) * nz + bw * BLOCK
-                        for k in range(n_valid):
+                        if n + 8 > len(cells):
+                            cells = np.concatenate((cells, np.empty_like(cells)))
+                            cases = np.concatenate((cases, np.empty_like(cases)))
+                        for k in range(8):  # without branches: every byte written, the count kept for cases 1-254
                             case = np.int64(word >> np.uint64(8 * k) & np.uint64(255))
-                            if case == 0 or case == 255:
-                                continue
-                            if n == len(cells):
-                                cells = np.concatenate((cells, np.empty_like(cells)))
-                                cases = np.concatenate((cases, np.empty_like(cases)))
                             cells[n] = row + k
                             cases[n] = case
-                            n += 1
+                            n += np.int64(np.uint64(case - 1) < np.uint64(254))
     return cells[:n].copy(), cases[:n].copy()
 
 
-def _face_bits(flat: np.ndarray, cell: np.ndarray, case: np.ndarray, iso: float, offsets: np.ndarray) -> np.ndarray:
-    """Asymptotic decider on ambiguous faces: bit f set when the inside corners connect (corner
-    values read for the ambiguous faces only)."""
-    bits = np.zeros(len(case), dtype=np.int64)
-    rows, faces = np.nonzero(case_table().ambiguous[case])  # (A, 6)
-    if len(rows):
-        corners = cell[rows][:, None] + offsets[FACE_CORNERS[faces]]
-        a = flat[corners].astype(np.float64) - iso  # (r, 4) cyclic, relative to iso
-        saddle = (a[:, 0] * a[:, 2] - a[:, 1] * a[:, 3]) / (a[:, 0] + a[:, 2] - a[:, 1] - a[:, 3])
-        np.add.at(bits, rows, (saddle > 0).astype(np.int64) << faces)
-    return bits
+@functools.lru_cache(maxsize=1)
+def crossed_bits() -> np.ndarray:
+    """(256,) int64: bit e set where cube edge e is crossed in each case."""
+    return case_table().crossed.astype(np.int64) @ (1 << np.arange(12))
+
+
+@functools.lru_cache(maxsize=1)
+def _ambiguous_bits() -> np.ndarray:
+    """(256,) int64: bit f set where face f is ambiguous in each case."""
+    return case_table().ambiguous.astype(np.int64) @ (1 << np.arange(6))
 
 
 def find_active_cells(field: Field) -> ActiveCells:
@@ -211,14 +225,15 @@ def find_active_cells(field: Field) -> ActiveCells:
     words = threshold_words(f, field.iso)
     blocks = shares(-(-(shape[0] - 1) // BLOCK), max(1, min(available_cores(), shape[0] // 64)))
     found = on_threads(lambda b0, b1: _scan_cells(words, shape[2], b0, b1), blocks)
+    del words
     cell, case = (np.concatenate(a) for a in zip(*found))
     if field.mask is not None:
         keep = field.mask.reshape(-1)[cell[:, None] + offsets[None, :]].all(axis=1)
         cell, case = cell[keep], case[keep]
-    key = case * 64 + _face_bits(flat, cell, case, field.iso, offsets)
-    start, axis, t, edge_crossing = _crossings(cell, case, case_table().crossed, EDGE_START @ strides(shape),
-                                               EDGE_AXIS, flat, field.iso, strides(shape))
-    return ActiveCells(cell, key, edge_crossing, start, axis, t)
+    key, marks, busy = _mark_edges(cell, case, flat, field.iso, offsets, _ambiguous_bits(), FACE_CORNERS,
+                                   crossed_bits(), EDGE_START @ strides(shape), EDGE_AXIS)
+    start, axis, t, rank = _number_crossings(marks, busy, flat, field.iso, strides(shape))
+    return ActiveCells(shape, cell, key, start, axis, t, marks, rank)
 
 
 _LOW = np.uint64(0x0101010101010101)
@@ -231,16 +246,65 @@ def _bits(word):
     return np.int64((x * _LOW) >> np.uint64(56))
 
 
-@njit(nogil=True, cache=True)
-def _crossings(cell, case, crossed, edge_offset, edge_axis, flat, iso, stride):
-    """The crossed grid edges of the cells, numbered in (start point, axis) order, and each cell's.
+@njit(inline="always")
+def crossing_id(p, axis, marks, rank):
+    """Number of crossed grid edge (point ``p``, ``axis``): the crossings before its word plus the set
+    bits before it in the word (see :class:`ActiveCells`)."""
+    below = (np.uint64(1) << np.uint64(8 * (p & 7) + axis)) - np.uint64(1)
+    return rank[p >> 3] + _bits(marks[p >> 3] & below)
 
-    Every crossed edge of a cell sets bit ``axis`` of a byte per grid point (its start), so the
-    edges shared by up to four cells are listed once; a running count per word of 8 points then
-    gives any edge's number as that count plus the set bits before it in its word. Replaces a sort
-    of the cells' 4-5 edge keys each (``np.unique``): a byte per grid point, of which only the
-    runs of 512 points that hold a crossed edge are counted (8 at a time), and O(1) per crossed
-    cell edge.
+
+@njit(nogil=True, cache=True, error_model="numpy")
+def _mark_edges(cell, case, flat, iso, corner_offset, ambiguous, face_corners, crossed, edge_offset, edge_axis):
+    """Table keys (asymptotic decider on ambiguous faces) and the crossed grid edges of the cells.
+
+    A face bit is set when the saddle value ``(a0 a2 - a1 a3) / (a0 + a2 - a1 - a3)`` of the face's
+    four values relative to ``iso`` (cyclic order) is positive: the inside corners connect. Every
+    crossed edge of a cell sets bit ``axis`` of a byte per grid point (its start), so the edges
+    shared by up to four cells are marked once; ``busy`` flags the runs of 512 points (64 words)
+    holding a mark, the only ones :func:`_number_crossings` counts (pages that stay zero are never
+    touched).
+
+    Returns
+    -------
+    key : (A,) int64
+    marks : (ceil(N / 8),) uint64
+        The mark bytes, 8 points to a word (little-endian: the bytes of a word are its points in order).
+    busy : (ceil(N / 512) + 1,) bool
+    """
+    n_words = (flat.shape[0] + 7) >> 3
+    words = np.zeros(n_words, dtype=np.uint64)
+    marks = words.view(np.uint8)
+    busy = np.zeros((n_words >> 6) + 1, dtype=np.bool_)
+    key = np.empty(cell.shape[0], dtype=np.int64)
+    for c in range(cell.shape[0]):
+        base, k = cell[c], case[c]
+        bits = 0
+        if ambiguous[k]:
+            for f in range(6):
+                if ambiguous[k] >> f & 1:
+                    a0 = np.float64(flat[base + corner_offset[face_corners[f, 0]]]) - iso
+                    a1 = np.float64(flat[base + corner_offset[face_corners[f, 1]]]) - iso
+                    a2 = np.float64(flat[base + corner_offset[face_corners[f, 2]]]) - iso
+                    a3 = np.float64(flat[base + corner_offset[face_corners[f, 3]]]) - iso
+                    if (a0 * a2 - a1 * a3) / (a0 + a2 - a1 - a3) > 0:
+                        bits |= 1 << f
+        key[c] = k * 64 + bits
+        row = crossed[k]
+        for e in range(12):
+            if row >> e & 1:
+                p = base + edge_offset[e]
+                marks[p] |= np.uint8(1 << edge_axis[e])
+                busy[p >> 9] = True
+    return key, words, busy
+
+
+@njit(nogil=True, cache=True)
+def _number_crossings(words, busy, flat, iso, stride):
+    """The marked grid edges numbered in (start point, axis) order, without sorting.
+
+    A running count over the busy runs gives each word's first number (``rank``); the edges are
+    then listed word by word. O(1) per crossed edge plus a count per 8 points of the busy runs.
 
     Returns
     -------
@@ -248,26 +312,17 @@ def _crossings(cell, case, crossed, edge_offset, edge_axis, flat, iso, stride):
         Start point (flat index) and axis of each crossed grid edge, in (start, axis) order.
     t : (V,) float64
         Fraction along the edge where the linear interpolant meets ``iso``.
-    edge_crossing : (A, 12) int64
-        Number of each crossed cube edge of each cell, -1 elsewhere.
+    rank : (ceil(N / 8),) int64
+        Crossings before each word (written in the busy runs only).
     """
-    n_words = (flat.shape[0] + 7) >> 3  # the bytes of a word are its points in order (little-endian)
-    words = np.zeros(n_words, dtype=np.uint64)  # pages that stay zero are never touched
+    n_words = words.shape[0]
     marks = words.view(np.uint8)
-    busy = np.zeros((n_words >> 6) + 1, dtype=np.bool_)  # runs of 64 words holding a crossed edge
-    for c in range(cell.shape[0]):
-        row = crossed[case[c]]
-        for e in range(12):
-            if row[e]:
-                p = cell[c] + edge_offset[e]
-                marks[p] |= np.uint8(1 << edge_axis[e])
-                busy[p >> 9] = True
-    base = np.empty(n_words, dtype=np.int64)  # written (and read) in busy runs only
+    rank = np.empty(n_words, dtype=np.int64)
     count = 0
     for r in range(busy.shape[0]):
         if busy[r]:
             for w in range(r << 6, min((r + 1) << 6, n_words)):
-                base[w] = count
+                rank[w] = count
                 count += _bits(words[w])
     start = np.empty(count, dtype=np.int64)
     axis = np.empty(count, dtype=np.int64)
@@ -287,15 +342,31 @@ def _crossings(cell, case, crossed, edge_offset, edge_axis, flat, iso, stride):
                         start[k], axis[k] = p, a
                         t[k] = (iso - v0) / (np.float64(flat[p + stride[a]]) - v0)
                         k += 1
-    edge_crossing = np.full((cell.shape[0], 12), -1, dtype=np.int64)
+    return start, axis, t, rank
+
+
+@njit(nogil=True, cache=True)
+def _edge_crossing(cell, case, crossed, edge_offset, edge_axis, marks, rank):
+    """(A, 12) crossing id of each crossed cube edge, -1 elsewhere."""
+    out = np.full((cell.shape[0], 12), -1, dtype=np.int64)
     for c in range(cell.shape[0]):
         row = crossed[case[c]]
         for e in range(12):
-            if row[e]:
-                p = cell[c] + edge_offset[e]
-                below = (np.uint64(1) << np.uint64(8 * (p & 7) + edge_axis[e])) - np.uint64(1)  # bits before (p, axis)
-                edge_crossing[c, e] = base[p >> 3] + _bits(words[p >> 3] & below)
-    return start, axis, t, edge_crossing
+            if row >> e & 1:
+                out[c, e] = crossing_id(cell[c] + edge_offset[e], edge_axis[e], marks, rank)
+    return out
+
+
+@njit(nogil=True, cache=True)
+def world_points(start, axis, t, stride, spacing, origin, out):
+    """Write ``origin + position * spacing`` of the crossings into ``out`` (V, 3): their index-space
+    position is the start point's ``(i, j, k)`` with ``t`` added along ``axis``."""
+    for v in range(start.shape[0]):
+        p = start[v]
+        ijk = (p // stride[0], p % stride[0] // stride[1], p % stride[1])
+        for a in range(3):
+            x = np.float64(ijk[a]) + (t[v] if a == axis[v] else 0.0)
+            out[v, a] = origin[a] + x * spacing[a]
 
 
 def near_cells(cells: np.ndarray, seeds: np.ndarray, shape: tuple[int, int, int], reach: int) -> np.ndarray:

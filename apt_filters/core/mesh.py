@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import functools
+import weakref
 from dataclasses import dataclass, field
 from typing import Iterator
 
-import weakref
-
 import numpy as np
+from numba import njit
 
 
 @dataclass
@@ -109,9 +110,12 @@ class TriMesh:
                        {k: v.copy() for k, v in self.face_scalars.items()})
 
 
-@dataclass(frozen=True)
 class Topology:
-    """Connectivity of a triangle mesh, derived from its faces alone.
+    """Connectivity of a triangle mesh, derived from its faces alone; each part built on first use.
+
+    The components (a compiled union-find over the faces' vertices, about 10 ns per face) need no
+    edges; the edge parts share one sort of the 3m half-edges. All arrays are read-only: one
+    :class:`Topology` is shared by every caller of the :func:`topology` cache.
 
     Attributes
     ----------
@@ -142,72 +146,152 @@ class Topology:
         ``chi = V - E + F`` and ``b`` boundary loops (0 for spheres and discs, 1 for a torus).
     """
 
-    edge_vertices: np.ndarray
-    face_edge: np.ndarray
-    edge_faces: np.ndarray
-    face_pairs: np.ndarray
-    components: np.ndarray
-    vertex_components: np.ndarray
-    n_components: int
-    boundary_vertex: np.ndarray
-    closed_component: np.ndarray
-    boundary_loops: int
-    genus: int
+    def __init__(self, faces: np.ndarray, n_vertices: int) -> None:
+        self._faces = faces
+        self._n_vertices = n_vertices
 
     @classmethod
     def of(cls, faces: np.ndarray, n_vertices: int) -> "Topology":
         """The topology of ``faces`` (m, 3) over ``n_vertices`` vertices."""
+        return cls(np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3), int(n_vertices))
+
+    @functools.cached_property
+    def _edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        faces = self._faces
+        half = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        # one int64 key per vertex pair: np.unique on it is ~10x faster than on rows
+        n = max(self._n_vertices, 1)
+        keys, inverse, counts = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True, return_counts=True)
+        return _frozen(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), counts.astype(np.int64))
+
+    @property
+    def edge_vertices(self) -> np.ndarray:
+        return self._edges[0]
+
+    @property
+    def face_edge(self) -> np.ndarray:
+        return self._edges[1]
+
+    @property
+    def edge_faces(self) -> np.ndarray:
+        return self._edges[2]
+
+    @functools.cached_property
+    def face_pairs(self) -> np.ndarray:
+        inverse = self.face_edge.ravel()
+        two = self.edge_faces[inverse] == 2
+        order = np.argsort(inverse[two], kind="stable")
+        pairs = np.repeat(np.arange(len(self._faces), dtype=np.int64), 3)[two][order].reshape(-1, 2)
+        return _frozen(pairs)[0]
+
+    @functools.cached_property
+    def _components(self) -> tuple[np.ndarray, int]:
+        n = self._n_vertices
+        components, count = _face_components(self._faces, np.arange(n, dtype=np.int32 if n < 2**31 else np.int64))
+        return _frozen(components)[0], int(count)
+
+    @property
+    def components(self) -> np.ndarray:
+        return self._components[0]
+
+    @property
+    def n_components(self) -> int:
+        return self._components[1]
+
+    @functools.cached_property
+    def vertex_components(self) -> np.ndarray:
+        out = np.full(self._n_vertices, -1, dtype=np.int64)
+        out[self._faces.T.ravel()] = np.tile(self.components, 3)
+        return _frozen(out)[0]
+
+    @functools.cached_property
+    def boundary_vertex(self) -> np.ndarray:
+        out = np.zeros(self._n_vertices, dtype=bool)
+        out[self.edge_vertices[self.edge_faces == 1].ravel()] = True
+        return _frozen(out)[0]
+
+    @functools.cached_property
+    def closed_component(self) -> np.ndarray:
+        edge_component = np.zeros(len(self.edge_faces), dtype=np.int64)
+        edge_component[self.face_edge.ravel()] = np.repeat(self.components, 3)  # any face of an edge: one component
+        closed = np.ones(self.n_components, dtype=bool)
+        closed[edge_component[self.edge_faces == 1]] = False
+        return _frozen(closed)[0]
+
+    @functools.cached_property
+    def boundary_loops(self) -> int:
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
 
-        m = len(faces)
-        half = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-        # one int64 key per vertex pair: np.unique on it is ~10x faster than on rows
-        n = max(n_vertices, 1)
-        keys, inverse, counts = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True, return_counts=True)
-        edge_vertices = np.stack([keys // n, keys % n], axis=1)
-        inverse = inverse.ravel()
-        two = counts[inverse] == 2
-        order = np.argsort(inverse[two], kind="stable")
-        face_pairs = np.repeat(np.arange(m, dtype=np.int64), 3)[two][order].reshape(-1, 2)
+        boundary = self.edge_vertices[self.edge_faces == 1]
+        if not len(boundary):
+            return 0
+        bv, b_inv = np.unique(boundary, return_inverse=True)
+        b_inv = b_inv.reshape(-1, 2)
+        bgraph = coo_matrix((np.ones(len(boundary), dtype=np.int8), (b_inv[:, 0], b_inv[:, 1])),
+                            shape=(len(bv), len(bv)))
+        return int(len(boundary) - len(bv) + connected_components(bgraph, directed=False)[0])
 
-        graph = coo_matrix((np.ones(len(keys), dtype=np.int8), (edge_vertices[:, 0], edge_vertices[:, 1])),
-                           shape=(n_vertices, n_vertices))
-        _, vertex_label = connected_components(graph, directed=False)
-        components = np.zeros(m, dtype=np.int64)
-        n_components = 0
-        if m:
-            uniq, first, face_inverse = np.unique(vertex_label[faces[:, 0]], return_index=True, return_inverse=True)
-            rank = np.empty(len(uniq), dtype=np.int64)
-            rank[np.argsort(first)] = np.arange(len(uniq))
-            components = rank[face_inverse.ravel()]
-            n_components = len(uniq)
+    @functools.cached_property
+    def genus(self) -> int:
+        used = np.zeros(self._n_vertices, dtype=bool)
+        used[self._faces.ravel()] = True
+        chi = int(used.sum()) - len(self.edge_faces) + len(self._faces)
+        return int((2 * self.n_components - chi - self.boundary_loops) // 2)
 
-        vertex_components = np.full(n_vertices, -1, dtype=np.int64)
-        vertex_components[faces.T.ravel()] = np.tile(components, 3)
-        boundary = edge_vertices[counts == 1]
-        boundary_vertex = np.zeros(n_vertices, dtype=bool)
-        boundary_vertex[boundary.ravel()] = True
-        edge_component = np.zeros(len(keys), dtype=np.int64)
-        edge_component[inverse] = np.repeat(components, 3)  # any face of an edge: one component
-        closed = np.ones(n_components, dtype=bool)
-        closed[edge_component[counts == 1]] = False
-        loops = 0
-        if len(boundary):
-            bv, b_inv = np.unique(boundary, return_inverse=True)
-            b_inv = b_inv.reshape(-1, 2)
-            bgraph = coo_matrix((np.ones(len(boundary), dtype=np.int8), (b_inv[:, 0], b_inv[:, 1])),
-                                shape=(len(bv), len(bv)))
-            loops = len(boundary) - len(bv) + connected_components(bgraph, directed=False)[0]
-        used = np.zeros(n_vertices, dtype=bool)
-        used[faces.ravel()] = True
-        chi = int(used.sum()) - len(keys) + m
-        genus = (2 * n_components - chi - loops) // 2
-        arrays = (edge_vertices, inverse.reshape(-1, 3), counts.astype(np.int64), face_pairs, components,
-                  vertex_components)
-        for a in (*arrays, boundary_vertex, closed):
-            a.flags.writeable = False  # shared by every caller of the cache
-        return cls(*arrays, n_components, boundary_vertex, closed, int(loops), int(genus))
+
+def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    for a in arrays:
+        a.flags.writeable = False  # shared by every caller of the cache
+    return arrays
+
+
+@njit(inline="always")
+def _root(parent, v):
+    while parent[v] != v:
+        parent[v] = parent[parent[v]]  # path halving
+        v = parent[v]
+    return v
+
+
+@njit(nogil=True, cache=True)
+def _face_components(faces, parent):
+    """Connected components of faces sharing a vertex, numbered in the order of each one's first face.
+
+    Union-find over the vertices: ``parent`` (n,) is ``arange(n)`` on entry (int32 where it fits,
+    half the memory traffic of int64); a root is the lowest vertex of its set, so every vertex
+    points below itself and one forward pass flattens all trees before the faces are labelled.
+
+    Returns
+    -------
+    components : (m,) int64
+    n_components : int
+    """
+    n_vertices = parent.shape[0]
+    for f in range(faces.shape[0]):
+        for j in range(3):
+            if faces[f, j] < 0 or faces[f, j] >= n_vertices:
+                raise ValueError("a face uses a vertex index outside the mesh")
+    for f in range(faces.shape[0]):
+        r0 = _root(parent, faces[f, 0])
+        for j in range(1, 3):
+            r = _root(parent, faces[f, j])
+            if r != r0:
+                if r < r0:
+                    r, r0 = r0, r
+                parent[r] = r0
+    for v in range(n_vertices):
+        parent[v] = parent[parent[v]]
+    label = np.full(n_vertices, -1, dtype=parent.dtype)
+    components = np.empty(faces.shape[0], dtype=np.int64)
+    n = 0
+    for f in range(faces.shape[0]):
+        r = parent[faces[f, 0]]
+        if label[r] < 0:
+            label[r] = n
+            n += 1
+        components[f] = label[r]
+    return components, n
 
 
 _CACHE_SIZE = 8
@@ -225,7 +309,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     for entry in reversed(_cache):
         if entry[0]() is faces and entry[1] == n_vertices:
             return entry[2]
-    top = Topology.of(np.asarray(faces, dtype=np.int64).reshape(-1, 3), n_vertices)
+    top = Topology.of(faces, n_vertices)
     try:
         ref = weakref.ref(faces)
     except TypeError:  # not an ndarray (a list, say): nothing to key the cache on

@@ -78,32 +78,95 @@ def vertex_composition(*, vertices: np.ndarray, ions: IonTable, ranges: RangeTab
     dict
         Element -> (n,) float64 atoms of that element over all atoms of the ``k`` ions, in %;
         NaN for every vertex when no ion lies within reach.
+
+    Notes
+    -----
+    Exact, and without a tree over every ion in the box: only the ranged ions within a reach of
+    the vertices are kept (twice the radius of a ball holding ``k`` ions at their mean density, one
+    streamed pass over a mask of cells), and a vertex whose ``k``-th nearest lies beyond the reach
+    is asked again with twice the reach, until it spans the box.
     """
     from scipy.spatial import cKDTree
 
     vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0) - margin, vertices.max(axis=0) + margin
-    near, kinds = [], []
+    matrix = ranges.element_matrix()[:, [ranges.elements.index(e) for e in elements]]
+    atoms_per_ion = ranges.element_matrix().sum(axis=1)
+    out = np.full((len(vertices), len(elements)), np.nan)
+    todo = np.arange(len(vertices))
+    reach = _first_reach(ions, ranges, lo, hi, k)
+    while len(todo):
+        # The k nearest ions of a vertex whose k-th lies within ``reach`` are all among the ions kept
+        # (every ion within ``reach`` of a vertex is); the others are asked again with twice the reach,
+        # until it spans the box and every ranged ion in it is kept.
+        whole = reach >= np.linalg.norm(hi - lo)
+        points, kinds = _ranged_near(ions, ranges, lo, hi, None if whole else (vertices[todo], reach))
+        if len(points) == 0:
+            if whole:
+                break
+            reach *= 2
+            continue
+        tree = cKDTree(points)
+        kk = min(k, len(points))
+        done = np.zeros(len(todo), dtype=bool)
+        for start in range(0, len(todo), _VERTEX_BLOCK):
+            block = todo[start:start + _VERTEX_BLOCK]
+            dist, idx = tree.query(vertices[block], k=kk)
+            dist, idx = dist.reshape(len(block), -1), idx.reshape(len(block), -1)
+            ok = np.ones(len(block), dtype=bool) if whole else (dist[:, -1] <= reach) & (kk == k)
+            sp = kinds[idx[ok]]
+            out[block[ok]] = 100 * matrix[sp].sum(axis=1) / atoms_per_ion[sp].sum(axis=1)[:, None]
+            done[start:start + len(block)] = ok
+        todo = todo[~done]
+        reach *= 2
+    return {e: out[:, j] for j, e in enumerate(elements)}
+
+
+_CELLS_PER_REACH = 4
+"""Mask cells per reach: finer cells keep fewer ions beyond the reach (at most one cell diagonal)."""
+
+_MASK_CELLS = 1 << 24
+"""Cells of the mask of the region near the vertices (16 MB): its cell is at least the box's volume
+over this, so a large specimen's mask stays small (a coarser cell only keeps more ions)."""
+
+
+def _first_reach(ions: IonTable, ranges: RangeTable, lo: np.ndarray, hi: np.ndarray, k: int) -> float:
+    """nm: twice the radius of a ball holding ``k`` ranged ions at their mean density in the box ``lo``-``hi``
+    (from a sample of about a million ions): within it, most vertices find their ``k`` nearest ions."""
+    step = max(1, len(ions) // 1_000_000)
+    pos = np.asarray(ions.positions[::step])
+    inside = (ranges.ion_index(np.asarray(ions.mz[::step])) >= 0) & np.all((pos >= lo) & (pos <= hi), axis=1)
+    density = max(int(inside.sum()) * step, 1) / float(np.prod(hi - lo))
+    return 2.0 * (3.0 * k / (4.0 * np.pi * density)) ** (1.0 / 3.0)
+
+
+def _ranged_near(ions: IonTable, ranges: RangeTable, lo: np.ndarray, hi: np.ndarray,
+                 near: tuple[np.ndarray, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (float64) and ion indices of the ranged ions in the box ``lo``-``hi``; with ``near =
+    (points, reach)`` only those in the cells within ``reach`` (Chebyshev, whole cells) of a point's
+    cell: every ion within ``reach`` of a point, and a few farther. One pass over chunks."""
+    from scipy.ndimage import maximum_filter
+
+    mask, cell = None, 0.0
+    if near is not None:
+        points, reach = near
+        cell = max(reach / _CELLS_PER_REACH, (float(np.prod(hi - lo)) / _MASK_CELLS) ** (1.0 / 3.0))
+        dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+        mask = np.zeros(dims, dtype=bool)
+        mask[tuple(np.minimum(((points - lo) // cell).astype(np.int64), dims - 1).T)] = True
+        # |x - v| <= reach on an axis moves the cell index by ceil(reach / cell) at most
+        mask = maximum_filter(mask, size=2 * int(np.ceil(reach / cell)) + 1)
+    kept, kinds = [], []
     for start in range(0, len(ions), _ION_CHUNK):
         pos = np.asarray(ions.positions[start:start + _ION_CHUNK], dtype=np.float64)
         species = ranges.ion_index(ions.mz[start:start + _ION_CHUNK])
-        keep = (species >= 0) & np.all((pos >= lo) & (pos <= hi), axis=1)
-        near.append(pos[keep])
+        keep = np.flatnonzero((species >= 0) & np.all((pos >= lo) & (pos <= hi), axis=1))
+        if mask is not None:
+            cells = np.minimum(((pos[keep] - lo) // cell).astype(np.int64), np.array(mask.shape) - 1)
+            keep = keep[mask[tuple(cells.T)]]
+        kept.append(pos[keep])
         kinds.append(species[keep])
-    points, kinds = np.concatenate(near), np.concatenate(kinds)
-    if len(points) == 0:
-        return {e: np.full(len(vertices), np.nan) for e in elements}
-    matrix = ranges.element_matrix()[:, [ranges.elements.index(e) for e in elements]]
-    atoms_per_ion = ranges.element_matrix().sum(axis=1)
-    tree = cKDTree(points)
-    k = min(k, len(points))
-    out = np.empty((len(vertices), len(elements)))
-    for start in range(0, len(vertices), _VERTEX_BLOCK):
-        _, idx = tree.query(vertices[start:start + _VERTEX_BLOCK], k=k)
-        idx = idx.reshape(len(idx), -1)
-        sp = kinds[idx]
-        out[start:start + len(idx)] = 100 * matrix[sp].sum(axis=1) / atoms_per_ion[sp].sum(axis=1)[:, None]
-    return {e: out[:, j] for j, e in enumerate(elements)}
+    return np.concatenate(kept), np.concatenate(kinds)
 
 
 def scene_species(species: str, summary: list[dict]) -> str:

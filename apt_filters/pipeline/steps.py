@@ -39,10 +39,14 @@ def _peak_bytes() -> int:
 
 @dataclass
 class StepRecord:
+    """One step: wall seconds, CPU seconds of this process (every thread; on a loaded machine the
+    wall time says more about the others than about the step), peak resident bytes, summary."""
+
     name: str
     seconds: float
     peak_bytes: int
     summary: str = ""
+    cpu_seconds: float = 0.0
 
 
 @dataclass
@@ -72,7 +76,7 @@ class StepLog:
         if self._bar is not None:
             self._bar.set_description(name)
         record = StepRecord(name, 0.0, 0)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         done = threading.Event()
         if self._bar is not None and not self._bar.disable:
             threading.Thread(target=self._tick, args=(name, start, done), daemon=True).start()
@@ -81,6 +85,7 @@ class StepLog:
         finally:
             done.set()
         record.seconds = time.perf_counter() - start
+        record.cpu_seconds = time.process_time() - cpu
         record.peak_bytes = _peak_bytes()
         self.records.append(record)
         if not self.quiet:
@@ -99,5 +104,5 @@ class StepLog:
             self._bar.set_description(f"{name} {time.perf_counter() - start:4.0f} s", refresh=True)
 
     def as_dicts(self) -> list[dict]:
-        return [{"step": r.name, "seconds": round(r.seconds, 3), "peak_mib": round(r.peak_bytes / 2**20, 1),
-                 "summary": r.summary} for r in self.records]
+        return [{"step": r.name, "seconds": round(r.seconds, 3), "cpu_seconds": round(r.cpu_seconds, 3),
+                 "peak_mib": round(r.peak_bytes / 2**20, 1), "summary": r.summary} for r in self.records]
