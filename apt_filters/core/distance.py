@@ -108,6 +108,9 @@ class SignedDistance:
     on_boundary : (N,) bool
         The closest point lies on a boundary edge or vertex of an open surface (the specimen
         edge): the point is beyond the surface's rim rather than across it.
+    weights : (N, 3) float64 or None
+        With ``closest=True``: barycentric weights of the closest point on ``face`` (corners 0,
+        1, 2 of the mesh's face); :meth:`SurfaceDistance.closest` turns them into points.
     searched : int
         Points that needed a search (with ``max_distance``: those whose home block has a
         triangle within reach, the narrow band; otherwise all).
@@ -118,6 +121,7 @@ class SignedDistance:
     feature: np.ndarray
     on_boundary: np.ndarray
     searched: int = 0
+    weights: np.ndarray | None = None
 
 
 class SurfaceDistance:
@@ -154,7 +158,7 @@ class SurfaceDistance:
                                        min_cell=0.0 if reach is None or not np.isfinite(reach) else reach / 4)
         self.home = home
 
-    def query(self, points: np.ndarray, max_distance: float | None = None) -> SignedDistance:
+    def query(self, points: np.ndarray, max_distance: float | None = None, closest: bool = False) -> SignedDistance:
         """Exact signed distance of every point (N, 3) nm to the surface.
 
         Points are visited cell by cell, so that consecutive searches touch the same cells. With
@@ -162,13 +166,17 @@ class SurfaceDistance:
         face -1, and the search never looks farther: a point whose cell has no triangle within
         range costs a few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells
         away from every triangle is finished by brute force (exact, but slow on large meshes).
+        With ``closest``, the barycentric weights of each closest point are kept too
+        (``weights``, 24 more bytes per point).
         """
         if points.dtype not in (np.float32, np.float64):
             points = points.astype(np.float32)
         points = np.ascontiguousarray(points)
         n = len(points)
-        out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool))
+        out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool),
+                             weights=np.zeros((n if closest else 0, 3)))
         if n == 0:
+            out.weights = out.weights if closest else None
             return out
         top, nrm = self.mesh.topology, self.normals
         signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
@@ -184,9 +192,18 @@ class SurfaceDistance:
         out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles,
                                             g.face_id, g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes,
                                             offsets, bound, first, covered, reach * reach * (1 + 1e-12), *signs,
-                                            out.distance, out.face, out.feature, out.on_boundary,
+                                            out.distance, out.face, out.feature, out.on_boundary, out.weights,
                                             numba.get_num_threads()).sum())
+        if not closest:
+            out.weights = None
         return out
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points on the surface to ``points`` (N, 3) nm: positions (N, 3), faces (N,) and
+        barycentric weights (N, 3) of the face's corners (exact, float64)."""
+        sd = self.query(np.asarray(points, dtype=np.float64), closest=True)
+        corners = self._vertices[self._faces[np.maximum(sd.face, 0)]]
+        return np.einsum("nk,nkj->nj", sd.weights, corners), sd.face, sd.weights
 
 
 def mesh_distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
@@ -429,10 +446,11 @@ def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, 
 def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
                      tris, boxes, offsets, offset_bound, first, covered, limit, vertices, faces, face_normals, face_edge,
                      edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face, feature, rim,
-                     n_workers):
+                     weights, n_workers):
     """Exact signed distances of points visited home by home (``order``; homes are blocks of
     m x m x m grid cells, ``keys`` from :func:`_cell_keys` over the homes ``low`` + [0, ``dims``)),
-    written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm).
+    written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm);
+    ``weights`` (N, 3) gets the closest points' barycentric weights unless it has no rows.
 
     ``n_workers`` workers (one per thread) take every ``n_workers``-th block of ``blocks``, each
     with its own mailbox (8 bytes per triangle). For each home, once: the non-empty grid rows
@@ -530,6 +548,8 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
                 prev = best_t
                 f = face_id[best_t]
                 face[i] = f
+                if weights.shape[0] > 0:
+                    weights[i, 0], weights[i, 1], weights[i, 2] = 1.0 - bu - bw, bu, bw
                 distance[i], feature[i], rim[i] = _signed_one(
                     px, py, pz, f, bu, bw, best, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
                     vertex_normals, boundary_vertex)

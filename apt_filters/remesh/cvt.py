@@ -18,7 +18,6 @@ import numpy as np
 from numba import njit
 
 from apt_filters.remesh._arrays import isin, unique_rows
-from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.features import Features
 from apt_filters.remesh.sampling import Samples
@@ -99,16 +98,14 @@ class _Curve:
         return np.mod(new, self.length) if self.closed else new
 
 
-def patch_scenes(mesh: TriMesh, features: Features) -> list:
-    o3d = open3d()
-    scenes = []
-    for p in range(features.n_patches):
-        faces = mesh.faces[features.patch == p]
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                            o3d.core.Tensor(faces.astype(np.uint32)))
-        scenes.append(scene)
-    return scenes
+def patch_surfaces(mesh: TriMesh, features: Features) -> list:
+    """One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) per patch."""
+    from apt_filters.core.distance import SurfaceDistance
+
+    order = np.argsort(features.patch, kind="stable")
+    bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
+    return [SurfaceDistance(TriMesh(mesh.vertices, mesh.faces[order[bounds[p]:bounds[p + 1]]]))
+            for p in range(features.n_patches)]
 
 
 def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
@@ -406,11 +403,10 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     sit off a curved surface by about L²/8R) and at the end; the returned labels belong to the
     returned positions.
     """
-    scenes = patch_scenes(mesh, features)
+    surfaces = patch_surfaces(mesh, features)
     permitted = allowed(features, gens)
     candidates = _Candidates(permitted, len(gens.positions), k)
     w = samples.weights * density
-    o3d = open3d()
     energy: list = []
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
@@ -419,8 +415,7 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     def project():
         for p, mine in enumerate(patch_ids):
             if len(mine):
-                out = scenes[p].compute_closest_points(o3d.core.Tensor(gens.positions[mine].astype(np.float32)))
-                gens.positions[mine] = out["points"].numpy()
+                gens.positions[mine] = surfaces[p].closest(gens.positions[mine])[0]
 
     on_surface = True
     for it in range(max_iter + 1):
@@ -466,14 +461,12 @@ def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, gr
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-    from apt_filters.remesh.features import edge_faces, face_pairs
+    from apt_filters.core.mesh import topology
 
     near = np.zeros(int(faces.max()) + 1, bool)
     near[faces[cells[labels]]] = True
     sub = np.flatnonzero(near[faces].any(axis=1))
-    edges, half_face, half_edge = edge_faces(faces[sub])
-    counts, pair = face_pairs(half_face, half_edge, len(edges))
-    a, b = pair[counts == 2].T  # local ids: faces sub[a], sub[b] share an edge
+    a, b = topology(faces[sub], len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
     local = labels[sub]
     n = len(sub)
     same = local[a] == local[b]

@@ -19,16 +19,6 @@ from apt_filters.remesh._arrays import unique
 from apt_filters.remesh.sampling import Samples
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(v, 3) area-weighted unit vertex normals."""
-    v = vertices[faces]
-    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    n = np.stack([np.bincount(faces.ravel(), np.repeat(cross[:, k], 3), minlength=len(vertices))
-                  for k in range(3)], axis=1)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-
-
 def fan_order(faces: np.ndarray, n_vertices: int, wanted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Incidences (vertex, face) sorted counter-clockwise around each vertex, from connectivity alone.
 

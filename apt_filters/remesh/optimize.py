@@ -269,21 +269,16 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     of a piecewise-linear offset. Samples whose closest face faces the other way (the far side
     of a thin plate) are left out. Returns the new (v, 3) vertices.
     """
-    from apt_filters.core.deps import open3d
-    from apt_filters.remesh.extract import vertex_normals
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.core.mesh import vertex_normals
 
-    o3d = open3d()
     out = vertices.copy()
     for _ in range(rounds):
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(out.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
-        near = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
-        face = near["primitive_ids"].numpy().astype(np.int64)
-        u, v = near["primitive_uvs"].numpy().astype(np.float64).T
+        near, face, bary = SurfaceDistance(TriMesh(out, faces)).closest(points)
         normal = _face_normals(out, faces)[face]
-        residual = np.einsum("ij,ij->i", points - near["points"].numpy(), normal)
+        residual = np.einsum("ij,ij->i", points - near, normal)
         keep = np.einsum("ij,ij->i", normal, normals) > 0.5
-        bary = np.stack([1 - u - v, u, v], 1) * (weights * keep)[:, None]
+        bary = bary * (weights * keep)[:, None]
         num = np.bincount(faces[face].ravel(), (bary * residual[:, None]).ravel(), minlength=len(out))
         den = np.bincount(faces[face].ravel(), bary.ravel(), minlength=len(out))
         move = movable & (den > 0)

@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apt_filters.remesh._arrays import isin, unique, unique_rows
-from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.distance import SurfaceDistance
+from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.remesh import cvt, extract, features as feat, optimize, repair, verify as check
-from apt_filters.remesh.sampling import closest_points, refine
+from apt_filters.remesh.sampling import refine
 
 
 # Refined edges (90th percentile) are at most L / SAMPLES_PER_EDGE: about 40 samples per generator
@@ -78,7 +78,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     pipeline's refined cuboid (bends of radius 0.2-0.3 nm) left input points 0.20 nm from it
     (0.4 edge; 0.14 with the sagitta of equilateral triangles only).
     """
-    normals = extract.vertex_normals(mesh.vertices, mesh.faces)
+    normals = vertex_normals(mesh.vertices, mesh.faces)
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
     # vertices of two patches (on a feature curve or the rim) have normals mixed across the crease
     lo = np.full(mesh.n_vertices, np.iinfo(np.int64).max)
@@ -249,8 +249,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     corners stay."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
-    o3d = open3d()
-    scenes = cvt.patch_scenes(mesh, features)
+    surfaces = cvt.patch_surfaces(mesh, features)
     pinned = kind != cvt.PATCH
     boundary = optimize.boundary_vertices(TriMesh(vertices, faces))
     valence = np.bincount(faces.ravel(), minlength=len(vertices)).astype(float)
@@ -266,8 +265,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
         out = points.copy()
         for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
             sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
-            res = scenes[p].compute_closest_points(o3d.core.Tensor(points[sel].astype(np.float32)))
-            out[sel] = res["points"].numpy()
+            out[sel] = surfaces[p].closest(points[sel])[0]
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
@@ -320,15 +318,13 @@ def _transfer_scalars(source: TriMesh, target: TriMesh) -> TriMesh:
     """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
-    near = closest_points(source, target.vertices)
-    u, v = near["uv"].T
-    corners = source.faces[near["face"]]
+    surface = SurfaceDistance(source)
+    _, face, weights = surface.closest(target.vertices)
+    corners = source.faces[face]
     for name, values in source.vertex_scalars.items():
-        values = np.asarray(values, np.float64)
-        target.vertex_scalars[name] = (1 - u - v) * values[corners[:, 0]] + u * values[corners[:, 1]] \
-            + v * values[corners[:, 2]]
+        target.vertex_scalars[name] = np.einsum("nk,nk->n", weights, np.asarray(values, np.float64)[corners])
     if source.face_scalars:
-        nearest = closest_points(source, target.vertices[target.faces].mean(axis=1))["face"]
+        nearest = surface.closest(target.vertices[target.faces].mean(axis=1))[1]
         for name, values in source.face_scalars.items():
             target.face_scalars[name] = np.asarray(values)[nearest]
     return target

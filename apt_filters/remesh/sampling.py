@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from apt_filters.remesh._arrays import unique_rows
-from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 
 
@@ -45,18 +44,6 @@ class Samples:
     weights: np.ndarray
     normals: np.ndarray
     parent: np.ndarray
-
-
-def closest_points(mesh: TriMesh, points: np.ndarray) -> dict:
-    """open3d closest-point query: ``points`` (k, 3), ``face`` (k,), ``uv`` (k, 2) barycentrics."""
-    o3d = open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    out = scene.compute_closest_points(o3d.core.Tensor(np.asarray(points, np.float32)))
-    return {"points": out["points"].numpy().astype(np.float64),
-            "face": out["primitive_ids"].numpy().astype(np.int64),
-            "uv": out["primitive_uvs"].numpy().astype(np.float64)}
 
 
 def split4(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,7 @@ distance and area change within tolerances. A component that fails is given back
 ever changes the surface beyond the tolerances.
 
 Distances are measured from every vertex, edge midpoint and face centroid of one mesh to the
-other (open3d ray-casting scenes; exact point-to-triangle distances): on triangles no larger
+other (exact point-to-triangle distances, :func:`apt_filters.core.distance.mesh_distance`): on triangles no larger
 than the edge length, this misses a farther point by at most a quarter of an edge's sagitta.
 Peak memory: a few arrays of 7 x the number of faces of the larger mesh.
 """
