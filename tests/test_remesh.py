@@ -142,7 +142,7 @@ def test_cell_bordered_by_two_cells_is_dissolved():
     k = np.arange(60) + 0.5
     z, phi = 1 - 2 * k / 60, np.pi * (3 - np.sqrt(5)) * k  # even sites on the sphere
     sites = 3.0 * np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
-    labels = cKDTree(sites).query(samples.points)[1]
+    labels = cKDTree(sites).query(samples.points())[1]
     seen = [set() for _ in samples.vertices]
     for v, label in zip(faces.ravel(), np.repeat(labels, 3)):
         seen[v].add(label)
@@ -154,7 +154,7 @@ def test_cell_bordered_by_two_cells_is_dissolved():
     lens = len(sites)
     labels[pick] = lens
     n = lens + 1
-    gens = cvt.Generators(np.vstack([sites, samples.points[pick]]), np.full(n, cvt.CURVE), np.zeros(n, np.int64),
+    gens = cvt.Generators(np.vstack([sites, samples.points()[pick]]), np.full(n, cvt.CURVE), np.zeros(n, np.int64),
                           np.full(n, np.nan))
     gens.kind[lens] = cvt.PATCH
     no = np.zeros(n, bool)
@@ -169,10 +169,10 @@ def test_cell_bordered_by_two_cells_is_dissolved():
     lone = repair.lone_generators(dual, n)
     assert np.flatnonzero(lone).tolist() == [lens]
     # keeping each cell's main piece alone does not help: the lens is one piece
-    kept = cvt.connect_cells(faces, labels, samples.weights, group, gens, 1, bad, no)
+    kept = cvt.connect_cells(samples, labels, group, gens, 1, bad, no)
     assert np.array_equal(kept, labels)
 
-    fixed = cvt.connect_cells(faces, labels, samples.weights, group, gens, 1, bad, bad & lone)
+    fixed = cvt.connect_cells(samples, labels, group, gens, 1, bad, bad & lone)
     assert fixed[pick] in (a, b) and np.array_equal(np.delete(fixed, pick), np.delete(labels, pick))
     dual = extract.dual_faces(samples, fixed, gens.positions, no)[0]
     assert not repair.defects(gens.positions, dual, no).any()
@@ -302,3 +302,24 @@ def test_self_intersections_ignore_separated_coplanar_triangles():
     normal = np.cross(gap[1] - gap[0], gap[2] - gap[0])
     crossing = np.vstack([gap[:3], gap[:3].mean(axis=0) + np.array([normal, -normal, np.cross(normal, gap[1] - gap[0])])])
     assert self_intersecting_faces(crossing, faces).all()
+
+
+@pytest.mark.parametrize("max_edge", [2.0, 0.6, 0.3])
+def test_lattice_refinement_is_conforming_and_exact(max_edge):
+    # every input face split into n² congruent faces: same surface, same area and orientation,
+    # closed input stays closed (edge points shared), every sample inside its own input face
+    mesh = shapes.sphere(3.0)
+    samples = refine(mesh, max_edge)
+    n2 = samples.per_face
+    fine = TriMesh(samples.vertices, samples.faces)
+    assert fine.n_faces == n2 * mesh.n_faces
+    assert len(fine.boundary_edges()) == 0 and fine.topology.genus == 0 and fine.topology.n_components == 1
+    assert np.isclose(fine.area(), mesh.area(), rtol=1e-12)
+    assert np.allclose(fine.face_areas(), samples.weights(), rtol=1e-9, atol=1e-15)
+    normals = fine.face_normals()
+    assert np.allclose(normals[fine.face_areas() > 1e-12], samples.face_normal[samples.parent()][fine.face_areas() > 1e-12])
+    # centroids of the children of a face average to its centroid
+    centre = samples.points().reshape(mesh.n_faces, n2, 3).mean(axis=1)
+    assert np.allclose(centre, mesh.vertices[mesh.faces].mean(axis=1))
+    lengths = np.linalg.norm(samples.vertices[samples.faces] - samples.vertices[np.roll(samples.faces, 1, axis=1)], axis=2)
+    assert np.quantile(lengths, 0.9) < max_edge

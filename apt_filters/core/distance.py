@@ -33,6 +33,10 @@ from scipy import ndimage
 from apt_filters.core.mesh import TriMesh
 from apt_filters.core.triangle import closest_on_triangle
 
+_PARALLEL_POINTS = 4096
+"""Queries of fewer points run on the calling thread: waking numba's other threads costs more (tens
+of ms per call on a loaded machine: a remesh's projections of a few dozen points took 30-50 ms each)."""
+
 _MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
 
@@ -189,20 +193,35 @@ class SurfaceDistance:
         pad = -(-r // m)
         low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
         order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-        out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles,
-                                            g.face_id, g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes,
-                                            offsets, bound, first, covered, reach * reach * (1 + 1e-12), *signs,
-                                            out.distance, out.face, out.feature, out.on_boundary, out.weights,
-                                            numba.get_num_threads()).sum())
+        threads = numba.get_num_threads()
+        numba.set_num_threads(threads if n >= _PARALLEL_POINTS else 1)
+        try:
+            out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
+                                                g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
+                                                g.tris, g.boxes, offsets, bound, first, covered,
+                                                reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
+                                                out.feature, out.on_boundary, out.weights,
+                                                numba.get_num_threads()).sum())
+        finally:
+            numba.set_num_threads(threads)
         if not closest:
             out.weights = None
         return out
 
-    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def closest(self, points: np.ndarray, near: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest points on the surface to ``points`` (N, 3) nm: positions (N, 3), faces (N,) and
-        barycentric weights (N, 3) of the face's corners (exact, float64)."""
-        sd = self.query(np.asarray(points, dtype=np.float64), closest=True)
-        corners = self._vertices[self._faces[np.maximum(sd.face, 0)]]
+        barycentric weights (N, 3) of the face's corners (exact, float64).
+
+        ``near`` (nm): how far most points are expected to be; they are searched no farther (a
+        bounded search visits tens of cells instead of thousands), the others again without bound.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        sd = self.query(points, max_distance=near, closest=True)
+        miss = np.flatnonzero(sd.face < 0)
+        if len(miss):
+            far = self.query(points[miss], closest=True)
+            sd.face[miss], sd.weights[miss] = far.face, far.weights
+        corners = self._vertices[self._faces[sd.face]]
         return np.einsum("nk,nkj->nj", sd.weights, corners), sd.face, sd.weights
 
 
@@ -383,11 +402,12 @@ def _spatial_order(points: np.ndarray, origin: np.ndarray, cell: float, low: np.
                    dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Order visiting ``points`` cell by cell (see :func:`_cell_keys`), and the cell keys.
 
-    A counting sort (linear time) when there are not many more cells than points.
+    A counting sort (linear time) when there are not many more cells than points (a sort of a few
+    points, not a pass over a million empty cells, for the small queries of a remesh).
     """
     keys = _cell_keys(points, origin, cell, low, dims)
     n_keys = int(np.prod(dims)) + 1
-    if n_keys <= 4 * len(points) + (1 << 20):
+    if n_keys <= 4 * len(points):
         return _counting_order(keys, n_keys), keys
     return np.argsort(keys, kind="stable"), keys
 

@@ -255,32 +255,58 @@ def _unique_ids(tris: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return ids[keep[ids]]
 
 
-def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, points: np.ndarray,
-                      normals: np.ndarray, weights: np.ndarray, rounds: int = 2) -> np.ndarray:
+def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, samples, edge: float,
+                      rounds: int = 2) -> np.ndarray:
     """Move the ``movable`` vertices along their normals so that the mesh straddles the input
     surface instead of lying inside its curvature (a least-squares fit of vertex offsets).
 
     Vertices on the input and flat triangles between them cut every convex bend as chords: the
     remesh of a 2-voxel sphere at half-voxel edges lost 2.9 % of the input's area and sat 0.26
-    edge inside it. Each round finds the closest output point of every input sample ``points``
-    (n, 3) with unit ``normals`` (n, 3) and ``weights`` (n,) (areas), takes the signed distance
-    along the output face's normal, and moves each vertex by the weighted mean of the distances
-    of the samples on its faces (barycentric weights): one Jacobi step of the least-squares fit
-    of a piecewise-linear offset. Samples whose closest face faces the other way (the far side
-    of a thin plate) are left out. Returns the new (v, 3) vertices.
+    edge inside it. Each round finds the closest output point of every input sample (``samples``,
+    :class:`apt_filters.remesh.sampling.Samples`, taken a chunk at a time: centroids, unit normals
+    and areas), takes the signed distance along the output face's normal, and moves each vertex by
+    the weighted mean of the distances of the samples on its faces (barycentric weights): one Jacobi
+    step of the least-squares fit of a piecewise-linear offset. Samples whose closest face faces the
+    other way (the far side of a thin plate) are left out. ``edge`` (nm): the closest-point search's
+    reach (farther samples are found too). Returns the new (v, 3) vertices.
     """
     from apt_filters.core.distance import SurfaceDistance
     from apt_filters.core.mesh import vertex_normals
 
     out = vertices.copy()
     for _ in range(rounds):
-        near, face, bary = SurfaceDistance(TriMesh(out, faces)).closest(points)
-        normal = _face_normals(out, faces)[face]
-        residual = np.einsum("ij,ij->i", points - near, normal)
-        keep = np.einsum("ij,ij->i", normal, normals) > 0.5
-        bary = bary * (weights * keep)[:, None]
-        num = np.bincount(faces[face].ravel(), (bary * residual[:, None]).ravel(), minlength=len(out))
-        den = np.bincount(faces[face].ravel(), bary.ravel(), minlength=len(out))
+        surface = SurfaceDistance(TriMesh(out, faces))
+        face_normal = _face_normals(out, faces)
+        num = np.zeros(len(out))
+        den = np.zeros(len(out))
+        for points, normals, weights in samples.chunks():
+            near, face, bary = surface.closest(points, edge)
+            normal = face_normal[face]
+            residual = np.einsum("ij,ij->i", points - near, normal)
+            keep = np.einsum("ij,ij->i", normal, normals) > 0.5
+            bary *= (weights * keep)[:, None]
+            num += np.bincount(faces[face].ravel(), (bary * residual[:, None]).ravel(), minlength=len(out))
+            den += np.bincount(faces[face].ravel(), bary.ravel(), minlength=len(out))
         move = movable & (den > 0)
         out[move] += (num[move] / den[move])[:, None] * vertex_normals(out, faces)[move]
+    return out
+
+
+def undo_crossings(before: np.ndarray, after: np.ndarray, faces: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """``after`` (v, 3) with the vertices of faces that cross another face
+    (:func:`apt_filters.core.checks.self_intersecting_faces`) put back where they were ``before``
+    (v, 3) the moves, for up to ``rounds`` rounds while crossings remain.
+
+    Curve vertices slide along their curve; four generators of one curve in a tent around a
+    valence-3 vertex (a dual-contoured box's corner) slid into one another's faces.
+    """
+    from apt_filters.core.checks import self_intersecting_faces
+
+    out = after.copy()
+    for _ in range(rounds):
+        hit = self_intersecting_faces(out, faces)
+        if not hit.any():
+            break
+        ids = np.unique(faces[hit])
+        out[ids] = before[ids]
     return out

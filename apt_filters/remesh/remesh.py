@@ -162,16 +162,16 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch)
-    density = rho_v[mesh.faces[samples.parent]].mean(axis=1)
+    density = rho_v[mesh.faces].mean(axis=1)  # per input face
     from scipy.spatial import cKDTree
 
     tree = cKDTree(mesh.vertices)
     vertex_density = lambda p: rho_v[tree.query(p)[1]]  # noqa: E731
     mark("sampling")
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
-    group = cvt.sample_groups(samples, features)
+    group = cvt.sample_groups(mesh, samples, features)
     mark("init")
-    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol)
+    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge)
     labels = result.labels
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
@@ -187,8 +187,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         # curve generators too (a corner among the dozens a bumpy 3 nm sphere has at 40 deg kept a
         # hole), but never a generator of the open boundary
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
-        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad,
-                                   lone)
+        labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     mark("connect")
     faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned), pinned)
@@ -196,11 +195,12 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces = faces.reshape(-1, 3)
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
-    vertices, faces = _optimise(mesh, features, gens.positions[used], faces, kind, owner, smooth_rounds)
-    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples.points, samples.normals,
-                                          samples.weights)
+    extracted = gens.positions[used]
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge)
+    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
+    vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
-    out = _transfer_scalars(mesh, TriMesh(vertices, faces))
+    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge)
     mark("scalars")
     checks = []
     if verify:
@@ -244,9 +244,9 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
-              kind: np.ndarray, owner: np.ndarray, rounds: int) -> tuple[np.ndarray, np.ndarray]:
+              kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay."""
+    corners stay. Patch vertices are projected onto their patch, searched within ``edge`` (nm) first."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
     surfaces = cvt.patch_surfaces(mesh, features)
@@ -265,7 +265,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
         out = points.copy()
         for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
             sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
-            out[sel] = surfaces[p].closest(points[sel])[0]
+            out[sel] = surfaces[p].closest(points[sel], edge)[0]
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
@@ -314,17 +314,17 @@ def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
     return near[np.arange(len(points)), best]
 
 
-def _transfer_scalars(source: TriMesh, target: TriMesh) -> TriMesh:
+def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float) -> TriMesh:
     """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
     surface = SurfaceDistance(source)
-    _, face, weights = surface.closest(target.vertices)
+    _, face, weights = surface.closest(target.vertices, edge)
     corners = source.faces[face]
     for name, values in source.vertex_scalars.items():
         target.vertex_scalars[name] = np.einsum("nk,nk->n", weights, np.asarray(values, np.float64)[corners])
     if source.face_scalars:
-        nearest = surface.closest(target.vertices[target.faces].mean(axis=1))[1]
+        nearest = surface.closest(target.vertices[target.faces].mean(axis=1), edge)[1]
         for name, values in source.face_scalars.items():
             target.face_scalars[name] = np.asarray(values)[nearest]
     return target
