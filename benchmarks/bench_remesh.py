@@ -108,11 +108,9 @@ def measured(name: str, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float
     return TriMesh(v, f), note, seconds, peak
 
 
-def one_way(a: TriMesh, b: TriMesh) -> float:
+def one_way(a: TriMesh, b: TriMesh, edge: float) -> float:
     """Farthest vertex, edge midpoint or face centroid of ``a`` from ``b``."""
-    from apt_filters.core.distance import mesh_distance
-
-    return float(mesh_distance(b, verify._probe_points(a)[0]).max())
+    return float(verify.farthest(a, b, np.zeros(a.n_faces, np.int64), 1, edge)[0])
 
 
 def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:
@@ -133,10 +131,10 @@ def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
         (before.components, before.boundary_loops, before.genus, 0)
     topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
     f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
-    fig = {"seconds": seconds, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh), one_way(mesh, out)) / edge,
+    fig = {"seconds": seconds, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
            "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0}
     line = (f"|  | {name} | {seconds:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | "
-            f"{one_way(out, mesh) / edge:.3f} | {one_way(mesh, out) / edge:.3f} | "
+            f"{one_way(out, mesh, edge) / edge:.3f} | {one_way(mesh, out, edge) / edge:.3f} | "
             f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
             f"{fig['under30']:.2f} | {note} |")
     return line, fig

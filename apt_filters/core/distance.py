@@ -208,19 +208,27 @@ class SurfaceDistance:
             out.weights = None
         return out
 
-    def closest(self, points: np.ndarray, near: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest points on the surface to ``points`` (N, 3) nm: positions (N, 3), faces (N,) and
-        barycentric weights (N, 3) of the face's corners (exact, float64).
-
-        ``near`` (nm): how far most points are expected to be; they are searched no farther (a
-        bounded search visits tens of cells instead of thousands), the others again without bound.
-        """
-        points = np.asarray(points, dtype=np.float64)
-        sd = self.query(points, max_distance=near, closest=True)
+    def nearest(self, points: np.ndarray, near: float, closest: bool = False) -> SignedDistance:
+        """:meth:`query` without a distance limit, for points (N, 3) most of which lie within ``near``
+        (nm) of the surface: those are searched no farther (a bounded search visits tens of cells
+        instead of thousands), the others again without bound."""
+        sd = self.query(points, max_distance=near, closest=closest)
         miss = np.flatnonzero(sd.face < 0)
         if len(miss):
-            far = self.query(points[miss], closest=True)
-            sd.face[miss], sd.weights[miss] = far.face, far.weights
+            far = self.query(points[miss], closest=closest)
+            sd.distance[miss], sd.face[miss], sd.feature[miss] = far.distance, far.face, far.feature
+            sd.on_boundary[miss] = far.on_boundary
+            if closest:
+                sd.weights[miss] = far.weights
+        return sd
+
+    def closest(self, points: np.ndarray, near: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points on the surface to ``points`` (N, 3) nm: positions (N, 3), faces (N,) and
+        barycentric weights (N, 3) of the face's corners (exact, float64). ``near`` (nm): as
+        :meth:`nearest`.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        sd = self.query(points, closest=True) if near is None else self.nearest(points, near, closest=True)
         corners = self._vertices[self._faces[sd.face]]
         return np.einsum("nk,nkj->nj", sd.weights, corners), sd.face, sd.weights
 

@@ -1,7 +1,7 @@
 """Dense area-weighted samples of the input surface, on a conforming refinement of it.
 
-Every input face is split into ``n²`` congruent faces (``n = 2^k``) on a barycentric lattice,
-``k`` chosen so that (nearly) no edge is longer than ``max_edge``; the points on an input edge
+Every input face is split into ``n²`` congruent faces on a barycentric lattice, ``n`` the
+smallest that leaves (nearly) no edge longer than ``max_edge``; the points on an input edge
 are shared by its two faces, so the refinement is conforming and its connectivity lets the
 restricted Voronoi cells be read off later. The refined faces' centroids are the samples.
 
@@ -20,8 +20,9 @@ import numpy as np
 
 from apt_filters.core.mesh import TriMesh
 
-CHUNK = 1 << 20
-"""Refined faces per chunk where samples are materialised (:meth:`Samples.chunks`)."""
+CHUNK = 1 << 16
+"""Refined faces per chunk where samples are materialised (:meth:`Samples.chunks`): about 10 MB of
+temporaries whatever the surface's size."""
 
 
 @dataclass
@@ -84,11 +85,12 @@ class Samples:
         flag[self.n_input_vertices:self.n_input_vertices + self.n_input_edges * per_edge] = np.repeat(input_edge, per_edge)
         return flag
 
-    def chunks(self):
-        """Yield ``(points, normals, weights)`` of consecutive runs of at most :data:`CHUNK` samples."""
-        for start in range(0, self.n_samples, CHUNK):
-            ids = slice(start, min(start + CHUNK, self.n_samples))
-            yield self.points(ids), self.face_normal[self.parent(ids)], self.weights(ids)
+    def chunks(self, stride: int = 1):
+        """Yield ``(points, normals, weights)`` of every ``stride``-th sample, at most :data:`CHUNK` at a
+        time; weights are multiplied by ``stride`` so that they still sum to the area."""
+        for start in range(0, self.n_samples, CHUNK * stride):
+            ids = np.arange(start, min(start + CHUNK * stride, self.n_samples), stride)
+            yield self.points(ids), self.face_normal[self.parent(ids)], stride * self.weights(ids)
 
 
 def _lattice(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -103,14 +105,15 @@ def _lattice(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def refine(mesh: TriMesh, max_edge: float, quantile: float = 0.9) -> Samples:
-    """Split every face of ``mesh`` into n² (n = 2^k) so that the ``quantile`` of edge lengths is
-    below ``max_edge`` (nm).
+    """Split every face of ``mesh`` into n² so that the ``quantile`` of edge lengths is below
+    ``max_edge`` (nm): n = ceil(quantile / max_edge) (a power of two, as repeated midpoint splits
+    give, would take up to 1.8x the samples: 64 instead of 36 per face on a marching-cubes gyroid).
 
     Uniform splitting keeps the refinement conforming and the parent of each face known without
     any search; the few long sliver edges above the quantile stay a bit longer.
     """
     lengths = np.linalg.norm(mesh.vertices[mesh.faces] - mesh.vertices[np.roll(mesh.faces, 1, axis=1)], axis=2)
-    n = 2 ** int(np.ceil(np.log2(max(np.quantile(lengths, quantile) / max_edge, 1.0))))
+    n = max(int(np.ceil(np.quantile(lengths, quantile) / max_edge * (1 - 1e-12))), 1)
     top = mesh.topology
     v_in, e_in, m = mesh.n_vertices, len(top.edge_vertices), mesh.n_faces
     lattice, pattern = _lattice(n)
