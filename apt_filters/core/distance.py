@@ -155,6 +155,9 @@ class SurfaceDistance:
 
     def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2, reach: float | None = None):
         self.mesh = mesh
+        # kept, not looked up per query: the topology cache holds only the last few meshes (a remesh
+        # queries dozens of patches in turn, and rebuilt each patch's topology on every query)
+        self.topology = mesh.topology
         self.normals = PseudoNormals.of(mesh)
         self._vertices = np.array(mesh.vertices, dtype=np.float64)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
@@ -182,7 +185,7 @@ class SurfaceDistance:
         if n == 0:
             out.weights = out.weights if closest else None
             return out
-        top, nrm = self.mesh.topology, self.normals
+        top, nrm = self.topology, self.normals
         signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
                  nrm.vertex_normals, top.boundary_vertex)
         g = self.grid

@@ -102,13 +102,17 @@ class _Curve:
 
 
 def patch_surfaces(mesh: TriMesh, features: Features) -> list:
-    """One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) per patch."""
+    """One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) per patch, over
+    the patch's own vertices (its closest points are positions; face ids are the patch's)."""
     from apt_filters.core.distance import SurfaceDistance
 
     order = np.argsort(features.patch, kind="stable")
     bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
-    return [SurfaceDistance(TriMesh(mesh.vertices, mesh.faces[order[bounds[p]:bounds[p + 1]]]))
-            for p in range(features.n_patches)]
+    out = []
+    for p in range(features.n_patches):
+        used, local = np.unique(mesh.faces[order[bounds[p]:bounds[p + 1]]], return_inverse=True)
+        out.append(SurfaceDistance(TriMesh(mesh.vertices[used], local.reshape(-1, 3))))
+    return out
 
 
 def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
