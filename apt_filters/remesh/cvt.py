@@ -29,9 +29,6 @@ CORNER, CURVE, PATCH = 0, 1, 2
 # 1.4 gained less. The labels still equal a full search.
 OVER_RELAXATION = 1.7
 _AREA_PER_VERTEX = np.sqrt(3.0) / 2.0  # area per vertex of an equilateral mesh of edge 1
-# Initial patch generators are chosen among at most this many samples each (every k-th refined face):
-# enough to spread them evenly, without a copy of every sample of a large patch.
-_INITIAL_CHOICE = 4
 
 
 @dataclass
@@ -185,7 +182,6 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
         count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
         ids = samples.of_faces(mine)
         count = min(max(count, 0), len(ids))
-        ids = ids[::max(len(ids) // (_INITIAL_CHOICE * max(count, 1)), 1)]
         pts = _initial_patch_points(samples.points(ids), samples.weights(ids), count, seed + p)
         pos.append(pts)
         kind.append(np.full(len(pts), PATCH))
