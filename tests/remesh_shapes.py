@@ -225,11 +225,12 @@ def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
     """``mesh`` with every vertex moved along its normal by Gaussian noise of sd ``amplitude``
     (nm), then every face split in four: a stand-in for a small object after the pipeline's
     refinement against the ions (bumps of a few tenths of a nm) and clean chain (edges halved)."""
-    from apt_filters.refine import subdivide
+    from apt_filters.remesh.sampling import split
 
     rng = np.random.default_rng(seed)
     normals = mesh.vertex_normals()
-    return subdivide(TriMesh(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces))
+    fine = split(TriMesh(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces), 2)
+    return TriMesh(fine.vertices, fine.faces)
 
 
 # The issue's own inputs: the analytic shapes contoured by our dual contouring at 1 nm voxels

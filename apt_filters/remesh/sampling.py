@@ -1,7 +1,7 @@
 """Dense area-weighted samples of the input surface, on a conforming refinement of it.
 
-Every input face is split into ``n²`` congruent faces on a barycentric lattice, ``n`` the
-smallest that leaves (nearly) no edge longer than ``max_edge``; the points on an input edge
+Every input face is split into ``n²`` congruent faces on a barycentric lattice (``n`` a power of
+two, so that (nearly) no edge is longer than ``max_edge``); the points on an input edge
 are shared by its two faces, so the refinement is conforming and its connectivity lets the
 restricted Voronoi cells be read off later. The refined faces' centroids are the samples.
 
@@ -106,14 +106,19 @@ def _lattice(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def refine(mesh: TriMesh, max_edge: float, quantile: float = 0.9) -> Samples:
     """Split every face of ``mesh`` into n² so that the ``quantile`` of edge lengths is below
-    ``max_edge`` (nm): n = ceil(quantile / max_edge) (a power of two, as repeated midpoint splits
-    give, would take up to 1.8x the samples: 64 instead of 36 per face on a marching-cubes gyroid).
+    ``max_edge`` (nm), n the smallest power of two that does. (The smallest n, 3 instead of 4 say,
+    takes up to 1.8x fewer samples but left the remesh of dual-contoured boxes at mean Q 0.893-0.899
+    against 0.900-0.904, and one 0° triangle.)
 
     Uniform splitting keeps the refinement conforming and the parent of each face known without
     any search; the few long sliver edges above the quantile stay a bit longer.
     """
     lengths = np.linalg.norm(mesh.vertices[mesh.faces] - mesh.vertices[np.roll(mesh.faces, 1, axis=1)], axis=2)
-    n = max(int(np.ceil(np.quantile(lengths, quantile) / max_edge * (1 - 1e-12))), 1)
+    return split(mesh, 2 ** int(np.ceil(np.log2(max(np.quantile(lengths, quantile) / max_edge, 1.0)))))
+
+
+def split(mesh: TriMesh, n: int) -> Samples:
+    """Every face of ``mesh`` split into n² congruent faces on a barycentric lattice (conforming)."""
     top = mesh.topology
     v_in, e_in, m = mesh.n_vertices, len(top.edge_vertices), mesh.n_faces
     lattice, pattern = _lattice(n)
