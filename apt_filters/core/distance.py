@@ -23,6 +23,7 @@ structure.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numba
@@ -34,8 +35,20 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.core.triangle import closest_on_triangle
 
 _PARALLEL_POINTS = 4096
-"""Queries of fewer points run on the calling thread: waking numba's other threads costs more (tens
-of ms per call on a loaded machine: a remesh's projections of a few dozen points took 30-50 ms each)."""
+"""Queries of fewer points (search plans of fewer blocks) run on the calling thread: waking numba's
+other threads costs more (tens of ms per call on a loaded machine: a remesh's projections of a few
+dozen points took 30-50 ms each, the plans of its patch grids 95 ms)."""
+
+
+@contextmanager
+def _threads_for(n: int):
+    """numba's thread count set to 1 while ``n`` items are fewer than :data:`_PARALLEL_POINTS`."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(threads if n >= _PARALLEL_POINTS else 1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(threads)
 
 _MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
@@ -196,17 +209,13 @@ class SurfaceDistance:
         pad = -(-r // m)
         low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
         order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-        threads = numba.get_num_threads()
-        numba.set_num_threads(threads if n >= _PARALLEL_POINTS else 1)
-        try:
+        with _threads_for(n):
             out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
                                                 g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
                                                 g.tris, g.boxes, offsets, bound, first, covered,
                                                 reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
                                                 out.feature, out.on_boundary, out.weights,
                                                 numba.get_num_threads()).sum())
-        finally:
-            numba.set_num_threads(threads)
         if not closest:
             out.weights = None
         return out
@@ -685,6 +694,7 @@ class TriangleGrid:
             padded = np.full(blocks * m, np.inf)
             padded[:gap.shape[0], :gap.shape[1], :gap.shape[2]] = gap
             nearest = padded.reshape(blocks[0], m, blocks[1], m, blocks[2], m).min(axis=(1, 3, 5))
-            first = _first_occupied(self.shape, self.slot, m, offsets, nearest >= r + np.sqrt(3.0))
+            with _threads_for(nearest.size):
+                first = _first_occupied(self.shape, self.slot, m, offsets, nearest >= r + np.sqrt(3.0))
             self._plans[key] = (offsets, bound[keep][key_order], r, first, covered)
         return self._plans[key]

@@ -141,11 +141,10 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         face scalars from the nearest input face; ``checks`` and ``kept_input`` say which
         components were given back unchanged and why.
 
-    Peak memory is dominated by the refined copy (each input face split into 4^k faces so
-    that the 90th percentile of edge lengths is under L/2; 16x for marching-cubes input at
-    L = 1 voxel, a few hundred bytes per refined face): measured 1.39 GB peak RSS for a whole
-    benchmark process remeshing a 200k-face input at L = 1 voxel (3.2M refined faces; 0.41 GB
-    of it the libraries). Split very large meshes (e.g. by component) before remeshing.
+    Memory: the refined copy of the input (:func:`apt_filters.remesh.sampling.refine`: n² faces per
+    input face so that the 90th percentile of edge lengths is under L/2, 16 for marching-cubes input
+    at L = 1 voxel; 12 bytes per refined face and 24 per refined vertex) plus an int32 label and
+    group per sample; the rest scales with the output (docs/remesh.md, "Memory and time").
     """
     if mesh.n_faces == 0:
         raise AptFiltersError("mesh has no faces")
