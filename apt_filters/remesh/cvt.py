@@ -412,7 +412,7 @@ def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, al
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
           curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4, k: int = 10,
-          project_every: int = 3, near: float | None = None) -> LloydResult:
+          project_every: int = 3, near: float | None = None, surfaces: list | None = None) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
 
     Each step assigns every sample to the nearest of ``k`` candidates: the allowed generators
@@ -426,8 +426,9 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     sit off a curved surface by about L²/8R) and at the end; the returned labels belong to the
     returned positions. ``near`` (nm, about the edge length): how far a moved generator is
     expected to be from its patch (the projection's search reach; farther ones are found too).
+    ``surfaces``: the patches' closest-point engines (:func:`patch_surfaces`), built here if not given.
     """
-    surfaces = patch_surfaces(mesh, features)
+    surfaces = patch_surfaces(mesh, features) if surfaces is None else surfaces
     permitted = allowed(features, gens)
     candidates = _Candidates(permitted, len(gens.positions), k)
     w = samples.face_area * density / samples.per_face

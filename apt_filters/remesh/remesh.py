@@ -170,7 +170,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
     mark("init")
-    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge)
+    surfaces = cvt.patch_surfaces(mesh, features)  # one closest-point engine per patch, for Lloyd and smoothing
+    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge,
+                       surfaces=surfaces)
     labels = result.labels
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
@@ -195,7 +197,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
     extracted = gens.positions[used]
-    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge)
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces)
     vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
@@ -243,12 +245,13 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
-              kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float) -> tuple[np.ndarray, np.ndarray]:
+              kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
+              surfaces: list) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay. Patch vertices are projected onto their patch, searched within ``edge`` (nm) first."""
+    corners stay. Patch vertices are projected onto their patch (``surfaces``, :func:`cvt.patch_surfaces`),
+    searched within ``edge`` (nm) first."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
-    surfaces = cvt.patch_surfaces(mesh, features)
     pinned = kind != cvt.PATCH
     boundary = optimize.boundary_vertices(TriMesh(vertices, faces))
     valence = np.bincount(faces.ravel(), minlength=len(vertices)).astype(float)
