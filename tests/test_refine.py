@@ -11,7 +11,6 @@ from scipy.special import erfc
 from apt_filters.contour import marching_cubes
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.core.mesh import TriMesh
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.core.mesh import split_components

@@ -29,7 +29,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
-from apt_filters.remesh._arrays import unique, unique_rows
+from apt_filters.remesh._arrays import unique
 from apt_filters.core.mesh import TriMesh
 
 BRIDGE_FRACTION = 0.5  # a weak (bridging) edge bends by at least this fraction of the feature angle
