@@ -195,10 +195,11 @@ def box_minus_sphere_plate(spacing: float = 0.25, scale: float = 1 / 16) -> TriM
     return TriMesh(m.vertex_matrix() * scale, m.face_matrix())
 
 
-def pipeline_surface(preset: str = "small", seed: int = 3, folder=None) -> TriMesh:
+def pipeline_surface(preset: str = "small", seed: int = 3, folder=None, ions: int | None = None) -> TriMesh:
     """The pipeline's own cleaned surface (``apt-filters run --remesh none``: marching cubes,
     refinement against the ions, clean chain) of the Al 15 at.% iso-surface of a synthetic
-    specimen (``small``: a 6 nm gamma-prime-like cube and a 3 nm sphere); cached in ``folder``."""
+    specimen (``small``: a 6 nm gamma-prime-like cube and a 3 nm sphere; ``ions``: the preset
+    lengthened to about that many ions); cached in ``folder``."""
     import tempfile
     from pathlib import Path
 
@@ -207,10 +208,10 @@ def pipeline_surface(preset: str = "small", seed: int = 3, folder=None) -> TriMe
     from apt_filters.pipeline.run import run_pipeline
     from apt_filters.synth import preset as make_preset, write_specimen
 
-    folder = Path(folder or tempfile.gettempdir()) / f"remesh_bench_{preset}_{seed}"
+    folder = Path(folder or tempfile.gettempdir()) / (f"remesh_bench_{preset}_{seed}" + ("" if ions is None else f"_{ions}"))
     ply = folder / "out" / "meshes" / "Al15.ply"
     if not ply.exists():
-        write_specimen(folder, make_preset(preset), seed=seed, overwrite=True, keep_ions=False)
+        write_specimen(folder, make_preset(preset, ions), seed=seed, overwrite=True, keep_ions=False)
         config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
         config.input.ions, config.input.ranges = str(folder / "specimen.pos"), str(folder / "specimen.rrng")
         config.voxel.exclude = ["B"]
@@ -224,12 +225,12 @@ def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
     """``mesh`` with every vertex moved along its normal by Gaussian noise of sd ``amplitude``
     (nm), then every face split in four: a stand-in for a small object after the pipeline's
     refinement against the ions (bumps of a few tenths of a nm) and clean chain (edges halved)."""
-    from apt_filters.remesh.extract import vertex_normals
-    from apt_filters.remesh.sampling import split4
+    from apt_filters.remesh.sampling import split
 
     rng = np.random.default_rng(seed)
-    normals = vertex_normals(mesh.vertices, mesh.faces)
-    return TriMesh(*split4(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces))
+    normals = mesh.vertex_normals()
+    fine = split(TriMesh(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces), 2)
+    return TriMesh(fine.vertices, fine.faces)
 
 
 # The issue's own inputs: the analytic shapes contoured by our dual contouring at 1 nm voxels

@@ -187,3 +187,37 @@ def test_near_surface_selection_keeps_what_it_is_also_asked_and_carries_columns(
     assert np.array_equal(near.carried[0], mz[near.rows])
     extra = ~within[near.rows]
     assert np.all(np.isnan(near.distance[extra])) and np.all(near.face[extra] == -1)
+
+
+def test_closest_points_and_nearest_on_a_plane():
+    from apt_filters.core.distance import SurfaceDistance
+
+    # the unit square z = 0 in 2 x 8 x 8 triangles: the closest point of (x, y, z) is (clamped x, clamped y, 0)
+    g = np.linspace(0.0, 1.0, 9)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(81)])
+    i = (np.arange(8)[:, None] * 9 + np.arange(8)[None, :]).ravel()
+    faces = np.concatenate([np.column_stack([i, i + 9, i + 10]), np.column_stack([i, i + 10, i + 1])])
+    mesh = TriMesh(vertices, faces)
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-0.5, 1.5, 5000), rng.uniform(-0.5, 1.5, 5000), rng.uniform(-2, 2, 5000)])
+    engine = SurfaceDistance(mesh)
+    near, face, weights = engine.closest(points, near=0.2)  # most points farther than 0.2: found without bound
+    truth = np.column_stack([np.clip(points[:, :2], 0, 1), np.zeros(len(points))])
+    assert np.allclose(near, truth, atol=1e-9)
+    assert np.allclose(weights.sum(axis=1), 1.0) and (weights >= -1e-12).all()
+    assert np.allclose(np.einsum("nk,nkj->nj", weights, vertices[faces[face]]), near)
+    far = engine.nearest(points, 0.2)
+    assert np.array_equal(far.distance, engine.query(points).distance) and np.array_equal(far.face, engine.query(points).face)
+
+
+def test_edge_pairs_of_an_open_tetrahedron():
+    # a tetrahedron without its face (1, 2, 3): three faces, three inner edges, three rim edges
+    faces = np.array([[0, 2, 1], [0, 3, 2], [0, 1, 3]])
+    top = TriMesh(np.eye(4, 3), faces).topology
+    pairs = top.edge_pairs()
+    inner = top.edge_faces == 2
+    assert inner.sum() == 3 and np.array_equal(np.sort(pairs[inner], axis=1), np.sort(top.face_pairs, axis=1))
+    assert (pairs[~inner, 1] == -1).all()
+    for e in np.flatnonzero(~inner):  # a rim edge's one face holds both its vertices
+        assert set(top.edge_vertices[e]) <= set(faces[pairs[e, 0]])

@@ -7,7 +7,7 @@ import numpy as np
 from apt_filters.cli.main import main
 from apt_filters.meshlab.bridge import read_mesh
 from apt_filters.meshlab.exports import write_mesh
-from apt_filters.remesh.sampling import closest_points
+from apt_filters.core.distance import SurfaceDistance
 from tests import remesh_shapes as shapes
 
 
@@ -21,7 +21,7 @@ def test_remesh_cli_round_trip(tmp_path, capsys):
     result = read_mesh(out)
     assert result.n_faces > 100
     # the input surface's values at its closest point (the vertices straddle it)
-    assert np.allclose(result.vertex_scalars["value"], closest_points(mesh, result.vertices)["points"][:, 0], atol=1e-3)
+    assert np.allclose(result.vertex_scalars["value"], SurfaceDistance(mesh).closest(result.vertices)[0][:, 0], atol=1e-3)
     assert main(["remesh", str(src), "-o", str(out)]) == 2  # exists, no --force
     assert "exists already" in capsys.readouterr().err
     assert main(["remesh", str(src), "-o", str(out), "--force", "--edge-length", "1.5"]) == 0

@@ -72,9 +72,9 @@ def spheres():
     comp = mesh.face_components()
     out = result.mesh
     # the input component each output face stands for: of its nearest input face
-    from apt_filters.remesh.sampling import closest_points
+    from apt_filters.core.distance import SurfaceDistance
 
-    owner = comp[closest_points(mesh, out.vertices[out.faces].mean(axis=1))["face"]]
+    owner = comp[SurfaceDistance(mesh).closest(out.vertices[out.faces].mean(axis=1))[1]]
     return mesh, comp, out, owner
 
 

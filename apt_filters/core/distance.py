@@ -23,6 +23,7 @@ structure.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numba
@@ -32,6 +33,22 @@ from scipy import ndimage
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.core.triangle import closest_on_triangle
+
+_PARALLEL_POINTS = 4096
+"""Queries of fewer points (search plans of fewer blocks) run on the calling thread: waking numba's
+other threads costs more (tens of ms per call on a loaded machine: a remesh's projections of a few
+dozen points took 30-50 ms each, the plans of its patch grids 95 ms)."""
+
+
+@contextmanager
+def _threads_for(n: int):
+    """numba's thread count set to 1 while ``n`` items are fewer than :data:`_PARALLEL_POINTS`."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(threads if n >= _PARALLEL_POINTS else 1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(threads)
 
 _MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
@@ -108,6 +125,9 @@ class SignedDistance:
     on_boundary : (N,) bool
         The closest point lies on a boundary edge or vertex of an open surface (the specimen
         edge): the point is beyond the surface's rim rather than across it.
+    weights : (N, 3) float64 or None
+        With ``closest=True``: barycentric weights of the closest point on ``face`` (corners 0,
+        1, 2 of the mesh's face); :meth:`SurfaceDistance.closest` turns them into points.
     searched : int
         Points that needed a search (with ``max_distance``: those whose home block has a
         triangle within reach, the narrow band; otherwise all).
@@ -118,6 +138,7 @@ class SignedDistance:
     feature: np.ndarray
     on_boundary: np.ndarray
     searched: int = 0
+    weights: np.ndarray | None = None
 
 
 class SurfaceDistance:
@@ -147,6 +168,9 @@ class SurfaceDistance:
 
     def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2, reach: float | None = None):
         self.mesh = mesh
+        # kept, not looked up per query: the topology cache holds only the last few meshes (a remesh
+        # queries dozens of patches in turn, and rebuilt each patch's topology on every query)
+        self.topology = mesh.topology
         self.normals = PseudoNormals.of(mesh)
         self._vertices = np.array(mesh.vertices, dtype=np.float64)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
@@ -154,7 +178,7 @@ class SurfaceDistance:
                                        min_cell=0.0 if reach is None or not np.isfinite(reach) else reach / 4)
         self.home = home
 
-    def query(self, points: np.ndarray, max_distance: float | None = None) -> SignedDistance:
+    def query(self, points: np.ndarray, max_distance: float | None = None, closest: bool = False) -> SignedDistance:
         """Exact signed distance of every point (N, 3) nm to the surface.
 
         Points are visited cell by cell, so that consecutive searches touch the same cells. With
@@ -162,15 +186,19 @@ class SurfaceDistance:
         face -1, and the search never looks farther: a point whose cell has no triangle within
         range costs a few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells
         away from every triangle is finished by brute force (exact, but slow on large meshes).
+        With ``closest``, the barycentric weights of each closest point are kept too
+        (``weights``, 24 more bytes per point).
         """
         if points.dtype not in (np.float32, np.float64):
             points = points.astype(np.float32)
         points = np.ascontiguousarray(points)
         n = len(points)
-        out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool))
+        out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool),
+                             weights=np.zeros((n if closest else 0, 3)))
         if n == 0:
+            out.weights = out.weights if closest else None
             return out
-        top, nrm = self.mesh.topology, self.normals
+        top, nrm = self.topology, self.normals
         signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
                  nrm.vertex_normals, top.boundary_vertex)
         g = self.grid
@@ -181,12 +209,40 @@ class SurfaceDistance:
         pad = -(-r // m)
         low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
         order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-        out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m, g.triangles,
-                                            g.face_id, g.origin, g.cell, g.shape, g.slot, g.start, g.tris, g.boxes,
-                                            offsets, bound, first, covered, reach * reach * (1 + 1e-12), *signs,
-                                            out.distance, out.face, out.feature, out.on_boundary,
-                                            numba.get_num_threads()).sum())
+        with _threads_for(n):
+            out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
+                                                g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
+                                                g.tris, g.boxes, offsets, bound, first, covered,
+                                                reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
+                                                out.feature, out.on_boundary, out.weights,
+                                                numba.get_num_threads()).sum())
+        if not closest:
+            out.weights = None
         return out
+
+    def nearest(self, points: np.ndarray, near: float, closest: bool = False) -> SignedDistance:
+        """:meth:`query` without a distance limit, for points (N, 3) most of which lie within ``near``
+        (nm) of the surface: those are searched no farther (a bounded search visits tens of cells
+        instead of thousands), the others again without bound."""
+        sd = self.query(points, max_distance=near, closest=closest)
+        miss = np.flatnonzero(sd.face < 0)
+        if len(miss):
+            far = self.query(points[miss], closest=closest)
+            sd.distance[miss], sd.face[miss], sd.feature[miss] = far.distance, far.face, far.feature
+            sd.on_boundary[miss] = far.on_boundary
+            if closest:
+                sd.weights[miss] = far.weights
+        return sd
+
+    def closest(self, points: np.ndarray, near: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points on the surface to ``points`` (N, 3) nm: positions (N, 3), faces (N,) and
+        barycentric weights (N, 3) of the face's corners (exact, float64). ``near`` (nm): as
+        :meth:`nearest`.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        sd = self.query(points, closest=True) if near is None else self.nearest(points, near, closest=True)
+        corners = self._vertices[self._faces[sd.face]]
+        return np.einsum("nk,nkj->nj", sd.weights, corners), sd.face, sd.weights
 
 
 def mesh_distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
@@ -366,11 +422,12 @@ def _spatial_order(points: np.ndarray, origin: np.ndarray, cell: float, low: np.
                    dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Order visiting ``points`` cell by cell (see :func:`_cell_keys`), and the cell keys.
 
-    A counting sort (linear time) when there are not many more cells than points.
+    A counting sort (linear time) when there are not many more cells than points (a sort of a few
+    points, not a pass over a million empty cells, for the small queries of a remesh).
     """
     keys = _cell_keys(points, origin, cell, low, dims)
     n_keys = int(np.prod(dims)) + 1
-    if n_keys <= 4 * len(points) + (1 << 20):
+    if n_keys <= 4 * len(points):
         return _counting_order(keys, n_keys), keys
     return np.argsort(keys, kind="stable"), keys
 
@@ -429,10 +486,11 @@ def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, 
 def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
                      tris, boxes, offsets, offset_bound, first, covered, limit, vertices, faces, face_normals, face_edge,
                      edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face, feature, rim,
-                     n_workers):
+                     weights, n_workers):
     """Exact signed distances of points visited home by home (``order``; homes are blocks of
     m x m x m grid cells, ``keys`` from :func:`_cell_keys` over the homes ``low`` + [0, ``dims``)),
-    written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm).
+    written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm);
+    ``weights`` (N, 3) gets the closest points' barycentric weights unless it has no rows.
 
     ``n_workers`` workers (one per thread) take every ``n_workers``-th block of ``blocks``, each
     with its own mailbox (8 bytes per triangle). For each home, once: the non-empty grid rows
@@ -530,6 +588,8 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
                 prev = best_t
                 f = face_id[best_t]
                 face[i] = f
+                if weights.shape[0] > 0:
+                    weights[i, 0], weights[i, 1], weights[i, 2] = 1.0 - bu - bw, bu, bw
                 distance[i], feature[i], rim[i] = _signed_one(
                     px, py, pz, f, bu, bw, best, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
                     vertex_normals, boundary_vertex)
@@ -634,6 +694,7 @@ class TriangleGrid:
             padded = np.full(blocks * m, np.inf)
             padded[:gap.shape[0], :gap.shape[1], :gap.shape[2]] = gap
             nearest = padded.reshape(blocks[0], m, blocks[1], m, blocks[2], m).min(axis=(1, 3, 5))
-            first = _first_occupied(self.shape, self.slot, m, offsets, nearest >= r + np.sqrt(3.0))
+            with _threads_for(nearest.size):
+                first = _first_occupied(self.shape, self.slot, m, offsets, nearest >= r + np.sqrt(3.0))
             self._plans[key] = (offsets, bound[keep][key_order], r, first, covered)
         return self._plans[key]

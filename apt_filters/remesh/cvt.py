@@ -18,10 +18,9 @@ import numpy as np
 from numba import njit
 
 from apt_filters.remesh._arrays import isin, unique_rows
-from apt_filters.core.deps import open3d
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.features import Features
-from apt_filters.remesh.sampling import Samples
+from apt_filters.remesh.sampling import CHUNK, Samples
 
 CORNER, CURVE, PATCH = 0, 1, 2
 # Patch generators move this many times the way to their centroid (over-relaxed Lloyd). Against
@@ -99,16 +98,18 @@ class _Curve:
         return np.mod(new, self.length) if self.closed else new
 
 
-def patch_scenes(mesh: TriMesh, features: Features) -> list:
-    o3d = open3d()
-    scenes = []
+def patch_surfaces(mesh: TriMesh, features: Features) -> list:
+    """One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) per patch, over
+    the patch's own vertices (its closest points are positions; face ids are the patch's)."""
+    from apt_filters.core.distance import SurfaceDistance
+
+    order = np.argsort(features.patch, kind="stable")
+    bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
+    out = []
     for p in range(features.n_patches):
-        faces = mesh.faces[features.patch == p]
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                            o3d.core.Tensor(faces.astype(np.uint32)))
-        scenes.append(scene)
-    return scenes
+        used, local = np.unique(mesh.faces[order[bounds[p]:bounds[p + 1]]], return_inverse=True)
+        out.append(SurfaceDistance(TriMesh(mesh.vertices[used], local.reshape(-1, 3))))
+    return out
 
 
 def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
@@ -156,7 +157,7 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
                vertex_density, seed: int = 0) -> tuple[Generators, list]:
     """Place generators: corners, evenly spaced curve generators, evenly spread patch generators.
 
-    ``density`` (f,) is the sample density ρ ≥ 1; edges scale as ρ^-1/4, so a patch gets
+    ``density`` (m,) is the density ρ ≥ 1 on each input face; edges scale as ρ^-1/4, so a patch gets
     ∫ρ^1/2 dA / (√3/2 L²) vertices, less the strip that its curve generators' cells take.
     """
     pos, kind, owner, arc = [mesh.vertices[features.corners]], [np.full(len(features.corners), CORNER)], \
@@ -172,14 +173,16 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
         owner.append(np.full(len(t), i))
         arc.append(t)
         border[features.curve_patches[i]] += curve.size[-1]
-    sample_patch = features.patch[samples.parent]
+    order = np.argsort(features.patch, kind="stable")
+    bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
     for p in range(features.n_patches):
-        sel = sample_patch == p
-        measure = (samples.weights[sel] * np.sqrt(density[sel])).sum()
+        mine = order[bounds[p]:bounds[p + 1]]
+        measure = (samples.face_area[mine] * np.sqrt(density[mine])).sum()
         free = (measure - 0.5 * _AREA_PER_VERTEX * edge * border[p]) / (_AREA_PER_VERTEX * edge**2)
         count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
-        count = min(max(count, 0), int(sel.sum()))
-        pts = _initial_patch_points(samples.points[sel], samples.weights[sel], count, seed + p)
+        ids = samples.of_faces(mine)
+        count = min(max(count, 0), len(ids))
+        pts = _initial_patch_points(samples.points(ids), samples.weights(ids), count, seed + p)
         pos.append(pts)
         kind.append(np.full(len(pts), PATCH))
         owner.append(np.full(len(pts), p))
@@ -208,23 +211,24 @@ def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
     return full + [r if len(r) else f for r, f in zip(rim, full)]
 
 
-def sample_groups(samples: Samples, features: Features) -> np.ndarray:
-    """(f,) group of each sample for :func:`allowed`: its patch, plus ``n_patches`` beside a feature curve."""
-    patch = features.patch[samples.parent]
-    faces = samples.faces
-    n_v = len(samples.vertices)
-    lo = np.full(n_v, np.iinfo(np.int64).max)
-    hi = np.full(n_v, -1)
-    np.minimum.at(lo, faces.ravel(), np.repeat(patch, 3))
-    np.maximum.at(hi, faces.ravel(), np.repeat(patch, 3))
-    feature_vertex = lo != hi
-    if features.boundary_curve.any():  # open input: refined boundary vertices too
-        half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-        key = half[:, 0] * n_v + half[:, 1]
-        lone = ~isin(half[:, 1] * n_v + half[:, 0], key)
-        feature_vertex[half[lone].ravel()] = True
-    near = feature_vertex[faces].any(axis=1)
-    return patch + features.n_patches * near
+def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.ndarray:
+    """(f,) int32 group of each sample for :func:`allowed`: its patch, plus ``n_patches`` where its
+    refined face touches a feature curve or the open boundary (a refined vertex on an input vertex
+    or edge between two patches, or on the rim)."""
+    top = mesh.topology
+    pair = top.edge_pairs()
+    feature_edge = (top.edge_faces == 1) | ((pair[:, 1] >= 0) & (features.patch[pair[:, 0]]
+                                                                  != features.patch[np.maximum(pair[:, 1], 0)]))
+    lo = np.full(mesh.n_vertices, np.iinfo(np.int64).max)
+    hi = np.full(mesh.n_vertices, -1)
+    np.minimum.at(lo, mesh.faces.ravel(), np.repeat(features.patch, 3))
+    np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
+    flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
+    group = np.empty(samples.n_samples, np.int32)
+    for start in range(0, samples.n_samples, CHUNK):
+        ids = slice(start, min(start + CHUNK, samples.n_samples))
+        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.faces[ids]].any(axis=1)
+    return group
 
 
 def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
@@ -335,18 +339,23 @@ def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_r
 
 
 @njit(nogil=True, cache=True)
-def _lloyd_pass(points, weights, group, previous, positions, slot_ptr, slot_group, slot_row, table):
+def _lloyd_pass(vertices, faces, face_weight, per_face, group, previous, positions, slot_ptr, slot_group, slot_row,
+                table):
     """Nearest candidate generator of every sample, and the cells' weighted mass, first moments and energy.
 
-    One pass over the samples with no temporaries of their size: labels (f,), mass (n,),
+    One pass over the samples (centroids of the refined ``faces``, weight ``face_weight`` of
+    their input face ``i // per_face``) with no temporaries of their size: labels (f,) int32, mass (n,),
     moments (n, 3), energy (sum of w·d²).
     """
     n = len(positions)
-    labels = np.empty(len(points), np.int64)
+    labels = np.empty(len(faces), np.int32)
     mass = np.zeros(n)
     moment = np.zeros((n, 3))
     energy = 0.0
-    for i in range(len(points)):
+    point = np.empty(3)
+    for i in range(len(faces)):
+        for k in range(3):
+            point[k] = (vertices[faces[i, 0], k] + vertices[faces[i, 1], k] + vertices[faces[i, 2], k]) / 3.0
         c = previous[i]
         row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
         best, arg = np.inf, c
@@ -354,16 +363,16 @@ def _lloyd_pass(points, weights, group, previous, positions, slot_ptr, slot_grou
             g = table[row, j]
             if g < 0:
                 break
-            d = (points[i, 0] - positions[g, 0]) ** 2 + (points[i, 1] - positions[g, 1]) ** 2 \
-                + (points[i, 2] - positions[g, 2]) ** 2
+            d = (point[0] - positions[g, 0]) ** 2 + (point[1] - positions[g, 1]) ** 2 \
+                + (point[2] - positions[g, 2]) ** 2
             if d < best:
                 best, arg = d, g
         labels[i] = arg
-        w = weights[i]
+        w = face_weight[i // per_face]
         mass[arg] += w
-        moment[arg, 0] += w * points[i, 0]
-        moment[arg, 1] += w * points[i, 1]
-        moment[arg, 2] += w * points[i, 2]
+        moment[arg, 0] += w * point[0]
+        moment[arg, 1] += w * point[1]
+        moment[arg, 2] += w * point[2]
         energy += w * best
     return labels, mass, moment, energy
 
@@ -380,19 +389,30 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
     return labels
 
 
+@njit(cache=True)
+def _runs(group, per_face):
+    """(f,) int64 first sample of the run each sample is in: runs of samples of one input face
+    (``per_face`` consecutive samples) and one group."""
+    first = np.empty(len(group), np.int64)
+    for i in range(len(group)):
+        first[i] = i if i % per_face == 0 or group[i] != group[i - 1] else first[i - 1]
+    return first
+
+
 def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
     """A nearby allowed generator for every sample: the nearest one of the first sample of each run of
     samples with the same input face and group (refined faces are stored by input face), so the
-    KD-tree answers one query per input face instead of 4^levels."""
-    key = samples.parent * (len(allowed) + 1) + group
-    first = np.r_[True, key[1:] != key[:-1]]
-    rep = np.flatnonzero(first)
-    return assign(samples.points[rep], group[rep], positions, allowed)[np.cumsum(first) - 1]
+    KD-tree answers one query per input face instead of one per sample."""
+    first = _runs(group, samples.per_face)
+    rep = np.flatnonzero(first == np.arange(len(first)))
+    label = np.full(len(first), -1, np.int32)
+    label[rep] = assign(samples.points(rep), group[rep], positions, allowed)
+    return label[first]
 
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
           curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4, k: int = 10,
-          project_every: int = 3) -> LloydResult:
+          project_every: int = 3, near: float | None = None, surfaces: list | None = None) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
 
     Each step assigns every sample to the nearest of ``k`` candidates: the allowed generators
@@ -404,13 +424,14 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     for every sample). Patch generators move :data:`OVER_RELAXATION` times the way to their
     centroid and are projected back onto their patch every ``project_every`` steps (centroids
     sit off a curved surface by about L²/8R) and at the end; the returned labels belong to the
-    returned positions.
+    returned positions. ``near`` (nm, about the edge length): how far a moved generator is
+    expected to be from its patch (the projection's search reach; farther ones are found too).
+    ``surfaces``: the patches' closest-point engines (:func:`patch_surfaces`), built here if not given.
     """
-    scenes = patch_scenes(mesh, features)
+    surfaces = patch_surfaces(mesh, features) if surfaces is None else surfaces
     permitted = allowed(features, gens)
     candidates = _Candidates(permitted, len(gens.positions), k)
-    w = samples.weights * density
-    o3d = open3d()
+    w = samples.face_area * density / samples.per_face
     energy: list = []
     patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
@@ -419,12 +440,12 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     def project():
         for p, mine in enumerate(patch_ids):
             if len(mine):
-                out = scenes[p].compute_closest_points(o3d.core.Tensor(gens.positions[mine].astype(np.float32)))
-                gens.positions[mine] = out["points"].numpy()
+                gens.positions[mine] = surfaces[p].closest(gens.positions[mine], near)[0]
 
     on_surface = True
     for it in range(max_iter + 1):
-        labels, mass, moment, e = _lloyd_pass(samples.points, w, group, labels, gens.positions, candidates.slot_ptr,
+        labels, mass, moment, e = _lloyd_pass(samples.vertices, samples.faces, w, samples.per_face, group, labels,
+                                              gens.positions, candidates.slot_ptr,
                                               candidates.slot_group, candidates.slot_row,
                                               candidates.table(gens.positions))
         energy.append(float(e))
@@ -443,13 +464,14 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
                 gens.positions[order] = curve.at(gens.arc[order])
     if not on_surface:  # the last centroids were not projected: project, then label once more
         project()
-        labels = _lloyd_pass(samples.points, w, group, labels, gens.positions, candidates.slot_ptr,
+        labels = _lloyd_pass(samples.vertices, samples.faces, w, samples.per_face, group, labels, gens.positions,
+                             candidates.slot_ptr,
                              candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))[0]
     return LloydResult(gens, labels, energy)
 
 
-def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, group: np.ndarray,
-                  gens: Generators, n_patches: int, cells: np.ndarray, dissolve: np.ndarray) -> np.ndarray:
+def connect_cells(samples: Samples, labels: np.ndarray, group: np.ndarray, gens: Generators, n_patches: int,
+                  cells: np.ndarray, dissolve: np.ndarray) -> np.ndarray:
     """Labels with the restricted Voronoi cells ``cells`` ((n,) bool over generators) made connected.
 
     A cell can reach across a fold or a thin neck of a bumpy surface in Euclidean distance and
@@ -459,21 +481,19 @@ def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, gr
     and corner cells). Cells in ``dissolve`` ((n,) bool, a subset of ``cells``) give away all
     their pieces: their generators drop out of the mesh.
 
-    ``faces`` (f, 3) is the refined mesh, ``labels`` (f,) the generator of each refined face,
-    ``weights`` (f,) their areas, ``group`` (f,) their sample groups. Only the faces of
-    ``cells`` and their neighbours are looked at.
+    ``samples`` is the refined mesh, ``labels`` (f,) the generator of each refined face,
+    ``group`` (f,) their sample groups. Only the faces of ``cells`` and their neighbours are looked at.
     """
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-    from apt_filters.remesh.features import edge_faces, face_pairs
+    from apt_filters.core.mesh import topology
 
-    near = np.zeros(int(faces.max()) + 1, bool)
+    faces = samples.faces
+    near = np.zeros(len(samples.vertices), bool)
     near[faces[cells[labels]]] = True
     sub = np.flatnonzero(near[faces].any(axis=1))
-    edges, half_face, half_edge = edge_faces(faces[sub])
-    counts, pair = face_pairs(half_face, half_edge, len(edges))
-    a, b = pair[counts == 2].T  # local ids: faces sub[a], sub[b] share an edge
+    a, b = topology(faces[sub], len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
     local = labels[sub]
     n = len(sub)
     same = local[a] == local[b]
@@ -481,7 +501,7 @@ def connect_cells(faces: np.ndarray, labels: np.ndarray, weights: np.ndarray, gr
                                     directed=False)
     piece_label = np.empty(piece.max() + 1, np.int64)
     piece_label[piece] = local
-    heaviest = np.lexsort((-np.bincount(piece, weights[sub]), piece_label))
+    heaviest = np.lexsort((-np.bincount(piece, samples.weights(sub)), piece_label))
     first = np.r_[True, piece_label[heaviest][1:] != piece_label[heaviest][:-1]]
     orphan = (~isin(piece, heaviest[first]) & cells[local]) | dissolve[local]
     touch = orphan[a] | orphan[b]

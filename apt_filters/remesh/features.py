@@ -29,7 +29,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
-from apt_filters.remesh._arrays import unique, unique_rows
+from apt_filters.remesh._arrays import unique
 from apt_filters.core.mesh import TriMesh
 
 BRIDGE_FRACTION = 0.5  # a weak (bridging) edge bends by at least this fraction of the feature angle
@@ -67,29 +67,6 @@ class Features:
     @property
     def n_patches(self) -> int:
         return int(self.patch.max()) + 1 if len(self.patch) else 0
-
-
-def edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unique undirected edges, the face of each half-edge and the edge id of each half-edge.
-
-    Returns ``edges`` (e, 2), ``half_face`` (3m,) and ``half_edge`` (3m,) with
-    ``edges[half_edge[i]]`` the edge of half-edge ``i`` (face ``i // 3``, corner ``i % 3``).
-    """
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    edges, _, half_edge, _ = unique_rows(np.sort(half, axis=1))
-    return edges, np.repeat(np.arange(len(faces)), 3), half_edge.ravel()
-
-
-def face_pairs(half_face: np.ndarray, half_edge: np.ndarray, n_edges: int) -> tuple[np.ndarray, np.ndarray]:
-    """(e,) counts of faces per edge and (e, 2) the first two faces (-1 where missing)."""
-    order = np.argsort(half_edge, kind="stable")
-    counts = np.bincount(half_edge, minlength=n_edges)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pair = np.full((n_edges, 2), -1)
-    pair[:, 0] = half_face[order[start]]
-    two = counts >= 2
-    pair[two, 1] = half_face[order[start[two] + 1]]
-    return counts, pair
 
 
 def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray, lengths: np.ndarray,
@@ -136,7 +113,8 @@ def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray,
 def window_cos(pair: np.ndarray, half_edge: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(e,) per edge, the bend over a window of two faces as a cosine: the smallest cosine between
     the normal of one of its faces and the normal of a face next to the other one (1 on boundary
-    edges, ``pair`` as :func:`face_pairs` gives it)."""
+    edges; ``pair`` as :meth:`apt_filters.core.mesh.Topology.edge_pairs` gives it, ``half_edge`` (3m,) the
+    edge of each half-edge, :attr:`~apt_filters.core.mesh.Topology.face_edge` flattened)."""
     m = len(normals)
     own = np.repeat(np.arange(m), 3)
     other = np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0])
@@ -286,8 +264,8 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
         Join the gaps of creases whose bend is spread over two edges (see the module docstring).
     """
     faces = mesh.faces
-    edges, half_face, half_edge = edge_faces(faces)
-    counts, pair = face_pairs(half_face, half_edge, len(edges))
+    top = mesh.topology
+    edges, half_edge, counts, pair = top.edge_vertices, top.face_edge.ravel(), top.edge_faces, top.edge_pairs()
     normals = mesh.face_normals()
     manifold = counts == 2
     cos = np.ones(len(edges))

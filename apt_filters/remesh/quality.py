@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from apt_filters.contour.metrics import face_quality, sample_mesh
-from apt_filters.core.deps import open3d
+from apt_filters.core.checks import self_intersecting_faces
 from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh._arrays import isin, unique_rows
@@ -91,44 +91,6 @@ def topology(mesh: TriMesh) -> Topology:
                     int(t["non_two_manifold_edges"]), int(t["non_two_manifold_vertices"]))
 
 
-def self_intersections(mesh: TriMesh) -> int:
-    """Number of intersecting pairs of non-adjacent triangles (open3d's triangle-triangle test).
-
-    pymeshlab's ``compute_selection_by_self_intersections_per_face`` was tried first but flags
-    coplanar neighbours of a rotated exact box (258 faces of a mesh with none), so open3d's
-    test is the one used; it does count zero-area triangles that touch a neighbour. Its
-    coplanar branch also reports some pairs that lie in one plane with a gap between them
-    (0.8 of a 1-nm edge, on the faces of the rotated box), so coplanar pairs are checked again
-    in their plane (:func:`coplanar_overlap`) and only overlapping ones count.
-    """
-    o3d = open3d()
-    legacy = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
-                                       o3d.utility.Vector3iVector(mesh.faces.astype(np.int32)))
-    pairs = np.asarray(legacy.get_self_intersecting_triangles()).reshape(-1, 2)
-    if len(pairs) == 0:
-        return 0
-    a, b = mesh.vertices[mesh.faces[pairs[:, 0]]], mesh.vertices[mesh.faces[pairs[:, 1]]]
-    normal = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    offset = np.abs(np.einsum("pkj,pj->pk", b - a[:, :1], normal)).max(axis=1)
-    scale = np.linalg.norm(np.concatenate([a, b], axis=1) - a[:, :1], axis=2).max(axis=1)
-    coplanar = offset <= 1e-5 * scale
-    return int((~coplanar).sum() + coplanar_overlap(a[coplanar], b[coplanar], normal[coplanar]).sum())
-
-
-def coplanar_overlap(a: np.ndarray, b: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(p,) bool: do the triangles ``a`` (p, 3, 3) and ``b`` (p, 3, 3), lying in the planes of unit
-    ``normal`` (p, 3), overlap in that plane (separating-axis test on the six edge normals)?
-    Triangles that only touch count as overlapping."""
-    separated = np.zeros(len(a), bool)
-    for tri in (a, b):
-        for k in range(3):
-            axis = np.cross(normal, tri[:, (k + 1) % 3] - tri[:, k])
-            pa, pb = np.einsum("pkj,pj->pk", a, axis), np.einsum("pkj,pj->pk", b, axis)
-            separated |= (pa.max(axis=1) < pb.min(axis=1)) | (pb.max(axis=1) < pa.min(axis=1))
-    return ~separated
-
-
 @dataclass
 class Quality:
     """Summary of one mesh against the surface it stands for (``reference``)."""
@@ -140,7 +102,7 @@ class Quality:
     hausdorff: float
     non_manifold_edges: int
     non_manifold_vertices: int
-    self_intersections: int
+    self_intersections: int  # faces crossing another (core.checks.self_intersecting_faces)
     orientation_conflicts: int
     components: int
     boundary_loops: int
@@ -153,12 +115,11 @@ class Quality:
 def assess(mesh: TriMesh, reference: TriMesh, n_samples: int = 200_000, intersections: bool = True) -> Quality:
     """All the measures at once: angles, Q, Hausdorff to ``reference``, manifoldness, topology.
 
-    ``intersections=False`` skips the self-intersection test (open3d's is all-pairs: minutes
-    at 160k triangles) and reports -1 for it.
+    ``intersections=False`` skips the self-intersection test and reports -1 for it.
     """
     angles, q = face_quality(mesh)
     angles = angles.min(axis=1)
     topo = topology(mesh)
     return Quality(len(mesh.faces), float(angles.min()), float(np.mean(angles >= 30.0)), float(q.mean()), hausdorff(mesh, reference, n_samples),
-                   topo.non_manifold_edges, topo.non_manifold_vertices, self_intersections(mesh) if intersections else -1,
+                   topo.non_manifold_edges, topo.non_manifold_vertices, int(self_intersecting_faces(mesh.vertices, mesh.faces).sum()) if intersections else -1,
                    orientation_conflicts(mesh), topo.components, topo.boundary_loops, topo.genus)

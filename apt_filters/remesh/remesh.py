@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apt_filters.remesh._arrays import isin, unique, unique_rows
-from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.distance import SurfaceDistance
+from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.remesh import cvt, extract, features as feat, optimize, repair, verify as check
-from apt_filters.remesh.sampling import closest_points, refine
+from apt_filters.remesh.sampling import refine
 
 
 # Refined edges (90th percentile) are at most L / SAMPLES_PER_EDGE: about 40 samples per generator
@@ -78,7 +78,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     pipeline's refined cuboid (bends of radius 0.2-0.3 nm) left input points 0.20 nm from it
     (0.4 edge; 0.14 with the sagitta of equilateral triangles only).
     """
-    normals = extract.vertex_normals(mesh.vertices, mesh.faces)
+    normals = vertex_normals(mesh.vertices, mesh.faces)
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
     # vertices of two patches (on a feature curve or the rim) have normals mixed across the crease
     lo = np.full(mesh.n_vertices, np.iinfo(np.int64).max)
@@ -141,11 +141,10 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         face scalars from the nearest input face; ``checks`` and ``kept_input`` say which
         components were given back unchanged and why.
 
-    Peak memory is dominated by the refined copy (each input face split into 4^k faces so
-    that the 90th percentile of edge lengths is under L/2; 16x for marching-cubes input at
-    L = 1 voxel, a few hundred bytes per refined face): measured 1.39 GB peak RSS for a whole
-    benchmark process remeshing a 200k-face input at L = 1 voxel (3.2M refined faces; 0.41 GB
-    of it the libraries). Split very large meshes (e.g. by component) before remeshing.
+    Memory: the refined copy of the input (:func:`apt_filters.remesh.sampling.refine`: n² faces per
+    input face so that the 90th percentile of edge lengths is under L/2, 16 for marching-cubes input
+    at L = 1 voxel; 12 bytes per refined face and 24 per refined vertex) plus an int32 label and
+    group per sample; the rest scales with the output (docs/remesh.md, "Memory and time").
     """
     if mesh.n_faces == 0:
         raise AptFiltersError("mesh has no faces")
@@ -162,16 +161,18 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch)
-    density = rho_v[mesh.faces[samples.parent]].mean(axis=1)
+    density = rho_v[mesh.faces].mean(axis=1)  # per input face
     from scipy.spatial import cKDTree
 
     tree = cKDTree(mesh.vertices)
     vertex_density = lambda p: rho_v[tree.query(p)[1]]  # noqa: E731
     mark("sampling")
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
-    group = cvt.sample_groups(samples, features)
+    group = cvt.sample_groups(mesh, samples, features)
     mark("init")
-    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol)
+    surfaces = cvt.patch_surfaces(mesh, features)  # one closest-point engine per patch, for Lloyd and smoothing
+    result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge,
+                       surfaces=surfaces)
     labels = result.labels
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
@@ -187,8 +188,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         # curve generators too (a corner among the dozens a bumpy 3 nm sphere has at 40 deg kept a
         # hole), but never a generator of the open boundary
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
-        labels = cvt.connect_cells(samples.faces, labels, samples.weights, group, gens, features.n_patches, bad,
-                                   lone)
+        labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
     mark("connect")
     faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned), pinned)
@@ -196,11 +196,12 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     faces = faces.reshape(-1, 3)
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
-    vertices, faces = _optimise(mesh, features, gens.positions[used], faces, kind, owner, smooth_rounds)
-    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples.points, samples.normals,
-                                          samples.weights)
+    extracted = gens.positions[used]
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces)
+    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
+    vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
-    out = _transfer_scalars(mesh, TriMesh(vertices, faces))
+    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge)
     mark("scalars")
     checks = []
     if verify:
@@ -244,13 +245,13 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
-              kind: np.ndarray, owner: np.ndarray, rounds: int) -> tuple[np.ndarray, np.ndarray]:
+              kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
+              surfaces: list) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay."""
+    corners stay. Patch vertices are projected onto their patch (``surfaces``, :func:`cvt.patch_surfaces`),
+    searched within ``edge`` (nm) first."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
-    o3d = open3d()
-    scenes = cvt.patch_scenes(mesh, features)
     pinned = kind != cvt.PATCH
     boundary = optimize.boundary_vertices(TriMesh(vertices, faces))
     valence = np.bincount(faces.ravel(), minlength=len(vertices)).astype(float)
@@ -266,8 +267,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
         out = points.copy()
         for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
             sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
-            res = scenes[p].compute_closest_points(o3d.core.Tensor(points[sel].astype(np.float32)))
-            out[sel] = res["points"].numpy()
+            out[sel] = surfaces[p].closest(points[sel], edge)[0]
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
@@ -316,19 +316,17 @@ def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
     return near[np.arange(len(points)), best]
 
 
-def _transfer_scalars(source: TriMesh, target: TriMesh) -> TriMesh:
+def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float) -> TriMesh:
     """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
-    near = closest_points(source, target.vertices)
-    u, v = near["uv"].T
-    corners = source.faces[near["face"]]
+    surface = SurfaceDistance(source)
+    _, face, weights = surface.closest(target.vertices, edge)
+    corners = source.faces[face]
     for name, values in source.vertex_scalars.items():
-        values = np.asarray(values, np.float64)
-        target.vertex_scalars[name] = (1 - u - v) * values[corners[:, 0]] + u * values[corners[:, 1]] \
-            + v * values[corners[:, 2]]
+        target.vertex_scalars[name] = np.einsum("nk,nk->n", weights, np.asarray(values, np.float64)[corners])
     if source.face_scalars:
-        nearest = closest_points(source, target.vertices[target.faces].mean(axis=1))["face"]
+        nearest = surface.closest(target.vertices[target.faces].mean(axis=1), edge)[1]
         for name, values in source.face_scalars.items():
             target.face_scalars[name] = np.asarray(values)[nearest]
     return target

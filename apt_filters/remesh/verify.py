@@ -8,9 +8,9 @@ distance and area change within tolerances. A component that fails is given back
 ever changes the surface beyond the tolerances.
 
 Distances are measured from every vertex, edge midpoint and face centroid of one mesh to the
-other (open3d ray-casting scenes; exact point-to-triangle distances): on triangles no larger
+other (exact point-to-triangle distances, :mod:`apt_filters.core.distance`): on triangles no larger
 than the edge length, this misses a farther point by at most a quarter of an edge's sagitta.
-Peak memory: a few arrays of 7 x the number of faces of the larger mesh.
+Peak memory: the distance engine's grid of each mesh and the probes of 16k faces at a time.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh._arrays import unique_rows
 
@@ -80,17 +81,24 @@ def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.nd
     return chi, loops
 
 
-def _probe_points(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices, edge midpoints and face centroids of ``mesh``, and the face each belongs to."""
-    v = mesh.vertices[mesh.faces]
-    points = np.concatenate([v, 0.5 * (v + np.roll(v, -1, axis=1)), v.mean(axis=1, keepdims=True)], axis=1)
-    return points.reshape(-1, 3), np.repeat(np.arange(mesh.n_faces), 7)
+def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: float, chunk: int = 1 << 14) -> np.ndarray:
+    """(k,) for each group of ``mesh``'s faces (``group`` (f,) in 0 .. k-1, -1 left out), the farthest
+    distance (nm) of their vertices, edge midpoints and centroids from ``other`` (exact; ``chunk`` faces
+    at a time, so that the probes never exist all at once; searched within ``near`` nm first)."""
+    from apt_filters.core.distance import SurfaceDistance
 
-
-def _distance(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
-    from apt_filters.core.distance import mesh_distance
-
-    return mesh_distance(mesh, points) if len(points) else np.zeros(0)
+    out = np.zeros(k)
+    if other.n_faces == 0:
+        return out
+    surface = SurfaceDistance(other)
+    for start in range(0, mesh.n_faces, chunk):
+        part = np.arange(start, min(start + chunk, mesh.n_faces))
+        part = part[group[part] >= 0]
+        v = mesh.vertices[mesh.faces[part]]
+        probes = np.concatenate([v, 0.5 * (v + np.roll(v, -1, axis=1)), v.mean(axis=1, keepdims=True)], axis=1)
+        distance = np.abs(surface.nearest(probes.reshape(-1, 3), near).distance.astype(np.float64))
+        np.maximum.at(out, np.repeat(group[part], 7), distance)
+    return out
 
 
 def _rim_points(mesh: TriMesh, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -140,14 +148,8 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     pieces = np.bincount(pairs[real, 1] - 1, minlength=k)
     mixed = np.zeros(k, bool)
     mixed[pairs[real & shared, 1] - 1] = True
-    p_in, f_in = _probe_points(source)
-    p_out, f_out = _probe_points(result)
-    d_out = np.zeros(k)
-    d_in = np.zeros(k)
-    if result.n_faces:
-        np.maximum.at(d_in, source_component[f_in], _distance(result, p_in))
-        own = result_component[f_out] >= 0
-        np.maximum.at(d_out, result_component[f_out][own], _distance(source, p_out[own]))
+    d_in = farthest(source, result, source_component, k, tol)
+    d_out = farthest(result, source, result_component, k, tol)
     rim = np.zeros(k)
     r_in, rf_in = _rim_points(source, edge / 8)
     r_out, rf_out = _rim_points(result, edge / 8) if result.n_faces else (np.empty((0, 3)), np.empty(0, np.int64))
@@ -162,8 +164,8 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
             pts, comps, other = (r_in, source_component[rf_in], result) if len(r_in) else \
                 (r_out, result_component[rf_out], source)
             own = comps >= 0
-            if other.n_faces:
-                np.maximum.at(rim, comps[own], _distance(other, pts[own]))
+            if other.n_faces and own.any():
+                np.maximum.at(rim, comps[own], mesh_distance(other, pts[own]))
     area_in = np.bincount(source_component, source.face_areas(), minlength=k)
     own = result_component >= 0
     area_out = np.bincount(result_component[own], result.face_areas()[own], minlength=k)
