@@ -239,6 +239,17 @@ class Topology:
         chi = int(used.sum()) - len(self.edge_faces) + len(self._faces)
         return int((2 * self.n_components - chi - self.boundary_loops) // 2)
 
+    def edge_pairs(self) -> np.ndarray:
+        """(e, 2) int64 per edge its first face and, where exactly two faces use it, the other one
+        (-1 otherwise: boundary and non-manifold edges keep only their first face)."""
+        m = len(self.face_edge)
+        pair = np.full((len(self.edge_vertices), 2), -1, dtype=np.int64)
+        first = np.full(len(self.edge_vertices), m, dtype=np.int64)
+        np.minimum.at(first, self.face_edge.ravel(), np.repeat(np.arange(m, dtype=np.int64), 3))
+        pair[:, 0] = first
+        pair[self.edge_faces == 2] = self.face_pairs
+        return pair
+
 
 def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     for a in arrays:
@@ -292,17 +303,6 @@ def _face_components(faces, parent):
             n += 1
         components[f] = label[r]
     return components, n
-
-    def edge_pairs(self) -> np.ndarray:
-        """(e, 2) int64 per edge its first face and, where exactly two faces use it, the other one
-        (-1 otherwise: boundary and non-manifold edges keep only their first face)."""
-        m = len(self.face_edge)
-        pair = np.full((len(self.edge_vertices), 2), -1, dtype=np.int64)
-        first = np.full(len(self.edge_vertices), m, dtype=np.int64)
-        np.minimum.at(first, self.face_edge.ravel(), np.repeat(np.arange(m, dtype=np.int64), 3))
-        pair[:, 0] = first
-        pair[self.edge_faces == 2] = self.face_pairs
-        return pair
 
 
 _CACHE_SIZE = 8
