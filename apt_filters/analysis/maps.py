@@ -428,24 +428,26 @@ def patch_sums(points: np.ndarray, normals: np.ndarray, obj: np.ndarray, values:
 
 
 def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int,
-              lines: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+              like: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, ...]:
     """Excess (per nm²), its error, the inside and outside levels with errors of element k, the
     larger of its counted and reference atoms in the interface region, the excess count's
-    variance from counting in that region and from the plateau fits, and which plateaus were
-    fitted as lines ((..., 2) bool: outside, inside), from summed moments ``stats``
-    (..., 4, 3 + 2 E) over ``area`` (...) nm².
+    variance from counting in that region and from the plateau fits, which plateaus were fitted
+    as lines and the plateau windows' mean fractions ((..., 2) each: outside, inside), from summed
+    moments ``stats`` (..., 4, 3 + 2 E) over ``area`` (...) nm².
 
-    ``lines`` (..., 2) bool: fit those plateaus as lines and the others as constants (the
-    object's decision, see :func:`excess_maps`); None: keep a slope where it is significant, as
-    the proxigram's excess does.
+    ``like``: the object's (lines, window fractions), each (..., 2), for a patch of it: fit those
+    plateaus as lines and the others as constants, and count the levels' binomial variance at the
+    object's fractions (:func:`excess_maps`). None: keep a slope where it is significant and
+    count at the window's own fraction, as the proxigram's excess does.
     """
-    count, var_counts, var_levels, expected, kept = 0.0, 0.0, 0.0, 0.0, []
-    levels = []
+    count, var_counts, var_levels, expected, kept, means, levels = 0.0, 0.0, 0.0, 0.0, [], [], []
     for side, (r, window) in enumerate(((_BETWEEN_OUT, _MATRIX), (_BETWEEN_IN, _PRECIPITATE))):
-        slope = {} if lines is None else {"slope_sigmas": np.where(lines[..., side], 0.0, np.inf)}
-        with np.errstate(invalid="ignore"):
-            lv = levels_from_moments(stats[..., window, 0], stats[..., window, 1], stats[..., window, 2],
-                                     stats[..., window, 3 + k], stats[..., window, 3 + n_el + k], **slope)
+        w = stats[..., window, :]
+        given = {} if like is None else {"slope_sigmas": np.where(like[0][..., side], 0.0, np.inf),
+                                         "fraction": like[1][..., side]}
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lv = levels_from_moments(w[..., 0], w[..., 1], w[..., 2], w[..., 3 + k], w[..., 3 + n_el + k], **given)
+            means.append(w[..., 3 + k] / w[..., 0])
         total, n = stats[..., r, 0], stats[..., r, 3 + k]
         ref, var_ref = reference_counts(total, stats[..., r, 1], *lv)
         c = lv[0]
@@ -459,7 +461,7 @@ def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int,
     with np.errstate(invalid="ignore", divide="ignore"):
         return (count / area, np.sqrt(np.maximum(var_counts + var_levels, 0.0)) / area, in_level[0],
                 np.sqrt(in_level[2]), out_level[0], np.sqrt(out_level[2]), expected, var_counts, var_levels,
-                np.stack(kept, axis=-1))
+                np.stack(kept, axis=-1), np.stack(means, axis=-1))
 
 
 def _farthest_seeds(points: np.ndarray, k: int) -> np.ndarray:
@@ -584,9 +586,9 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
                            for c in range(flat.shape[1])], axis=1)
     object_area = per_object[:, -1]
     object_fit = [_evaluate(per_object[:, :-1].reshape(n_obj, 4, -1), object_area, k, n_el) for k in range(n_el)]
-    # whether a plateau has a gradient is decided once per object, from all its ions; a patch
-    # deciding from its own few would extrapolate the noise slopes it selected (module docstring)
-    object_lines = [f[9] for f in object_fit]
+    # whether a plateau has a gradient is decided once per object, from all its ions, and its
+    # levels' errors counted at the object's fractions (module docstring)
+    like = [(f[9], f[10]) for f in object_fit]
     object_window = _window_atoms(per_object)
     object_var = np.array([f[7] for f in object_fit])  # counting in the interface region
     object_counts = np.array([f[6] for f in object_fit])
@@ -614,7 +616,7 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
         for k in range(n_el):
             todo = ~done[k, active]
             fit = _evaluate(sums[:, :-1].reshape(len(active), 4, -1), sums[:, -1], k, n_el,
-                            object_lines[k][obj[active]])
+                            tuple(x[obj[active]] for x in like[k]))
             share = _window_atoms(sums) / object_window[obj[active]]
             predicted = np.sqrt(object_var[k, obj[active]] * share + fit[8]) / sums[:, -1]
             counted = object_counts[k, obj[active]] * share >= MIN_COUNTS
@@ -639,7 +641,7 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
         patch_object = np.zeros(n_patch, np.int64)
         patch_object[patch[used]] = obj[used]
         p_fit = _evaluate(patch_stats[:, :-1].reshape(n_patch, 4, -1), patch_stats[:, -1], k, n_el,
-                          object_lines[k][patch_object])
+                          tuple(x[patch_object] for x in like[k]))
         p_gamma, p_sigma = p_fit[:2]
         # the errors uniform segregation predicts for each patch (not its own counts: see _window_atoms)
         p_null = (np.sqrt(object_var[k, patch_object] * _window_atoms(patch_stats) / object_window[patch_object]
