@@ -288,33 +288,50 @@ class SurfaceMaps:
             normal = areal / np.linalg.norm(areal)
             elev = float(np.degrees(np.arcsin(np.clip(normal[2], -1, 1))))
             azim = float(np.degrees(np.arctan2(normal[1], normal[0])))
-            views = (("face-on", elev, azim), ("from behind", -20.0 if elev > 0 else 20.0, azim + 180.0))
+            # face-on, and tilted 50° towards the horizon to show its relief
+            tilt = elev - 50.0 if elev > 0 else elev + 50.0
+            views = (("face-on", elev, azim), ("tilted 50°", tilt, azim))
         else:
             views = (("front", 20.0, -60.0), ("back", -20.0, 120.0))
         fig = plt.figure(figsize=(10, 4.6), dpi=110)
         for k, (name, elev, azim) in enumerate(views):
             ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-            ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, linewidths=0))
+            ax.set_proj_type("ortho")
+            # the faces' own colour as edges: no seams between triangles
+            ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors=colors, linewidths=0.2))
             for axis, i in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), range(3)):
                 axis(centre[i] - half, centre[i] + half)
-            ax.set_xlabel("x (nm)")
-            ax.set_ylabel("y (nm)")
-            ax.set_zlabel("z (nm)")
+            ax.set_box_aspect((1, 1, 1))
+            for i, (label, ticks) in enumerate(((ax.set_xlabel, ax.set_xticks), (ax.set_ylabel, ax.set_yticks),
+                                                (ax.set_zlabel, ax.set_zticks))):
+                # an axis seen end-on has its ticks piled up: left unlabelled
+                seen = np.array([np.cos(np.radians(elev)) * np.cos(np.radians(azim)),
+                                 np.cos(np.radians(elev)) * np.sin(np.radians(azim)), np.sin(np.radians(elev))])
+                if abs(seen[i]) > 0.9:
+                    ticks([])
+                else:
+                    label(f"{'xyz'[i]} (nm)")
             ax.view_init(elev=elev, azim=azim)
             ax.set_title(f"{name} (elevation {elev:.0f}°, azimuth {azim % 360:.0f}°)", fontsize=8)
         if not np.isfinite(stats.p_value):
-            verdict = "too few patches to test its uniformity"
+            verdict = "too few patches to test whether it is uniform"
         elif stats.p_value < 0.05:
-            verdict = f"varies more than counting noise (p = {stats.p_value:.2g} for uniform segregation)"
+            verdict = (f"varies more than counting noise (uniform segregation: "
+                       f"p {'< 1e-6' if stats.p_value < 1e-6 else f'= {stats.p_value:.2g}'})")
         else:
             verdict = f"consistent with uniform segregation (p = {stats.p_value:.2g})"
-        fig.suptitle(title or (f"{solute} excess on object {object_id}: {stats.excess:.3g} ± {stats.excess_sigma:.2g} "
-                               f"{UNITS} over {stats.area:.0f} nm²; map {stats.map_p5:.3g} to {stats.map_p95:.3g} "
-                               f"(5th-95th %), {stats.n_patches} patches; {verdict}"), fontsize=9, wrap=True)
+        fig.suptitle(title or (f"{solute} excess on object {object_id} ({stats.area:.0f} nm²): "
+                               f"{stats.excess:.3g} ± {stats.excess_sigma:.2g} {UNITS}\nmap {stats.map_p5:.3g} to "
+                               f"{stats.map_p95:.3g} (5th-95th percentile) over {stats.n_patches} independent "
+                               f"patches; {verdict}"), fontsize=9)
         bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=fig.axes, shrink=0.7, pad=0.06)
         bar.set_label(f"{solute} excess ({UNITS})")
+        # the size of counting noise on the same scale: the map's mean ± its median standard error
+        bar.ax.errorbar([0.5], [stats.map_mean], yerr=[stats.median_sigma], color="red", capsize=4, lw=1.5)
+        bar.ax.text(-0.2, stats.map_mean, "patch\n±1 SE", color="red", fontsize=8, ha="right", va="center",
+                    transform=bar.ax.get_yaxis_transform())
         with atomic_output(path, overwrite) as tmp:
-            fig.savefig(tmp, format="png")
+            fig.savefig(tmp, format="png", bbox_inches="tight")
         plt.close(fig)
         return Path(path)
 
@@ -445,11 +462,11 @@ def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int,
         w = stats[..., window, :]
         given = {} if like is None else {"slope_sigmas": np.where(like[0][..., side], 0.0, np.inf),
                                          "fraction": like[1][..., side]}
-        with np.errstate(invalid="ignore", divide="ignore"):
+        total, n = stats[..., r, 0], stats[..., r, 3 + k]
+        with np.errstate(invalid="ignore", divide="ignore"):  # empty windows: NaN levels
             lv = levels_from_moments(w[..., 0], w[..., 1], w[..., 2], w[..., 3 + k], w[..., 3 + n_el + k], **given)
             means.append(w[..., 3 + k] / w[..., 0])
-        total, n = stats[..., r, 0], stats[..., r, 3 + k]
-        ref, var_ref = reference_counts(total, stats[..., r, 1], *lv)
+            ref, var_ref = reference_counts(total, stats[..., r, 1], *lv)
         c = lv[0]
         count = count + n - ref
         expected = expected + np.maximum(n, ref)
