@@ -59,6 +59,41 @@ def test_map_recovers_the_designed_segregation_within_its_errors(mapped):
     assert 0.8 <= np.std(z_levels) <= 1.2
 
 
+def detected_fraction(specimen, composition: dict, element: str) -> float:
+    """The fraction of ``element`` a detector reports in a phase of true ``composition``: the
+    specimen's own ions tell how often each true species (and the uniform background) is ranged
+    as each element (the synthetic spectrum's ranges and noise)."""
+    species = np.asarray(specimen.ions.extra["species"])
+    ranged = specimen.ranges.ion_index(np.asarray(specimen.ions.mz))
+    counts = specimen.ranges.element_matrix()[ranged] * (ranged >= 0)[:, None]
+    col = list(specimen.ranges.elements).index(element)
+    names = specimen.truth["species"]
+    noise = species < 0
+    rate = {name: counts[species == k].sum(axis=0) / np.count_nonzero(species == k) for k, name in enumerate(names)}
+    ions = sum(x * rate[name] for name, x in composition.items())
+    ions = (1 - noise.mean()) * ions + noise.mean() * counts[noise].sum(axis=0) / noise.sum()
+    return float(ions[col] / ions.sum())
+
+
+def test_trace_composition_maps_have_right_errors(mapped):
+    # B at 0.5 at.% in both phases: each disjoint patch's plateau levels (one vertex per patch, its
+    # own patch) against the detected fraction the synthetic detector produces in each phase
+    z = []
+    for kind, (specimen, surface, maps, truth) in mapped.items():
+        feature = specimen.spec.features[0]
+        c_in = detected_fraction(specimen, feature.composition, "B")
+        c_out = detected_fraction(specimen, specimen.spec.matrix, "B")
+        assert 0.004 < c_out < 0.006 and 0.004 < c_in < 0.006
+        m = maps.maps["B"]
+        idx = np.flatnonzero(m.patch >= 0)
+        first = idx[np.unique(m.patch[idx], return_index=True)[1]]
+        z += [(m.c_in[first] - c_in) / m.c_in_sigma[first], (m.c_out[first] - c_out) / m.c_out_sigma[first]]
+    z = np.concatenate(z)
+    assert len(z) > 150 and np.isfinite(z).all()
+    assert abs(np.mean(z)) < 0.25
+    assert 0.8 <= np.std(z) <= 1.2
+
+
 @pytest.mark.parametrize("kind", MAP_SPECIMENS)
 def test_map_mean_is_the_object_excess_and_the_proxigram_definition(mapped, kind):
     specimen, surface, maps, truth = mapped[kind]

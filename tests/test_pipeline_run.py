@@ -272,7 +272,9 @@ def test_maps_reach_the_ply_and_the_report(small_run):
     mesh = read_ply(out / "meshes" / "Al15.ply")
     for name in ("excess_B", "excess_B_sigma", "c_in_B", "c_out_B", "patch_radius_B"):
         assert name in mesh.vertex_scalars, name
-    assert (out / "map_Al15.png").is_file()
+    # one picture per object, its colour bar in detected atoms/nm²
+    assert sorted(p.name for p in out.glob("map_Al15_*.png")) == sorted(
+        f"map_Al15_{r['object_id']}.png" for r in rows)
     assert "Excess maps along the surface" in (out / "report.html").read_text()
     # MeshLab shows the map at once: it is the vertex quality, its meaning and range in the header
     header = (out / "meshes" / "Al15.ply").read_bytes().split(b"end_header")[0].decode()

@@ -102,7 +102,7 @@ class Excess:
     window_nm: tuple[float, float]
 
 
-def levels_from_moments(w0, w1, w2, m0, m1, slope_sigmas: float = 2.0) -> tuple[np.ndarray, ...]:
+def levels_from_moments(w0, w1, w2, m0, m1, slope_sigmas=2.0, fraction=None) -> tuple[np.ndarray, ...]:
     """Weighted straight-line fits ``c(s) = a + b s`` from the moments of binned counts, vectorised.
 
     Parameters
@@ -112,21 +112,27 @@ def levels_from_moments(w0, w1, w2, m0, m1, slope_sigmas: float = 2.0) -> tuple[
         s: bin centre, nm).
     m0, m1 : array_like (...)
         Sums of ``n`` and ``n s`` (n: the species' counts per bin).
-    slope_sigmas : float
+    slope_sigmas : float or array_like (...)
         A slope below this many standard errors is not significant and the level is the
-        window's mean fraction instead (0: always keep the line).
+        window's mean fraction instead (0: always keep the line; inf: never).
+    fraction : array_like (...), optional
+        The fraction whose binomial variance the covariance uses (default: the window's own
+        mean fraction). A small window's own count of a trace element makes its error small
+        exactly where its count fluctuated low (none: an error of 0); a fraction known from
+        more ions (e.g. the whole interface's plateau) does not.
 
     Returns
     -------
     value, slope, cov00, cov01, cov11 : (...) float64
         Level at s = 0, slope (0 where not significant) and the covariance of (a, b) under
-        binomial counting (variance c (1 - c) / N per bin, c the window's mean fraction); NaN
-        where the window holds no ions. One bin (or a singular design) gives a constant level.
+        binomial counting (variance c (1 - c) / N per bin, c ``fraction`` or the window's mean
+        fraction); NaN where the window holds no ions. One bin (or a singular design) gives a
+        constant level.
     """
     w0, w1, w2, m0, m1 = (np.asarray(x, dtype=np.float64) for x in (w0, w1, w2, m0, m1))
     with np.errstate(invalid="ignore", divide="ignore"):
         c = m0 / w0
-        var = c * (1 - c)
+        var = c * (1 - c) if fraction is None else np.asarray(fraction) * (1 - np.asarray(fraction))
         det = w0 * w2 - w1 ** 2
         # the design's condition number, from the eigenvalues of the 2 x 2 normal matrix
         half_trace = 0.5 * (w0 + w2)

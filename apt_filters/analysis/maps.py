@@ -25,7 +25,13 @@ gives exactly what
 plateaus fitted as straight lines over the windows (slope kept only where significant), the
 excess counted against them in ``|s| < inner``, divided by the patch's area. The same definition
 as the per-object excess, so the area-weighted mean of the map is the object's excess within its
-error. The counting variance of the excess is Poisson, ``(1 - c)² n + c² (N - n)`` on each side
+error. Whether a plateau is a line or a constant is decided once per object (its slope significant
+at 2 standard errors, from all its ions) and every patch of the object fits the same form: a patch
+deciding from its own few ions would keep the noise slopes that pass the test and extrapolate them
+to the surface with errors that ignore the selection (pre-test estimation; it made the errors
+2-5 % small and the uniformity test fire too often). The levels' binomial variance is counted at the
+object's window fraction for the same reason: a patch's own count of a trace element makes its
+error small where the count fluctuated low. The counting variance of the excess is Poisson, ``(1 - c)² n + c² (N - n)`` on each side
 (c the plateau level): solute and other atoms are drawn independently, as the atoms a detector
 samples are; the plateaus add their fitted variance.
 
@@ -57,6 +63,7 @@ Vandervorst, Cairney (2015) Ultramicroscopy 159, 438 (excess per surface element
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -234,18 +241,28 @@ class SurfaceMaps:
             return (p, -z)
         return min(self.maps, key=key, default=None)
 
-    def limits(self, solute: str) -> tuple[float, float]:
-        """Colour range of a map from its data: the area-weighted 2nd and 98th percentiles."""
+    def limits(self, solute: str, object_id: int | None = None) -> tuple[float, float]:
+        """Colour range of a map from its data: the area-weighted 2nd and 98th percentiles over the
+        surface, or over one object."""
         values = self.maps[solute].excess
         ok = np.isfinite(values) & (self.vertex_area > 0)
+        if object_id is not None:
+            ok &= self.vertex_object == object_id
         if not ok.any():
             return (0.0, 1.0)
         lo, hi = _weighted_quantiles(values[ok], self.vertex_area[ok], [0.02, 0.98])
         return (lo, hi) if hi > lo else (lo - 1.0, hi + 1.0)
 
-    def plot(self, path: str | os.PathLike, mesh: TriMesh, solute: str, title: str | None = None,
+    def plot(self, path: str | os.PathLike, mesh: TriMesh, solute: str, object_id: int, title: str | None = None,
              overwrite: bool = False, max_faces: int = 60_000) -> Path:
-        """PNG of ``solute``'s excess map on ``mesh`` (two views) with a colour bar in detected atoms/nm²."""
+        """PNG of ``solute``'s excess map on one object of ``mesh`` (the mesh the maps were made on).
+
+        Two views: an interface that faces one way on average (an open one) face-on and obliquely
+        from behind; a closed object from two opposite sides. The colours span the object's own
+        area-weighted 2nd-98th percentiles, in detected atoms/nm² on the colour bar; vertices
+        without a patch are grey. The title states the object's excess with its error, the map's
+        5th-95th percentiles and the test of uniform segregation in words.
+        """
         import matplotlib
 
         matplotlib.use("Agg")
@@ -255,35 +272,71 @@ class SurfaceMaps:
         from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
         m = self.maps[solute]
-        faces = mesh.faces[:: max(1, mesh.n_faces // max_faces)]
-        value = np.nanmean(m.excess[faces], axis=1) if len(faces) else np.zeros(0)
-        norm = Normalize(*self.limits(solute))
+        [stats] = [s for s in m.objects if s.object_id == object_id] or [None]
+        mine = np.flatnonzero(face_objects(mesh) == object_id)
+        if stats is None or not len(mine):
+            raise AptFiltersError(f"no {solute} map on object {object_id}")
+        faces = mesh.faces[mine[:: max(1, len(mine) // max_faces)]]
+        with warnings.catch_warnings():  # a face without any patched corner stays NaN (grey)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            value = np.nanmean(m.excess[faces], axis=1)
+        norm = Normalize(*self.limits(solute, object_id))
         colors = colormaps["viridis"](norm(np.nan_to_num(value, nan=norm.vmin)))
         colors[~np.isfinite(value)] = (0.6, 0.6, 0.6, 1.0)
-        fig = plt.figure(figsize=(11, 5), dpi=110)
-        lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-        centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-        # from the side the surface faces on average (an interface seen flat on), and obliquely from behind
-        normal = mesh.face_normals(normalize=False).sum(axis=0)
-        normal = normal / max(np.linalg.norm(normal), 1e-300)
-        elev = float(np.degrees(np.arcsin(np.clip(normal[2], -1, 1)))) if np.linalg.norm(normal) > 0 else 20.0
-        azim = float(np.degrees(np.arctan2(normal[1], normal[0])))
-        for k, (elev, azim) in enumerate(((elev, azim), (20.0, azim + 180.0))):
+        tris = mesh.vertices[faces]
+        lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
+        centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 1e-6)
+        # the area-weighted mean normal: about 0 for a closed object, about 1 for a flat interface
+        areal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]).sum(axis=0)
+        facing = np.linalg.norm(areal) / max(np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0],
+                                                                      tris[:, 2] - tris[:, 0]), axis=1).sum(), 1e-300)
+        if facing > 0.3:
+            normal = areal / np.linalg.norm(areal)
+            elev = float(np.degrees(np.arcsin(np.clip(normal[2], -1, 1))))
+            azim = float(np.degrees(np.arctan2(normal[1], normal[0])))
+            # face-on, and tilted 50° towards the horizon to show its relief
+            tilt = elev - 50.0 if elev > 0 else elev + 50.0
+            views = (("face-on", elev, azim), ("tilted 50°", tilt, azim))
+        else:
+            views = (("front", 20.0, -60.0), ("back", -20.0, 120.0))
+        fig = plt.figure(figsize=(10, 4.6), dpi=110)
+        for k, (name, elev, azim) in enumerate(views):
             ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-            ax.add_collection3d(Poly3DCollection(mesh.vertices[faces], facecolors=colors, linewidths=0))
+            ax.set_proj_type("ortho")
+            # the faces' own colour as edges: no seams between triangles
+            ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors=colors, linewidths=0.2))
             for axis, i in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), range(3)):
                 axis(centre[i] - half, centre[i] + half)
-            ax.set_xlabel("x (nm)")
-            ax.set_ylabel("y (nm)")
-            ax.set_zlabel("z (nm)")
+            ax.set_box_aspect((1, 1, 1))
+            for i, (label, ticks) in enumerate(((ax.set_xlabel, ax.set_xticks), (ax.set_ylabel, ax.set_yticks),
+                                                (ax.set_zlabel, ax.set_zticks))):
+                # an axis seen end-on has its ticks piled up: left unlabelled
+                seen = np.array([np.cos(np.radians(elev)) * np.cos(np.radians(azim)),
+                                 np.cos(np.radians(elev)) * np.sin(np.radians(azim)), np.sin(np.radians(elev))])
+                if abs(seen[i]) > 0.9:
+                    ticks([])
+                else:
+                    label(f"{'xyz'[i]} (nm)")
             ax.view_init(elev=elev, azim=azim)
-        tests = "; ".join(f"object {s.object_id}: p = {s.p_value:.2g}" for s in m.objects[:4]
-                          if np.isfinite(s.p_value))
-        fig.suptitle(title or f"{solute} excess map" + (f" ({tests})" if tests else ""), fontsize=9)
-        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=fig.axes, shrink=0.6, pad=0.08)
+            ax.set_title(f"{name} (elevation {elev:.0f}°, azimuth {azim % 360:.0f}°)", fontsize=8, pad=16)
+        if not np.isfinite(stats.p_value):
+            verdict = "too few patches to test whether it is uniform"
+        elif stats.p_value < 0.05:
+            verdict = (f"varies more than counting noise (uniform segregation: "
+                       f"p {'< 1e-6' if stats.p_value < 1e-6 else f'= {stats.p_value:.2g}'})")
+        else:
+            verdict = f"consistent with uniform segregation (p = {stats.p_value:.2g})"
+        fig.suptitle(title or (f"{solute} excess on object {object_id} ({stats.area:.0f} nm²): "
+                               f"{stats.excess:.3g} ± {stats.excess_sigma:.2g} {UNITS}\nmap {stats.map_p5:.3g} to "
+                               f"{stats.map_p95:.3g} (5th-95th percentile) over {stats.n_patches} independent "
+                               f"patches; {verdict}"), fontsize=9)
+        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap="viridis"), ax=fig.axes, shrink=0.7, pad=0.06)
         bar.set_label(f"{solute} excess ({UNITS})")
+        # the size of counting noise on the same scale: the map's mean ± its median standard error
+        bar.ax.errorbar([0.5], [stats.map_mean], yerr=[stats.median_sigma], color="red", capsize=4, lw=1.5)
+        bar.ax.set_xlabel("red: a patch's\n±1 SE", color="red", fontsize=7)
         with atomic_output(path, overwrite) as tmp:
-            fig.savefig(tmp, format="png")
+            fig.savefig(tmp, format="png", bbox_inches="tight")
         plt.close(fig)
         return Path(path)
 
@@ -396,29 +449,41 @@ def patch_sums(points: np.ndarray, normals: np.ndarray, obj: np.ndarray, values:
                       lo, dims, keys[order], order)
 
 
-def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int) -> tuple[np.ndarray, ...]:
+def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int,
+              like: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, ...]:
     """Excess (per nm²), its error, the inside and outside levels with errors of element k, the
-    larger of its counted and reference atoms in the interface region, and the excess count's
-    variance from counting in that region and from the plateau fits, from summed moments
-    ``stats`` (..., 4, 3 + 2 E) over ``area`` (...) nm²."""
-    def level(r):
-        return levels_from_moments(stats[..., r, 0], stats[..., r, 1], stats[..., r, 2],
-                                   stats[..., r, 3 + k], stats[..., r, 3 + n_el + k])
+    larger of its counted and reference atoms in the interface region, the excess count's
+    variance from counting in that region and from the plateau fits, which plateaus were fitted
+    as lines and the plateau windows' mean fractions ((..., 2) each: outside, inside), from summed
+    moments ``stats`` (..., 4, 3 + 2 E) over ``area`` (...) nm².
 
-    count, var_counts, var_levels, expected = 0.0, 0.0, 0.0, 0.0
-    sides = ((_BETWEEN_OUT, level(_MATRIX)), (_BETWEEN_IN, level(_PRECIPITATE)))
-    for r, lv in sides:
+    ``like``: the object's (lines, window fractions), each (..., 2), for a patch of it: fit those
+    plateaus as lines and the others as constants, and count the levels' binomial variance at the
+    object's fractions (:func:`excess_maps`). None: keep a slope where it is significant and
+    count at the window's own fraction, as the proxigram's excess does.
+    """
+    count, var_counts, var_levels, expected, kept, means, levels = 0.0, 0.0, 0.0, 0.0, [], [], []
+    for side, (r, window) in enumerate(((_BETWEEN_OUT, _MATRIX), (_BETWEEN_IN, _PRECIPITATE))):
+        w = stats[..., window, :]
+        given = {} if like is None else {"slope_sigmas": np.where(like[0][..., side], 0.0, np.inf),
+                                         "fraction": like[1][..., side]}
         total, n = stats[..., r, 0], stats[..., r, 3 + k]
-        ref, var_ref = reference_counts(total, stats[..., r, 1], *lv)
+        with np.errstate(invalid="ignore", divide="ignore"):  # empty windows: NaN levels
+            lv = levels_from_moments(w[..., 0], w[..., 1], w[..., 2], w[..., 3 + k], w[..., 3 + n_el + k], **given)
+            means.append(w[..., 3 + k] / w[..., 0])
+            ref, var_ref = reference_counts(total, stats[..., r, 1], *lv)
         c = lv[0]
         count = count + n - ref
         expected = expected + np.maximum(n, ref)
         var_counts = var_counts + (1 - c) ** 2 * n + c ** 2 * (total - n)
         var_levels = var_levels + var_ref
-    out_level, in_level = sides[0][1], sides[1][1]
+        kept.append(lv[1] != 0)
+        levels.append(lv)
+    out_level, in_level = levels
     with np.errstate(invalid="ignore", divide="ignore"):
         return (count / area, np.sqrt(np.maximum(var_counts + var_levels, 0.0)) / area, in_level[0],
-                np.sqrt(in_level[2]), out_level[0], np.sqrt(out_level[2]), expected, var_counts, var_levels)
+                np.sqrt(in_level[2]), out_level[0], np.sqrt(out_level[2]), expected, var_counts, var_levels,
+                np.stack(kept, axis=-1), np.stack(means, axis=-1))
 
 
 def _farthest_seeds(points: np.ndarray, k: int) -> np.ndarray:
@@ -543,6 +608,9 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
                            for c in range(flat.shape[1])], axis=1)
     object_area = per_object[:, -1]
     object_fit = [_evaluate(per_object[:, :-1].reshape(n_obj, 4, -1), object_area, k, n_el) for k in range(n_el)]
+    # whether a plateau has a gradient is decided once per object, from all its ions, and its
+    # levels' errors counted at the object's fractions (module docstring)
+    like = [(f[9], f[10]) for f in object_fit]
     object_window = _window_atoms(per_object)
     object_var = np.array([f[7] for f in object_fit])  # counting in the interface region
     object_counts = np.array([f[6] for f in object_fit])
@@ -569,7 +637,8 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
         last = radius >= diameter[obj[active]]
         for k in range(n_el):
             todo = ~done[k, active]
-            fit = _evaluate(sums[:, :-1].reshape(len(active), 4, -1), sums[:, -1], k, n_el)
+            fit = _evaluate(sums[:, :-1].reshape(len(active), 4, -1), sums[:, -1], k, n_el,
+                            tuple(x[obj[active]] for x in like[k]))
             share = _window_atoms(sums) / object_window[obj[active]]
             predicted = np.sqrt(object_var[k, obj[active]] * share + fit[8]) / sums[:, -1]
             counted = object_counts[k, obj[active]] * share >= MIN_COUNTS
@@ -591,10 +660,11 @@ def excess_maps(*, mesh: TriMesh, ions: IonTable | Iterable[IonTable], ranges: R
         n_patch = int(patch.max()) + 1
         patch_stats = np.stack([np.bincount(patch[used], flat[used, c], minlength=n_patch)
                                 for c in range(flat.shape[1])], axis=1)
-        p_fit = _evaluate(patch_stats[:, :-1].reshape(n_patch, 4, -1), patch_stats[:, -1], k, n_el)
-        p_gamma, p_sigma = p_fit[:2]
         patch_object = np.zeros(n_patch, np.int64)
         patch_object[patch[used]] = obj[used]
+        p_fit = _evaluate(patch_stats[:, :-1].reshape(n_patch, 4, -1), patch_stats[:, -1], k, n_el,
+                          tuple(x[patch_object] for x in like[k]))
+        p_gamma, p_sigma = p_fit[:2]
         # the errors uniform segregation predicts for each patch (not its own counts: see _window_atoms)
         p_null = (np.sqrt(object_var[k, patch_object] * _window_atoms(patch_stats) / object_window[patch_object]
                           + p_fit[8]) / patch_stats[:, -1])

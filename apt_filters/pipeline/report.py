@@ -365,7 +365,7 @@ ul.run{margin:.2em 0;padding-left:1.2em;color:#444}
 table{border-collapse:collapse;font-variant-numeric:tabular-nums}
 td,th{border:1px solid #ddd;padding:2px 7px;text-align:right;white-space:nowrap}
 th{background:#f3f3f3;font-weight:600}td:first-child,th:first-child,td.t{text-align:left}
-table.summary td{font-size:1.05em}
+table.summary td{font-size:1.05em}table.wrap th{white-space:normal;min-width:4em}
 .scroll{overflow-x:auto;max-width:100%}
 .cards{display:flex;gap:2em;flex-wrap:wrap}
 figure{display:inline-block;margin:.5em;vertical-align:top}figure img{max-height:620px;max-width:100%}
@@ -405,15 +405,17 @@ def _maps(rows: list[dict]) -> str:
     def num(v, f=".3g"):
         return "-" if v is None else format(v, f)
     header = ["solute", "object", "excess (detected atoms/nm²)", "map mean", "map 5th-95th %", "patch error level",
-              "median patch radius (nm)", "disjoint patches", "chi² / dof", "p (uniform)", "spread beyond noise"]
+              "median patch radius (nm)", "disjoint patches", "chi² / dof", "p (uniform)", "verdict",
+              "spread beyond noise (detected atoms/nm²)"]
     body = [[r["solute"], str(r["object_id"]), f"{num(r['excess'])} ± {num(r['excess_sigma'], '.2g')}",
              num(r["map_mean"]), f"{num(r['map_p5'])} to {num(r['map_p95'])}", num(r["target_sigma"], ".2g"),
              num(r["median_radius"], ".2g"), str(r["n_patches"]),
              f"{num(r['chi2'], '.3g')} / {r['dof']}" if r["dof"] else "-", num(r["p_value"], ".2g"),
+             "-" if r["p_value"] is None else "varies" if r["p_value"] < 0.05 else "uniform within noise",
              num(r["spread"], ".2g")] for r in rows]
     return ("<h3>Excess maps along the surface</h3><p>Local excess per vertex from a patch around it; p: chi-square "
             "test of uniform segregation over disjoint patches (below 0.05: the map varies more than counting "
-            "noise).</p>" + _table(header, body))
+            "noise).</p>" + _table(header, body, "wrap"))
 
 
 def write_page(path: Path, title: str, sections: list[tuple[str, object]],

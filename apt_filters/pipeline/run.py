@@ -84,6 +84,8 @@ class SurfaceResult:
     """The ions the analyses read (:func:`~apt_filters.pipeline.surface.analysis_ions`)."""
     quality: tuple | None = None
     """(vertex scalar, colour range, meaning) MeshLab shows as quality; None: the scene's local composition."""
+    map_pictures: list[tuple[Path, str]] = field(default_factory=list)
+    """(PNG, caption) of the shown excess map, one per object (the largest :data:`MAP_PICTURES`)."""
 
     def report(self) -> dict:
         return {"label": self.label, "species": self.surface.species, "iso": self.surface.iso,
@@ -242,7 +244,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
                      f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
     if config.analysis.maps:
         with log.step("maps") as s:
-            res.maps = _maps(res, near, ranges, solutes, config, stage / f"map_{label}.png")
+            res.maps = _maps(res, near, ranges, solutes, config, stage)
             tested = [m for m in res.maps if m["p_value"] is not None]
             s.summary = f"{label}: " + ("; ".join(
                 f"{m['solute']} on object {m['object_id']}: p = {m['p_value']:.2g}" for m in tested[:4])
@@ -313,18 +315,22 @@ def run_pipeline(config: PipelineConfig, out: str | Path, force: bool = False, q
         pictures += [(stage / f"proxigram_{r.label}.png", f"Proxigram across {r.label}, all objects pooled: "
                       "ion (top) and atomic (bottom) concentration against the distance to the surface, "
                       "positive inside; bars are binomial standard errors.") for r in results]
-        pictures += [(stage / f"map_{r.label}.png", f"The most significant excess map on {r.label}: detected atoms "
-                      "per nm² per vertex, seen face-on and from behind (grey: no patch).") for r in results if r.maps]
+        pictures += [picture for r in results for picture in r.map_pictures]
         pictures.append((stage / "legend.png", "Legend of the MeshLab scene (project.mlp): each surface's colour, "
                          "the composition near it, and the ions drawn per species."))
         rep.write_html(stage / "report.html", report, pictures)
     return report
 
 
-def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: PipelineConfig, picture: Path) -> list[dict]:
+MAP_PICTURES = 6
+"""Objects per surface whose excess map gets its own picture in the report (the largest)."""
+
+
+def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: PipelineConfig, stage: Path) -> list[dict]:
     """Excess maps of ``solutes`` on ``res.mesh``: vertex properties on the mesh (PLY properties
-    ``excess_<El>`` ...), a picture of the most significant one; returns the statistics rows."""
-    from apt_filters.analysis.maps import excess_maps
+    ``excess_<El>`` ...), a picture of the most significant one per object (``map_<label>_<object>.png``,
+    the :data:`MAP_PICTURES` largest objects, into ``res.map_pictures``); returns the statistics rows."""
+    from apt_filters.analysis.maps import UNITS, excess_maps
 
     if not solutes:
         return []
@@ -333,7 +339,16 @@ def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: Pipeline
                        relative_error=config.analysis.map_error)
     res.mesh.vertex_scalars.update(maps.vertex_scalars())
     shown = maps.most_significant()
-    maps.plot(picture, res.mesh, shown, overwrite=True)
+    objects = sorted(maps.maps[shown].objects, key=lambda o: -o.area)
+    for o in objects[:MAP_PICTURES]:
+        path = maps.plot(stage / f"map_{res.label}_{o.object_id}.png", res.mesh, shown, o.object_id, overwrite=True)
+        res.map_pictures.append((path, f"{shown} excess map on object {o.object_id} of {res.label}: the local excess "
+                                 f"at each vertex, from the ions near a patch around it (median patch radius "
+                                 f"{o.median_radius:.2g} nm, median error {o.median_sigma:.2g} {UNITS}); grey: no "
+                                 "patch. The colours span this object's own range."
+                                 + (f" Drawn for the {MAP_PICTURES} largest of {len(objects)} objects; every "
+                                    f"object's map is in meshes/{res.label}.ply." if len(objects) > MAP_PICTURES
+                                    else "")))
     res.quality = (f"excess_{shown}", maps.limits(shown),
                    f"{shown} interfacial excess map, detected atoms/nm2 (analysis.maps; error: excess_{shown}_sigma)")
     return maps.rows()
