@@ -5,7 +5,7 @@ distance. :class:`ZeroSet` samples the surface ``{F = 0}`` densely (marching cub
 grid, every vertex then moved onto the surface by Newton steps along ``grad F``, so the samples lie on
 it to ~1e-12 nm) and answers a distance query by a foot-point iteration from the nearest sample: the query is
 dropped onto the tangent plane there and the result moved onto the surface again, which leaves a
-second-order error (tested against brute force).
+second-order error (within 5e-3 nm of brute force on surfaces curved up to 6 nm^-1; tested).
 The sign is the sign of ``F`` itself, so the zero set, and with it the true surface, is exact.
 
 Level-set areas come from Steiner's formula with the principal curvatures at each sample (from the
@@ -50,6 +50,7 @@ class ZeroSet:
     COARSE = 0.4
     NEAR = 1.5
     FOOT_STEPS = 6
+    KNOTS = 257
 
     def __init__(self, fn: Field, grad: Field, lower, upper, spacing: float):
         from scipy.spatial import cKDTree
@@ -141,11 +142,14 @@ class ZeroSet:
         return out
 
     def level_area(self, d: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
-        """Steiner areas (nm²) of the level sets at d (k,) nm, over the samples ``keep`` (default all)."""
+        """Steiner areas (nm²) of the level sets at d (k,) nm, over the samples ``keep`` (default all); more than
+        ``KNOTS`` levels are interpolated from that many."""
         d = np.atleast_1d(np.asarray(d, dtype=np.float64))
         a, k1, k2 = ((self.vertex_area, self.k1, self.k2) if keep is None
                      else (self.vertex_area[keep], self.k1[keep], self.k2[keep]))
-        return np.array([np.maximum(1 + k1 * di, 0.0) @ (np.maximum(1 + k2 * di, 0.0) * a) for di in d])
+        knots = d if len(d) <= self.KNOTS else np.linspace(d.min(), d.max(), self.KNOTS)  # smooth in d
+        areas = np.array([np.maximum(1 + k1 * di, 0.0) @ (np.maximum(1 + k2 * di, 0.0) * a) for di in knots])
+        return areas if knots is d else np.interp(d, knots, areas)
 
 
 class Superellipsoid(_Solid):

@@ -90,8 +90,7 @@ never saw at all (the new ones first, so a short run covers them)."""
 
 FAMILIES = ("sphere", "cuboid", "plate", "rod", "ellipsoid", "lath", "rounded", "superellipsoid", "thin", "edge",
             "artefact", "open", "curved", "spinodal", "gyroid")
-OPEN = ("open", "curved", "spinodal", "gyroid")
-"""Families of one surface spanning the box (no closed object)."""
+
 
 
 def draws(split: str, count: int) -> list[tuple[str, int]]:
