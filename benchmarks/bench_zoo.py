@@ -243,6 +243,12 @@ def summary_block(rows: dict) -> str:
         "<!-- /summary -->"])
 
 
+def _describe(artefact) -> str:
+    if artefact.kind == "local_magnification":
+        return f"density ratio {artefact.ratio:.2f}"
+    return "depths " + ", ".join(f"{d:.2f}" for d in artefact.depths)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
@@ -273,7 +279,8 @@ def main(argv=None) -> int:
         say(f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
             f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
             f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
-            f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}")
+            f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}"
+            + "".join(f"; {a.kind} {_describe(a)}" for a in spec.artefacts[:2]))
         truth = truths(sp, species)
         for p, (mesh, seconds, note) in surfaces(sp, species, iso).items():
             r, n_spurious = evaluate(sp, mesh, species, truth, seed, family)
