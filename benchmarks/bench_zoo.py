@@ -1,6 +1,6 @@
 """The surface estimator's defaults on specimens it was not tuned on (issue 25): the specimen zoo.
 
-    /work/venv/bin/python -m benchmarks.bench_zoo [--split heldout] [--count 16] [--families rod plate]
+    .venv/bin/python -m benchmarks.bench_zoo [--split heldout] [--count 8] [--families rod plate] [--write]
 
 Each draw of :mod:`apt_filters.synth.zoo` (randomised shapes, sizes, contrasts, interface widths,
 segregants, efficiencies, blurs; ``dev`` and ``heldout`` splits by seed and by family) is generated and
@@ -46,6 +46,7 @@ from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
 from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error, surface_error_within
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from benchmarks.results import ratio, write_results
 
 PIPELINES = ("AP", "defaults")
 MARGIN = 2.0
@@ -260,8 +261,8 @@ def summary(rows: dict, spurious: dict) -> str:
     return "\n".join(lines)
 
 
-def summary_block(rows: dict) -> str:
-    """The results file's summary block (benchmarks/__main__.py gathers it into RESULTS.md)."""
+def summary_rows(rows: dict) -> list[tuple[str, str, str, str, str]]:
+    """The results file's summary rows (benchmarks/__main__.py gathers them into RESULTS.md)."""
     def figures(p):
         found = [r for r in rows[p] if r["bounded"] and r["found"]]
         within = sum(_within(r, "volume") for r in found)
@@ -269,13 +270,10 @@ def summary_block(rows: dict) -> str:
         return within, closed, float(np.mean([r["mean"] for r in found])) if found else np.nan
 
     (ours, n, d_ours), (peer, _, d_peer) = figures("defaults"), figures("AP")
-    return "\n".join([
-        "<!-- summary -->", "| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|---:|",
-        f"| refine | held-out zoo objects with volume within max(5 %, 2 counting σ) | {ours} of {n} | "
-        f"{peer} of {n} (AP Suite-style) | - |",
-        f"| refine | held-out zoo mean distance to the true surface, mean over objects | {d_ours:.3f} nm | "
-        f"{d_peer:.3f} nm (AP Suite-style) | {d_ours / d_peer:.2f} |",
-        "<!-- /summary -->"])
+    return [("refine", "held-out zoo objects with volume within max(5 %, 2 counting σ)", f"{ours} of {n}",
+             f"{peer} of {n} (AP Suite-style)", "-"),
+            ("refine", "held-out zoo mean distance to the true surface, mean over objects", f"{d_ours:.3f} nm",
+             f"{d_peer:.3f} nm (AP Suite-style)", ratio(d_ours, d_peer))]
 
 
 def _describe(artefact) -> str:
@@ -287,14 +285,16 @@ def _describe(artefact) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
-    ap.add_argument("--count", type=int, default=16, help="draws, families in turn")
+    ap.add_argument("--count", type=int, default=8, help="draws, families in turn")
     ap.add_argument("--families", nargs="+", help="only these families (of the split's draws)")
     ap.add_argument("--skip", type=int, default=0, help="leave out the first draws")
-    ap.add_argument("--out", help="also write the results file (summary block first), e.g. benchmarks/results_zoo.md")
+    ap.add_argument("--write", action="store_true", help="write benchmarks/results_zoo.md (summary block first)")
+    ap.add_argument("--intro", help="a file whose text goes between the summary block and the draws")
     args = ap.parse_args(argv)
     rows = {p: [] for p in PIPELINES}
     spurious = {p: {} for p in PIPELINES}
-    lines = ["machine: 2 cores shared with other jobs; times are wall seconds of one run", ""]
+    lines = [f"## Draws: {args.split}, {args.count}", "",
+             "machine: 2 cores shared with other jobs; times are wall seconds of one run", ""]
     print("\n".join(lines))
 
     def say(text=""):
@@ -327,10 +327,10 @@ def main(argv=None) -> int:
         say()
     say(f"## summary: {args.split}, {args.count} draws\n")
     say(summary(rows, spurious))
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(f"# bench_zoo: the defaults on the specimen zoo ({args.split})\n\n{summary_block(rows)}\n\n"
-                     + "\n".join(lines) + "\n")
+    if args.write:
+        intro = open(args.intro, encoding="utf-8").read() if args.intro else ""
+        write_results("zoo", f"bench_zoo: the defaults on the specimen zoo ({args.split})", summary_rows(rows),
+                      ["\n".join(lines)], intro=intro)
     return 0
 
 
