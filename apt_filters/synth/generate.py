@@ -6,7 +6,8 @@ drawn once; ions are made in chunks of ``CHUNK`` with their own random streams
 is kept in memory. For each chunk: uniform true positions in the outline; each ion is noise
 with probability ``noise_fraction``, otherwise its species is drawn from the local composition
 at its true position; then the reconstruction blur is added (after the species are chosen);
-then m/z from its species' peaks (noise: uniform m/z).
+then density artefacts (:mod:`.artefacts`) keep each ion with their probability at its true
+position; then m/z from its species' peaks (noise: uniform m/z).
 
 Peak memory: about 250 bytes per ion of one chunk (~250 MB for 2^20 ions with 4 species),
 plus 17 bytes per ion kept in memory (positions, m/z, species) when ``keep_ions``.
@@ -164,6 +165,7 @@ def build_truth(spec: model.SpecimenSpec, seed: int) -> tuple[dict, RangeTable, 
             "peaks": [vars(p).copy() for p in peak_list],
         },
         "features": features,
+        "artefacts": [a.params() for a in spec.artefacts],
     }
     return truth, ranges, meshes, MzSampler(species, peak_list, window)
 
@@ -183,6 +185,12 @@ def iter_ions(spec: model.SpecimenSpec, seed: int, sampler: MzSampler,
         species = np.full(n, -1, dtype=np.int8)
         species[atoms] = np.minimum((cum < rng.random(len(atoms))[:, None]).sum(axis=1), cum.shape[1] - 1)
         blurred = true + rng.standard_normal((n, 3)) * np.array([lateral, lateral, depth])
+        if spec.artefacts:  # density artefacts thin the ions by their true positions, species kept
+            keep = np.ones(n)
+            for artefact in spec.artefacts:
+                keep *= artefact.keep(true)
+            kept = rng.random(n) < keep
+            blurred, species = blurred[kept], species[kept]
         yield blurred.astype(np.float32), sampler.sample(species, rng).astype(np.float32), species
 
 

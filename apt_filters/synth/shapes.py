@@ -80,6 +80,8 @@ class Shape:
     kind = "shape"
     exact_sdf = True
     """``|sdf|`` is the true distance to the surface everywhere."""
+    cut = False
+    """The specimen's edge cuts the shape: its measures and mesh are those of its part inside."""
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """(N,) signed distance in nm of points (N, 3); negative inside."""

@@ -138,6 +138,9 @@ class SpecimenSpec:
         Charge states, peak widths, background noise.
     mesh_spacing : float
         Edge length (nm) of the true surface meshes.
+    artefacts : tuple
+        Density artefacts (:mod:`.artefacts`): each ``keep(points) -> (N,)`` probability that a detected
+        atom at its true position is kept.
     """
 
     geometry: Tip | Box
@@ -149,6 +152,7 @@ class SpecimenSpec:
     spectrum: SpectrumModel = field(default_factory=SpectrumModel)
     name: str = "custom"
     mesh_spacing: float = 0.1
+    artefacts: tuple = ()
 
     def __post_init__(self) -> None:
         if not (self.density > 0 and 0 < self.efficiency <= 1):
@@ -169,7 +173,7 @@ class SpecimenSpec:
         return np.array([composition.get(sp, 0.0) for sp in self.species], dtype=np.float64)
 
     def expected_ions(self) -> float:
-        """Expected number of ions, detected atoms plus noise."""
+        """Expected number of ions, detected atoms plus noise (before any density artefact)."""
         return self.density * self.efficiency * self.geometry.volume() / (1 - self.spectrum.noise_fraction)
 
 
@@ -243,7 +247,7 @@ def check_layout(spec: SpecimenSpec) -> list[np.ndarray]:
             raise AptFiltersError(f"feature {i} ({f.name}): {exc}") from exc
     for i, f in enumerate(spec.features):
         reach = f.reach(LAYOUT_TOLERANCE)
-        if f.shape.bounds() is not None and spec.geometry.sdf(points[i]).max() > -reach:
+        if f.shape.bounds() is not None and not f.shape.cut and spec.geometry.sdf(points[i]).max() > -reach:
             raise AptFiltersError(f"feature {i} ({f.name}) is not inside the specimen with {reach:.2f} nm to spare")
         for j in range(i + 1, len(spec.features)):
             g = spec.features[j]

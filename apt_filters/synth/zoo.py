@@ -4,29 +4,47 @@ The presets are fixed specimens of one family (gamma-prime-like cubes and sphere
 them is not known to work elsewhere. :func:`zoo_specimen` draws a small specimen (a box of at most
 ~1.5M ions) of one *family* from a seed:
 
-=============  =====================================================================================
-family         objects (1-4 per specimen, randomly rotated and placed)
-=============  =====================================================================================
-sphere         radius 1.5-6 nm
-cuboid         edges 4-10 nm (aspect up to 1.5)
-plate          discs 2-3 nm thick, radius 4-7 nm
-rod            capsules of radius 1.5-2 nm, 5-12 nm long
-ellipsoid      semi-axes 1.8-5 nm (exact distance, :class:`Ellipsoid`)
-lath           cuboids 2.5-4 x 5-8 x 9-14 nm
-rounded        cuboids of edges 5-9 nm with edges rounded by 0.5-2 nm (:class:`RoundedCuboid`; the
-               superellipsoid-like family whose SDF is exact)
-open           one flat interface tilted 0-40 degrees from the analysis direction, across the box
-=============  =====================================================================================
+==============  ====================================================================================
+family          objects (1-4 per specimen, randomly rotated and placed)
+==============  ====================================================================================
+sphere          radius 1.5-6 nm
+cuboid          edges 4-10 nm (aspect up to 1.5)
+plate           discs 2-3 nm thick, radius 4-7 nm
+rod             capsules of radius 1.5-2 nm, 5-12 nm long
+ellipsoid       semi-axes 1.8-5 nm (exact distance, :class:`Ellipsoid`)
+lath            cuboids 2.5-4 x 5-8 x 9-14 nm
+rounded         cuboids of edges 5-9 nm with edges rounded by 0.5-2 nm (:class:`RoundedCuboid`)
+superellipsoid  semi-axes 2-5 nm, exponents 1.5-5 each (:class:`~.implicit.Superellipsoid`)
+thin            discs 1.5-2 nm thick (radius 4-7 nm) or rods of radius 1-1.5 nm (6-12 nm long)
+edge            1-2 spheres of radius 3-6 nm cut by a side face of the box (:class:`~.implicit.CutSphere`;
+                truth: their part inside)
+artefact        spheres, cuboids or rounded cuboids with density artefacts (:mod:`.artefacts`): 1-3
+                detector-efficiency patches (dips of 20-50 %, sigma 3-8 nm) and a local magnification
+                (density inside the objects 0.6-1.6 times the matrix's)
+open            one flat interface tilted 0-40 degrees from the analysis direction, across the box
+curved          one curved interface across the box: a sphere cap of radius 30-80 nm tilted 0-25
+                degrees, bulging up or down, tanh ``w`` 0.15-2.3 nm (10-90 % up to 5 nm, like the real
+                Si one) (:class:`~.implicit.SphereInterface`)
+spinodal        a bicontinuous structure filling a 20 x 20 x 24 nm box: the zero set of 16 plane waves of
+                wavelength 7-12 nm in random directions, level -0.4..0.4 (volume fraction ~0.35-0.65)
+gyroid          the same box filled by a gyroid of period 8-14 nm, level -0.3..0.3
+==============  ====================================================================================
 
 Every draw randomises the chemistry (one of three alloy systems; the iso species' outside fraction
 1-15 at.% and its contrast 4-80 at.% points), the interface width (tanh ``w`` 0.15-1.1 nm: 10-90 %
-widths 0.33-2.4 nm, at most half the object's depth), a segregant shell (half the draws: peak 3-15 %,
+widths 0.33-2.4 nm, at most half the object's depth, at most a tenth of a bicontinuous structure's
+wavelength; ``curved`` draws its own), a segregant shell (half the draws: peak 3-15 %,
 sigma 0.2-0.4 nm, offset -0.2..0.2 nm), the detection efficiency (0.37-0.8) and the reconstruction
 blur (lateral 0.2-0.4 nm, depth 0.05-0.15 nm).
 
 Splits (:data:`SPLITS`): ``dev`` draws the families a method may be developed on, seeds 0-999;
-``heldout`` draws other families (ellipsoid, lath, rounded) *and* other seeds (from 10000), so a
-figure reported on ``heldout`` was not tuned on it either way. :func:`draws` lists (family, seed) pairs.
+``heldout`` draws other families (superellipsoid, spinodal, curved, edge, artefact, thin, ellipsoid,
+lath, rounded) *and* other seeds (from 10000), so a figure reported on ``heldout`` was not tuned on it
+either way. :func:`draws` lists (family, seed) pairs.
+
+Truth of the open and bicontinuous families is that of their part inside the box (area, and the
+inside phase's volume); ``edge`` objects are ``cut`` shapes whose volume and area are their part
+inside the specimen.
 """
 
 from __future__ import annotations
@@ -40,6 +58,8 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.shapes import Capsule, Cuboid, Cylinder, HalfSpace, Sphere, _Solid
+from apt_filters.synth.artefacts import EfficiencyPatches, LocalMagnification
+from apt_filters.synth.implicit import CutSphere, LevelSetInterface, SphereInterface, Superellipsoid
 from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec, check_layout
 
 SYSTEMS = (
@@ -61,13 +81,16 @@ class Split:
 
 
 SPLITS = {
-    "dev": Split(("sphere", "cuboid", "plate", "rod", "open"), 0),
-    "heldout": Split(("ellipsoid", "lath", "rounded", "sphere", "plate", "rod", "cuboid", "open"), 10000),
+    "dev": Split(("sphere", "cuboid", "plate", "rod", "open", "gyroid"), 0),
+    "heldout": Split(("superellipsoid", "spinodal", "curved", "edge", "artefact", "thin", "ellipsoid", "lath",
+                      "rounded", "sphere", "plate", "rod", "cuboid", "open"), 10000),
 }
-"""``heldout`` repeats the dev families with seeds the development never saw, and adds three families it
-never saw at all."""
+"""``heldout`` repeats the dev families with seeds the development never saw, and adds nine families it
+never saw at all (the new ones first, so a short run covers them)."""
 
-FAMILIES = ("sphere", "cuboid", "plate", "rod", "ellipsoid", "lath", "rounded", "open")
+FAMILIES = ("sphere", "cuboid", "plate", "rod", "ellipsoid", "lath", "rounded", "superellipsoid", "thin", "edge",
+            "artefact", "open", "curved", "spinodal", "gyroid")
+
 
 
 def draws(split: str, count: int) -> list[tuple[str, int]]:
@@ -229,6 +252,14 @@ def _object(family: str, rng: np.random.Generator, center) -> _Solid:
         edge = u(5.0, 9.0)
         return RoundedCuboid(center, edge * np.array([1.0, u(1.0, 1.3), u(0.8, 1.0)]), u(0.5, min(2.0, 0.3 * edge)),
                              rotation=rot)
+    if family == "superellipsoid":
+        return Superellipsoid(center, np.sort(u(2.0, 5.0, 3)), u(1.5, 5.0, 3), rotation=rot)
+    if family == "thin":
+        if rng.random() < 0.5:
+            return Cylinder(center, u(4.0, 7.0), u(1.5, 2.0), rotation=rot)
+        return Capsule(center, u(1.0, 1.5), u(6.0, 12.0), rotation=rot)
+    if family == "artefact":
+        return _object(("sphere", "cuboid", "rounded")[int(rng.integers(3))], rng, center)
     raise AptFiltersError(f"unknown zoo family {family!r}; choose one of {', '.join(FAMILIES)}")
 
 
@@ -262,6 +293,12 @@ def zoo_specimen(family: str, seed: int) -> SpecimenSpec:
     efficiency = rng.uniform(0.37, 0.8)
     blur = (rng.uniform(0.2, 0.4), rng.uniform(0.05, 0.15))
     size = np.array([24.0, 24.0, 40.0])
+    if family in ("spinodal", "gyroid"):
+        return _bicontinuous(family, rng, inside, matrix, width, shell, efficiency, blur)
+    if family == "curved":
+        return _curved(rng, size, inside, matrix, shell, efficiency, blur)
+    if family == "edge":
+        return _edge(rng, size, inside, matrix, width, shell, efficiency, blur, seed)
     if family == "open":
         tilt = math.radians(rng.uniform(0.0, 40.0))
         phi = rng.uniform(0, 2 * math.pi)
@@ -288,7 +325,80 @@ def zoo_specimen(family: str, seed: int) -> SpecimenSpec:
         raise AptFiltersError(f"zoo: could not place a {family} object for seed {seed}")
     features = tuple(Feature(o, inside, min(width, 0.5 * o.depth()), shell, f"{family} {k}")
                      for k, (o, _) in enumerate(objects))
-    spec = SpecimenSpec(Box(size), matrix, features, efficiency=efficiency, blur=blur, name=f"zoo-{family}")
+    artefacts = ()
+    if family == "artefact":
+        k = int(rng.integers(1, 4))
+        ratio = rng.uniform(0.6, 1.6)
+        artefacts = (EfficiencyPatches(rng.uniform(-size[:2] / 2, size[:2] / 2, (k, 2)), rng.uniform(3.0, 8.0, k),
+                                       rng.uniform(0.2, 0.5, k)),
+                     *(LocalMagnification(f.shape, ratio, f.width) for f in features))
+    spec = SpecimenSpec(Box(size), matrix, features, efficiency=efficiency, blur=blur, name=f"zoo-{family}",
+                        artefacts=artefacts)
     check_layout(spec)
     return spec
+
+
+def _bicontinuous(family, rng, inside, matrix, width, shell, efficiency, blur) -> SpecimenSpec:
+    """A spinodal-like (plane waves) or gyroid structure filling a 20 x 20 x 24 nm box."""
+    box = Box((20.0, 20.0, 24.0))
+    if family == "spinodal":
+        shape = LevelSetInterface(box, "waves", rng.uniform(7.0, 12.0), rng.uniform(-0.4, 0.4),
+                                  int(rng.integers(1 << 30)))
+    else:
+        shape = LevelSetInterface(box, "gyroid", rng.uniform(8.0, 14.0), rng.uniform(-0.3, 0.3),
+                                  int(rng.integers(1 << 30)))
+    feature = Feature(shape, inside, min(width, 0.1 * shape.wavelength), shell, family)
+    spec = SpecimenSpec(box, matrix, (feature,), efficiency=efficiency, blur=blur, name=f"zoo-{family}")
+    check_layout(spec)
+    return spec
+
+
+def _curved(rng, size, inside, matrix, shell, efficiency, blur) -> SpecimenSpec:
+    """A sphere cap across the box, inside below it, through z -24..-16 nm on the axis."""
+    box = Box(size)
+    width = rng.uniform(0.15, 2.3)
+    half = np.hypot(*(size[:2] / 2))
+    for _ in range(100):
+        radius, tilt, phi = rng.uniform(30.0, 80.0), math.radians(rng.uniform(0.0, 25.0)), rng.uniform(0, 2 * math.pi)
+        off = radius * math.sin(tilt) * np.array([math.cos(phi), math.sin(phi)])
+        if np.linalg.norm(off) + half < 0.95 * radius:
+            break
+    up = bool(rng.random() < 0.5)
+    z0 = rng.uniform(-24.0, -16.0)
+    rise = math.sqrt(radius ** 2 - off @ off)
+    centre = np.array([off[0], off[1], z0 - rise if up else z0 + rise])
+    shape = SphereInterface(box, centre, radius, convex=up)
+    feature = Feature(shape, inside, width, shell, "curved interface")
+    spec = SpecimenSpec(box, matrix, (feature,), efficiency=efficiency, blur=blur, name="zoo-curved")
+    check_layout(spec)
+    return spec
+
+
+def _edge(rng, size, inside, matrix, width, shell, efficiency, blur, seed) -> SpecimenSpec:
+    """1-2 spheres cut by distinct side faces of the box."""
+    half = size / 2
+    for _ in range(100):
+        faces = rng.permutation(4)[:int(rng.integers(1, 3))]
+        features = []
+        for k, face in enumerate(faces):
+            axis, sign = int(face // 2), 1.0 - 2.0 * (face % 2)
+            r = rng.uniform(3.0, 6.0)
+            w = min(width, 0.5 * r)
+            reach = Feature(Sphere((0, 0, 0), r), inside, w, shell).reach(1e-4) + 0.2
+            centre = np.empty(3)
+            other = 1 - axis
+            centre[other] = rng.uniform(-half[other] + r + reach, half[other] - r - reach)
+            centre[2] = rng.uniform(-size[2] + r + reach, -r - reach)
+            inset = rng.uniform(-0.4, 0.5) * r  # centre to face, positive inside
+            centre[axis] = sign * (half[axis] - inset)
+            normal = np.zeros(3)
+            normal[axis] = sign
+            features.append(Feature(CutSphere(centre, r, normal, half[axis]), inside, w, shell, f"edge {k}"))
+        spec = SpecimenSpec(Box(size), matrix, tuple(features), efficiency=efficiency, blur=blur, name="zoo-edge")
+        try:
+            check_layout(spec)
+        except AptFiltersError:
+            continue
+        return spec
+    raise AptFiltersError(f"zoo: could not place the edge spheres for seed {seed}")
 

@@ -14,7 +14,7 @@ analysis step imports it.
 """
 
 from apt_filters.truth.counting import CountedTruth, CountingFloor, counted_truth, counting_floor
-from apt_filters.truth.surface import SurfaceError, match_objects, surface_error
+from apt_filters.truth.surface import SurfaceError, match_objects, surface_error, surface_error_within
 
 __all__ = ["CountedTruth", "CountingFloor", "SurfaceError", "counted_truth", "counting_floor", "match_objects",
-           "surface_error"]
+           "surface_error", "surface_error_within"]

@@ -69,3 +69,38 @@ def match_objects(parts: list[TriMesh], sdfs: list[Callable[[np.ndarray], np.nda
                 best, best_d = i, d
         out.append(best)
     return out
+
+
+def surface_error_within(part: TriMesh, sdf: Callable[[np.ndarray], np.ndarray], true_mesh: TriMesh,
+                         region: Callable[[np.ndarray], np.ndarray], true_area: float, true_volume: float | None = None,
+                         bounds: tuple[np.ndarray, np.ndarray] | None = None, density: float = 20.0,
+                         volume_samples: int = 200_000, seed: int = 0) -> SurfaceError:
+    """Compare the part of a surface inside ``region`` (``region(points) < 0``) with the truth there.
+
+    For surfaces that end at the specimen edge (open and bicontinuous interfaces, objects cut by the
+    edge), where the measured surface stops short of the edge and an object is not closed. Areas: the
+    mesh's area times the fraction of its uniform samples inside the region (``true_area`` is the truth's
+    area inside the region). Distances as :func:`surface_error`, over the samples inside the region.
+    Volume (where ``true_volume`` is given): the fraction of ``volume_samples`` uniform points in
+    ``bounds`` (lower, upper corners; the region's part that can hold the object) that lie inside the
+    region and behind ``part`` (its signed distance negative), times the box's volume; NaN otherwise.
+    """
+    from apt_filters.core.distance import SurfaceDistance
+
+    rng = np.random.default_rng(seed)
+    pts, _ = sample_mesh(part, density, rng)
+    inside = region(pts) < 0
+    to_true = np.abs(sdf(pts[inside]))
+    true_pts, _ = sample_mesh(true_mesh, density, rng)
+    true_pts = true_pts[region(true_pts) < 0]
+    to_mesh = mesh_distance(part, true_pts)
+    area = part.area() * inside.mean() if len(pts) else 0.0
+    volume = np.nan
+    if true_volume is not None:
+        lo, hi = bounds
+        probe = lo + (hi - lo) * rng.random((volume_samples, 3))
+        behind = SurfaceDistance(part).query(probe).distance < 0
+        volume = float(np.prod(hi - lo) * np.mean(behind & (region(probe) < 0)))
+    return SurfaceError(volume, np.nan if true_volume is None else true_volume, area, true_area,
+                        0.5 * (to_true.mean() + to_mesh.mean()), float(to_true.mean()), float(to_mesh.mean()),
+                        float(max(to_true.max(), to_mesh.max())))
