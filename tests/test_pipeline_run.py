@@ -229,11 +229,8 @@ def test_report_renders_in_chromium(small_run, tmp_path):
     assert pixels[..., :3].std() > 0.05, "the first screen is not blank"
 
 
-def test_run_on_real_si(real_si, tmp_path):
-    out = tmp_path / "si"
-    assert main(["run", str(real_si / "Si.pos"), "-r", str(real_si / "Si.RRNG"), "-o", str(out),
-                 "--species", "Cr", "--iso", "0.3", "-q"]) == 0
-    report = json.loads((out / "report.json").read_text())
+def test_run_on_real_si(si_run):
+    _, report = si_run
     assert report["ions"]["count"] == 945_211
     assert any(f["severity"] == "error" and "57.819" in f["message"] and "Ni+" in f["message"]
                for f in report["audit"]), "the audit's Cr2O/Ni+ finding reaches the report"
