@@ -111,8 +111,8 @@ def test_interface_position_and_c_excess_agree_with_a_1d_cylinder(real_si, si_ru
     surface = report["surfaces"][0]
     interface = max(surface["objects"], key=lambda o: o["area"])
     step = surface["interface"]["step"]
-    assert step["species"] == "Cr" and 3.0 < step["width_10_90"] < 6.0, "a wide interface, fitted"
-    assert surface["interface"]["inner_nm"] >= step["width_10_90"], "plateau windows beyond the interface"
+    assert step["species"] == "Cr" and 3.0 < step["width"] < 6.0, "a wide interface, fitted"
+    assert surface["interface"]["inner_nm"] >= step["width"], "plateau windows beyond the interface"
 
     # position: the surface within the cylinder, moved by the fitted 50 % point, against the 1D crossing
     mesh = read_ply(out / "meshes" / f"{surface['label']}.ply")

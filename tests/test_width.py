@@ -96,9 +96,18 @@ def test_given_windows_are_kept_and_a_range_too_short_for_the_interface_is_refus
     given = windows_of(profile, inner=1.0, outer=3.0)
     assert (given.inner, given.outer, given.source) == (1.0, 3.0, "given")
     assert windows_of(profile, inner=2.0).outer == pytest.approx(6.0)
-    with pytest.raises(AptFiltersError, match="too short"):
-        windows_of(profile, outer=3.0)
-    assert windows_of(profile, species="").source == "fallback"
+    short = windows_of(profile, outer=3.0)  # a given range is kept, the windows cut, and it is said
+    assert (short.inner, short.outer) == (1.0, 3.0) and "beyond the given range" in short.note
+    # no species (an iso-density surface): 1 and 3 nm, said so
+    none = windows_of(profile, species="")
+    assert (none.inner, none.outer, none.source) == (1.0, 3.0, "fallback") and "no species" in none.note
+
+
+def test_the_widest_fitted_range_is_spelled_alike_where_no_analysis_code_is_imported():
+    from apt_filters.analysis.width import MAX_RANGE
+    from apt_filters.cli.proxigram import MAX_RANGE as cli_range
+
+    assert MAX_RANGE == cli_range == cfg.MAX_FITTED_RANGE
 
 
 def planar_ions(rng, sigma, half=14.0, depth=24.0, density=40.0):

@@ -194,6 +194,10 @@ holds more than ~180 atoms/nm³), so that absurd values fail at once instead of 
 MAX_PROXIGRAM_BINS = 1_000_000
 """2 × extent / bin at most."""
 
+MAX_FITTED_RANGE = 50.0
+"""The widest proxigram range (nm) the interface-width fit may ask for (``analysis.width.MAX_RANGE``, spelled
+here so that reading a configuration imports no analysis code; a test checks they agree)."""
+
 ELEMENTS = {("input", "relabel"): str, ("voxel", "delocalization"): float, ("voxel", "exclude"): str,
             ("refine", "blur"): float,
             ("proxigram", "solutes"): str}
@@ -274,9 +278,11 @@ def check(config: PipelineConfig, source: str | None = None) -> None:
             raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}",
                                   source)
     p = config.proxigram
-    if 2 * p.extent / p.bin > MAX_PROXIGRAM_BINS:
-        raise AptFiltersError(f"[proxigram] {2 * p.extent / p.bin:.3g} bins (2 × extent / bin): more than "
-                              f"{MAX_PROXIGRAM_BINS:,}", source)
+    extent = p.extent or MAX_FITTED_RANGE
+    if 2 * extent / p.bin > MAX_PROXIGRAM_BINS:
+        raise AptFiltersError(f"[proxigram] {2 * extent / p.bin:.3g} bins (2 × extent / bin"
+                              + ("" if p.extent else f", extent 0: up to {MAX_FITTED_RANGE:g} nm fitted")
+                              + f"): more than {MAX_PROXIGRAM_BINS:,}", source)
     if p.inner and p.extent and p.inner >= p.extent:
         raise AptFiltersError(f"[proxigram] inner ({p.inner:g} nm) must be below extent ({p.extent:g} nm): the "
                               "plateau windows run from inner to extent", source)

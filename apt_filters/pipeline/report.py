@@ -176,7 +176,7 @@ def _interface(surface: dict) -> str:
     s = w.get("step")
     if s:
         words = (f"Interface: {html.escape(s['species'])} 10–90 % width "
-                 f"{with_error(s['width_10_90'], s['width_10_90_error'])} nm, its 50 % point "
+                 f"{with_error(s['width'], s['width_error'])} nm, its 50 % point "
                  f"{with_error(s['centre'], s['centre_error'])} nm from the surface (positive inside), "
                  f"fitted on the pooled proxigram (error-function step). " + words)
     if w.get("note"):
