@@ -138,3 +138,31 @@ def test_the_run_options_reach_the_configuration_and_bad_pairs_are_refused():
     assert (config.proxigram.inner, config.proxigram.extent) == (2.0, 7.0)
     with pytest.raises(AptFiltersError, match="must be below extent"):
         cfg.check(cfg.with_options(cfg.PipelineConfig(), {"plateau_inner": 3.0, "proxigram_range": 3.0}, "x"))
+
+
+def test_an_object_thinner_than_its_windows_takes_the_fitted_plateaus():
+    """A 2.4 nm slab whose step (sigma 0.5 nm) needs windows from ~1.3 nm: no inside window, yet the B shell's
+    excess comes out within its error of the model, from the plateaus fitted on the profile."""
+    from apt_filters.analysis.excess import interfacial_excess
+    from tests.proxigram_specimens import box_distance, cube
+
+    rng = np.random.default_rng(8)
+    half, density, peak, tau = (12.0, 12.0, 1.2), 40.0, 0.05, 0.3
+    lo, hi = np.array([-15.0, -15.0, -6.0]), np.array([15.0, 15.0, 6.0])
+    n = rng.poisson(density * np.prod(hi - lo))
+    p = rng.uniform(lo, hi, (n, 3))
+    d = box_distance(p, half)  # positive inside
+    u = rng.random(n)
+    c_al, c_b = 0.05 + 0.3 * ndtr(d / 0.5), 0.002 + peak * np.exp(-0.5 * (d / tau) ** 2)
+    mz = np.where(u < c_b, 11.0, np.where(u < c_b + c_al, 27.0, 56.0))
+    ions = IonTable(p.astype(np.float32), mz.astype(np.float32))
+    mesh = cube(half, 5)
+    prox, windows = fitted_proxigram(ions=ions, ranges=RANGES, mesh=mesh, species="Al", solutes=["B"])
+    assert windows.inner > half[2], "the slab is thinner than its windows"
+    with pytest.raises(AptFiltersError, match="no ions in a plateau window"):
+        interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer)
+    [ex] = interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer, fallback=windows.levels("B"))
+    true = density * peak * tau * np.sqrt(2 * np.pi)  # detected atoms per nm² of interface
+    est = ex.integration
+    assert abs(est.gamma_detected - true) < 2.5 * est.gamma_detected_error, (est.gamma_detected, true)
+    assert est.gamma_detected_error < 0.1 * true and ex.cumulative == est

@@ -47,6 +47,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from apt_filters.analysis.excess import Level
 from apt_filters.analysis.proxigram import Proxigram, compute_proxigram
 from apt_filters.core.errors import AptFiltersError
 
@@ -81,8 +82,8 @@ class ProfileFit:
         Where the step is steepest, nm.
     sigma_outside, sigma_inside : float
         Gaussian widths of the step's two halves, nm (outside / inside its mode).
-    outside, inside : float
-        Fitted plateau fractions far outside / inside.
+    outside, inside, outside_error, inside_error : float
+        Fitted plateau fractions far outside / inside, and their errors.
     peak, peak_error, peak_centre, peak_sigma : float
         Amplitude (fraction), position and width (nm) of a Gaussian peak on the step (NaN when the
         profile was fitted with a step only, 0 amplitude when no peak was significant).
@@ -103,6 +104,8 @@ class ProfileFit:
     sigma_inside: float
     outside: float
     inside: float
+    outside_error: float
+    inside_error: float
     peak: float = math.nan
     peak_error: float = math.nan
     peak_centre: float = math.nan
@@ -157,6 +160,14 @@ class Windows:
     step: ProfileFit | None = None
     peaks: list[ProfileFit] = field(default_factory=list)
     note: str = ""
+
+    def levels(self, solute: str) -> tuple[Level, Level] | None:
+        """The solute's plateaus fitted on the surface's pooled profile, as (matrix, precipitate) levels for
+        objects too thin for their own windows (``n_ions`` 0: not counted in a window); None if not fitted."""
+        for p in self.peaks:
+            if p.species == solute:
+                return (Level(p.outside, p.outside_error, 0.0, 0), Level(p.inside, p.inside_error, 0.0, 0))
+        return None
 
     def describe(self) -> str:
         """One line: the windows, and the width and position they came from."""
@@ -318,7 +329,8 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
         significant = p[2] > PEAK_SIGMAS * err[2]
         z = float(ndtri(1.0 - tail))
         reach = max(step.reach, float(abs(p[3]) + z * p[4])) if significant else step.reach
-        return replace(step, species=species, outside=float(p[0]), inside=float(p[1]),
+        return replace(step, species=species, outside=float(p[0]), inside=float(p[1]), outside_error=float(err[0]),
+                       inside_error=float(err[1]),
                        peak=float(p[2]) if significant else 0.0, peak_error=float(err[2]), peak_centre=float(p[3]),
                        peak_sigma=float(p[4]), chi2_dof=chi2, reach=reach)
 
@@ -328,11 +340,12 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
 
     value = figures(p[2:])
     centre, centre_error = midpoint(s=s, n=n, total=total, outside=float(p[0]), inside=float(p[1]))
+    err = np.sqrt(np.maximum(np.diag(cov), 0.0))
     grad = np.stack([(figures(p[2:] + h) - figures(p[2:] - h)) / (2 * 1e-6)
                      for h in 1e-6 * np.eye(3)], axis=1)  # (2 figures, 3 shape parameters)
     var = np.einsum("ij,jk,ik->i", grad, cov[2:, 2:], grad)
     return ProfileFit(species, centre, centre_error, float(value[0]), float(np.sqrt(max(var[0], 0.0))), float(p[2]), float(p[3]), float(p[4]), float(p[0]),
-                      float(p[1]), chi2_dof=chi2, reach=float(value[1]))
+                      float(p[1]), float(err[0]), float(err[1]), chi2_dof=chi2, reach=float(value[1]))
 
 
 def plateau_windows(*, proxigram: Proxigram, species: str, solutes: list[str] = (), tail: float = TAIL,

@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
                                      solutes=[args.solute] if args.solute else [], bin_width=args.bin,
                                      inner=args.inner, outer=outer, keep_edge=args.keep_edge, iso_value=args.iso)
     print(windows.describe())
-    results = (interfacial_excess(prox, args.solute, efficiency, windows.inner, windows.outer)
-               if args.solute else [])
+    results = (interfacial_excess(prox, args.solute, efficiency, windows.inner, windows.outer,
+                                  fallback=windows.levels(args.solute)) if args.solute else [])
     pooled = prox.pooled()
     pooled.write_csv(out / "proxigram.csv", overwrite=args.force)
     prox.write_csv(out / "proxigram_objects.csv", overwrite=args.force)

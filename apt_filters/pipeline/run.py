@@ -240,11 +240,12 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
                   windows=(windows.inner, windows.outer))
         for solute in solutes:
             res.excess += [dataclasses.asdict(e) for e in interfacial_excess(
-                prox, solute, config.analysis.efficiency, windows.inner, windows.outer, skip_unmeasurable=True)]
+                prox, solute, config.analysis.efficiency, windows.inner, windows.outer, skip_unmeasurable=True,
+                fallback=windows.levels(solute))]
         res.proxigram, res.windows = prox, windows
         res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
                                       efficiency=config.analysis.efficiency, inner=windows.inner,
-                                      outer=windows.outer)
+                                      outer=windows.outer, fallback={s: windows.levels(s) for s in solutes})
         measured = {e["object_id"] for e in res.excess}
         res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
         s.summary = (f"{label}: {windows.describe()}; excess of {', '.join(solutes) or 'no solute'}; "
