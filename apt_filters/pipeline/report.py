@@ -178,7 +178,7 @@ def _interface(surface: dict) -> str:
         words = (f"Interface: {html.escape(s['species'])} 10–90 % width "
                  f"{with_error(s['width'], s['width_error'])} nm, its 50 % point "
                  f"{with_error(s['centre'], s['centre_error'])} nm from the surface (positive inside), "
-                 f"fitted on the pooled proxigram (error-function step). " + words)
+                 f"fitted on the pooled proxigram (asymmetric error-function step). " + words)
     if w.get("note"):
         words += f" ({html.escape(w['note'])})"
     return f"<p>{words}</p>"
