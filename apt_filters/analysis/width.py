@@ -66,6 +66,7 @@ MAX_RANGE = 50.0
 PEAK_SIGMAS = 3.0
 """A solute's peak is kept when its amplitude stands this many standard errors above zero."""
 
+
 @dataclass
 class ProfileFit:
     """A profile's fitted step (and peak) across the surface.
@@ -277,8 +278,9 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
     Returns
     -------
     ProfileFit
-        Maximum-likelihood fit (binomial counts per bin); errors from its covariance (scaled by the reduced chi-square where above 1), carried to
-        the 50 % point and the 10–90 % width by their numerical gradients.
+        Maximum-likelihood fit (binomial counts per bin); errors from its covariance (scaled by the
+        reduced chi-square where above 1), carried to the 10–90 % width by its numerical gradient; the
+        50 % point from :func:`midpoint`.
 
     Raises
     ------
@@ -315,7 +317,7 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
         d = 2 * (xlogy(n, frac / m) + xlogy(total - n, (1 - frac) / (1 - m)))
         return np.sign(frac - m) * np.sqrt(np.maximum(d, 0.0))
 
-    fit = least_squares(deviance, p0, bounds=bounds, x_scale="jac")
+    fit = least_squares(deviance, p0, bounds=bounds, x_scale="jac", max_nfev=5000)
     if not fit.success:
         raise AptFiltersError(f"the {species} profile's step fit did not converge ({fit.message})")
     chi2 = float(np.sum(fit.fun ** 2) / max(len(s) - len(p0), 1))
@@ -344,8 +346,9 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
     grad = np.stack([(figures(p[2:] + h) - figures(p[2:] - h)) / (2 * 1e-6)
                      for h in 1e-6 * np.eye(3)], axis=1)  # (2 figures, 3 shape parameters)
     var = np.einsum("ij,jk,ik->i", grad, cov[2:, 2:], grad)
-    return ProfileFit(species, centre, centre_error, float(value[0]), float(np.sqrt(max(var[0], 0.0))), float(p[2]), float(p[3]), float(p[4]), float(p[0]),
-                      float(p[1]), float(err[0]), float(err[1]), chi2_dof=chi2, reach=float(value[1]))
+    return ProfileFit(species, centre, centre_error, float(value[0]), float(np.sqrt(max(var[0], 0.0))),
+                      float(p[2]), float(p[3]), float(p[4]), float(p[0]), float(p[1]), float(err[0]),
+                      float(err[1]), chi2_dof=chi2, reach=float(value[1]))
 
 
 def plateau_windows(*, proxigram: Proxigram, species: str, solutes: list[str] = (), tail: float = TAIL,
@@ -423,7 +426,8 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
 
     A first proxigram over ``outer`` (if given) or :data:`FIRST_RANGE` nm is fitted
     (:func:`plateau_windows`); while the windows reach beyond it, it is computed again over the
-    windows' outer edge (at most :data:`MAX_RANGE` nm), then cut to that edge.
+    windows' outer edge (at most :data:`MAX_RANGE` nm, four passes), then cut to that edge. Windows
+    still beyond the last range are cut to it (``inner`` a third of it) and say so in ``note``.
 
     Parameters
     ----------
@@ -450,9 +454,10 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
         if extent >= MAX_RANGE:
             break
         extent = min(windows.outer, MAX_RANGE)
+    windows.note = (f"the fits ask for windows to {windows.outer:g} nm, beyond the {extent:g} nm computed: "
+                    f"cut to it, the excess may come out low")
     windows.outer = extent
-    windows.inner = min(windows.inner, extent / OUTER_FACTOR)
-    windows.note = f"the fitted width asks for more than {MAX_RANGE:g} nm; windows cut to {extent:g} nm"
+    windows.inner = min(windows.inner, round(extent / OUTER_FACTOR, 9))
     return prox, windows
 
 

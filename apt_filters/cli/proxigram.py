@@ -42,12 +42,11 @@ def run(args: argparse.Namespace) -> int:
         raise AptFiltersError(f"--range-nm {args.range_nm or MAX_RANGE:g} / --bin {args.bin:g} make more than "
                               f"{MAX_BINS:,} bins" + ("" if args.range_nm else " (the largest fitted range)"))
     ranges = read_ranges(args.range_file)
+    names = ranges.elements + [i for i in ranges.ions if i not in ranges.elements]
     if args.solute:
-        args.solute = match_species(args.solute, ranges.elements + [i for i in ranges.ions if i not in ranges.elements],
-                                    what="solute")
+        args.solute = match_species(args.solute, names, what="solute")
     if args.species:
-        args.species = match_species(args.species, ranges.elements + [i for i in ranges.ions if i not in ranges.elements],
-                                     what="species")
+        args.species = match_species(args.species, names, what="species")
 
     from apt_filters.analysis.excess import INSTRUMENT_EFFICIENCY, interfacial_excess, write_excess_json
     from apt_filters.analysis.width import fitted_proxigram
@@ -80,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
     pooled = prox.pooled()
     pooled.write_csv(out / "proxigram.csv", overwrite=args.force)
     prox.write_csv(out / "proxigram_objects.csv", overwrite=args.force)
-    prox.plot(out / "proxigram.png", overwrite=args.force, title=f"{Path(args.ions).name} across {Path(args.mesh).name}",
-              windows=(windows.inner, windows.outer))
+    prox.plot(out / "proxigram.png", overwrite=args.force,
+              title=f"{Path(args.ions).name} across {Path(args.mesh).name}", windows=(windows.inner, windows.outer))
     if results:
         write_excess_json(out / "excess.json", results, overwrite=args.force)
     in_range = int(pooled.counts.sum() + pooled.unranged.sum())
