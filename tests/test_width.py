@@ -130,6 +130,17 @@ def test_a_wide_interface_widens_the_proxigram_to_its_windows():
     direct = compute_proxigram(ions, RANGES, mesh, max_distance=windows.outer)
     assert prox.counts.sum() == direct.counts.sum()
     assert np.abs(prox.counts - direct.counts).sum() <= 1e-5 * direct.counts.sum()
+    # from a selection of the ions within the first range: selected again over the range the fit asks for
+    asked = []
+
+    def select(reach):
+        asked.append(reach)
+        return ions
+
+    near = ions.subset(np.flatnonzero(np.abs(ions.positions[:, 2]) < 3.05))
+    again, same = fitted_proxigram(ions=near, ranges=RANGES, mesh=mesh, species="Al", covered=3.0, select=select)
+    assert asked and asked[0] > 3.0 and same.inner == windows.inner
+    np.testing.assert_array_equal(again.counts, prox.counts)
     np.testing.assert_allclose(prox.edges, direct.edges, atol=1e-9)
 
 

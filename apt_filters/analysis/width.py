@@ -419,9 +419,16 @@ def plateau_windows(*, proxigram: Proxigram, species: str, solutes: list[str] = 
     return Windows(fitted, whole_bins(OUTER_FACTOR * fitted), source, step, peaks, note)
 
 
+def first_range(*, inner: float | None = None, outer: float | None = None) -> float:
+    """Half range (nm) of the first proxigram :func:`fitted_proxigram` computes: the given ``outer``, else
+    :data:`OUTER_FACTOR` × a given ``inner``, else :data:`FIRST_RANGE`."""
+    return outer if outer is not None else (OUTER_FACTOR * inner if inner is not None else FIRST_RANGE)
+
+
 def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (), bin_width: float = 0.1,
                      inner: float | None = None, outer: float | None = None, keep_edge: bool = False,
-                     iso_value: float | None = None, tail: float = TAIL) -> tuple[Proxigram, Windows]:
+                     iso_value: float | None = None, tail: float = TAIL, covered: float = math.inf,
+                     select=None) -> tuple[Proxigram, Windows]:
     """The proxigram over the range the interface's fitted width asks for, and its plateau windows.
 
     A first proxigram over ``outer`` (if given) or :data:`FIRST_RANGE` nm is fitted
@@ -435,6 +442,12 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
         As :func:`apt_filters.analysis.proxigram.compute_proxigram`.
     species, solutes, tail, inner, outer
         As :func:`plateau_windows`.
+    covered : float
+        ``ions`` hold every ion within this distance (nm) of ``mesh`` (a selection such as
+        :func:`apt_filters.pipeline.surface.analysis_ions` makes; infinite: the whole table).
+    select : callable, optional
+        ``select(reach) -> ions`` within ``reach`` nm, called when a wider proxigram than ``covered``
+        is needed (the caller keeps what it returns for its later analyses).
 
     Returns
     -------
@@ -442,9 +455,12 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
         Over ``[-windows.outer, windows.outer)``.
     windows : Windows
     """
-    extent = outer if outer is not None else (OUTER_FACTOR * inner if inner is not None else FIRST_RANGE)
-    extent = round(bin_width * math.ceil(extent / bin_width - 1e-9), 9)
+    extent = round(bin_width * math.ceil(first_range(inner=inner, outer=outer) / bin_width - 1e-9), 9)
     for _ in range(4):
+        if extent > covered:
+            if select is None:
+                raise AptFiltersError(f"the ions cover {covered:g} nm of the surface; the proxigram needs {extent:g}")
+            ions, covered = select(extent), extent
         prox = compute_proxigram(ions, ranges, mesh, bin_width=bin_width, max_distance=extent, keep_edge=keep_edge,
                                  iso_value=iso_value)
         windows = plateau_windows(proxigram=prox, species=species, solutes=solutes, tail=tail, inner=inner,
@@ -461,5 +477,5 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
     return prox, windows
 
 
-__all__ = ["FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "Windows", "fit_profile",
-           "fitted_proxigram", "midpoint", "plateau_windows"]
+__all__ = ["FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "Windows", "first_range",
+           "fit_profile", "fitted_proxigram", "midpoint", "plateau_windows"]
