@@ -1,5 +1,6 @@
 """Shared test fixtures: the real data in ../shared (relative to the repository root)."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -24,3 +25,15 @@ def dialects() -> Path:
     if not DIALECTS.is_dir():
         pytest.fail(f"range-file dialects missing: {DIALECTS}")
     return DIALECTS
+
+
+@pytest.fixture(scope="session")
+def si_run(real_si, tmp_path_factory) -> tuple[Path, dict]:
+    """``apt-filters run`` on the Si data with every default (Cr 30 at.% surface): output folder and report.json,
+    run once for the tests that read it."""
+    from apt_filters.cli.main import main
+
+    out = tmp_path_factory.mktemp("si") / "si"
+    assert main(["run", str(real_si / "Si.pos"), "-r", str(real_si / "Si.RRNG"), "-o", str(out),
+                 "--species", "Cr", "--iso", "0.3", "-q"]) == 0
+    return out, json.loads((out / "report.json").read_text())

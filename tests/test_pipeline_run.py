@@ -1,5 +1,6 @@
 """``apt-filters run`` end to end: a small synthetic specimen against its truth, and the real Si data."""
 
+import csv
 import json
 import shutil
 import subprocess
@@ -44,6 +45,20 @@ def test_run_writes_every_output(small_run):
     assert not list(out.parent.glob(".*")), "no staging or claim folder left behind"
     text = (out / "report.json").read_text()
     assert "apt-filters-run" not in text and "apt-filters-tmp" not in text, "no path of the vanished staging folder"
+
+
+def test_the_plateau_windows_come_from_the_fitted_width_and_are_reported(small_run):
+    out, report, _ = small_run
+    w = report["surfaces"][0]["interface"]
+    step = w["step"]
+    assert w["source"] == "fitted" and step["species"] == "Al" and 0 < step["width_error"] < step["width"]
+    # beyond the step and the B shell's peak, the outer edge three times as far; the proxigram covers them
+    assert w["inner_nm"] >= step["reach"] and w["outer_nm"] == pytest.approx(3 * w["inner_nm"])
+    assert any(p["species"] == "B" and p["peak"] > 0 and w["inner_nm"] >= p["reach"] for p in w["peaks"])
+    rows = list(csv.DictReader(open(out / "proxigram_Al15.csv")))
+    assert max(float(r["bin_hi_nm"]) for r in rows) == pytest.approx(w["outer_nm"])
+    assert all(list(e["window_nm"]) == [w["inner_nm"], w["outer_nm"]] for e in report["surfaces"][0]["excess"])
+    assert "10–90 % width" in (out / "report.html").read_text()
 
 
 def test_report_numbers_against_the_truth(small_run):
@@ -229,11 +244,8 @@ def test_report_renders_in_chromium(small_run, tmp_path):
     assert pixels[..., :3].std() > 0.05, "the first screen is not blank"
 
 
-def test_run_on_real_si(real_si, tmp_path):
-    out = tmp_path / "si"
-    assert main(["run", str(real_si / "Si.pos"), "-r", str(real_si / "Si.RRNG"), "-o", str(out),
-                 "--species", "Cr", "--iso", "0.3", "-q"]) == 0
-    report = json.loads((out / "report.json").read_text())
+def test_run_on_real_si(si_run):
+    _, report = si_run
     assert report["ions"]["count"] == 945_211
     assert any(f["severity"] == "error" and "57.819" in f["message"] and "Ni+" in f["message"]
                for f in report["audit"]), "the audit's Cr2O/Ni+ finding reaches the report"

@@ -73,3 +73,26 @@ def test_cli_bad_inputs(small_specimen, tmp_path, capsys):
     assert main(["proxigram", *base, "-m", str(tmp_path / "missing.ply")]) == 2
     assert "missing.ply: mesh file not found" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_cli_proxigram_fits_its_windows_with_the_species(small_specimen, capsys):
+    """--species: the windows and range from the fitted Al step of the Al-rich cube and sphere; their B excess
+    still matches the truth."""
+    folder, truth = small_specimen
+    features = truth["features"][1:]  # the cube and the sphere (the layer below is Al-poor: another step)
+    meshes = [read_mesh(folder / f["mesh"]["file"]) for f in features]
+    write_ply(TriMesh(np.concatenate([m.vertices for m in meshes]),
+                      np.concatenate([meshes[0].faces, meshes[1].faces + meshes[0].n_vertices])), folder / "two.ply")
+    out = folder / "fitted"
+    assert main(["proxigram", str(folder / "specimen.pos"), "-r", str(folder / "specimen.rrng"), "-m",
+                 str(folder / "two.ply"), "-o", str(out), "--solute", "B", "--species", "al"]) == 0
+    printed = capsys.readouterr().out
+    assert "(fitted; Al 10-90 % width" in printed
+    results = json.loads((out / "excess.json").read_text())["results"]
+    inner, outer = results[0]["window_nm"]
+    assert outer == pytest.approx(3 * inner) and f"±{outer:g} nm" in printed
+    for k, feature in enumerate(features):
+        est = results[k]["integration"]
+        true = feature["excess"]["B"]["ions_per_nm2"]
+        assert abs(est["gamma_detected"] - true) < 3 * est["gamma_detected_error"], (k, est, true)

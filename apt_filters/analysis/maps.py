@@ -482,7 +482,8 @@ def _evaluate(stats: np.ndarray, area: np.ndarray, k: int, n_el: int,
     out_level, in_level = levels
     with np.errstate(invalid="ignore", divide="ignore"):
         return (count / area, np.sqrt(np.maximum(var_counts + var_levels, 0.0)) / area, in_level[0],
-                np.sqrt(in_level[2]), out_level[0], np.sqrt(out_level[2]), expected, var_counts, var_levels,
+                np.sqrt(in_level[2]), out_level[0], np.sqrt(out_level[2]), expected, var_counts,
+                np.maximum(var_levels, 0.0),  # a quadratic form >= 0 that rounding can take below 0
                 np.stack(kept, axis=-1), np.stack(means, axis=-1))
 
 

@@ -133,6 +133,17 @@ class Proxigram:
                        unranged=self.unranged.sum(axis=0, keepdims=True), areas=self.areas.sum(keepdims=True),
                        shell_volumes=self.shell_volumes.sum(axis=0, keepdims=True))
 
+    def crop(self, extent: float) -> "Proxigram":
+        """The bins within ``[-extent, extent)`` nm: the counts a proxigram over that range holds (each
+        ion's distance does not depend on the range; a distance on a bin edge may round to the other bin
+        in float32), when ``extent`` falls on a bin edge."""
+        keep = (self.edges[:-1] >= -extent - 1e-9) & (self.edges[1:] <= extent + 1e-9)
+        if keep.all():
+            return self
+        first, last = np.flatnonzero(keep)[[0, -1]]
+        return replace(self, edges=self.edges[first:last + 2], counts=self.counts[:, keep],
+                       unranged=self.unranged[:, keep], shell_volumes=self.shell_volumes[:, keep])
+
     def table(self) -> tuple[list[str], np.ndarray]:
         """CSV header and rows (one per object and bin): counts, fractions, errors, densities."""
         k, b = self.counts.shape[:2]
@@ -165,8 +176,10 @@ class Proxigram:
             lines.append(",".join([*ints, *floats, *counts, *rest]))
         return atomic_write_text(path, "\n".join(lines) + "\n", overwrite)
 
-    def plot(self, path: str | os.PathLike, overwrite: bool = False, title: str | None = None) -> Path:
-        """PNG of the pooled profile: ion species (range-file colours) and elements, in at.%, with errors."""
+    def plot(self, path: str | os.PathLike, overwrite: bool = False, title: str | None = None,
+             windows: tuple[float, float] | None = None) -> Path:
+        """PNG of the pooled profile: ion species (range-file colours) and elements, in at.%, with errors;
+        ``windows`` (inner, outer nm) shades the plateau windows."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -181,6 +194,9 @@ class Proxigram:
                 ax.errorbar(pooled.centers, 100 * c[0, :, j], yerr=100 * err[0, :, j], label=name, lw=1,
                             ms=2, marker="o", capsize=1.5, color=f"#{color}" if color else None)
             ax.axvline(0.0, color="k", ls="--", lw=0.8, label="iso-surface")
+            if windows is not None:
+                for lo, hi in ((-windows[1], -windows[0]), (windows[0], windows[1])):
+                    ax.axvspan(lo, hi, color="0.9", zorder=0, label="plateau windows" if lo > 0 else None)
             if self.iso_value is not None:
                 ax.axhline(100 * self.iso_value, color="grey", ls=":", lw=0.8, label=f"iso = {100 * self.iso_value:g} at.%")
             ax.set_ylabel(f"{'ion' if kind == 'ion' else 'atomic'} concentration (%)")

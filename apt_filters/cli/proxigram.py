@@ -21,6 +21,9 @@ INSTRUMENTS = ("EIKOS", "Invizio", "LEAP 5000R", "LEAP 5000S", "LEAP 6000")
 a test checks they agree)."""
 MAX_BINS = 1_000_000
 """2 × --range-nm / --bin at most."""
+MAX_RANGE = 50.0
+"""The widest range the width fit may ask for, nm (``analysis.width.MAX_RANGE``, spelled here so that
+``--help`` imports no analysis code; a test checks they agree)."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,15 +38,18 @@ def run(args: argparse.Namespace) -> int:
         if not Path(path).is_file():  # before the heavy imports: a mistake is reported at once
             raise AptFiltersError(missing, path)
     ion_format(args.ions)
-    if 2 * args.range_nm / args.bin > MAX_BINS:
-        raise AptFiltersError(f"--range-nm {args.range_nm:g} / --bin {args.bin:g} make more than {MAX_BINS:,} bins")
+    if 2 * (args.range_nm or MAX_RANGE) / args.bin > MAX_BINS:
+        raise AptFiltersError(f"--range-nm {args.range_nm or MAX_RANGE:g} / --bin {args.bin:g} make more than "
+                              f"{MAX_BINS:,} bins" + ("" if args.range_nm else " (the largest fitted range)"))
     ranges = read_ranges(args.range_file)
+    names = ranges.elements + [i for i in ranges.ions if i not in ranges.elements]
     if args.solute:
-        args.solute = match_species(args.solute, ranges.elements + [i for i in ranges.ions if i not in ranges.elements],
-                                    what="solute")
+        args.solute = match_species(args.solute, names, what="solute")
+    if args.species:
+        args.species = match_species(args.species, names, what="species")
 
     from apt_filters.analysis.excess import INSTRUMENT_EFFICIENCY, interfacial_excess, write_excess_json
-    from apt_filters.analysis.proxigram import compute_proxigram
+    from apt_filters.analysis.width import fitted_proxigram
     from apt_filters.io import iter_ion_chunks
     from apt_filters.meshlab.bridge import read_mesh
 
@@ -59,18 +65,27 @@ def run(args: argparse.Namespace) -> int:
         if existing:
             raise AptFiltersError(f"{', '.join(existing)} exist already; pass --force to replace them", out)
     out.mkdir(parents=True, exist_ok=True)
-    prox = compute_proxigram(iter_ion_chunks(args.ions), ranges, mesh, bin_width=args.bin,
-                             max_distance=args.range_nm, keep_edge=args.keep_edge, iso_value=args.iso)
-    results = interfacial_excess(prox, args.solute, efficiency, args.inner, args.outer) if args.solute else []
+    class Chunks:  # read again for each proxigram the width fit asks for
+        def __iter__(self):
+            return iter_ion_chunks(args.ions)
+
+    outer = args.outer if args.outer is not None else args.range_nm
+    prox, windows = fitted_proxigram(ions=Chunks(), ranges=ranges, mesh=mesh, species=args.species or "",
+                                     solutes=[args.solute] if args.solute else [], bin_width=args.bin,
+                                     inner=args.inner, outer=outer, keep_edge=args.keep_edge, iso_value=args.iso)
+    print(windows.describe())
+    results = (interfacial_excess(prox, args.solute, efficiency, windows.inner, windows.outer,
+                                  fallback=windows.levels(args.solute)) if args.solute else [])
     pooled = prox.pooled()
     pooled.write_csv(out / "proxigram.csv", overwrite=args.force)
     prox.write_csv(out / "proxigram_objects.csv", overwrite=args.force)
-    prox.plot(out / "proxigram.png", overwrite=args.force, title=f"{Path(args.ions).name} across {Path(args.mesh).name}")
+    prox.plot(out / "proxigram.png", overwrite=args.force,
+              title=f"{Path(args.ions).name} across {Path(args.mesh).name}", windows=(windows.inner, windows.outer))
     if results:
         write_excess_json(out / "excess.json", results, overwrite=args.force)
     in_range = int(pooled.counts.sum() + pooled.unranged.sum())
     print(f"{args.ions}: {prox.n_ions:,} ions, {prox.n_candidates:,} in the narrow band, {in_range:,} within "
-          f"±{args.range_nm:g} nm of {len(prox.object_ids)} object(s) ({pooled.areas[0]:.4g} nm²); "
+          f"±{windows.outer:g} nm of {len(prox.object_ids)} object(s) ({pooled.areas[0]:.4g} nm²); "
           f"{prox.n_rim:,} at the open rim {'kept' if args.keep_edge else 'left out'}")
     for r in results:
         name = "pooled" if r.object_id < 0 else f"object {r.object_id}"
@@ -97,16 +112,20 @@ def register(subparsers) -> None:
                    help="iso-surface (.ply, .obj, .stl, .off), normals out of the region above the iso-value")
     add_output(p, "folder for the outputs", metavar="OUTDIR")
     p.add_argument("--bin", type=number("(0, 100]", "nm"), default=0.1, help="bin width in nm (default 0.1)")
-    p.add_argument("--range-nm", type=number("(0, 1000]", "nm"), default=3.0,
-                   help="half range of distances in nm (default 3)")
+    p.add_argument("--range-nm", type=number("(0, 1000]", "nm"), default=None,
+                   help="half range of distances in nm, the plateau windows' outer edge (default: 3 x the inner "
+                        "edge)")
+    p.add_argument("--species", metavar="EL", help="the surface's iso species, whose fitted step sets the plateau "
+                                                   "windows and range (without it: 1 and 3 nm)")
     p.add_argument("--keep-edge", action="store_true", help="keep ions beyond the rim of an open surface")
     p.add_argument("--iso", type=number("(0, 1000]"), default=None, help="iso-value as a fraction, marked on the plot")
     p.add_argument("--solute", metavar="B", help="element or ion species whose interfacial excess to compute")
     p.add_argument("--efficiency", type=number("(0, 1]"), default=0.5, help="detection efficiency (default 0.5)")
     p.add_argument("--instrument", choices=INSTRUMENTS,
                    help="take the detection efficiency of this instrument instead of --efficiency")
-    p.add_argument("--inner", type=number("[0, 1000]", "nm"), default=1.0,
-                   help="plateau windows start this far from the interface, nm (default 1)")
+    p.add_argument("--inner", type=number("[0, 1000]", "nm"), default=None,
+                   help="plateau windows start this far from the interface, nm (default: beyond the interface "
+                        "width fitted on the proxigram)")
     p.add_argument("--outer", type=number("(0, 1000]", "nm"), default=None,
                    help="plateau windows end here, nm (default: --range-nm)")
     p.add_argument("--force", action="store_true", help="replace existing outputs")

@@ -80,6 +80,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-facets", action="store_true", help="keep edges as refined (no facet sharpening)")
     p.add_argument("--no-marker", action="store_true",
                    help="place objects by their step alone, not also by the peak of the excluded segregants")
+    p.add_argument("--plateau-inner", type=float, metavar="NM",
+                   help="plateau windows start this far from the surface, nm (default: from the interface width "
+                        "fitted on the proxigram)")
+    p.add_argument("--proxigram-range", type=float, metavar="NM",
+                   help="proxigram half range and outer edge of the plateau windows, nm (default: 3 x the inner edge)")
     p.add_argument("--force", action="store_true", help="replace an output folder apt-filters wrote before")
     loud = p.add_mutually_exclusive_group()
     loud.add_argument("--quiet", "-q", action="store_true", help="no step summaries")

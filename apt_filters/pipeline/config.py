@@ -131,8 +131,12 @@ class RemeshConfig:
 class ProxigramConfig:
     bin: float = 0.1
     """Bin width in nm (AP Suite default)."""
-    extent: float = 3.0
-    """Signed distances from -extent to +extent nm are binned."""
+    extent: float = 0.0
+    """Signed distances from -extent to +extent nm are binned; also the outer edge of the plateau windows.
+    0: three times ``inner`` (analysis.width)."""
+    inner: float = 0.0
+    """Plateau windows start this far (nm) from the surface on each side, where the excess integration
+    ends. 0: from the interface width fitted on the proxigram (beyond the step and the solutes' peaks)."""
     exclude_edge: bool = True
     """Leave out ions whose closest surface point is on the specimen edge (AP Suite default)."""
     solutes: list[str] = field(default_factory=list)
@@ -179,7 +183,8 @@ LIMITS: dict[tuple[str, str], tuple[str, str]] = {
     ("remesh", "edge_length"): ("[0, 1000]", "nm"),
     ("remesh", "feature_angle"): ("(0, 180]", "degrees"),
     ("proxigram", "bin"): ("(0, 100]", "nm"),
-    ("proxigram", "extent"): ("(0, 1000]", "nm"),
+    ("proxigram", "extent"): ("[0, 1000]", "nm"),
+    ("proxigram", "inner"): ("[0, 1000]", "nm"),
     ("analysis", "efficiency"): ("(0, 1]", ""),
 }
 """Interval of every number (each element of a list), as ``"[lo, hi]"`` with ``(``/``)`` for open ends.
@@ -188,6 +193,10 @@ holds more than ~180 atoms/nm³), so that absurd values fail at once instead of 
 
 MAX_PROXIGRAM_BINS = 1_000_000
 """2 × extent / bin at most."""
+
+MAX_FITTED_RANGE = 50.0
+"""The widest proxigram range (nm) the interface-width fit may ask for (``analysis.width.MAX_RANGE``, spelled
+here so that reading a configuration imports no analysis code; a test checks they agree)."""
 
 ELEMENTS = {("input", "relabel"): str, ("voxel", "delocalization"): float, ("voxel", "exclude"): str,
             ("refine", "blur"): float,
@@ -269,9 +278,14 @@ def check(config: PipelineConfig, source: str | None = None) -> None:
             raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}",
                                   source)
     p = config.proxigram
-    if 2 * p.extent / p.bin > MAX_PROXIGRAM_BINS:
-        raise AptFiltersError(f"[proxigram] {2 * p.extent / p.bin:.3g} bins (2 × extent / bin): more than "
-                              f"{MAX_PROXIGRAM_BINS:,}", source)
+    extent = p.extent or MAX_FITTED_RANGE
+    if 2 * extent / p.bin > MAX_PROXIGRAM_BINS:
+        raise AptFiltersError(f"[proxigram] {2 * extent / p.bin:.3g} bins (2 × extent / bin"
+                              + ("" if p.extent else f", extent 0: up to {MAX_FITTED_RANGE:g} nm fitted")
+                              + f"): more than {MAX_PROXIGRAM_BINS:,}", source)
+    if p.inner and p.extent and p.inner >= p.extent:
+        raise AptFiltersError(f"[proxigram] inner ({p.inner:g} nm) must be below extent ({p.extent:g} nm): the "
+                              "plateau windows run from inner to extent", source)
 
 
 def from_dict(data: dict, source: str | None = None) -> PipelineConfig:
@@ -298,6 +312,7 @@ OPTIONS = {
     "remesh": ("remesh", "method"),
     "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "relabel": ("input", "relabel"),
     "unknown_species": ("input", "unknown_species"), "memory_budget": ("input", "memory_budget"),
+    "plateau_inner": ("proxigram", "inner"), "proxigram_range": ("proxigram", "extent"),
 }
 """Run options (as ``apt-filters run`` and batch manifests name them) -> (section, key)."""
 

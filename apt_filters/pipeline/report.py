@@ -153,9 +153,35 @@ def _what_was_run(report: dict) -> str:
              + (", refined against the ions" if cfg["refine"]["enabled"] else "")
              + ", cleaned by a MeshLab chain"
              + (", remeshed (CVT)" if cfg["remesh"]["method"] == "cvt" else ""),
-             f"detection efficiency {cfg['analysis']['efficiency']:g}; proxigram bins {cfg['proxigram']['bin']:g} nm "
-             f"over ±{cfg['proxigram']['extent']:g} nm"]
+             f"detection efficiency {cfg['analysis']['efficiency']:g}; proxigram bins {cfg['proxigram']['bin']:g} nm; "
+             + _windows_words(cfg["proxigram"])]
     return "<ul class='run'>" + "".join(f"<li>{s}</li>" for s in steps) + "</ul>"
+
+
+def _windows_words(p: dict) -> str:
+    given = [f"{words} {p[key]:g} nm" for key, words in (("inner", "plateau windows from"), ("extent", "range ±"))
+             if p.get(key)]
+    fitted = [words for key, words in (("inner", "plateau windows"), ("extent", "range")) if not p.get(key)]
+    return ", ".join(given + ([" and ".join(fitted) + " from the fitted interface width"] if fitted else []))
+
+
+def _interface(surface: dict) -> str:
+    """One paragraph: the fitted interface width and position, and the plateau windows they set."""
+    w = surface.get("interface")
+    if not w:
+        return ""
+    words = (f"Plateau windows {w['inner_nm']:.3g}–{w['outer_nm']:.3g} nm from the surface on each side "
+             f"({ {'fitted': 'set by the fitted width', 'given': 'as given'}.get(w['source'], w['source']) }); "
+             "the excess is integrated between them.")
+    s = w.get("step")
+    if s:
+        words = (f"Interface: {html.escape(s['species'])} 10–90 % width "
+                 f"{with_error(s['width'], s['width_error'])} nm, its 50 % point "
+                 f"{with_error(s['centre'], s['centre_error'])} nm from the surface (positive inside), "
+                 f"fitted on the pooled proxigram (asymmetric error-function step). " + words)
+    if w.get("note"):
+        words += f" ({html.escape(w['note'])})"
+    return f"<p>{words}</p>"
 
 
 # --- warnings in words ------------------------------------------------------------------------
@@ -252,8 +278,8 @@ def _summary(surface: dict) -> str:
     excess = (_table(["solute"] + [f"{r['label']} (atoms/nm²)" for r in rows], excess_rows, "summary")
               if solutes else "<p class='none'>no solute below 10 % overall</p>")
     return (f"<div class='cards'><div><h3>Objects</h3>{geometry}</div>"
-            f"<div><h3>Interfacial excess Γ</h3>{excess}</div></div>"
-            f"<h3>Composition inside and outside the interface</h3>"
+            f"<div><h3>Interfacial excess Γ</h3>{excess}</div></div>" + _interface(surface)
+            + f"<h3>Composition inside and outside the interface</h3>"
             + _table(comp_header, comp_rows, "summary", [("", 1)] + [(r["label"], 2) for r in rows]))
 
 

@@ -77,6 +77,8 @@ class SurfaceResult:
     objects: list[dict] = field(default_factory=list)
     excess: list[dict] = field(default_factory=list)
     proxigram: object = None
+    windows: object = None
+    """The plateau windows and interface fits (:class:`~apt_filters.analysis.width.Windows`)."""
     stats: dict = field(default_factory=dict)
     summary: list[dict] = field(default_factory=list)
     maps: list[dict] = field(default_factory=list)
@@ -90,6 +92,7 @@ class SurfaceResult:
     def report(self) -> dict:
         return {"label": self.label, "species": self.surface.species, "iso": self.surface.iso,
                 "mesh": self.stats | self.record.as_dict(self.mesh), "summary": self.summary,
+                "interface": self.windows.as_dict() if self.windows is not None else None,
                 "objects": self.objects, "excess": self.excess, "maps": self.maps}
 
 
@@ -203,7 +206,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
     """The finished surface (:func:`finished_surface`), its object table, proxigram and excess."""
     from apt_filters.analysis.excess import interfacial_excess
     from apt_filters.analysis.objects import object_table
-    from apt_filters.analysis.proxigram import compute_proxigram
+    from apt_filters.analysis.width import first_range, fitted_proxigram
 
     label = surface_label(surface)
     ions, ranges = inputs.ions, inputs.ranges
@@ -212,10 +215,17 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
     res = SurfaceResult(label, surface, mesh, record)
     if mesh.n_faces == 0:  # every component was a speck: reported, nothing to measure or export
         return res
+    p = config.proxigram
+    reach = first_range(inner=p.inner or None, outer=p.extent or None)
+
+    def select(distance: float):
+        """The ions within ``distance`` of the surface or inside its objects (kept for every analysis)."""
+        res.near = analysis_ions(ions, mesh, reach=distance, cap_open=config.contour.close_at_edge)
+        return res.near
+
     with log.step("select") as s:
-        near = res.near = analysis_ions(ions, mesh, reach=config.proxigram.extent,
-                                        cap_open=config.contour.close_at_edge)
-        s.summary = (f"{label}: {len(near):,} ions within {config.proxigram.extent:g} nm or inside objects "
+        near = select(reach)
+        s.summary = (f"{label}: {len(near):,} ions within {reach:g} nm or inside objects "
                      f"({len(near) / max(len(ions), 1):.1%}), one pass")
     with log.step("objects") as s:
         table = object_table(mesh, near, ranges, specimen=inputs.hull, cap_open=config.contour.close_at_edge)
@@ -225,22 +235,32 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
         res.stats["objects_dropped"] = table.n_dropped
         s.summary = f"{label}: {len(res.objects)} objects"
     with log.step("proxigram") as s:
-        prox = compute_proxigram(near, ranges, mesh, bin_width=config.proxigram.bin,
-                                 max_distance=config.proxigram.extent, keep_edge=not config.proxigram.exclude_edge,
-                                 iso_value=surface.iso if surface.species else None)
-        prox.write_csv(stage / f"proxigram_{label}.csv")
-        prox.plot(stage / f"proxigram_{label}.png", title=f"proxigram across {label}")
-        solutes = config.proxigram.solutes or [
+        solutes = p.solutes or [
             el for el, c in inputs.report["composition"].items() if c < MINORITY and el != surface.species]
+        # a wide interface asks for a wider range than the first selection: selected again (res.near)
+        prox, windows = fitted_proxigram(ions=near, ranges=ranges, mesh=mesh, species=surface.species,
+                                         solutes=solutes, bin_width=p.bin, inner=p.inner or None,
+                                         outer=p.extent or None, keep_edge=not p.exclude_edge,
+                                         iso_value=surface.iso if surface.species else None, covered=reach,
+                                         select=select)
+        again = res.near is not near
+        near = res.near
+        prox.write_csv(stage / f"proxigram_{label}.csv")
+        prox.plot(stage / f"proxigram_{label}.png", title=f"proxigram across {label}",
+                  windows=(windows.inner, windows.outer))
         for solute in solutes:
-            res.excess += [dataclasses.asdict(e) for e in
-                           interfacial_excess(prox, solute, config.analysis.efficiency, skip_unmeasurable=True)]
-        res.proxigram = prox
+            res.excess += [dataclasses.asdict(e) for e in interfacial_excess(
+                prox, solute, config.analysis.efficiency, windows.inner, windows.outer, skip_unmeasurable=True,
+                fallback=windows.levels(solute))]
+        res.proxigram, res.windows = prox, windows
         res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
-                                      efficiency=config.analysis.efficiency)
+                                      efficiency=config.analysis.efficiency, inner=windows.inner,
+                                      outer=windows.outer, fallback={s: windows.levels(s) for s in solutes})
         measured = {e["object_id"] for e in res.excess}
         res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured)
-        s.summary = (f"{label}: excess of {', '.join(solutes) or 'no solute'}; "
+        s.summary = (f"{label}: {windows.describe()}"
+                     + (f"; {len(near):,} ions selected again within {windows.outer:g} nm" if again else "")
+                     + f"; excess of {', '.join(solutes) or 'no solute'}; "
                      f"{len(res.stats['objects_without_excess'])} objects too thin for plateaus")
     if config.analysis.maps:
         with log.step("maps") as s:
@@ -335,7 +355,8 @@ def _maps(res: SurfaceResult, ions, ranges, solutes: list[str], config: Pipeline
     if not solutes:
         return []
     maps = excess_maps(mesh=res.mesh, ions=ions, ranges=ranges, solutes=solutes, bin_width=config.proxigram.bin,
-                       max_distance=config.proxigram.extent, keep_edge=not config.proxigram.exclude_edge,
+                       max_distance=res.windows.outer, inner=res.windows.inner,
+                       keep_edge=not config.proxigram.exclude_edge,
                        relative_error=config.analysis.map_error)
     res.mesh.vertex_scalars.update(maps.vertex_scalars())
     shown = maps.most_significant()

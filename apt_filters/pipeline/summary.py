@@ -66,7 +66,7 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
 
 
 def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[str], efficiency: float,
-                    inner: float = 1.0, outer: float | None = None) -> list[dict]:
+                    inner: float = 1.0, outer: float | None = None, fallback: dict | None = None) -> list[dict]:
     """One row per group of objects (see module doc): geometry, composition and excess.
 
     Parameters
@@ -82,6 +82,9 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
         Detection efficiency for the excess in atoms.
     inner, outer : float
         Plateau windows, nm; ``outer`` defaults to the proxigram's extent.
+    fallback : dict, optional
+        Solute -> (matrix, precipitate) levels for a group too thin for its windows
+        (:meth:`apt_filters.analysis.width.Windows.levels`).
 
     Returns
     -------
@@ -115,7 +118,8 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
             pooled = replace(proxigram, **{f: getattr(proxigram, f)[keep] for f in fields}).pooled()
             row["composition"] = window_composition(pooled, inner, outer)
             for solute in solutes:
-                found = interfacial_excess(pooled, solute, efficiency, inner, outer, skip_unmeasurable=True)
+                found = interfacial_excess(pooled, solute, efficiency, inner, outer, skip_unmeasurable=True,
+                                           fallback=(fallback or {}).get(solute))
                 est = found[0].cumulative if found else None
                 row["excess"][solute] = None if est is None else {
                     "gamma_atoms_nm2": _finite_or_none(est.gamma_atoms),
