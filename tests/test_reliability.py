@@ -344,3 +344,22 @@ def test_a_closed_pipe_ends_quietly(data, command):
     proc.stdout.close()  # the reader is gone before the command writes anything
     _, err = proc.communicate(timeout=120)
     assert err == b"" and proc.returncode == 141
+
+
+def test_a_swallowed_interrupt_ends_the_run_at_the_next_step(monkeypatch, capsys):
+    """Was: SIGTERM arriving inside numba's cache callback (a ctypes callback) printed "Exception
+    ignored" with a traceback and the run went on to write its output."""
+    import ctypes
+
+    from apt_filters.core import atomic
+    from apt_filters.pipeline.steps import StepLog
+
+    monkeypatch.setattr(atomic, "_received", [])
+    monkeypatch.setattr(sys, "unraisablehook", atomic.unraisable_hook)
+    callback = ctypes.CFUNCTYPE(None)(lambda: atomic.raise_on_signal(signal.SIGTERM, None))
+    callback()  # ctypes cannot propagate the exception: it goes to the unraisable hook
+    assert "Traceback" not in capsys.readouterr().err
+    with pytest.raises(atomic.Interrupted) as caught:
+        with StepLog(quiet=True).step("next"):
+            pass
+    assert caught.value.signum == signal.SIGTERM

@@ -25,21 +25,10 @@ import sys
 
 from apt_filters import __version__
 from apt_filters.cli.options import check_output
+from apt_filters.core.atomic import raise_on_signal, unraisable_hook
 from apt_filters.core.errors import AptFiltersError, readable
 
 SIGPIPE_STATUS = 128 + 13
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised where the program is, like Ctrl-C's KeyboardInterrupt."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _interrupt(signum, frame) -> None:
-    raise Interrupted(signum)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -82,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     check_output(args)
-    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    previous = {signum: signal.signal(signum, raise_on_signal) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable_hook
     try:
         status = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
@@ -99,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"apt-filters {args.command}: interrupted ({signal.Signals(signum).name})")
         return 128 + signum
     finally:
+        sys.unraisablehook = previous_hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
 

@@ -22,6 +22,7 @@ import secrets
 import shutil
 import signal
 import socket
+import sys
 import threading
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -76,6 +77,42 @@ def tidy(folder: str | os.PathLike) -> list[Path]:
                 remove(Path(entry.path))
                 removed.append(Path(entry.path))
     return removed
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the program is, like Ctrl-C's KeyboardInterrupt."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+_received: list[int] = []
+"""Termination signals this process has received (see :func:`raise_if_interrupted`)."""
+
+
+def raise_on_signal(signum, frame) -> None:
+    """Signal handler for SIGTERM and SIGHUP: remember the signal and raise :class:`Interrupted`."""
+    _received.append(signum)
+    raise Interrupted(signum)
+
+
+def raise_if_interrupted() -> None:
+    """Raise :class:`Interrupted` again if a termination signal arrived.
+
+    A handler's exception can be swallowed where Python cannot propagate it (a ctypes callback,
+    e.g. numba's compiled-code cache, prints "Exception ignored" and carries on), so the steps of a
+    run and the commit of an output folder ask here before going on.
+    """
+    if _received:
+        raise Interrupted(_received[-1])
+
+
+def unraisable_hook(unraisable) -> None:
+    """``sys.unraisablehook`` that keeps a swallowed :class:`Interrupted` quiet (it is raised again
+    by :func:`raise_if_interrupted`) and hands everything else to Python's own hook."""
+    if not isinstance(unraisable.exc_value, Interrupted):
+        sys.__unraisablehook__(unraisable)
 
 
 @contextlib.contextmanager

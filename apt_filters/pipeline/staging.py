@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import Iterable, Iterator
 
 from apt_filters import __version__
-from apt_filters.core.atomic import host_tag, process_runs, refuse_inputs, remove, scratch_path, signals_held, tidy
+from apt_filters.core.atomic import (host_tag, process_runs, raise_if_interrupted, refuse_inputs, remove, scratch_path,
+                                      signals_held, tidy)
 from apt_filters.core.errors import AptFiltersError
 
 MARKER = ".apt-filters-output"
@@ -145,6 +146,7 @@ def staged_folder(target: str | os.PathLike, force: bool = False,
         stage.mkdir()
         (stage / MARKER).write_text(f"written by apt-filters {__version__}; --force may replace this folder\n")
         yield stage
+        raise_if_interrupted()
         with signals_held():
             check_output_folder(target, inputs, force)  # the same checks, in case it changed meanwhile
             if target.exists():

@@ -16,6 +16,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Iterator
 
+from apt_filters.core.atomic import raise_if_interrupted
+
 
 def _reset_peak() -> bool:
     try:
@@ -72,6 +74,7 @@ class StepLog:
     @contextlib.contextmanager
     def step(self, name: str) -> Iterator[StepRecord]:
         """Time a step; the body may set ``record.summary`` to what it found."""
+        raise_if_interrupted()
         _reset_peak()
         if self._bar is not None:
             self._bar.set_description(name)
@@ -84,6 +87,7 @@ class StepLog:
             yield record
         finally:
             done.set()
+        raise_if_interrupted()
         record.seconds = time.perf_counter() - start
         record.cpu_seconds = time.process_time() - cpu
         record.peak_bytes = _peak_bytes()
