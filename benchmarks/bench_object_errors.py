@@ -30,10 +30,11 @@ from apt_filters.truth import match_objects
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
 
-def run_draw(family: str, seed: int) -> tuple[str, list[dict], int, int]:
-    """(header line, rows per true object, spurious components kept, specks removed) of one draw."""
+def run_draw(family: str, seed: int, ion_seed: int | None = None) -> tuple[str, list[dict], int, int]:
+    """(header line, rows per true object, spurious components kept, specks removed) of one draw (its ions drawn
+    with ``ion_seed``, default ``seed``)."""
     spec = zoo_specimen(family, seed)
-    sp = generate(spec, seed)
+    sp = generate(spec, seed if ion_seed is None else ion_seed)
     inside = sp.truth["features"][0]["composition_inside"]
     species = max(inside, key=lambda e: inside[e] - spec.matrix.get(e, 0.0))
     iso = 0.5 * (spec.features[0].composition.get(species, 0.0) + spec.matrix.get(species, 0.0))
@@ -69,7 +70,7 @@ def run_draw(family: str, seed: int) -> tuple[str, list[dict], int, int]:
         rows.append(row)
     spurious = sum(1 for j in range(len(parts)) if j not in set(match))
     f0 = spec.features[0]
-    head = (f"{family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
+    head = (f"{family} seed {seed}{'' if ion_seed is None else f' ions {ion_seed}'}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
             f"{100 * f0.composition[species]:.1f} at.%, efficiency {spec.efficiency:.2f}; {specks.tested} components, "
             f"{specks.count} specks removed ({speck_seconds:.1f} s; null {specks.null[0]:+.2f} ± {specks.null[1]:.2f} "
             f"from {specks.null[2]} noise components), {spurious} spurious kept")
@@ -103,13 +104,54 @@ def summary(rows: list[dict], spurious: list[int], removed: list[int]) -> list[s
             f"- area z = (A - A_true) / sigma_A over {len(za)} objects: {spread(za)}"]
 
 
+def repeats(args) -> int:
+    """Per object: sd of volume and area over ion draws of one geometry, against the rms stated error."""
+    lines = []
+    ratios = {"volume": [], "area": []}
+    for family, seed in draws(args.split, args.count)[args.skip:]:
+        per = []
+        for k in range(args.repeats):
+            head, rows, _, _ = run_draw(family, seed, ion_seed=seed * 100 + k)
+            print(head, flush=True)
+            per.append(rows)
+        for i, row in enumerate(per[0]):
+            found = [r[i] for r in per if "volume" in r[i]]
+            if len(found) < 3:
+                continue
+            text = f"{family} seed {seed} {row['name']} ({row['true_volume']:.0f} nm³, {len(found)} draws):"
+            for key, sig in (("volume", "sigma_v"), ("area", "sigma_a")):
+                values = np.array([r[key] for r in found])
+                stated = np.sqrt(np.mean([r[sig] ** 2 for r in found]))
+                ratio = values.std(ddof=1) / stated
+                ratios[key].append((ratio, len(found) - 1))
+                text += f" {key} sd {values.std(ddof=1):.2f} vs stated {stated:.2f} (x{ratio:.2f});"
+            lines.append(text)
+            print(text, flush=True)
+    for key, rs in ratios.items():
+        if rs:  # pooled over objects, weighted by degrees of freedom
+            dof = sum(d for _, d in rs)
+            pooled = np.sqrt(sum(r ** 2 * d for r, d in rs) / dof)
+            lines.append(f"- {key}: observed sd / stated error, pooled over {len(rs)} objects ({dof} dof): "
+                         f"{pooled:.2f} (a ratio of 1 lies within +-{1.96 / np.sqrt(2 * dof):.2f} at 95 %)")
+            print(lines[-1], flush=True)
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write(f"# bench_object_errors --repeats {args.repeats} ({args.split})\n\n" + "\n".join(lines) + "\n")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
     ap.add_argument("--count", type=int, default=8)
     ap.add_argument("--skip", type=int, default=0, help="leave out the first draws")
+    ap.add_argument("--repeats", type=int, default=0,
+                    help="instead: each draw's objects with their ions drawn this many times (the spread of the "
+                         "volumes and areas over the repeats against the stated errors)")
     ap.add_argument("--out", help="also write the results file")
     args = ap.parse_args(argv)
+    if args.repeats:
+        return repeats(args)
     lines, rows, spurious, removed = [], [], [], []
 
     def say(text=""):

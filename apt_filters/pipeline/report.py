@@ -295,7 +295,7 @@ OBJECT_COLUMNS = (("object_id", "object", ""), ("status", "status", ""), ("area"
                   ("genus", "genus", ""), ("edge_distance", "to edge (nm)", "no specimen hull"),
                   ("n_ions", "ions inside", "open objects have no inside"),
                   ("p_value", "p (family-wise)", "not tested: refinement off or a density surface"),
-                  ("z", "z", "not tested: refinement off or a density surface"))
+                  ("z", "z (null spreads)", "not tested: refinement off or a density surface"))
 """(key, header, reason a value is missing); ``area`` and ``volume`` are shown with their counting errors
 (``area_se``, ``volume_se``) where the run measured them."""
 

@@ -1,40 +1,53 @@
 """The speck rule: a connected surface is an object only where its ions say so, at a stated significance.
 
-A component of an iso-surface is *real* when the ions on the two sides of it differ in the iso
-species' fraction by more than counting noise allows, tested over all components at once with a
-family-wise error rate ``alpha`` (default 0.001); the others are specks, reported and removed.
+A component of an iso-surface is *real* when the ions on its two sides differ in the iso species'
+fraction by more than noise does at this iso-value, tested over all components at once with a
+family-wise error rate ``alpha`` (default 0.001); the others are specks, reported and removed. Size
+plays no part: a 0.3 nm³ marching-cubes sliver of a 16 nm³ sphere at a 65-point contrast is kept
+(nothing else at that iso-value comes from noise), a 13 nm³ blob at a 4-point contrast is not.
 
-Why the ions are split. A component is found *because* the delocalized field of the same ions crosses
-the iso-value there: the ions inside a noise blob are, by construction, the ones whose fluctuation made
-it, and a test on them is biased (on a zoo specimen with a 4-point contrast, 0.49 efficiency, noise blobs
-reached z = 5-6.5 against their surroundings, a genuine 185 nm³ object z = 9.7). So the selection and the
-test use different ions (data splitting, Cox 1975): the even and the odd rows of the ion table are
-voxelized apart on the same grid and contoured at the same iso-value; each half's components are tested
-with the *other* half's ions, which did not shape them, so under the null (no object, a homogeneous
-phase) the test's p-value is uniform.
+The statistic. For each component, the atoms within ``reach`` nm of its surface (exact signed
+distance, :mod:`apt_filters.core.distance`) are split into the side above the iso-value (``d < 0``)
+and the side below; ``z`` is the two-sample binomial score of the iso species' fraction on the side
+above against the side below (:func:`side_z`).
 
-The test of one half-component: the other half's atoms within ``reach`` nm of its surface (signed
-distance, :mod:`apt_filters.core.distance`), split into the side above the iso-value (``d < 0``) and
-the side below; conditional on the totals, the atoms of the iso species on the side above are
-hypergeometric under the null (Fisher's exact test, one-sided: more on the side above). The p-values
-of all half-components of both halves are adjusted together by Holm's step-down method (Holm 1979:
-family-wise error rate ``alpha`` over every component tested, so that a low-contrast field with
-thousands of blobs does not yield objects by chance; uniformly more powerful than Bonferroni). A
-component of the full surface takes the smallest adjusted p-value of the half-components within one
-voxel of its vertices (the same object seen in either half), and is a speck when that exceeds
-``alpha``, or when no half-component is near it (a blob neither half reproduces).
+Its null. A component is found *because* the delocalized field of the same ions crosses the
+iso-value there, so for a component that noise drew, ``z`` is not standard normal: the ions inside
+a noise blob are the ones whose fluctuation made it (on a zoo specimen with a 4-point contrast and
+0.49 efficiency, noise blobs reached z = 3-6.5, a genuine 185 nm³ object 9.7). The null is therefore
+drawn, not assumed (a randomisation test, as for cluster-finding parameters in APT: Stephenson et
+al. 2007): each ion keeps its position and gets the mass-to-charge of an ion drawn at random from the
+phase below the iso-value (ions in voxels whose fraction is under ``iso``), so the specimen keeps its
+shape, density and matrix composition and loses every object; it is voxelized on the same grid with the
+same kernel, contoured at the same iso-value, and every component noise draws there is scored like the
+data's (:func:`null_z`). Their scores' mean and standard deviation are the null of one component
+(the empirical null of Efron 2004), from :data:`NULL_DRAWS` draws, up to :data:`MAX_NULL_DRAWS` while
+they hold fewer than :data:`MIN_NULL` components. Where noise draws no component at all at this
+iso-value, the statistic's own null, N(0, 1), is used; a spread under 1 is not trusted (set to 1).
 
-Why ``alpha = 0.001`` family-wise: a run reports its objects as found, and a user reads each as
-physical; one spurious object in a thousand specimens is the error rate of a claim made without
-qualification (3.1 sigma one-sided), while a genuine 2 nm-radius sphere at a 4-point contrast still
-passes (its ions give z ~ 6 per half). ``reach = 2`` nm: the interior of every object whose reality
-is in question (radius <= 2 nm) and the matrix within the delocalization's reach around it.
+The family. The one-sided p-values ``P(Z > (z - centre) / spread)`` of all the components are adjusted
+together by Holm's step-down method (Holm 1979; family-wise, uniformly more powerful than Bonferroni),
+so that a low-contrast field with thousands of blobs does not yield objects by chance. A component is
+a speck when its adjusted p-value exceeds ``alpha``.
+
+Why ``alpha = 0.001`` family-wise: a run reports its objects as found and a user reads each as
+physical, so a spurious object should be as rare as one per thousand specimens analysed (the usual
+threshold for a claim made without qualification); genuine objects of >= 30 nm³ stand 6 and more
+null spreads above the noise at the zoo's lowest contrasts (benchmarks/results_object_errors.md).
+``reach = 2`` nm: the interior of every object whose reality is in question (radius <= 2 nm) and the
+matrix within the delocalization's reach around it.
+
+Limitations: the null is the phase below the iso-value; noise holes in the phase above are scored
+against it. Each draw costs a voxelization of all the ions and a contour.
 
 References
 ----------
-Cox, D. R. (1975). A note on data-splitting for the evaluation of significance levels. Biometrika 62, 441-444.
+Efron, B. (2004). Large-scale simultaneous hypothesis testing: the choice of a null hypothesis.
+J. Am. Statist. Assoc. 99, 96-104.
 Holm, S. (1979). A simple sequentially rejective multiple test procedure. Scand. J. Statist. 6, 65-70.
-Fisher, R. A. (1922). On the interpretation of chi-square from contingency tables. J. R. Statist. Soc. 85, 87-94.
+Stephenson, L. T., Moody, M. P., Liddicoat, P. V., Ringer, S. P. (2007). New techniques for the analysis
+of fine-scaled clustering phenomena within atom probe tomography (APT) data. Microsc. Microanal. 13,
+448-463.
 """
 
 from __future__ import annotations
@@ -58,11 +71,13 @@ REACH = 2.0
 """nm each side of a component's surface whose ions are tested."""
 
 NULL_DRAWS = 2
-"""Noise specimens drawn to calibrate the test (each a voxelization and a contour of all the ions)."""
+"""Noise specimens drawn at least to calibrate the test (each a voxelization and a contour of all the ions)."""
+
+MAX_NULL_DRAWS = 4
+"""Noise specimens drawn at most, while they hold fewer than :data:`MIN_NULL` components."""
 
 MIN_NULL = 20
-"""Noise components needed to estimate the null's centre and spread; with fewer, noise rarely draws a
-component at this iso-value and the statistic's own null, N(0, 1), is used."""
+"""Noise components wanted to estimate the null's centre and spread."""
 
 
 @dataclass
@@ -76,13 +91,16 @@ class Specks:
     volumes, areas : list of float
         Their enclosed volumes (nm³, NaN where open) and areas (nm²).
     p_values : (c,) float
-        Holm-adjusted (family-wise) p-value of every component of the input (1 where no half-component
-        reproduces it).
+        Holm-adjusted (family-wise) p-value of every component of the input.
     z : (c,) float
-        The normal score of the unadjusted one-sided p-value behind each ``p_values`` entry (0 where none).
+        Each component's score in null spreads above the null's centre, ``(side_z - centre) / spread``.
     tested : int
-        Half-components tested (both halves): the size of the family.
+        Components tested: the size of the family.
     alpha : float
+    null : (centre, spread, components)
+        The null of one component's :func:`side_z` and the noise components it was estimated from.
+    kept : (TriMesh, (k,) float, (k,) float) or None
+        The components kept, with their p-values and z (for :meth:`of`).
     """
 
     ids: list[int]
@@ -100,9 +118,24 @@ class Specks:
         return len(self.ids)
 
     def of(self, mesh: TriMesh, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-        """(adjusted p-value, z) of each component of ``mesh`` (e.g. the finished surface): those of the
-        half-components within ``tolerance`` nm of its vertices, the smallest p-value; (1, 0) where none is."""
-        return _match(mesh, [] if self.kept is None else [self.kept], tolerance)
+        """(adjusted p-value, z) of each component of ``mesh`` (e.g. the finished surface): of the kept
+        components within ``tolerance`` nm of its vertices, the one with the smallest p-value; (1, 0) where none
+        is."""
+        labels = mesh.face_components()
+        n_comp = int(labels.max()) + 1 if len(labels) else 0
+        best_p, best_z = np.ones(n_comp), np.zeros(n_comp)
+        if self.kept is None or self.kept[0].n_faces == 0 or not n_comp:
+            return best_p, best_z
+        kept, p, z = self.kept
+        vertex_comp = np.zeros(mesh.n_vertices, dtype=np.int64)
+        vertex_comp[mesh.faces.ravel()] = np.repeat(labels, 3)
+        sd = SurfaceDistance(kept, reach=tolerance).query(mesh.vertices, max_distance=tolerance)
+        close = np.abs(sd.distance) <= tolerance
+        pairs = np.unique(np.column_stack([vertex_comp[close], kept.face_components()[sd.face[close]]]), axis=0)
+        np.minimum.at(best_p, pairs[:, 0], p[pairs[:, 1]])
+        best = p[pairs[:, 1]] == best_p[pairs[:, 0]]  # the z of the most significant neighbour
+        best_z[pairs[best, 0]] = z[pairs[best, 1]]
+        return best_p, best_z
 
 
 def holm(p: np.ndarray) -> np.ndarray:
@@ -115,16 +148,15 @@ def holm(p: np.ndarray) -> np.ndarray:
     return adjusted
 
 
-def side_z(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-           reach: float = REACH, mz: np.ndarray | None = None) -> np.ndarray:
+def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
+           reach: float = REACH) -> np.ndarray:
     """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
     on the side above the iso-value (signed distance < 0) against those on the side below (pooled binomial
-    variance; 0 where a side is empty). ``mz`` replaces the ions' own mass-to-charge (a null draw)."""
+    variance; 0 where a side is empty)."""
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
     near = select_near(ions.positions, mesh, reach)
-    mz = np.asarray(ions.mz if mz is None else mz)[near.rows]
-    atoms = ion_atoms(IonTable(near.positions, mz), ranges, basis)
+    atoms = ion_atoms(IonTable(near.positions, np.asarray(ions.mz)[near.rows]), ranges, basis)
     total, mine = atoms.total.astype(np.float64), atoms.atoms[:, atoms.elements.index(species)].astype(np.float64)
     comp, above = labels[near.face], near.distance < 0
 
@@ -139,31 +171,12 @@ def side_z(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str, basi
     return np.where((n_up > 0) & (n_down > 0) & (var > 0), diff / np.sqrt(np.where(var > 0, var, 1.0)), 0.0)
 
 
-def _match(mesh: TriMesh, halves, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    labels = mesh.face_components()
-    n_comp = int(labels.max()) + 1 if len(labels) else 0
-    best_p, best_z = np.ones(n_comp), np.zeros(n_comp)
-    vertex_comp = np.zeros(mesh.n_vertices, dtype=np.int64)
-    vertex_comp[mesh.faces.ravel()] = np.repeat(labels, 3)
-    for half, p, z in halves:
-        if half.n_faces == 0:
-            continue
-        sd = SurfaceDistance(half, reach=tolerance).query(mesh.vertices, max_distance=tolerance)
-        close = np.abs(sd.distance) <= tolerance
-        pairs = np.unique(np.column_stack([vertex_comp[close], half.face_components()[sd.face[close]]]), axis=0)
-        order = np.lexsort((p[pairs[:, 1]], pairs[:, 0]))  # per component, its most significant half first
-        first = order[np.r_[True, np.diff(pairs[order, 0]) > 0]] if len(order) else order
-        c, h = pairs[first, 0], pairs[first, 1]
-        better = p[h] < best_p[c]
-        best_p[c[better]], best_z[c[better]] = p[h[better]], z[h[better]]
-    return best_p, best_z
-
-
 def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, species: str, iso: float,
-           basis: ConcentrationBasis, draws: int = NULL_DRAWS, reach: float = REACH, seed: int = 0) -> np.ndarray:
-    """The :func:`side_z` of every component that noise alone draws at ``iso``: ``draws`` specimens with the ions'
-    own positions, each ion given the mass-to-charge of an ion drawn at random from those below the iso-value
-    (the matrix: its voxel's fraction under ``iso``), voxelized, contoured and tested like the data."""
+           basis: ConcentrationBasis, reach: float = REACH, seed: int = 0) -> tuple[np.ndarray, int]:
+    """The :func:`side_z` of every component that noise alone draws at ``iso``, and the specimens drawn: each
+    keeps the ions' positions, each ion given the mass-to-charge of an ion drawn at random from those below the
+    iso-value (the matrix: its voxel's fraction under ``iso``), voxelized, contoured and tested like the data;
+    :data:`NULL_DRAWS` of them, up to :data:`MAX_NULL_DRAWS` while fewer than :data:`MIN_NULL` components."""
     c = fields.concentration(species, basis).dense()
     rng = np.random.default_rng(seed)
     mz = np.asarray(ions.mz)
@@ -173,8 +186,10 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
     pool = mz[below]
     out = [np.zeros(0)]
     if not len(pool):
-        return out[0]
-    for _ in range(draws):
+        return out[0], 0
+    drawn = 0
+    while drawn < NULL_DRAWS or (drawn < MAX_NULL_DRAWS and sum(map(len, out)) < MIN_NULL):
+        drawn += 1
         labels = pool[rng.integers(0, len(pool), len(mz))]
         noise = IonTable(ions.positions, labels)
         null_fields = voxelize(noise, ranges, grid=fields.grid, kernel=fields.kernel,
@@ -182,8 +197,8 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
         mesh = marching_cubes(null_fields.concentration(species, basis).dense(), iso, spacing=fields.grid.voxel,
                               origin=fields.grid.origin, mask=mask)
         if mesh.n_faces:
-            out.append(side_z(mesh, noise, ranges, species, basis, reach))
-    return np.concatenate(out)
+            out.append(side_z(mesh, ions=noise, ranges=ranges, species=species, basis=basis, reach=reach))
+    return np.concatenate(out), drawn
 
 
 def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
@@ -225,13 +240,15 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
     basis = fields.basis if basis is None else basis
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
-    z = side_z(mesh, ions, ranges, species, basis, reach) if n_comp else np.zeros(0)
-    null = null_z(fields=fields, mask=mask, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
-                  reach=reach)
-    centre, spread = (float(null.mean()), float(null.std(ddof=1))) if len(null) >= MIN_NULL else (0.0, 1.0)
-    standard = (z - centre) / max(spread, 1.0)  # a null narrower than the statistic's own noise is not trusted
+    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach) if n_comp else np.zeros(0)
+    null, _ = null_z(fields=fields, mask=mask, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
+                     reach=reach)
+    centre = float(null.mean()) if len(null) else 0.0
+    spread = max(float(null.std(ddof=1)) if len(null) > 1 else 1.0, 1.0)  # never narrower than a fixed surface's
+    standard = (z - centre) / spread
     p = holm(norm.sf(standard))
-    specks = Specks([], [], [], p_values=p, z=standard, tested=n_comp, alpha=alpha, null=(centre, spread, len(null)))
+    specks = Specks([], [], [], p_values=p, z=standard, tested=n_comp, alpha=alpha,
+                    null=(centre, spread, len(null)))
     small = np.flatnonzero(p > alpha)
     for c in small:
         part = TriMesh(mesh.vertices, mesh.faces[labels == c])
