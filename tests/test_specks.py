@@ -67,3 +67,18 @@ def test_holm_adjusts_step_down():
     p = np.array([0.01, 0.04, 0.03, 0.005])
     # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1 -> 0.02, 0.03, 0.06, 0.04 -> monotone 0.02, 0.03, 0.06, 0.06
     assert holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+
+
+def test_the_level_is_a_config_key_and_a_run_option_refused_outside_0_1():
+    from apt_filters.cli.main import build_parser
+    from apt_filters.cli.run import build_config
+    from apt_filters.core.errors import AptFiltersError
+    from apt_filters.pipeline import config as cfg
+
+    assert cfg.PipelineConfig().refine.speck_alpha == 0.001
+    args = build_parser().parse_args(["run", "x.pos", "-r", "x.rrng", "-o", "out", "--species", "Al", "--iso", "0.15",
+                                      "--speck-alpha", "0.05"])
+    assert build_config(args).refine.speck_alpha == 0.05
+    for bad in (0.0, 1.0, float("nan")):
+        with pytest.raises(AptFiltersError, match="speck_alpha"):
+            cfg.with_options(cfg.PipelineConfig(), {"speck_alpha": bad}, "command line")

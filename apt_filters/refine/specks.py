@@ -6,10 +6,13 @@ family-wise error rate ``alpha`` (default 0.001); the others are specks, reporte
 plays no part: a 0.3 nm³ marching-cubes sliver of a 16 nm³ sphere at a 65-point contrast is kept
 (nothing else at that iso-value comes from noise), a 13 nm³ blob at a 4-point contrast is not.
 
-The statistic. For each component, the atoms within ``reach`` nm of its surface (exact signed
-distance, :mod:`apt_filters.core.distance`) are split into the side above the iso-value (``d < 0``)
-and the side below; ``z`` is the two-sample binomial score of the iso species' fraction on the side
-above against the side below (:func:`side_z`).
+The statistic. For each component, the atoms within ``reach`` nm of its surface on the side above the
+iso-value (exact signed distance ``-reach <= d < 0``, :mod:`apt_filters.core.distance`) are compared
+with those from ``s`` to ``s + reach`` nm on the side below, ``s`` the kernel's standard deviation
+(:func:`kernel_sigma`): the delocalization shrinks a small object's contour inside its true surface
+by about ``s``, and a side below that started at the contour would hold the object's own rim (a 24 nm³
+sphere at a 41-point contrast: z 3.1 without the gap, 5.2 with it). ``z`` is the two-sample binomial
+score of the iso species' fraction above against below (:func:`side_z`).
 
 Its null. A component is found *because* the delocalized field of the same ions crosses the
 iso-value there, so for a component that noise drew, ``z`` is not standard normal: the ions inside
@@ -59,7 +62,7 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh
-from apt_filters.core.nearby import select_near
+from apt_filters.core.nearby import CHUNK, select_near
 from apt_filters.io import IonTable, RangeTable
 from apt_filters.refine.composition import ion_atoms
 from apt_filters.voxel import ConcentrationBasis, voxelize
@@ -149,26 +152,32 @@ def holm(p: np.ndarray) -> np.ndarray:
 
 
 def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-           reach: float = REACH) -> np.ndarray:
+           reach: float = REACH, gap: float = 0.0) -> np.ndarray:
     """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
-    on the side above the iso-value (signed distance < 0) against those on the side below (pooled binomial
-    variance; 0 where a side is empty)."""
+    on the side above the iso-value (signed distance in [-reach, 0)) against those on the side below, from
+    ``gap`` to ``gap + reach`` nm (pooled binomial variance; 0 where a side is empty)."""
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
-    near = select_near(ions.positions, mesh, reach)
+    near = select_near(ions.positions, mesh, reach + gap)
     atoms = ion_atoms(IonTable(near.positions, np.asarray(ions.mz)[near.rows]), ranges, basis)
     total, mine = atoms.total.astype(np.float64), atoms.atoms[:, atoms.elements.index(species)].astype(np.float64)
-    comp, above = labels[near.face], near.distance < 0
+    comp, d = labels[near.face], near.distance
+    up, down = (d < 0) & (d >= -reach), (d >= gap) & (d <= gap + reach)
 
     def count(w):
         return np.bincount(comp, weights=w, minlength=n_comp)
 
-    n_up, k_up, n_all, k_all = count(total * above), count(mine * above), count(total), count(mine)
-    n_down, k_down = n_all - n_up, k_all - k_up
-    pooled = k_all / np.maximum(n_all, 1.0)
+    n_up, k_up, n_down, k_down = count(total * up), count(mine * up), count(total * down), count(mine * down)
+    pooled = (k_up + k_down) / np.maximum(n_up + n_down, 1.0)
     var = pooled * (1 - pooled) * (1 / np.maximum(n_up, 1.0) + 1 / np.maximum(n_down, 1.0))
     diff = k_up / np.maximum(n_up, 1.0) - k_down / np.maximum(n_down, 1.0)
     return np.where((n_up > 0) & (n_down > 0) & (var > 0), diff / np.sqrt(np.where(var > 0, var, 1.0)), 0.0)
+
+
+def kernel_sigma(fields) -> float:
+    """nm: the largest standard deviation of the voxelization's kernel (a Gaussian's delocalization is 3 sigma;
+    the sawtooth and square kernels spread over about a voxel)."""
+    return max(fields.delocalization) / 3.0 if fields.kernel == "gaussian" else fields.grid.voxel
 
 
 def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, species: str, iso: float,
@@ -179,25 +188,31 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
     :data:`NULL_DRAWS` of them, up to :data:`MAX_NULL_DRAWS` while fewer than :data:`MIN_NULL` components."""
     c = fields.concentration(species, basis).dense()
     rng = np.random.default_rng(seed)
-    mz = np.asarray(ions.mz)
-    cell = np.rint((np.asarray(ions.positions, dtype=np.float64) - fields.grid.origin) / fields.grid.voxel)
-    cell = np.clip(cell.astype(np.int64), 0, np.array(c.shape) - 1)
-    below = c[cell[:, 0], cell[:, 1], cell[:, 2]] < iso  # NaN voxels (no atoms) are in neither phase
-    pool = mz[below]
+    pool = []  # chunk by chunk: no per-ion index arrays of a memory-mapped table in memory at once
+    for start in range(0, len(ions), CHUNK):
+        cell = np.rint((np.asarray(ions.positions[start:start + CHUNK], dtype=np.float64) - fields.grid.origin)
+                       / fields.grid.voxel)
+        cell = np.clip(cell.astype(np.int64), 0, np.array(c.shape) - 1)
+        below = c[cell[:, 0], cell[:, 1], cell[:, 2]] < iso  # NaN voxels (no atoms) are in neither phase
+        pool.append(np.asarray(ions.mz[start:start + CHUNK])[below])
+    pool = np.concatenate(pool) if pool else np.zeros(0, np.float32)
     out = [np.zeros(0)]
     if not len(pool):
         return out[0], 0
     drawn = 0
     while drawn < NULL_DRAWS or (drawn < MAX_NULL_DRAWS and sum(map(len, out)) < MIN_NULL):
         drawn += 1
-        labels = pool[rng.integers(0, len(pool), len(mz))]
+        labels = np.empty(len(ions), dtype=pool.dtype)
+        for start in range(0, len(ions), CHUNK):
+            labels[start:start + CHUNK] = pool[rng.integers(0, len(pool), min(CHUNK, len(ions) - start))]
         noise = IonTable(ions.positions, labels)
         null_fields = voxelize(noise, ranges, grid=fields.grid, kernel=fields.kernel,
                                delocalization=fields.delocalization, species=fields.kind, basis=fields.basis)
         mesh = marching_cubes(null_fields.concentration(species, basis).dense(), iso, spacing=fields.grid.voxel,
                               origin=fields.grid.origin, mask=mask)
         if mesh.n_faces:
-            out.append(side_z(mesh, ions=noise, ranges=ranges, species=species, basis=basis, reach=reach))
+            out.append(side_z(mesh, ions=noise, ranges=ranges, species=species, basis=basis, reach=reach,
+                              gap=kernel_sigma(fields)))
     return np.concatenate(out), drawn
 
 
@@ -240,7 +255,8 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
     basis = fields.basis if basis is None else basis
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
-    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach) if n_comp else np.zeros(0)
+    z = (side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields))
+         if n_comp else np.zeros(0))
     null, _ = null_z(fields=fields, mask=mask, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
                      reach=reach)
     centre = float(null.mean()) if len(null) else 0.0
