@@ -25,7 +25,7 @@ shape, density and matrix composition and loses every object; it is voxelized on
 same kernel, contoured at the same iso-value, and every component noise draws there is scored like the
 data's (:func:`null_z`). Their scores' mean and standard deviation are the null of one component
 (the empirical null of Efron 2004), from :data:`NULL_DRAWS` draws, up to :data:`MAX_NULL_DRAWS` while
-they hold fewer than :data:`MIN_NULL` components. Where noise draws no component at all at this
+they hold some but fewer than :data:`MIN_NULL` components. Where noise draws no component at all at this
 iso-value, the statistic's own null, N(0, 1), is used; a spread under 1 is not trusted (set to 1).
 
 The family. The one-sided p-values ``P(Z > (z - centre) / spread)`` of all the components are adjusted
@@ -77,7 +77,8 @@ NULL_DRAWS = 2
 """Noise specimens drawn at least to calibrate the test (each a voxelization and a contour of all the ions)."""
 
 MAX_NULL_DRAWS = 4
-"""Noise specimens drawn at most, while they hold fewer than :data:`MIN_NULL` components."""
+"""Noise specimens drawn at most, while they hold some but fewer than :data:`MIN_NULL` components (none in
+:data:`NULL_DRAWS` draws: noise draws no component at this iso-value, and more draws would not change that)."""
 
 MIN_NULL = 20
 """Noise components wanted to estimate the null's centre and spread."""
@@ -185,7 +186,7 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
     """The :func:`side_z` of every component that noise alone draws at ``iso``, and the specimens drawn: each
     keeps the ions' positions, each ion given the mass-to-charge of an ion drawn at random from those below the
     iso-value (the matrix: its voxel's fraction under ``iso``), voxelized, contoured and tested like the data;
-    :data:`NULL_DRAWS` of them, up to :data:`MAX_NULL_DRAWS` while fewer than :data:`MIN_NULL` components."""
+    :data:`NULL_DRAWS` of them, up to :data:`MAX_NULL_DRAWS` while some but fewer than :data:`MIN_NULL` components."""
     c = fields.concentration(species, basis).dense()
     rng = np.random.default_rng(seed)
     pool = []  # chunk by chunk: no per-ion index arrays of a memory-mapped table in memory at once
@@ -200,7 +201,7 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
     if not len(pool):
         return out[0], 0
     drawn = 0
-    while drawn < NULL_DRAWS or (drawn < MAX_NULL_DRAWS and sum(map(len, out)) < MIN_NULL):
+    while drawn < NULL_DRAWS or (drawn < MAX_NULL_DRAWS and 0 < sum(map(len, out)) < MIN_NULL):
         drawn += 1
         labels = np.empty(len(ions), dtype=pool.dtype)
         for start in range(0, len(ions), CHUNK):
