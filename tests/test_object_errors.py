@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from apt_filters.analysis.objects import area_growth, counting_errors, object_table
-from apt_filters.refine import merge
 from apt_filters.synth import Cuboid, Sphere
+from tests.meshlab_shapes import merge
 
 
 def test_area_growth_is_twice_the_integrated_mean_curvature():
@@ -22,8 +22,8 @@ def test_counting_errors_map_each_object_to_its_reference_component():
     """Two spheres; the reference is the same surface moved 0.2 nm out (as a remesh or clean step would leave
     it) and listed in the other order; each object takes its own offset error."""
     a, b = Sphere((0, 0, 0), 3.0).mesh(0.25), Sphere((12, 0, 0), 2.0).mesh(0.25)
-    mesh = merge([a, b])
-    ref = merge([Sphere((12, 0, 0), 2.2).mesh(0.3), Sphere((0, 0, 0), 3.2).mesh(0.3)])
+    mesh = merge(a, b)
+    ref = merge(Sphere((12, 0, 0), 2.2).mesh(0.3), Sphere((0, 0, 0), 3.2).mesh(0.3))
     table = object_table(mesh)
     counting_errors(table, mesh, reference=ref, offset_se=np.array([0.05, 0.02]),
                     p_value=np.array([1e-9, 2e-4]), z=np.array([12.0, 4.1]))
