@@ -256,8 +256,9 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
     basis = fields.basis if basis is None else basis
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
-    z = (side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields))
-         if n_comp else np.zeros(0))
+    if not n_comp:
+        return mesh, Specks([], [], [], alpha=alpha)
+    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields))
     null, _ = null_z(fields=fields, mask=mask, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
                      reach=reach)
     centre = float(null.mean()) if len(null) else 0.0
@@ -282,6 +283,7 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
                   {k: v[used] for k, v in mesh.vertex_scalars.items()},
                   {k: v[keep_face] for k, v in mesh.face_scalars.items() if k != "component"})
     out.face_scalars["component"] = out.face_components()
-    kept = np.flatnonzero(p <= alpha)
-    specks.kept = (out, p[kept], standard[kept])
+    original = np.zeros(out.face_scalars["component"].max() + 1 if out.n_faces else 0, dtype=np.int64)
+    original[out.face_scalars["component"]] = labels[keep_face]  # the input component of each output one
+    specks.kept = (out, p[original], standard[original])
     return out, specks
