@@ -30,9 +30,10 @@ from apt_filters.truth import match_objects
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
 
-def run_draw(family: str, seed: int, ion_seed: int | None = None) -> tuple[str, list[dict], int, int]:
+def run_draw(family: str, seed: int, ion_seed: int | None = None, refine: bool = True) -> tuple[str, list[dict], int, int]:
     """(header line, rows per true object, spurious components kept, specks removed) of one draw (its ions drawn
-    with ``ion_seed``, default ``seed``)."""
+    with ``ion_seed``, default ``seed``); without ``refine``, the objects are the contour's components the speck
+    test kept (no sizes)."""
     spec = zoo_specimen(family, seed)
     sp = generate(spec, seed if ion_seed is None else ion_seed)
     inside = sp.truth["features"][0]["composition_inside"]
@@ -51,26 +52,28 @@ def run_draw(family: str, seed: int, ion_seed: int | None = None) -> tuple[str, 
     mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species=species,
                                  iso=iso, basis=surface_basis, alpha=r.speck_alpha)
     speck_seconds = time.perf_counter() - t
-    refined = refine_surface(mesh, sp.ions, sp.ranges, species, surface_basis) if mesh.n_faces else None
-    parts = split_components(refined.mesh) if refined is not None else []
+    refined = refine_surface(mesh, sp.ions, sp.ranges, species, surface_basis) if mesh.n_faces and refine else None
+    final = refined.mesh if refined is not None else mesh
+    parts = split_components(final) if final.n_faces else []
     feats = range(len(sp.truth["features"]))
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
     rows = []
-    kept_p, kept_z = specks.of(refined.mesh, REACH) if parts else (np.zeros(0), np.zeros(0))
+    kept_p, kept_z = specks.of(final, REACH) if parts else (np.zeros(0), np.zeros(0))
     for i, m in zip(feats, match):
         tf = sp.truth["features"][i]
         row = {"name": tf["name"], "bounded": tf["bounded"], "true_volume": tf["volume_nm3"], "found": m is not None}
         if m is not None:
-            part, se = parts[m], float(refined.offset_errors[m])
             row |= {"p": float(kept_p[m]), "z": float(kept_z[m])}
-            if tf["bounded"] and len(part.boundary_edges()) == 0:
+            if refined is not None and tf["bounded"] and len(parts[m].boundary_edges()) == 0:
+                part, se = parts[m], float(refined.offset_errors[m])
                 volume, area = part.signed_volume(), part.area()
                 row |= {"volume": volume, "area": area, "sigma_v": se * area,
                         "sigma_a": se * abs(area_growth(part)), "true_area": tf["area_nm2"]}
         rows.append(row)
     spurious = sum(1 for j in range(len(parts)) if j not in set(match))
     f0 = spec.features[0]
-    head = (f"{family} seed {seed}{'' if ion_seed is None else f' ions {ion_seed}'}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
+    ions = "" if ion_seed is None else f" ions {ion_seed}"
+    head = (f"{family} seed {seed}{ions}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
             f"{100 * f0.composition[species]:.1f} at.%, efficiency {spec.efficiency:.2f}; {specks.tested} components, "
             f"{specks.count} specks removed ({speck_seconds:.1f} s; null {specks.null[0]:+.2f} ± {specks.null[1]:.2f} "
             f"from {specks.null[2]} noise components), {spurious} spurious kept")
@@ -145,6 +148,7 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
     ap.add_argument("--count", type=int, default=8)
     ap.add_argument("--skip", type=int, default=0, help="leave out the first draws")
+    ap.add_argument("--specks-only", action="store_true", help="no refinement: the speck test's figures alone")
     ap.add_argument("--repeats", type=int, default=0,
                     help="instead: each draw's objects with their ions drawn this many times (the spread of the "
                          "volumes and areas over the repeats against the stated errors)")
@@ -159,7 +163,7 @@ def main(argv=None) -> int:
         print(text, flush=True)
 
     for family, seed in draws(args.split, args.count)[args.skip:]:
-        head, r, n_spurious, n_removed = run_draw(family, seed)
+        head, r, n_spurious, n_removed = run_draw(family, seed, refine=not args.specks_only)
         say(f"## {head}")
         for row in r:
             say(f"    {row['name']} ({row['true_volume'] or 0:.0f} nm³): {fmt(row)}")
