@@ -35,8 +35,9 @@ a speck when its adjusted p-value exceeds ``alpha``.
 
 Why ``alpha = 0.001`` family-wise: a run reports its objects as found and a user reads each as
 physical, so a spurious object should be as rare as one per thousand specimens analysed (the usual
-threshold for a claim made without qualification); genuine objects of >= 30 nm³ stand 6 and more
-null spreads above the noise at the zoo's lowest contrasts (benchmarks/results_object_errors.md).
+threshold for a claim made without qualification); on the held-out zoo draws the least significant
+object of >= 30 nm³ (a 4-point contrast) stands 7.9 null spreads above the noise's centre, spheres of
+15-24 nm³ 5.2-11 (benchmarks/results_object_errors.md).
 ``reach = 2`` nm: the interior of every object whose reality is in question (radius <= 2 nm) and the
 matrix within the delocalization's reach around it.
 
