@@ -43,7 +43,8 @@ def rows_for(seed: int) -> list[dict]:
     feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"] and f["shape"]["kind"] == "cuboid"]
     rows = []
     for name, method in METHODS.items():
-        mesh, _ = remove_specks(method(c, ISO, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask))
+        mesh, _ = remove_specks(method(c, ISO, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask),
+                                fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=ISO)
         parts = split_components(mesh)
         match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
         for fi, m in zip(feats, match):

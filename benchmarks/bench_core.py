@@ -49,8 +49,10 @@ def main(argv: list[str] | None = None) -> str:
     sp = generate(preset(name), seed=1)
     fields = voxelize(sp.ions, sp.ranges)
     c = fields.concentration("Al", NO_B).dense()
+    mask = inside_mask(fields).dense()
     mesh = subdivide(remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin,
-                                                  mask=inside_mask(fields).dense()))[0])
+                                                  mask=mask), fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges,
+                                   species="Al", iso=0.15, basis=NO_B)[0])
     positions = sp.ions.positions
     select_near(positions[:1000], mesh, REACH)  # compile
     NearIons.select(sp.ions.subset(slice(0, 1000)), sp.ranges, NO_B, mesh.vertices, mesh.faces, REACH)

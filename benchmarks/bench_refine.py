@@ -43,7 +43,7 @@ from apt_filters.refine import merge, refine_surface, remove_specks
 from apt_filters.synth import generate, preset
 from apt_filters.truth.precipitates import (counted_errors, evaluate_precipitates, per_object_start,
                                             reference_surface, volume_floors)
-from apt_filters.voxel import ConcentrationBasis, voxelize
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
 ISO = 0.15
 SPECIES, SOLUTE = "Al", "B"
@@ -56,12 +56,15 @@ def run_pipelines(sp, fields) -> dict:
     out = {"true": (merge([m for m, f in zip(sp.meshes, sp.truth["features"]) if f["bounded"]]), 0, 0.0)}
     t = time.perf_counter()
     mesh = reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=ConcentrationBasis())
-    out["AP"] = (mesh, remove_specks(mesh)[1].count, time.perf_counter() - t)
+    out["AP"] = (mesh, remove_specks(mesh, fields=fields, mask=inside_mask(fields).dense(), ions=sp.ions,
+                                     ranges=sp.ranges, species=SPECIES, iso=ISO)[1].count, time.perf_counter() - t)
     t = time.perf_counter()
     mesh = reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=NO_B)
-    out["basis"] = (mesh, remove_specks(mesh)[1].count, time.perf_counter() - t)
+    out["basis"] = (mesh, remove_specks(mesh, fields=fields, mask=inside_mask(fields).dense(), ions=sp.ions,
+                                        ranges=sp.ranges, species=SPECIES, iso=ISO, basis=NO_B)[1].count,
+                    time.perf_counter() - t)
     t = time.perf_counter()
-    mesh, specks = per_object_start(specimen=sp, fields=fields, mesh=mesh, species=SPECIES, basis=NO_B)
+    mesh, specks = per_object_start(specimen=sp, fields=fields, mesh=mesh, species=SPECIES, basis=NO_B, iso=ISO)
     out["iso"] = (mesh, specks.count, out["basis"][2] + time.perf_counter() - t)
     t = time.perf_counter()
     previous = refine_surface(mesh, sp.ions, sp.ranges, SPECIES, NO_B, cross_fit=False, select_modes=False, blur=None)

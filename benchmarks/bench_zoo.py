@@ -66,7 +66,8 @@ def surfaces(sp, species: str, iso: float) -> dict:
     fields = voxelize(sp.ions, sp.ranges)
     c = fields.concentration(species).dense()
     mask = inside_mask(fields).dense()
-    ap, _ = remove_specks(marching_cubes(c, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask))
+    ap, _ = remove_specks(marching_cubes(c, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask),
+                          fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species=species, iso=iso)
     out = {"AP": (ap, time.perf_counter() - t, "")}
     t = time.perf_counter()
     config = PipelineConfig()  # as `apt-filters run` builds its fields and mask

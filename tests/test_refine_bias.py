@@ -177,8 +177,11 @@ def test_plateaus_the_refinement_uses_are_not_biased_by_the_surface_they_place()
                             name="spheres")
         sp = generate(spec, seed=seed)
         fields = voxelize(sp.ions, sp.ranges)
+        mask = inside_mask(fields).dense()
         start = remove_specks(marching_cubes(fields.concentration("Al", NO_B).dense(), 0.15, spacing=fields.grid.voxel,
-                                             origin=fields.grid.origin, mask=inside_mask(fields).dense()))[0]
+                                             origin=fields.grid.origin, mask=mask),
+                              fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=0.15,
+                              basis=NO_B)[0]
         species, names = sp.ions.extra["species"], sp.truth["species"]
         counted = (species >= 0) & (species != names.index("B"))
         positions = sp.ions.positions.astype(np.float64)

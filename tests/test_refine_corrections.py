@@ -67,8 +67,10 @@ def _sphere_specimen(seed, blur):
     sp = generate(spec, seed=seed)
     fields = voxelize(sp.ions, sp.ranges)
     c = fields.concentration("Al", NO_B).dense()
-    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin,
-                                         mask=inside_mask(fields).dense()))[0]
+    mask = inside_mask(fields).dense()
+    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask),
+                          fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=0.15,
+                          basis=NO_B)[0]
     return sp, start
 
 

@@ -21,7 +21,7 @@ to 2.1 at.% (seeds 1-8; 12 and 7 of 32 objects outside the targets), so they are
 import numpy as np
 import pytest
 
-from apt_filters.refine import refine_surface, remove_specks
+from apt_filters.refine import refine_surface
 from apt_filters.synth import generate, preset
 from apt_filters.truth.precipitates import (counted_errors, evaluate_precipitates, per_object_start,
                                             reference_surface, volume_floors)
@@ -42,14 +42,14 @@ def rows():
         floor = volume_floors(sp, species=SPECIES, marker=SOLUTE)
         count = counted_errors(sp, species=SPECIES, solute=SOLUTE)
         ap = reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=ConcentrationBasis())
-        start, removed = per_object_start(specimen=sp, fields=fields, species=SPECIES, basis=NO_B,
+        start, removed = per_object_start(specimen=sp, fields=fields, species=SPECIES, basis=NO_B, iso=ISO,
                                           mesh=reference_surface(fields=fields, species=SPECIES, iso=ISO, basis=NO_B))
         specks.append(removed.count)
         result = refine_surface(start, sp.ions, sp.ranges, SPECIES, NO_B)
         blurs.append(result.blur_estimate)
         marks.append(result.marker)
         out += list(zip(*(evaluate_precipitates(sp, mesh, species=SPECIES, solute=SOLUTE, seed=seed, floor=floor,
-                                                count=count) for mesh in (remove_specks(ap)[0], result.mesh))))
+                                                count=count) for mesh in (ap, result.mesh))))
     return out, specks, blurs, marks
 
 
@@ -103,7 +103,7 @@ def test_refined_areas_distances_and_excess_against_the_truth(rows):
     assert max(abs(r["plateau_out"]) for r in refined) < 1.0
     assert np.mean([abs(r["plateau_in"]) for r in refined]) < 1.0
     assert sum(r["sign_errors"] for r in refined) == 0 and sum(r["folds"] for r in refined) == 0
-    assert all(0 <= n <= 6 for n in specks)  # removed by the stated rule (docs/refine.md), reported
+    assert all(0 <= n <= 6 for n in specks)  # removed by the speck test (docs/refine.md), reported
 
 
 def test_refined_excess_and_plateaus_against_what_the_ions_hold(rows):

@@ -137,7 +137,9 @@ class ObjectStats:
     ``edge_distance`` is the smallest distance of the object's vertices to the specimen edge
     (about 0 for objects cut by it; NaN without a specimen). ``n_ions`` is -1 when no ions
     were given; ``ion_counts`` has an ``unranged`` entry; ``composition`` is by element,
-    molecular ions split into their atoms.
+    molecular ions split into their atoms. ``volume_se`` and ``area_se`` are the counting
+    errors of volume and area, ``p_value`` and ``z`` the speck test's family-wise p-value and
+    score (:func:`counting_errors`; NaN where not measured).
     """
 
     object_id: int
@@ -157,6 +159,10 @@ class ObjectStats:
     n_ions: int = -1
     ion_counts: dict[str, int] = field(default_factory=dict)
     composition: dict[str, float] = field(default_factory=dict)
+    volume_se: float = math.nan
+    area_se: float = math.nan
+    p_value: float = math.nan
+    z: float = math.nan
 
 
 @dataclass
@@ -525,6 +531,79 @@ def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
         parts.append(_Part(int(ids[k]), own, surface, closed, status))
     return parts
 
+
+def counting_errors(table: ObjectTable, mesh: TriMesh, *, reference: TriMesh, offset_se: np.ndarray,
+                    p_value: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
+    """Fill each object's counting errors (and speck-test figures) in ``table``, in place.
+
+    The counting error of an object's surface position is that of its mean offset along its normals,
+    ``sigma_d`` (``offset_se``: the Fisher information of the ions' composition profile across it,
+    :attr:`apt_filters.refine.RefineResult.offset_errors`). To first order an offset ``d`` changes the
+    volume by ``A d`` and the area by ``(dA/dd) d`` (:func:`area_growth`, ``2 integral H dA``), so
+    ``volume_se = A sigma_d`` and ``area_se = |dA/dd| sigma_d``. The volume error does not depend on how
+    the offset noise is correlated along the surface: any smoothing of the displacements that keeps their
+    area-weighted mean keeps the volume, and for independent patches of equal information per area
+    ``sqrt(sum (A_i sigma_i)^2) = A / sqrt(I)`` as for the mean offset. The area error assumes the
+    offset noise is common to the object (its low-passed shape, :mod:`apt_filters.refine.spectral`);
+    higher modes add area only at second order.
+
+    Parameters
+    ----------
+    table : ObjectTable
+        The objects of ``mesh`` (``object_id`` = its component numbering).
+    mesh : TriMesh
+        The measured surface.
+    reference : TriMesh
+        The surface ``offset_se`` describes, component by component (e.g. the refined surface before
+        cleaning and remeshing); each object takes the component holding most of the reference vertices
+        nearest to its own.
+    offset_se : (c,) float, nm
+        Per component of ``reference``; NaN where unknown.
+    p_value, z : (k,) float, optional
+        Per component of ``mesh`` (:meth:`apt_filters.refine.Specks.of`).
+    """
+    from scipy.spatial import cKDTree
+
+    labels = (np.asarray(mesh.face_scalars["object_id"], dtype=np.int64) if "object_id" in mesh.face_scalars
+              else mesh.face_components())
+    vertex_object = np.full(mesh.n_vertices, -1, dtype=np.int64)
+    vertex_object[mesh.faces.ravel()] = np.repeat(labels, 3)
+    ref_comp = np.zeros(reference.n_vertices, dtype=np.int64)
+    ref_comp[reference.faces.ravel()] = np.repeat(reference.face_components(), 3)
+    nearest = ref_comp[cKDTree(reference.vertices).query(mesh.vertices)[1]] if reference.n_vertices else None
+    for o in table.objects:
+        if p_value is not None and o.object_id < len(p_value):
+            o.p_value, o.z = float(p_value[o.object_id]), float(z[o.object_id])
+        if nearest is None:
+            continue
+        mine = vertex_object == o.object_id
+        votes = np.bincount(nearest[mine], minlength=len(offset_se))
+        se = float(offset_se[int(np.argmax(votes))]) if votes.any() else math.nan
+        part = _submesh(mesh.vertices, mesh.faces[labels == o.object_id])
+        o.area_se = se * abs(area_growth(part))
+        o.volume_se = se * o.area if o.status != "open" else math.nan
+
+
+def area_growth(part: TriMesh) -> float:
+    """dA/dd (nm): how fast the area of ``part`` grows as its surface moves ``d`` nm out along its normals.
+
+    Steiner's formula for a polyhedral surface: the parallel surface at distance ``d`` has area
+    ``A + d sum_e l_e theta_e + O(d^2)``, ``l_e`` each interior edge's length and ``theta_e`` its signed
+    exterior dihedral angle (positive where convex); the discrete form of ``2 integral H dA`` (``8 pi r``
+    for a sphere, ``6 pi a`` for a cube of edge ``a``, whose faces do not grow, its edges do).
+    """
+    top = part.topology
+    if not len(top.face_pairs):
+        return 0.0
+    normals = part.face_normals()
+    centres = part.vertices[part.faces].mean(axis=1)
+    f1, f2 = top.face_pairs[:, 0], top.face_pairs[:, 1]
+    n1, n2 = normals[f1], normals[f2]
+    turn = np.arctan2(np.linalg.norm(np.cross(n1, n2), axis=1), np.einsum("ij,ij->i", n1, n2))
+    sign = np.sign(np.einsum("ij,ij->i", centres[f2] - centres[f1], n2 - n1))
+    edges = top.edge_vertices[top.edge_faces == 2]
+    length = np.linalg.norm(part.vertices[edges[:, 0]] - part.vertices[edges[:, 1]], axis=1)
+    return float(np.sum(length * sign * turn))
 
 def _submesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:
     used, local = np.unique(faces, return_inverse=True)

@@ -73,6 +73,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--blur", type=float, nargs=2, metavar=("LATERAL", "DEPTH"),
                    help="reconstruction blur sigmas in nm whose curvature bias the refinement undoes "
                         "(default: lateral estimated from the ions, depth 0; 0 0: no correction)")
+    p.add_argument("--speck-alpha", type=float, metavar="ALPHA",
+                   help="family-wise error rate of the test that keeps a component as an object (default 0.001)")
     p.add_argument("--no-cross-fit", action="store_true",
                    help="refinement plateaus against the surface the same ions placed (faster, biased)")
     p.add_argument("--no-mode-selection", action="store_true",

@@ -88,10 +88,10 @@ class RefineConfig:
     plateaus (undoes the delocalization bias; concentration surfaces only)."""
     iterations: int = 12
     """Refinement iterations (each moves vertices at most 0.5 nm)."""
-    min_volume: float = 10.0
-    """Closed components enclosing less (nm³) are noise specks and removed before refinement."""
-    min_area: float = 10.0
-    """Open components smaller than this (nm²) are specks too."""
+    speck_alpha: float = 0.001
+    """Family-wise error rate of the speck test: a component is kept when its ions differ across it in the
+    iso species' fraction beyond what noise draws at this iso-value, over all components at once
+    (:mod:`apt_filters.refine.specks`); the others are specks, removed before refinement."""
     facets: bool = True
     """Rebuild sharp edges and corners where planar facets of an object meet (cuboids; spheres are
     untouched), on planes fitted to the ions where the facets close the object: the delocalization
@@ -177,8 +177,7 @@ LIMITS: dict[tuple[str, str], tuple[str, str]] = {
     ("voxel", "delocalization"): ("(0, 1000]", "nm"),
     ("surface", "iso"): ("(0, 1000]", ""),
     ("refine", "iterations"): ("[0, 1000]", ""),
-    ("refine", "min_volume"): ("[0, 1e12]", "nm³"),
-    ("refine", "min_area"): ("[0, 1e12]", "nm²"),
+    ("refine", "speck_alpha"): ("(0, 1)", ""),
     ("refine", "blur"): ("[0, 100]", "nm"),
     ("remesh", "edge_length"): ("[0, 1000]", "nm"),
     ("remesh", "feature_angle"): ("(0, 180]", "degrees"),
@@ -310,7 +309,7 @@ OPTIONS = {
     "voxel": ("voxel", "size"), "kernel": ("voxel", "kernel"), "delocalization": ("voxel", "delocalization"),
     "exclude": ("voxel", "exclude"), "include": ("voxel", "include"), "method": ("contour", "method"),
     "remesh": ("remesh", "method"),
-    "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "relabel": ("input", "relabel"),
+    "efficiency": ("analysis", "efficiency"), "blur": ("refine", "blur"), "speck_alpha": ("refine", "speck_alpha"), "relabel": ("input", "relabel"),
     "unknown_species": ("input", "unknown_species"), "memory_budget": ("input", "memory_budget"),
     "plateau_inner": ("proxigram", "inner"), "proxigram_range": ("proxigram", "extent"),
 }

@@ -222,9 +222,10 @@ def warnings_in_words(report: dict) -> list[str]:
         label, mesh = s["label"], s["mesh"]
         refine = mesh.get("refine") or {}
         if refine.get("specks_removed"):
-            n, cfg = refine["specks_removed"], report["config"]["refine"]
-            out.append(f"{label}: {n} speck{'s' * (n > 1)} (closed pieces under {cfg['min_volume']:g} nm³, open "
-                       f"pieces under {cfg['min_area']:g} nm²) removed before refinement; not in the tables.")
+            n, test = refine["specks_removed"], refine.get("speck_test") or {}
+            out.append(f"{label}: {n} of {test.get('components_tested', n)} pieces removed before refinement as "
+                       f"specks: their ions differ across them no more than noise does at this iso-value "
+                       f"(family-wise p > {test.get('alpha', 0.001):g}); not in the tables.")
         if mesh.get("objects_dropped"):
             out.append(f"{label}: {mesh['objects_dropped']} object(s) enclosing no ion left out of the tables.")
         thin = mesh.get("objects_without_excess") or []
@@ -292,7 +293,11 @@ OBJECT_COLUMNS = (("object_id", "object", ""), ("status", "status", ""), ("area"
                   ("centroid_x", "x (nm)", ""), ("centroid_y", "y (nm)", ""), ("centroid_z", "z (nm)", ""),
                   ("obb_long", "length (nm)", ""), ("obb_mid", "width (nm)", ""), ("obb_short", "thickness (nm)", ""),
                   ("genus", "genus", ""), ("edge_distance", "to edge (nm)", "no specimen hull"),
-                  ("n_ions", "ions inside", "open objects have no inside"))
+                  ("n_ions", "ions inside", "open objects have no inside"),
+                  ("p_value", "p (family-wise)", "not tested: refinement off or a density surface"),
+                  ("z", "z (null spreads)", "not tested: refinement off or a density surface"))
+"""(key, header, reason a value is missing); ``area`` and ``volume`` are shown with their counting errors
+(``area_se``, ``volume_se``) where the run measured them."""
 
 
 def _objects(surface: dict) -> str:
@@ -306,6 +311,10 @@ def _objects(surface: dict) -> str:
             value = o.get(key)
             if key == "n_ions" and (value is None or value < 0):
                 value = None
+            if key in ("area", "volume") and _finite(value) and _finite(o.get(f"{key}_se")):
+                value = with_error(value, o[f"{key}_se"])  # rounded to its counting error
+            if key == "p_value" and _finite(value):
+                value = f"{value:.1e}" if value < 0.01 else f"{value:.2f}"
             cells.append(_cell(value, reason))
         cells += [_cell(100 * o[f"frac_{e}"] if _finite(o.get(f"frac_{e}")) else None, "no ions inside")
                   for e in elements]

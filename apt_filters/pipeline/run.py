@@ -205,7 +205,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
              log: StepLog) -> SurfaceResult:
     """The finished surface (:func:`finished_surface`), its object table, proxigram and excess."""
     from apt_filters.analysis.excess import interfacial_excess
-    from apt_filters.analysis.objects import object_table
+    from apt_filters.analysis.objects import counting_errors, object_table
     from apt_filters.analysis.width import first_range, fitted_proxigram
 
     label = surface_label(surface)
@@ -229,6 +229,11 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
                      f"({len(near) / max(len(ions), 1):.1%}), one pass")
     with log.step("objects") as s:
         table = object_table(mesh, near, ranges, specimen=inputs.hull, cap_open=config.contour.close_at_edge)
+        if record.refined is not None:  # counting errors and the speck test's figures of each object
+            from apt_filters.refine.specks import REACH
+
+            counting_errors(table, mesh, reference=record.refined.mesh, offset_se=record.refined.offset_errors,
+                            **dict(zip(("p_value", "z"), record.specks.of(mesh, REACH))))
         table.write_csv(stage / f"objects_{label}.csv")
         table.write_json(stage / f"objects_{label}.json")
         res.objects = table.rows()

@@ -77,12 +77,18 @@ class SurfaceRecord:
         not remeshed).
     warnings : list of str
         Steps that fell back (a remeshed component that changed the surface keeps the cleaned mesh).
+    specks : refine.Specks or None
+        The speck test (each kept component's p-value and z, for the object table).
+    refined : refine.RefineResult or None
+        The refinement (its mesh and each component's counting error, for the object table).
     """
 
     raw_area: float = 0.0
     refine: dict | None = None
     remesh: dict | None = None
     warnings: list[str] = field(default_factory=list)
+    specks: object = None
+    refined: object = None
 
     def as_dict(self, mesh: TriMesh) -> dict:
         return {"raw_area_nm2": self.raw_area, "refine": self.refine, "remesh": self.remesh, "faces": mesh.n_faces,
@@ -162,11 +168,14 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     if config.refine.enabled and surface.species:
         with step("refine") as s:
             r = config.refine
-            mesh, specks = remove_specks(mesh, r.min_volume, r.min_area)
+            mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
+                                         species=surface.species, iso=surface.iso, basis=surface_basis,
+                                         alpha=r.speck_alpha)
+            record.specks = specks
             refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis, iterations=r.iterations,
                                      facets=r.facets, blur=tuple(r.blur) or "auto", cross_fit=r.cross_fit,
                                      select_modes=r.select_modes, marker=r.marker)
-            mesh = refined.mesh
+            mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
                              **_refine_record(specks, refined, r.cross_fit)}
@@ -243,7 +252,11 @@ def _finite(values) -> list:
 def _refine_record(specks, refined, cross_fit: bool) -> dict:
     """The refinement's figures in report.json."""
     estimate, marks = refined.blur_estimate, refined.marker
-    return {"specks_removed": specks.count, "speck_volumes_nm3": specks.volumes,
+    return {"specks_removed": specks.count, "speck_volumes_nm3": _finite(specks.volumes),
+            "speck_test": {"alpha": specks.alpha, "components_tested": specks.tested,
+                           "null_centre": specks.null[0], "null_spread": specks.null[1],
+                           "null_components": specks.null[2], "speck_p_values": _finite(specks.p_values[specks.ids]),
+                           "kept_p_values": _finite(specks.kept[1]), "kept_z": _finite(specks.kept[2])},
             "displacement_nm": refined.displacement, "folded_pairs": refined.folded_pairs,
             "self_intersections": refined.self_intersections, "facets": refined.facets,
             "sharpened_vertices": refined.sharpened, "blur_nm": list(refined.blur),

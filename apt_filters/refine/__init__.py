@@ -4,7 +4,8 @@ After contouring (``apt_filters.contour``) on a delocalized concentration field,
 small precipitate sits inside the true interface (delocalization and segregant dilution shrink
 it by 30-45% in volume). This step
 
-- removes specks by a stated rule (:func:`remove_specks`),
+- removes specks: components whose ions do not differ across them beyond what noise draws at the
+  iso-value (:func:`remove_specks`),
 - measures each object's own inside/outside plateaus and midpoint iso-value (:func:`object_levels`,
   :func:`per_object_iso`),
 - moves every vertex along its normal to where the ions' local composition profile crosses the
@@ -19,8 +20,10 @@ Typical use (the defaults are the ones benchmarks/bench_refine.py measured)::
 
     basis = ConcentrationBasis(exclude=("B",))            # segregants out of the denominator
     c = fields.concentration("Al", basis).dense()
-    mesh = marching_cubes(c, 0.15, spacing=grid.voxel, origin=grid.origin, mask=inside_mask(fields).dense())
-    mesh, specks = remove_specks(mesh)                   # closed < 10 nm3, open < 10 nm2
+    mask = inside_mask(fields).dense()
+    mesh = marching_cubes(c, 0.15, spacing=grid.voxel, origin=grid.origin, mask=mask)
+    mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges, species="Al", iso=0.15,
+                                 basis=basis)            # family-wise p <= 0.001 against noise
     result = refine_surface(mesh, ions, ranges, "Al", basis)
     excess = object_excess(result.mesh, ions, ranges, "B")  # per object, over its refined area
 

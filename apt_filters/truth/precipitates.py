@@ -38,12 +38,14 @@ def reference_surface(*, fields, species: str, iso: float, basis) -> TriMesh:
                           mask=inside_mask(fields).dense())
 
 
-def per_object_start(*, specimen, fields, mesh: TriMesh, species: str, basis):
-    """``mesh`` without specks, each object contoured again at its own plateaus' midpoint (in ``basis``).
+def per_object_start(*, specimen, fields, mesh: TriMesh, species: str, basis, iso: float):
+    """``mesh`` (contoured at ``iso``) without specks, each object contoured again at its own plateaus' midpoint
+    (in ``basis``).
 
     Returns (mesh, :class:`~apt_filters.refine.specks.Specks` removed)."""
     c = fields.concentration(species, basis).dense()
-    clean, specks = remove_specks(mesh)
+    clean, specks = remove_specks(mesh, fields=fields, mask=inside_mask(fields).dense(), ions=specimen.ions,
+                                  ranges=specimen.ranges, species=species, iso=iso, basis=basis)
     isos = per_object_iso(clean, specimen.ions, specimen.ranges, species, basis)
     return recontour(c, isos, clean, fields.grid.voxel, fields.grid.origin, inside_mask(fields).dense()), specks
 
@@ -129,7 +131,7 @@ def evaluate_precipitates(specimen, mesh: TriMesh, *, species: str, solute: str,
     feats = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
     floor = volume_floors(sp, species=species, marker=solute) if floor is None else floor
     count = counted_errors(sp, species=species, solute=solute) if count is None else count
-    clean, _ = remove_specks(mesh)
+    clean = mesh  # specks are removed where the surface is drawn; a component that matches nothing is not scored
     parts = split_components(clean)
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
     excess_all = object_excess(clean, sp.ions, sp.ranges, solute)
