@@ -153,7 +153,10 @@ def main(argv=None) -> int:
                     help="instead: each draw's objects with their ions drawn this many times (the spread of the "
                          "volumes and areas over the repeats against the stated errors)")
     ap.add_argument("--out", help="also write the results file")
+    ap.add_argument("--quick", action="store_true", help="the speck test alone on the first two draws")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.count, args.specks_only = min(args.count, 2), True
     if args.repeats:
         return repeats(args)
     lines, rows, spurious, removed = [], [], [], []
