@@ -25,8 +25,6 @@ from typing import Callable, Protocol
 import numpy as np
 from numba import njit
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_write_text
@@ -88,32 +86,14 @@ class SpecimenMask:
 
 # --- topology -----------------------------------------------------------------------------
 
-def _boundary_half_edges(faces: np.ndarray) -> np.ndarray:
-    """(k, 2) directed half-edges (a, b) of faces whose undirected edge is used once."""
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = np.sort(half, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return half[counts[inverse.ravel()] == 1]
-
-
-def _loops(half: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
-    """Boundary loops: their number and the loop of each boundary half-edge."""
-    if len(half) == 0:
-        return 0, np.zeros(0, dtype=np.int64)
-    graph = coo_matrix((np.ones(len(half), dtype=np.int8), (half[:, 0], half[:, 1])), shape=(n_vertices,) * 2)
-    _, label = connected_components(graph, directed=False)
-    used, loop = np.unique(label[half[:, 0]], return_inverse=True)
-    return len(used), loop.ravel()
-
-
 def cap_boundaries(mesh: TriMesh) -> tuple[TriMesh, np.ndarray]:
     """Close every boundary loop with a fan to the loop's vertex centroid.
 
     Returns the capped mesh (input faces first) and the (m_cap,) loop index of each cap
     face. Exact for planar loops (a flat specimen edge); otherwise a proxy.
     """
-    half = _boundary_half_edges(mesh.faces)
-    n_loops, loop = _loops(half, mesh.n_vertices)
+    half = mesh.topology.boundary_half_edges
+    n_loops, loop = mesh.topology.boundary_pieces
     if n_loops == 0:
         return mesh, np.zeros(0, dtype=np.int64)
     sums = np.zeros((n_loops, 3))
@@ -525,7 +505,7 @@ def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
         whole = _submesh(mesh.vertices, mesh.faces[index])
         surface = whole if own is index else _submesh(mesh.vertices, mesh.faces[own])
         closed = cap_boundaries(whole)[0] if cap_open else whole
-        status = "open" if len(_boundary_half_edges(closed.faces)) else ("closed" if closed is surface else "proxy")
+        status = "open" if len(closed.topology.boundary_half_edges) else ("closed" if closed is surface else "proxy")
         if status == "proxy" and not _LabelGrid.build([_Shape(closed.vertices, closed.faces)]).encloses[0]:
             closed, status = surface, "open"  # its caps cross its surface: no region to measure or count in
         parts.append(_Part(int(ids[k]), own, surface, closed, status))
@@ -613,9 +593,8 @@ def _submesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:
 def _stats(object_id: int, part: TriMesh, closed: TriMesh, status: str) -> ObjectStats:
     """Statistics of one component: ``part`` its iso-surface faces, ``closed`` the same with
     caps (or ``part`` itself when nothing was capped)."""
-    n_loops, _ = _loops(_boundary_half_edges(part.faces), part.n_vertices)
-    n_edges = len(np.unique(np.sort(part.edges(), axis=1), axis=0))
-    chi = part.n_vertices - n_edges + part.n_faces
+    n_loops = part.topology.boundary_pieces[0]
+    chi = part.n_vertices - len(part.topology.edge_vertices) + part.n_faces
     areas = part.face_areas()
     face_centres = part.vertices[part.faces].mean(axis=1)
     volume = radius = sphericity = math.nan

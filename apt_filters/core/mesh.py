@@ -234,6 +234,30 @@ class Topology:
         return int(len(boundary) - len(bv) + connected_components(bgraph, directed=False)[0])
 
     @functools.cached_property
+    def boundary_half_edges(self) -> np.ndarray:
+        """(k, 2) the directed edges (a, b) of the faces, in face order, that no other face uses."""
+        half = np.stack([self._faces, np.roll(self._faces, -1, axis=1)], axis=2)
+        return _frozen(np.ascontiguousarray(half[self.edge_faces[self.face_edge] == 1]))[0]
+
+    @functools.cached_property
+    def boundary_pieces(self) -> tuple[int, np.ndarray]:
+        """The connected pieces of the boundary: their number and the (k,) piece of each of
+        :attr:`boundary_half_edges`. A piece is what one fan caps; it equals a boundary loop
+        except where loops touch at a vertex (then :attr:`boundary_loops` counts each circle)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        half = self.boundary_half_edges
+        if not len(half):
+            return 0, _frozen(np.zeros(0, dtype=np.int64))[0]
+        ids, local = np.unique(half, return_inverse=True)
+        local = local.reshape(-1, 2)
+        graph = coo_matrix((np.ones(len(half), dtype=np.int8), (local[:, 0], local[:, 1])), shape=(len(ids),) * 2)
+        label = connected_components(graph, directed=False)[1][local[:, 0]]
+        used, piece = np.unique(label, return_inverse=True)
+        return len(used), _frozen(piece.ravel().astype(np.int64))[0]
+
+    @functools.cached_property
     def genus(self) -> int:
         used = np.zeros(self._n_vertices, dtype=bool)
         used[self._faces.ravel()] = True

@@ -13,8 +13,8 @@ import numpy as np
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.checks import non_manifold_vertices
-from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh._arrays import isin, unique_rows
+from apt_filters.core.mesh import TriMesh, topology
+from apt_filters.remesh._arrays import unique_rows
 from apt_filters.remesh.extract import triangulate_polygon
 
 
@@ -49,12 +49,8 @@ def trim_overfull_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def boundary_loops(faces: np.ndarray) -> list[list[int]]:
     """Boundary loops as vertex lists, following the boundary half-edges (a -> b) of the faces."""
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    n = int(faces.max()) + 1
-    key = half[:, 0] * n + half[:, 1]
-    lone = ~isin(half[:, 1] * n + half[:, 0], key)
     nxt = {}
-    for a, b in half[lone].tolist():
+    for a, b in topology(faces, int(faces.max()) + 1).boundary_half_edges.tolist():
         nxt.setdefault(a, []).append(b)
     loops, seen = [], set()
     for a in list(nxt):

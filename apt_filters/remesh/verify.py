@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apt_filters.core.distance import mesh_distance
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, topology
 from apt_filters.remesh._arrays import unique_rows
 
 # Two-sided Hausdorff distance allowed between a component and its remesh, as a fraction of the
@@ -55,29 +55,18 @@ def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.nd
     """(k,) Euler characteristic V - E + F and (k,) number of boundary loops of each face group.
 
     ``component`` (f,) assigns every face to a group 0 .. k-1 (-1: left out). Boundary loops are
-    the connected pieces of the boundary-edge graph.
+    the connected pieces of the boundary-edge graph (:attr:`Topology.boundary_pieces`).
     """
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
-    sel = component >= 0
-    faces, comp = mesh.faces[sel], component[sel]
     chi, loops = np.zeros(k, np.int64), np.zeros(k, np.int64)
-    if len(faces) == 0:
-        return chi, loops
-    n = int(faces.max()) + 1
-    vert = np.unique(faces.ravel() + n * np.repeat(comp, 3).astype(np.int64))
-    edges, index, _, counts = unique_rows(np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], 2).reshape(-1, 2), 1))
-    edge_comp = comp[index // 3]
-    chi += np.bincount(vert // n, minlength=k) - np.bincount(edge_comp, minlength=k) + np.bincount(comp, minlength=k)
-    rim, rim_comp = edges[counts == 1], edge_comp[counts == 1]
-    if len(rim):
-        ids, local = np.unique(rim, return_inverse=True)
-        local = local.reshape(-1, 2)
-        graph = sparse.coo_matrix((np.ones(len(rim)), (local[:, 0], local[:, 1])), shape=(len(ids), len(ids)))
-        piece = connected_components(graph, directed=False)[1][local[:, 0]]
-        first = np.unique(piece, return_index=True)[1]
-        loops += np.bincount(rim_comp[first], minlength=k)
+    order = np.argsort(component, kind="stable")
+    groups, starts = np.unique(component[order], return_index=True)
+    for j, part in zip(groups, np.split(order, starts[1:])):
+        if j < 0:
+            continue
+        faces = mesh.faces[part]
+        topo = topology(faces, mesh.n_vertices)
+        chi[j] = len(np.unique(faces)) - len(topo.edge_vertices) + len(faces)
+        loops[j] = topo.boundary_pieces[0]
     return chi, loops
 
 
