@@ -10,7 +10,8 @@ from apt_filters.core.checks import folded_pairs
 from apt_filters.core.nearby import select_near
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import subdivide, unfold
+from apt_filters.refine.subdivide import subdivide
+from apt_filters.refine.untangle import unfold
 from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled
 from apt_filters.refine.nearest import descend
 from apt_filters.refine.surface import umbrella

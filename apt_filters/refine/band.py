@@ -31,7 +31,7 @@ from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.composition import IonAtoms, ion_atoms
+from apt_filters.refine.composition import IonAtoms, basis_atoms, ion_atoms
 from apt_filters.refine.nearest import descend
 from apt_filters.voxel import ConcentrationBasis
 
@@ -138,17 +138,22 @@ class Band:
 class NearIons:
     """The ions within ``radius`` nm of a mesh, their atoms and their nearest vertices, kept up to date.
 
-    Select them once (:meth:`select`, chunked over the ion table), then ask for a :class:`Band`
-    after every move of the vertices (:meth:`band`): each ion's nearest vertex is found again by
+    Select them once (:meth:`select`: one streamed pass over the ion table), take subsets of them
+    (:meth:`subset`: the halves of the cross-fit by row parity, those near a smaller reach), and ask for a
+    :class:`Band` after every move of the vertices (:meth:`band`): each ion's nearest vertex is found again by
     walking from its previous one (:func:`~apt_filters.refine.nearest.descend`), no KD-tree.
     The selection stays complete for any ``reach`` while no vertex has moved more than
     ``radius - reach`` from ``anchor`` (:meth:`moved`); select again beyond that.
 
     Attributes
     ----------
+    rows : (b,) int64
+        Rows of these ions in the ion table (increasing).
     positions : (b, 3) float64
     atoms : IonAtoms
         Basis atoms of these ions.
+    everything : IonAtoms
+        Atoms of every ranged element (the segregants the basis leaves out too).
     vertex : (b,) int64
         Nearest vertex of each ion (as of the last :meth:`band`).
     anchor : (n, 3) float64
@@ -156,12 +161,16 @@ class NearIons:
     radius : float, nm
     indptr, indices : int arrays
         CSR vertex adjacency of the mesh (the walk's edges).
+    fan : Fan
+        The faces around each vertex.
     assigned : (n, 3) float64
         The vertices when ``vertex`` was last found.
     """
 
+    rows: np.ndarray
     positions: np.ndarray
     atoms: IonAtoms
+    everything: IonAtoms
     vertex: np.ndarray
     anchor: np.ndarray
     radius: float
@@ -176,22 +185,34 @@ class NearIons:
         """The ions whose nearest vertex lies within ``radius`` nm.
 
         Memory: one chunk of the positions at a time (``ions.positions`` may be memory-mapped),
-        then 24 + 8 + 4 k bytes per selected ion (k basis elements).
+        then 24 + 8 + 8 + 4 (k + K) bytes per selected ion (k basis elements of K).
         """
         adj = adjacency(faces, len(vertices))
         # every ion within ``radius`` of a vertex is within ``radius`` of the mesh; its walk to the
         # nearest vertex starts at the nearest corner of the face holding its closest point
         near = select_near(ions.positions, TriMesh(vertices, faces), radius)
-        rows, positions = near.rows, near.positions
         corners = faces[near.face]
-        start = corners[np.arange(len(rows)), np.argmin(((vertices[corners] - positions[:, None]) ** 2).sum(axis=2),
-                                                         axis=1)]
-        vertex, d2 = descend(positions, vertices, adj.indptr, adj.indices, start, EXACT)
-        keep = d2 <= radius * radius
-        rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
-        atoms = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, basis)
-        return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
-                   vertices.copy())
+        start = corners[np.arange(len(near.rows)),
+                        np.argmin(((vertices[corners] - near.positions[:, None]) ** 2).sum(axis=2), axis=1)]
+        everything = ion_atoms(IonTable(near.positions.astype(np.float32), ions.mz[near.rows]), ranges,
+                               ConcentrationBasis())
+        atoms = basis_atoms(everything, basis)
+        whole = cls(near.rows, near.positions, atoms, everything, start, vertices.copy(), radius, adj.indptr,
+                    adj.indices, Fan.of(faces, len(vertices)))
+        return whole.subset(np.ones(len(near.rows), dtype=bool), vertices, radius)
+
+    def subset(self, keep: np.ndarray, vertices: np.ndarray, radius: float | None = None) -> "NearIons":
+        """The ions ``keep`` (bool or indices) of these whose nearest vertex of ``vertices`` (this mesh, moved
+        by less than ``self.radius - radius`` since the selection) lies within ``radius`` (default: the
+        selection's), assigned to their nearest vertices; same anchor."""
+        radius = self.radius if radius is None else radius
+        keep = np.flatnonzero(keep) if keep.dtype == bool else keep
+        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT)
+        inside = d2 <= radius * radius
+        keep, vertex = keep[inside], vertex[inside]
+        return NearIons(self.rows[keep], self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
+                        IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, self.anchor, radius,
+                        self.indptr, self.indices, self.fan, vertices.copy())
 
     def moved(self, vertices: np.ndarray) -> float:
         """Largest move (nm) of a vertex since the selection."""
