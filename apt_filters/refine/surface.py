@@ -544,12 +544,12 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
     return mesh, vertices, plain
 
 
-def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reselect, species: str,
+def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str,
            fixed: list[ObjectLevels] | None, p: RefineParams) -> _Placed:
     """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``.
 
-    ``near``: the ions within ``reach + RESELECT`` of the start; ``reselect(vertices)`` selects them again
-    from the ion table where the surface has moved farther than :data:`RESELECT`."""
+    ``near``: the ions within ``reach + RESELECT`` of the start, completed from the ion table where the surface
+    moves farther than :data:`RESELECT` (:meth:`~apt_filters.refine.band.NearIons.cover`)."""
     vertices = vertices.copy()
     n = len(vertices)
     topo = topology(faces, n)
@@ -567,9 +567,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reselect, sp
         for _ in range(p.normal_smoothing):
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        if near.moved(vertices) > RESELECT:
-            near = reselect(vertices)
-        band = near.band(vertices, normals, reach, p.distance)
+        band = near.cover(vertices, reach).band(vertices, normals, reach, p.distance)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
@@ -622,8 +620,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reselect, sp
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < p.tolerance * gain:
             break
-    if near.moved(vertices) > RESELECT:
-        near = reselect(vertices)
+    near.cover(vertices, reach)
     normals = smoothed_normals(vertices, faces, p.normal_smoothing)
     if fixed is None:
         levels = plateaus(near.band(vertices, normals, reach, p.distance), near.atoms, components, n_comp, species,
@@ -636,12 +633,10 @@ def _reach(p: RefineParams) -> float:
     return max(p.plateau_window[1], p.half_width) + 1.0
 
 
-def _against(near: NearIons, vertices: np.ndarray, radius: float, reselect) -> NearIons:
-    """The ions of ``near`` whose nearest vertex of ``vertices`` (the same mesh, moved) lies within ``radius``,
-    assigned to it; selected again (``reselect``) where the mesh has moved too far for ``near`` to hold them."""
-    if near.moved(vertices) > near.radius - radius:
-        near = reselect(vertices)
-    return near.subset(np.arange(len(near.rows)), vertices, radius)
+def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
+    """The ions of ``near`` (completed from the table where needed) whose nearest vertex of ``vertices`` (the same
+    mesh, moved) lies within ``radius``, assigned to it."""
+    return near.cover(vertices, radius).subset(np.arange(len(near.rows)), vertices, radius)
 
 
 def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
@@ -806,11 +801,6 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
 
 
-def _half(near: NearIons, k: int, vertices: np.ndarray) -> NearIons:
-    """The ions of ``near`` in rows of parity ``k`` (the cross-fit's halves: even and odd rows of the table)."""
-    return near.subset(near.rows % 2 == k, vertices)
-
-
 def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
                    basis: ConcentrationBasis = ConcentrationBasis(), params: RefineParams = RefineParams()
                    ) -> RefineResult:
@@ -853,26 +843,21 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     components, pairs = topo.vertex_components, topo.face_pairs
     radius = _reach(p) + RESELECT
 
-    def select(vertices: np.ndarray) -> NearIons:  # one streamed pass over the ion table
-        return NearIons.select(ions, ranges, basis, vertices, faces, radius)
-
-    near = select(start)
+    near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
     fits, held, fixed = [], [], None
     if p.cross_fit:
         clock = time.perf_counter()
-        fits = [_place(start, faces, _half(near, k, start), lambda v, k=k: _half(select(v), k, v), species, None, p)
-                for k in (0, 1)]
+        fits = [_place(start, faces, near.half(k, start), species, None, p) for k in (0, 1)]
         # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
-        held = [_against(fits[k].near, fits[1 - k].vertices, reach, lambda v, k=k: _half(select(v), k, v))
-                for k in (0, 1)]
+        held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
         fixed = _cross_fitted_levels(fits, faces, held, species, p)
         stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
     clock = time.perf_counter()
-    placed = _place(start, faces, near, select, species, fixed, p)
+    placed = _place(start, faces, near, species, fixed, p)
     stages.append(StageReport.between("place", start, placed.vertices, clock, placed.iterations,
                                       f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
     scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
@@ -913,9 +898,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
     along = smoothed_normals(finished, faces, p.normal_smoothing)
-    errors = _offset_errors(placed.near, finished, along, components, placed.levels, scores, placed.widths,
+    ions_near = placed.near.cover(finished, p.half_width + 1.0)
+    errors = _offset_errors(ions_near, finished, along, components, placed.levels, scores, placed.widths,
                             p.half_width, p.distance)
-    ions_near = placed.near if placed.near.moved(finished) <= RESELECT else select(finished)
     estimate, marks = _segregant(ions_near, basis, finished, along, components, scores, errors, p.half_width,
                                  p.distance, auto, p.marker)
     if auto:
