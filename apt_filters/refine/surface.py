@@ -758,7 +758,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
               lift: np.ndarray | None = None, components: np.ndarray | None = None):
     """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
     of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened, the vertices
-    after the blur correction and before the facets).
+    after the blur correction and before the facets, the ``time.perf_counter()`` there).
 
     ``lift`` (c,) nm moves each object (``components``: of each vertex) out on top of the blur's shift, and its
     facets' planes with it (the segregant's mark, :mod:`apt_filters.refine.marker`).
@@ -772,7 +772,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
         found = [replace(f, offset=f.offset + lift[f.component]) for f in found]
         lift = np.where(components >= 0, lift[np.maximum(components, 0)], 0.0)
 
-    def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray]:
+    def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray, float]:
         guarded = 0
         if (blur is not None and any(blur)) or lift is not None:
             shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0))
@@ -780,7 +780,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
                 shift = shift + lift
             vertices, g = guarded_move(vertices, faces, shift[:, None] * along, pairs)
             guarded += g
-        sharpened, corrected = 0, vertices
+        sharpened, corrected, between = 0, vertices, time.perf_counter()
         if found:
             step, along = facet_steps(vertices, faces, found)
             vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
@@ -788,7 +788,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
             vertices, g2 = guarded_move(vertices, faces, corners, pairs)
             guarded += g + g2
             sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
-        return vertices, len(found), sharpened, guarded, corrected
+        return vertices, len(found), sharpened, guarded, corrected, between
 
     return finish
 
@@ -909,13 +909,16 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
     before = vertices
-    vertices, n_facets, sharpened, g, corrected = _finisher(found, faces, pairs, blur, lift, components)(vertices)
+    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, pairs, blur, lift,
+                                                                     components)(vertices)
     guarded += g
-    stages.append(StageReport.between(
+    # the facets' time from where the blur's correction ended; the blur's from the facets' finding on
+    stages.append(replace(StageReport.between(
         "blur_and_marker", before, corrected, clock, 0,
         f"blur {'none' if not blur or not any(blur) else f'{blur[0]:.3f}/{blur[1]:.3f} nm'}"
-        f"{'' if lift is None else f', segregant mark moved {np.count_nonzero(lift)} objects'}"))
-    stages.append(StageReport.between("facets", corrected, vertices, time.perf_counter(), 0,
+        f"{'' if lift is None else f', segregant mark moved {np.count_nonzero(lift)} objects'}"),
+        seconds=between - clock))
+    stages.append(StageReport.between("facets", corrected, vertices, between, 0,
                                       f"{n_facets} facets, {sharpened} vertices on edges and corners"))
     if marks is not None:
         errors = marks.errors
