@@ -1,6 +1,6 @@
 """Refinement time on the end-to-end scale case: the ``many`` specimen (47 precipitates) at 10^7 ions.
 
-    python -m benchmarks.bench_refine_scale [--ions 1e7] [--baseline PATH] [--work DIR]
+    python -m benchmarks.bench_refine_scale [--ions 1e7] [--preset many] [--baseline PATH] [--work DIR] [--out]
 
 The specimen of :mod:`benchmarks.bench_pipeline` (``apt-filters synth --preset many --ions N``) is
 generated once, voxelized and contoured as ``apt-filters run ... --species Al --iso 0.15 --exclude B``
@@ -87,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="many", help="synth preset ('default': 7 objects, ~3.4M ions, to develop on)")
     parser.add_argument("--work", type=Path, help="folder for the specimen and mesh (kept; default /tmp/...)")
     parser.add_argument("--baseline", type=Path, help="checkout of the revision to compare against")
+    parser.add_argument("--out", action="store_true", help="write benchmarks/results_refine_scale.md")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     work = args.work or Path(f"/tmp/bench_refine_scale_{args.preset}_{int(args.ions)}")
@@ -96,13 +97,30 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     prepare(work, int(args.ions) or None, args.preset)
     print(f"specimen and contour ready in {time.perf_counter() - start:.0f} s ({work})", flush=True)
-    runs = [("this tree", ROOT)] + ([("baseline", args.baseline.resolve())] if args.baseline else [])
-    print("| code | ions | objects | faces | CPU (s) | wall (s) | mean displacement (nm) |\n|---|---:|---:|---:|---:|---:|---:|")
+    runs = [("this tree", ROOT)] + ([(f"baseline ({args.baseline})", args.baseline.resolve())] if args.baseline else [])
+    lines = [f"## Refinement of the `{args.preset}` specimen ({'own size' if not args.ions else f'{args.ions:.0e} ions'})",
+             "", "Default settings, Al at 15 at.% with B out of the basis; each row a fresh process; CPU = user + "
+             "system of all threads during `refine_surface`.", "",
+             "| code | ions | objects | faces | CPU (s) | wall (s) | mean displacement (nm) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines), flush=True)
+    results = []
     for name, code in runs:
         r = timed_child(work, code)
-        print(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | {r['wall_s']:.1f} | "
-              f"{r['mean_displacement_nm']:+.4f} |", flush=True)
-    print("load average (1, 5, 15 min): {:.1f} {:.1f} {:.1f}".format(*os.getloadavg()))
+        results.append(r)
+        lines.append(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | "
+                     f"{r['wall_s']:.1f} | {r['mean_displacement_nm']:+.4f} |")
+        print(lines[-1], flush=True)
+    lines += ["", "Load average (1, 5, 15 min) after: {:.1f} {:.1f} {:.1f}.".format(*os.getloadavg())]
+    if args.out:
+        from benchmarks.results import ratio, write_results
+
+        ours = results[0]
+        peer = results[1] if len(results) > 1 else None
+        rows = [("refine", f"refinement CPU, {ours['ions'] / 1e6:.1f}M ions, {ours['objects']} objects, 2 cores "
+                           "(target: <= 15 s)", f"{ours['cpu_s']:.1f} s",
+                 f"{peer['cpu_s']:.1f} s (baseline)" if peer else "-", ratio(ours["cpu_s"], peer["cpu_s"]) if peer else "-")]
+        write_results("refine_scale", "bench_refine_scale: refinement time at scale", rows, ["\n".join(lines)])
     return 0
 
 

@@ -288,7 +288,7 @@ class NearIons:
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, EXACT,
-                         d2, signed)
+                         reach * reach, d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -345,16 +345,20 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, limit, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
-    from the vertex's tangent plane keep their offset along its normal."""
+    from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
+    their vertex (left out of the band) get NaN."""
     for i in prange(points.shape[0]):
         v = vertex[i]
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         q = vertices[v]
         d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
+        if d2[i] > limit:
+            signed[i] = np.nan
+            continue
         tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
         if abs(tangent) > exact:
             signed[i] = tangent
