@@ -200,6 +200,20 @@ def test_refine_params_refuse_invalid_values_and_combinations_in_one_line(change
     assert words in message and "\n" not in message
 
 
+def test_the_pipeline_refuses_select_modes_without_cross_fit_before_reading_any_file():
+    from apt_filters.pipeline.config import PipelineConfig, check
+    from apt_filters.pipeline.surface import refine_params
+
+    config = PipelineConfig()
+    config.refine.cross_fit = False
+    with pytest.raises(AptFiltersError, match="select_modes needs cross_fit"):
+        check(config)
+    config.refine.select_modes = False
+    check(config)
+    assert refine_params(config.refine) == RefineParams(cross_fit=False, select_modes=False)
+    assert refine_params(PipelineConfig().refine) == RefineParams()
+
+
 def test_refine_params_defaults_are_valid_and_frozen():
     p = RefineParams(plateau_window=[1.0, 3.0], blur=[0.3, 0.1])
     assert p.plateau_window == (1.0, 3.0) and p.blur == (0.3, 0.1)
