@@ -10,8 +10,10 @@ Each outer iteration:
    tangent plane, so that offset sees the interface inside the mesh and the vertices walk
    inward, -0.02 nm along cube edges, -0.03 nm at corners, and the faces' chord deficit stays).
    The ions within reach are
-   selected once, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`), and their nearest
-   vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
+   selected once for the whole refinement, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`;
+   the cross-fit's halves, the held-out ions and the segregant's peak are subsets of them; faces that move
+   beyond the selection's margin get their ions added, :meth:`~apt_filters.refine.band.NearIons.cover`),
+   and their nearest vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
    :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
@@ -64,8 +66,9 @@ crossings of faces farther apart, and any fold left, are smoothed away at the en
 ``self_intersections`` measure the output (0 on every benchmark specimen).
 
 Peak memory: one chunk of the ion table at a time (it may be memory-mapped), then the ions within
-``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: positions (float64),
-nearest vertex (int64) and atoms per basis element (float32), ~50 bytes per ion; the triangle grid
+``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: rows (int64), positions (float64),
+nearest vertex (int64) and atoms per element and per basis element (float32), 40 + 4 (k + K) bytes per ion,
+their halves and held-out subsets (as much again at most); the triangle grid
 of the distance engine (:mod:`apt_filters.core.distance`, ~170 bytes per triangle) and a few (vertices × bins)
 float64 arrays.
 """
