@@ -22,7 +22,7 @@ from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["cli", "io", "ranges", "fuzz_ranges", "synth", "audit", "voxel", "scale", "core", "contour", "meshlab",
-         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "zoo", "pipeline", "select", "sweep"]
+         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "refine_scale", "zoo", "pipeline", "select", "sweep"]
 
 
 def machine() -> str:
