@@ -266,7 +266,9 @@ def _refine_record(specks, refined) -> dict:
              "peak_centre_nm": _finite(marks.centre), "peak_centre_se_nm": _finite(marks.centre_se),
              "shift_nm": _finite(marks.shift)},
             "counting_errors": _counting_errors(refined.mesh, refined.offset_errors),
-            "stages": [dataclasses.asdict(stage) for stage in refined.stages]}
+            # without their seconds: a rerun's report is identical (the step's time is in report["steps"])
+            "stages": [{k: v for k, v in dataclasses.asdict(stage).items() if k != "seconds"}
+                       for stage in refined.stages]}
 
 
 def _counting_errors(mesh: TriMesh, offset_errors) -> list[dict]:
