@@ -22,7 +22,8 @@ from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["cli", "io", "ranges", "fuzz_ranges", "synth", "audit", "voxel", "scale", "core", "contour", "meshlab",
-         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "zoo", "object_errors", "pipeline", "select", "sweep"]
+         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "refine_scale", "zoo", "object_errors", "pipeline",
+         "select", "sweep"]
 
 
 def machine() -> str:

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 
 from apt_filters.contour import marching_cubes
 from apt_filters.core.nearby import select_near
-from apt_filters.refine import remove_specks, subdivide
+from apt_filters.refine import remove_specks
+from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.band import NearIons
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize

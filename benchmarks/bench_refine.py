@@ -39,7 +39,8 @@ import time
 
 import numpy as np
 
-from apt_filters.refine import merge, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, refine_surface, remove_specks
+from apt_filters.refine.recontour import merge
 from apt_filters.synth import generate, preset
 from apt_filters.truth.precipitates import (counted_errors, evaluate_precipitates, per_object_start,
                                             reference_surface, volume_floors)
@@ -67,7 +68,8 @@ def run_pipelines(sp, fields) -> dict:
     mesh, specks = per_object_start(specimen=sp, fields=fields, mesh=mesh, species=SPECIES, basis=NO_B, iso=ISO)
     out["iso"] = (mesh, specks.count, out["basis"][2] + time.perf_counter() - t)
     t = time.perf_counter()
-    previous = refine_surface(mesh, sp.ions, sp.ranges, SPECIES, NO_B, cross_fit=False, select_modes=False, blur=None)
+    previous = refine_surface(mesh, sp.ions, sp.ranges, SPECIES, NO_B,
+                              RefineParams(cross_fit=False, select_modes=False, blur=None))
     out["s5"] = (previous.mesh, specks.count, out["iso"][2] + time.perf_counter() - t)
     t = time.perf_counter()
     result = refine_surface(mesh, sp.ions, sp.ranges, SPECIES, NO_B)

@@ -41,7 +41,9 @@ from apt_filters.core.mesh import TriMesh, split_components
 from apt_filters.io.ions import IonTable
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 from apt_filters.pipeline.surface import finished_surface
-from apt_filters.refine import ion_atoms, object_excess, object_levels, remove_specks
+from apt_filters.refine import object_excess, remove_specks
+from apt_filters.refine.composition import ion_atoms
+from apt_filters.refine.levels import object_levels
 from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
 from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error, surface_error_within

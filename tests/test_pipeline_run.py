@@ -89,7 +89,7 @@ def test_the_excess_the_ions_hold_is_counted_against_the_true_surfaces(small_run
     """``counted_excess_B_ratio``: the run's own ions counted against each feature's shape rebuilt from truth.json
     equal the count against the generating specimen's exact SDF (the same ions, drawn again from the seed)."""
     from apt_filters.truth.specimen import true_plateaus
-    from apt_filters.refine import ion_atoms
+    from apt_filters.refine.composition import ion_atoms
     from apt_filters.truth import counted_truth
     from apt_filters.synth import generate
     from apt_filters.voxel import ConcentrationBasis

@@ -14,10 +14,12 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.core.mesh import split_components
-from apt_filters.refine import (contrast_weights, guarded_move, ion_atoms, merge, object_excess, object_levels,
-                                per_object_iso, refine_surface, remove_specks, subdivide)
+from apt_filters.refine import RefineParams, object_excess, refine_surface, remove_specks
+from apt_filters.refine.composition import contrast_weights, ion_atoms
+from apt_filters.refine.levels import object_levels, per_object_iso
+from apt_filters.refine.subdivide import subdivide
 from apt_filters.truth import counted_truth, match_objects, surface_error
-from apt_filters.refine.surface import equal_area_offset, matched_offset, profile_width
+from apt_filters.refine.surface import equal_area_offset, guarded_move, matched_offset, profile_width
 from apt_filters.synth import Sphere, generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
@@ -168,10 +170,63 @@ def test_refined_surface_is_closer_to_the_truth_than_the_ap_suite_style_one(smal
     assert abs(pooled_excess_per_area(after)) < 0.1
 
 
+@pytest.mark.parametrize("changes, words", [
+    (dict(select_modes=True, cross_fit=False), "select_modes needs cross_fit"),
+    (dict(half_width=0.0), "half_width must lie in"),
+    (dict(bin_width=1.0), "fewer than 4 bins"),
+    (dict(plateau_window=(3.0, 1.0)), "plateau_window"),
+    (dict(far_iterations=20), "far_iterations (20) exceeds iterations (12)"),
+    (dict(crease_smoothing=11), "crease_smoothing (11) exceeds smoothing (10)"),
+    (dict(iterations=2.5), "whole number"),
+    (dict(max_step=float("nan")), "max_step must lie in"),
+    (dict(blur=(0.3, -0.1)), "blur must be"),
+    (dict(distance="normal"), "distance must be"),
+    (dict(facets="yes"), "facets must be True or False"),
+])
+def test_refine_params_refuse_invalid_values_and_combinations_in_one_line(changes, words):
+    with pytest.raises(ValueError) as caught:
+        RefineParams(**changes)
+    message = str(caught.value)
+    assert words in message and "\n" not in message
+
+
+def test_the_pipeline_refuses_select_modes_without_cross_fit_before_reading_any_file():
+    from apt_filters.pipeline.config import PipelineConfig, check
+    from apt_filters.pipeline.surface import refine_params
+
+    config = PipelineConfig()
+    config.refine.cross_fit = False
+    with pytest.raises(AptFiltersError, match="select_modes needs cross_fit"):
+        check(config)
+    config.refine.select_modes = False
+    check(config)
+    assert refine_params(config.refine) == RefineParams(cross_fit=False, select_modes=False)
+    assert refine_params(PipelineConfig().refine) == RefineParams()
+
+
+def test_refine_params_defaults_are_valid_and_frozen():
+    p = RefineParams(plateau_window=[1.0, 3.0], blur=[0.3, 0.1])
+    assert p.plateau_window == (1.0, 3.0) and p.blur == (0.3, 0.1)
+    with pytest.raises(AttributeError):
+        p.iterations = 3
+
+
+def test_each_stage_reports_what_it_moved(small_run):
+    _, _, ours, result = small_run
+    names = [s.name for s in result.stages]
+    assert names == ["prepare", "cross_fit", "place", "modes", "blur_and_marker", "facets", "untangle"]
+    place = result.stages[2]
+    assert place.iterations == result.iterations and place.moved > 0.5 * result.mesh.n_vertices
+    # the iterations move the contoured surface out by the delocalization's bias, several tenths of a nm
+    assert 0.1 < place.mean_move < place.max_move <= result.params.iterations * result.params.max_step
+    assert result.params == RefineParams()
+    assert all(s.seconds >= 0 and s.moved <= result.mesh.n_vertices for s in result.stages)
+
+
 def test_untangle_leaves_separated_coplanar_faces_alone_and_separates_crossing_ones():
     import pymeshlab
 
-    from apt_filters.refine import untangle
+    from apt_filters.refine.untangle import untangle
     from apt_filters.refine.band import adjacency
     from apt_filters.refine.surface import umbrella
 

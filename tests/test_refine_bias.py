@@ -13,7 +13,7 @@ from apt_filters.core.mesh import vertex_normals, topology
 from apt_filters.contour import marching_cubes
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import object_excess, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, object_excess, refine_surface, remove_specks
 from apt_filters.refine.band import NearIons
 from apt_filters.synth import Cuboid, Sphere, generate
 from apt_filters.synth.geometry import Box
@@ -72,8 +72,9 @@ def _edge_bias(cube, mesh):
 def test_refinement_started_on_the_truth_keeps_cube_edges_with_the_mesh_distance(sharp_cube):
     cube, sp, start = sharp_cube
     # the profile distance alone: facets (which rebuild the edges from the faces' planes) off
-    mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, facets=False).mesh
-    tangent = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, distance="tangent", facets=False).mesh
+    mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, RefineParams(facets=False)).mesh
+    tangent = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B,
+                             RefineParams(distance="tangent", facets=False)).mesh
     # measured: edges -0.028 nm in the start (marching cubes interpolates the SDF linearly across the
     # edge), -0.000 nm refined with the mesh distance, -0.024 nm with the tangent planes (the previous
     # code); volumes -1.5 % and -4.0 % (the rest is the chamfer of faces that cut across the edges)
@@ -83,7 +84,7 @@ def test_refinement_started_on_the_truth_keeps_cube_edges_with_the_mesh_distance
 
 
 def test_contrast_weights_leave_out_elements_whose_plateaus_differ_only_by_noise():
-    from apt_filters.refine import contrast_weights
+    from apt_filters.refine.composition import contrast_weights
 
     elements = ["Al", "Cr", "Ni", "B"]
     inside, outside = np.array([0.20, 0.05, 0.7445, 0.0055]), np.array([0.10, 0.15, 0.745, 0.005])
@@ -122,8 +123,8 @@ def test_refinement_brings_rounded_cube_edges_and_corners_out(sharp_cube):
     # the iterations (and facets) alone: the cross-fit, the smoothness selection and the blur correction,
     # tested on their own elsewhere, would blur what this measures
     alone = dict(cross_fit=False, select_modes=False, blur=None)
-    mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, **alone).mesh
-    full = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, full_steps=12, **alone).mesh
+    mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, RefineParams(**alone)).mesh
+    full = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, RefineParams(full_steps=12, **alone)).mesh
     bias, bias_full = _bias_by_feature(cube, mesh), _bias_by_feature(cube, full)
     # measured (noise-free, blur-free profile; start: edges -0.55 nm, volume -40 %): the defaults (4 full
     # steps, 6 smoothing passes at creases) -0.049 nm at the edges, -0.22 nm at the corners, volume -4.4 %,
@@ -186,8 +187,10 @@ def test_plateaus_the_refinement_uses_are_not_biased_by_the_surface_they_place()
         counted = (species >= 0) & (species != names.index("B"))
         positions = sp.ions.positions.astype(np.float64)
         for cross_fit in (True, False):
-            result = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, plateau_window=window, plateau_prior=0.0,
-                                    cross_fit=cross_fit)
+            # the smoothness selection needs the cross-fit's halves
+            result = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B,
+                                    RefineParams(plateau_window=window, plateau_prior=0.0, cross_fit=cross_fit,
+                                                 select_modes=cross_fit))
             components = topology(result.mesh.faces, result.mesh.n_vertices).vertex_components
             k = result.levels[0].elements.index("Al")
             assert len(result.levels) == len(centres)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from apt_filters.contour import marching_cubes
-from apt_filters.refine import refine_surface, remove_specks
+from apt_filters.refine import RefineParams, refine_surface, remove_specks
 from apt_filters.refine.blur import blur_shift, shape_operator
 from apt_filters.refine.facets import facet_steps, find_facets
 from apt_filters.synth import Cuboid, Sphere, generate
@@ -85,8 +85,8 @@ def test_blur_correction_removes_the_curvature_bias_of_a_blurred_sphere():
             # its longer inside tail, which takes ~40 % of the curvature shift away on this dense specimen
             # (session 6: shift -4.2 % at +-1.5 nm, -7.1 % at +-2.5 nm, theory -6.75 %; at the gamma-prime
             # density the 1.5 nm window kept it: -7.5 % over 32 spheres)
-            mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, half_width=2.5,
-                                  blur=blur if correct else None).mesh
+            mesh = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B,
+                                  RefineParams(half_width=2.5, blur=blur if correct else None)).mesh
             errors[correct].append(mesh.signed_volume() / true_volume - 1)
     # theory: the midpoint lies sigma^2 / R = 0.0675 nm inside, -6.6 % of the volume. Measured (session 5, the
     # 1.5 nm window, plateaus against the surface itself): -5.9, -5.3, -2.9 % uncorrected, +0.8, +1.4, +3.9 %

@@ -9,7 +9,8 @@ import pytest
 
 from apt_filters.core.mesh import split_components, topology
 from apt_filters.contour import marching_cubes
-from apt_filters.refine import ion_atoms, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, refine_surface, remove_specks
+from apt_filters.refine.composition import ion_atoms
 from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
 from apt_filters.refine.spectral import low_pass
@@ -36,7 +37,8 @@ def test_the_modes_held_out_ions_choose_are_the_closest_to_the_true_sphere(small
     sp, start = small
     chosen = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B)
     # the same placement without the selection, finishing or blur: every candidate low-passed from it
-    placed = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, select_modes=False, facets=False, blur=None).mesh
+    placed = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B,
+                            RefineParams(select_modes=False, facets=False, blur=None)).mesh
     sphere = next(i for i, f in enumerate(sp.truth["features"]) if f["name"].startswith("sphere"))
     tf, sdf = sp.truth["features"][sphere], sp.feature_sdf(sphere)
     parts = split_components(placed)

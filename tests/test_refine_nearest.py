@@ -10,7 +10,8 @@ from apt_filters.core.checks import folded_pairs
 from apt_filters.core.nearby import select_near
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import subdivide, unfold
+from apt_filters.refine.subdivide import subdivide
+from apt_filters.refine.untangle import unfold
 from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled
 from apt_filters.refine.nearest import descend
 from apt_filters.refine.surface import umbrella
@@ -69,6 +70,35 @@ def test_near_ions_follow_a_moved_mesh():
     signed = np.einsum("ij,ij->i", near.positions[band.index] - moved[band.vertex],
                        vertex_normals(moved, mesh.faces)[band.vertex])
     assert np.allclose(band.distance, signed)
+
+
+def test_near_ions_completed_for_a_mesh_moved_beyond_the_margin_hold_every_ion_a_new_selection_holds():
+    mesh = _blob()
+    rng = np.random.default_rng(5)
+    positions = rng.uniform(-10, 10, size=(120_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),)), Range(57.5, 58.5, (("Ni", 1),))])
+    ions = IonTable(positions, rng.choice(np.array([27.0, 58.0, 99.0], dtype=np.float32), len(positions)))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(exclude=("Ni",)), mesh.vertices, mesh.faces, 2.5)
+    assert near.atoms.elements == ["Al"] and near.everything.elements == ["Al", "Ni"]
+    # one side of the blob moves out by up to 3 nm, beyond the 1.5 nm the selection's margin covers
+    moved = mesh.vertices + np.clip(mesh.vertices[:, [0]], 0, None) * np.array([[0.8, 0.0, 0.0]])
+    before = set(near.rows.tolist())
+    near.cover(moved, 1.0)
+    fresh = NearIons.select(ions, ranges, ConcentrationBasis(exclude=("Ni",)), moved, mesh.faces, 2.5)
+    d = cKDTree(moved).query(positions)[0]
+    within = set(np.flatnonzero(d <= 1.0).tolist())
+    assert within <= set(near.rows.tolist()) and not within <= before  # completed: what was missing was added
+    assert within <= set(fresh.rows.tolist())
+    assert len(set(near.rows.tolist())) == len(near.rows)  # no ion twice
+    # the atoms follow the rows, the basis columns those of every element
+    k = np.argsort(near.rows)
+    expected = np.where(ions.mz[near.rows[k]] == 27.0, 1.0, 0.0)
+    assert np.array_equal(near.atoms.atoms[k, 0], expected)
+    assert np.array_equal(near.everything.atoms[k, 1], (ions.mz[near.rows[k]] == 58.0).astype(float))
+    # and the halves by row parity stay halves when completed
+    half = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 2.5).half(1, mesh.vertices)
+    half.cover(moved, 1.0)
+    assert np.all(half.rows % 2 == 1) and {r for r in within if r % 2} <= set(half.rows.tolist())
 
 
 def test_pooled_profiles_match_the_dense_weights():

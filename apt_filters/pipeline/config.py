@@ -272,6 +272,9 @@ def check(config: PipelineConfig, source: str | None = None) -> None:
                               f"({v.size / 2:g} nm) on every axis", source)
     if len(config.refine.blur) not in (0, 2):
         raise AptFiltersError("[refine] blur must be [lateral, depth] sigmas >= 0 nm, or empty (estimated)", source)
+    if config.refine.select_modes and not config.refine.cross_fit:
+        raise AptFiltersError("[refine] select_modes needs cross_fit (its held-out ions are the cross-fit's halves): "
+                              "set select_modes = false as well", source)
     for s in config.surface:
         if s.species and not 0 < s.iso < 1:
             raise AptFiltersError(f"iso-concentration of {s.species} must be a fraction in (0, 1), got {s.iso:g}",

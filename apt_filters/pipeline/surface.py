@@ -40,6 +40,15 @@ def field_values(fields, species: str, iso: float, basis=None) -> np.ndarray:
     return values
 
 
+def refine_params(refine):
+    """The :class:`~apt_filters.refine.RefineParams` of a ``[refine]`` section (:class:`RefineConfig`): the options
+    it names, every other setting at its default."""
+    from apt_filters.refine import RefineParams
+
+    return RefineParams(iterations=refine.iterations, facets=refine.facets, blur=tuple(refine.blur) or "auto",
+                        cross_fit=refine.cross_fit, select_modes=refine.select_modes, marker=refine.marker)
+
+
 def contour_surface(fields, mask: np.ndarray, species: str, iso: float, method: str = "mc",
                     close: bool = False, basis=None) -> TriMesh:
     """The iso-surface of ``species`` at ``iso`` (its concentration in ``basis``, default the voxelization's)
@@ -172,13 +181,11 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
                                          alpha=r.speck_alpha)
             record.specks = specks
-            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis, iterations=r.iterations,
-                                     facets=r.facets, blur=tuple(r.blur) or "auto", cross_fit=r.cross_fit,
-                                     select_modes=r.select_modes, marker=r.marker)
+            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis, refine_params(r))
             mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
-                             **_refine_record(specks, refined, r.cross_fit)}
+                             **_refine_record(specks, refined)}
             s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
                          f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
@@ -249,7 +256,7 @@ def _finite(values) -> list:
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
-def _refine_record(specks, refined, cross_fit: bool) -> dict:
+def _refine_record(specks, refined) -> dict:
     """The refinement's figures in report.json."""
     estimate, marks = refined.blur_estimate, refined.marker
     return {"specks_removed": specks.count, "speck_volumes_nm3": _finite(specks.volumes),
@@ -263,7 +270,7 @@ def _refine_record(specks, refined, cross_fit: bool) -> dict:
             "blur_estimate": None if estimate is None else
             {"lateral_nm": estimate.lateral, "slope_nm2": estimate.slope, "slope_se_nm2": estimate.slope_se,
              "source": estimate.source},
-            "cross_fit": cross_fit,
+            "cross_fit": refined.params.cross_fit,
             "modes": None if refined.modes is None else {str(c): k for c, k in sorted(refined.modes.modes.items())},
             "marker": None if marks is None else
             {"species": marks.name, "objects_moved": marks.marked,
@@ -271,7 +278,10 @@ def _refine_record(specks, refined, cross_fit: bool) -> dict:
              "layer_offset_se_nm": _finite([marks.layer_offset_se])[0],
              "peak_centre_nm": _finite(marks.centre), "peak_centre_se_nm": _finite(marks.centre_se),
              "shift_nm": _finite(marks.shift)},
-            "counting_errors": _counting_errors(refined.mesh, refined.offset_errors)}
+            "counting_errors": _counting_errors(refined.mesh, refined.offset_errors),
+            # without their seconds: a rerun's report is identical (the step's time is in report["steps"])
+            "stages": [{k: v for k, v in dataclasses.asdict(stage).items() if k != "seconds"}
+                       for stage in refined.stages]}
 
 
 def _counting_errors(mesh: TriMesh, offset_errors) -> list[dict]:

@@ -31,7 +31,7 @@ from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.composition import IonAtoms, ion_atoms
+from apt_filters.refine.composition import IonAtoms, basis_atoms, ion_atoms
 from apt_filters.refine.nearest import descend
 from apt_filters.voxel import ConcentrationBasis
 
@@ -138,36 +138,54 @@ class Band:
 class NearIons:
     """The ions within ``radius`` nm of a mesh, their atoms and their nearest vertices, kept up to date.
 
-    Select them once (:meth:`select`, chunked over the ion table), then ask for a :class:`Band`
-    after every move of the vertices (:meth:`band`): each ion's nearest vertex is found again by
+    Select them once (:meth:`select`: one streamed pass over the ion table), take subsets of them
+    (:meth:`subset`: the halves of the cross-fit by row parity, those within a smaller reach), and ask for a
+    :class:`Band` after every move of the vertices (:meth:`band`): each ion's nearest vertex is found again by
     walking from its previous one (:func:`~apt_filters.refine.nearest.descend`), no KD-tree.
-    The selection stays complete for any ``reach`` while no vertex has moved more than
-    ``radius - reach`` from ``anchor`` (:meth:`moved`); select again beyond that.
+    The ions within ``reach`` of a moved mesh are all here while no face has moved more than
+    ``radius - reach`` since it was covered; :meth:`cover` adds those of the faces that have (one streamed
+    pass against those faces alone).
 
     Attributes
     ----------
+    rows : (b,) int64
+        Rows of these ions in the ion table.
     positions : (b, 3) float64
     atoms : IonAtoms
         Basis atoms of these ions.
+    everything : IonAtoms
+        Atoms of every ranged element (the segregants the basis leaves out too).
     vertex : (b,) int64
         Nearest vertex of each ion (as of the last :meth:`band`).
-    anchor : (n, 3) float64
-        The vertices when these ions were selected.
     radius : float, nm
+    faces : (m, 3) int64
+    covered : (m, 3, 3) float64
+        Each face's corners when the ions within ``radius`` of it were last selected.
     indptr, indices : int arrays
         CSR vertex adjacency of the mesh (the walk's edges).
+    fan : Fan
+        The faces around each vertex.
+    source : (IonTable, RangeTable, ConcentrationBasis)
+        Where the ions come from (for :meth:`cover`).
+    parity : int
+        0 or 1: only the even or odd rows of the table (the cross-fit's halves); -1: all.
     assigned : (n, 3) float64
         The vertices when ``vertex`` was last found.
     """
 
+    rows: np.ndarray
     positions: np.ndarray
     atoms: IonAtoms
+    everything: IonAtoms
     vertex: np.ndarray
-    anchor: np.ndarray
     radius: float
+    faces: np.ndarray
+    covered: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
     fan: "Fan"
+    source: tuple
+    parity: int = -1
     assigned: np.ndarray | None = None
 
     @classmethod
@@ -176,26 +194,76 @@ class NearIons:
         """The ions whose nearest vertex lies within ``radius`` nm.
 
         Memory: one chunk of the positions at a time (``ions.positions`` may be memory-mapped),
-        then 24 + 8 + 4 k bytes per selected ion (k basis elements).
+        then 24 + 8 + 8 + 4 (k + K) bytes per selected ion (k basis elements of K).
         """
         adj = adjacency(faces, len(vertices))
-        # every ion within ``radius`` of a vertex is within ``radius`` of the mesh; its walk to the
-        # nearest vertex starts at the nearest corner of the face holding its closest point
-        near = select_near(ions.positions, TriMesh(vertices, faces), radius)
-        rows, positions = near.rows, near.positions
-        corners = faces[near.face]
-        start = corners[np.arange(len(rows)), np.argmin(((vertices[corners] - positions[:, None]) ** 2).sum(axis=2),
-                                                         axis=1)]
-        vertex, d2 = descend(positions, vertices, adj.indptr, adj.indices, start, EXACT)
-        keep = d2 <= radius * radius
-        rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
-        atoms = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, basis)
-        return cls(positions, atoms, vertex, vertices.copy(), radius, adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
-                   vertices.copy())
+        faces = np.asarray(faces, dtype=np.int64)
+        empty = np.zeros(0, dtype=np.int64)
+        everything = ion_atoms(IonTable(np.zeros((0, 3), np.float32), np.zeros(0, np.float32)), ranges,
+                               ConcentrationBasis())
+        out = cls(empty, np.zeros((0, 3)), basis_atoms(everything, basis), everything, empty, radius, faces,
+                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
+                  (ions, ranges, basis))
+        return out.cover(vertices, 0.0)
 
-    def moved(self, vertices: np.ndarray) -> float:
-        """Largest move (nm) of a vertex since the selection."""
-        return _largest_move(vertices, self.anchor)
+    def cover(self, vertices: np.ndarray, reach: float) -> "NearIons":
+        """These ions, completed (in place) for ``reach`` nm around ``vertices`` (this mesh, moved): the ions
+        within ``radius`` of the faces that moved more than ``radius - reach`` since they were covered are read
+        from the table (one streamed pass, :func:`~apt_filters.core.nearby.select_near`, against those faces
+        alone) and added, assigned to their nearest vertices."""
+        corners = vertices[self.faces]
+        moved = np.sqrt(((corners - self.covered) ** 2).sum(axis=2)).max(axis=1)
+        slack = self.radius - reach
+        if not np.any(moved > slack):
+            return self
+        # the faces halfway there are covered again too: one pass serves several iterations
+        far = np.flatnonzero(moved > 0.5 * slack) if np.isfinite(moved).all() else np.arange(len(moved))
+        ions, ranges, basis = self.source
+        used, local = np.unique(self.faces[far], return_inverse=True)
+        candidates = _near_cells(ions.positions, vertices[used], self.radius)
+        near = select_near(ions.positions[candidates], TriMesh(vertices[used], local.reshape(-1, 3)), self.radius)
+        member = np.zeros(len(ions.positions), dtype=bool)
+        member[self.rows] = True
+        rows = candidates[near.rows]
+        fresh = ~member[rows] & ((rows % 2 == self.parity) if self.parity >= 0 else True)
+        rows, positions = rows[fresh], near.positions[fresh]
+        # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
+        ring = used[local.reshape(-1, 3)[near.face[fresh]]]
+        start = ring[np.arange(len(rows)), np.argmin(((vertices[ring] - positions[:, None]) ** 2).sum(axis=2), axis=1)]
+        vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT)
+        keep = d2 <= self.radius * self.radius
+        rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
+        everything = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, ConcentrationBasis())
+        self.rows = np.concatenate([self.rows, rows])
+        self.positions = np.concatenate([self.positions, positions])
+        self.everything = IonAtoms(everything.elements, np.concatenate([self.everything.atoms, everything.atoms]))
+        self.atoms = basis_atoms(self.everything, basis)
+        # the ions already here keep their assignment until the next band finds the mesh moved
+        self.vertex = np.concatenate([self.vertex, vertex])
+        self.assigned = vertices.copy() if self.assigned is None else self.assigned
+        self.covered[far] = corners[far]
+        return self
+
+    def subset(self, keep: np.ndarray, vertices: np.ndarray, radius: float | None = None) -> "NearIons":
+        """The ions ``keep`` (bool or indices) of these whose nearest vertex of ``vertices`` lies within ``radius``
+        (default: the selection's), assigned to their nearest vertices: complete for ``radius`` around
+        ``vertices`` where these are (:meth:`cover` them first)."""
+        radius = self.radius if radius is None else radius
+        keep = np.flatnonzero(keep) if keep.dtype == bool else keep
+        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT)
+        inside = d2 <= radius * radius
+        keep, vertex = keep[inside], vertex[inside]
+        return NearIons(self.rows[keep], self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
+                        IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, radius, self.faces,
+                        vertices[self.faces], self.indptr, self.indices, self.fan, self.source, self.parity,
+                        vertices.copy())
+
+    def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
+        """The ions of these in the even (``parity`` 0) or odd (1) rows of the table (the cross-fit's halves),
+        assigned to ``vertices``; later :meth:`cover` calls add only rows of that parity."""
+        out = self.subset(self.rows % 2 == parity, vertices)
+        out.parity = parity
+        return out
 
     def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh") -> Band:
         """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances.
@@ -220,7 +288,7 @@ class NearIons:
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, EXACT,
-                         d2, signed)
+                         reach * reach, d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -277,16 +345,20 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, limit, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
-    from the vertex's tangent plane keep their offset along its normal."""
+    from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
+    their vertex (left out of the band) get NaN."""
     for i in prange(points.shape[0]):
         v = vertex[i]
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         q = vertices[v]
         d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
+        if d2[i] > limit:
+            signed[i] = np.nan
+            continue
         tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
         if abs(tangent) > exact:
             signed[i] = tangent
@@ -318,6 +390,30 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact
                     nz += fz
         side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
         signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
+
+
+def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, chunk: int = 1 << 21) -> np.ndarray:
+    """(c,) int64 rows of ``positions`` (N, 3; may be memory-mapped, read ``chunk`` rows at a time) that lie in
+    a grid cell (edge ``reach``) within one cell of a cell holding one of ``points`` (n, 3): every row within
+    ``reach`` of the points is among them. A coarse filter in front of the exact distance: a few numpy passes per
+    ion instead of the search's ordering of the whole table."""
+    if not len(points) or not len(positions):
+        return np.zeros(0, dtype=np.int64)
+    low = points.min(axis=0) - 1.5 * reach
+    shape = np.floor((points.max(axis=0) + 1.5 * reach - low) / reach).astype(np.int64) + 1
+    occupied = np.zeros(shape + 2, dtype=bool)
+    cell = np.floor((points - low) / reach).astype(np.int64) + 1
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                occupied[cell[:, 0] + dx, cell[:, 1] + dy, cell[:, 2] + dz] = True
+    out = []
+    for start in range(0, len(positions), chunk):
+        part = np.asarray(positions[start:start + chunk], dtype=np.float64)
+        index = np.floor((part - low) / reach).astype(np.int64) + 1
+        np.clip(index, 0, shape + 1, out=index)  # the border cells are never occupied
+        out.append(start + np.flatnonzero(occupied[index[:, 0], index[:, 1], index[:, 2]]))
+    return np.concatenate(out)
 
 
 def _largest_move(vertices: np.ndarray, before: np.ndarray) -> float:

@@ -25,7 +25,7 @@ fits the slope from the ions of all objects pooled by ``n_z^2``; with ``sigma_de
 depth resolution, ~0.05-0.1 nm, is several times its lateral one) it gives ``sigma_lat``, and the
 correction uses ``Sigma = diag(s, s, 0)``: on the gamma-prime specimen (0.3 / 0.1 nm) that is 89 % of
 the lateral variance and leaves out the depth part (0.003 nm on a 3 nm sphere). A flat interface (all
-normals alike) gives no estimate and no correction; ``refine_surface(blur=(lateral, depth))`` sets a
+normals alike) gives no estimate and no correction; ``RefineParams(blur=(lateral, depth))`` sets a
 known blur instead.
 
 A segregant in a thin layer at the interface is a sharper marker of the same slope: its fraction's peak

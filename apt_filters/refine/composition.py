@@ -54,6 +54,18 @@ def ion_atoms(ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis = Co
     return IonAtoms([elements[k] for k in keep], matrix[ranges.ion_index(ions.mz).astype(np.int64) + 1])
 
 
+def basis_atoms(everything: IonAtoms, basis: ConcentrationBasis) -> IonAtoms:
+    """The columns of ``everything`` (atoms of every element, :func:`ion_atoms` with the default basis) that
+    ``basis`` counts: the same as :func:`ion_atoms` in that basis, without ranging the ions again."""
+    unknown = [s for s in basis.exclude if s not in everything.elements]
+    if unknown:
+        raise AptFiltersError(f"concentration basis excludes unknown elements {', '.join(unknown)}")
+    if not basis.exclude:
+        return everything
+    keep = [k for k, e in enumerate(everything.elements) if e not in basis.exclude]
+    return IonAtoms([everything.elements[k] for k in keep], everything.atoms[:, keep])
+
+
 def contrast_weights(inside: np.ndarray, outside: np.ndarray, elements: list[str], species: str,
                      mode: str, atoms_inside: float = np.inf, atoms_outside: float = np.inf,
                      significance: float = SIGNIFICANCE) -> np.ndarray:

@@ -43,12 +43,9 @@ import numpy as np
 from scipy.special import erfc
 
 from apt_filters.core.mesh import vertex_normals
-from apt_filters.io.ions import IonTable
-from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import NearIons
 from apt_filters.refine.composition import ObjectScores
 from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
-from apt_filters.voxel import ConcentrationBasis
 
 CANDIDATES = (4, 9, 16, 25, 36)
 """Numbers of modes tried: complete spherical-harmonic degrees 1-5 on a sphere. 64 modes would be chosen for
@@ -116,8 +113,7 @@ def basis_size(k: int) -> int:
 
 
 def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
-                          halves: list[IonTable], ranges: RangeTable, basis: ConcentrationBasis,
-                          scores: ObjectScores, widths: np.ndarray, finisher: Callable[[int], Callable],
+                          held_out: list[NearIons], scores: ObjectScores, widths: np.ndarray, finisher: Callable[[int], Callable],
                           candidates: tuple[int, ...] = CANDIDATES, faceted_objects=()) -> ModeSelection:
     """Each object's number of modes by two-fold cross-validation (module docstring).
 
@@ -130,10 +126,9 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         Object of each vertex.
     objects : list of int
         Eligible objects.
-    halves : two IonTable
-        The ions of each half, in the order of ``fits``.
-    ranges, basis
-        Ranging and concentration basis of the profiles.
+    held_out : two NearIons
+        The ions of each half (in the order of ``fits``) near the OTHER half's surface (at least ``SCORED + 1``
+        nm from it), in the basis of the profiles.
     scores : ObjectScores
         Each object's score weights and plateau levels.
     widths : (c,) float64, nm
@@ -160,7 +155,7 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     for k, fit in enumerate(fits):
         bases = object_harmonics(fit, faces, components, objects, top)
         finish = {True: finisher(k, True), False: finisher(k, False)}
-        held = NearIons.select(halves[1 - k], ranges, basis, fit, faces, SCORED + 1.0)
+        held = held_out[1 - k].subset(np.arange(len(held_out[1 - k].rows)), fit, SCORED + 1.0)
         start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
         keep = np.abs(start.distance) < SCORED
         rows, comp = start.index[keep], components[start.vertex[keep]]

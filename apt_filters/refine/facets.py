@@ -56,6 +56,7 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 from scipy.special import erfc
@@ -102,12 +103,33 @@ def _mode(nn: np.ndarray, aa: np.ndarray, free: np.ndarray, start: np.ndarray, d
     """Area-weighted mean shift of a unit direction within the cone ``detect`` (cosine) among ``free`` normals."""
     mode = start
     for _ in range(5):
-        sel = free & (nn @ mode > detect)
+        sel = free & (_dot(nn, mode) > detect)
         if not sel.any():
             break
         mode = (nn[sel] * aa[sel, None]).sum(axis=0)
         mode /= np.linalg.norm(mode)
     return mode
+
+
+@njit(cache=True, nogil=True)
+def _held(directions, normals, areas, detect):
+    """(c,) area of ``normals`` (n, 3) within the cone ``detect`` (cosine) of each of ``directions`` (c, 3).
+
+    Compiled rather than a matrix product: these small products are many, and BLAS's threads cost far more
+    than they compute (find_facets on the 47 objects of the `many` specimen: 3.7 s of CPU with BLAS's two
+    threads on a busy 2-core machine, 0.16 s with one)."""
+    out = np.zeros(directions.shape[0])
+    for i in range(directions.shape[0]):
+        for k in range(normals.shape[0]):
+            if (directions[i, 0] * normals[k, 0] + directions[i, 1] * normals[k, 1]
+                    + directions[i, 2] * normals[k, 2]) > detect:
+                out[i] += areas[k]
+    return out
+
+
+def _dot(nn: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n,) ``nn @ direction`` without BLAS (see :func:`_modes`)."""
+    return nn[:, 0] * direction[0] + nn[:, 1] * direction[1] + nn[:, 2] * direction[2]
 
 
 def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area: float, opposite: float) -> list:
@@ -117,11 +139,11 @@ def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area
     mine, weak = [], []  # (mode, detected, fit_from, area in the cone) of modes above / below min_area
     while free.any():
         cand = np.flatnonzero(free)[:: max(1, int(free.sum()) // MAX_CANDIDATES)]
-        held = (nn[cand] @ nn[free].T > detect) @ aa[free]
+        held = _held(nn[cand], nn[free], aa[free], detect)
         if held.max() < share * total:
             break
         mode = _mode(nn, aa, free, nn[cand[np.argmax(held)]], detect)
-        detected = free & (nn @ mode > detect)
+        detected = free & (_dot(nn, mode) > detect)
         found = aa[detected].sum()
         if found < share * total:
             break
@@ -137,7 +159,7 @@ def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area
             pick = [m for m in weak if m[0] @ -mode > detect]
             if not pick:
                 anti = _mode(nn, aa, free, -mode, detect)
-                detected = free & (nn @ anti > detect)
+                detected = free & (_dot(nn, anti) > detect)
                 if anti @ -mode > detect:
                     pick = [(anti, detected, free.copy(), aa[detected].sum())]
                     free &= ~detected

@@ -10,8 +10,10 @@ Each outer iteration:
    tangent plane, so that offset sees the interface inside the mesh and the vertices walk
    inward, -0.02 nm along cube edges, -0.03 nm at corners, and the faces' chord deficit stays).
    The ions within reach are
-   selected once, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`), and their nearest
-   vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
+   selected once for the whole refinement, chunk by chunk (:class:`~apt_filters.refine.band.NearIons`;
+   the cross-fit's halves, the held-out ions and the segregant's peak are subsets of them; faces that move
+   beyond the selection's margin get their ions added, :meth:`~apt_filters.refine.band.NearIons.cover`),
+   and their nearest vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
    :data:`REFINE_WINDOW`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
@@ -64,14 +66,16 @@ crossings of faces farther apart, and any fold left, are smoothed away at the en
 ``self_intersections`` measure the output (0 on every benchmark specimen).
 
 Peak memory: one chunk of the ion table at a time (it may be memory-mapped), then the ions within
-``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: positions (float64),
-nearest vertex (int64) and atoms per basis element (float32), ~50 bytes per ion; the triangle grid
+``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: rows (int64), positions (float64),
+nearest vertex (int64) and atoms per element and per basis element (float32), 40 + 4 (k + K) bytes per ion,
+their halves and held-out subsets (as much again at most); the triangle grid
 of the distance engine (:mod:`apt_filters.core.distance`, ~170 bytes per triangle) and a few (vertices × bins)
 float64 arrays.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -84,7 +88,7 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (ModeSelection, apply_modes, basis_size, cross_validated_modes,
+from apt_filters.refine.crossval import (SCORED, ModeSelection, apply_modes, basis_size, cross_validated_modes,
                                         object_harmonics)
 from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
@@ -98,16 +102,225 @@ RESELECT = 1.5
 """nm a vertex may move before the ions near the surface are selected again."""
 FOLD_ANGLE = 120.0
 REFINE_WINDOW = (1.0, 3.0)
-"""nm from the surface between which the refinement measures each object's plateaus, again in every
-iteration. The inner edge lies beyond the matched filter's reach (about two profile widths, ~0.7 nm), so
-that the ions that place the surface barely take part in measuring its plateaus. With the inner edge at
-0.75 nm the windows follow the surface's own noise: where it has moved out over an Al-rich fluctuation,
-that fluctuation's ions enter the inside window, and where it has moved in over an Al-poor one, they
-leave it. On 12 precipitates of a gamma-prime-like box (6 seeds) the inside plateau came out 0.98 at.%
-high (outside -0.05), which put the midpoint ~0.45 at.% high and the surfaces ~0.04 nm inside; at 1.0 nm
-the bias is +0.24 at.%, at 1.5 nm none, but a 3 nm sphere then keeps only ~300 atoms inside and its
-plateau is mostly the other objects' (``plateau_prior``). The reported plateaus
-(:data:`apt_filters.refine.levels.PLATEAU_WINDOW`, 0.75-3 nm) keep the wider window."""
+"""nm from the surface between which the refinement measures each object's plateaus (``plateau_window``);
+the reported plateaus (:data:`apt_filters.refine.levels.PLATEAU_WINDOW`, 0.75-3 nm) keep the wider window."""
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Every setting of :func:`refine_surface`, checked once (``ValueError`` in one line for a value outside its
+    range or an invalid combination). The defaults are the ones the benchmarks measured (docs/refine.md).
+
+    Profile (each vertex's composition profile across the interface)
+
+    half_width : float, nm, [0.5, 5]
+        Profile range each side of the current surface. It should hold ~5 profile widths: a curved interface's
+        blurred profile has a longer tail inside, and cut short it loses part of the curvature shift the blur
+        correction then adds back (a dense 3 nm sphere under an isotropic 0.45 nm blur: shift -4.2 % of the
+        volume at 1.5 nm, -7.1 % at 2.5 nm, theory -6.75 %; under the gamma-prime blur 1.5 nm keeps it).
+    bin_width : float, nm, [0.05, half_width / 2]
+        Profile bins.
+    pool_radius : float, nm, [0, 10]
+        Vertices within this distance pool their profiles (Gaussian weights, sigma = radius / 2).
+    normal_power : float, [0, 64]
+        Bilateral factor of pooling and smoothing, ``max(0, n_i . n_j) ** normal_power``
+        (:func:`~apt_filters.refine.band.normal_weight`); 0 pools across edges, which rounds them.
+    plateau_window : (inner, outer) nm, 0 <= inner < outer <= 20
+        Distances from the surface between which each object's plateaus are measured. The inner edge lies
+        beyond the matched filter's reach (two profile widths, ~0.7 nm), so the ions that place the surface
+        barely take part in measuring its plateaus: at 0.75 nm the windows follow the surface's own noise
+        (gamma-prime, 12 precipitates: inside plateau +0.98 at.%, surfaces ~0.04 nm inside); at 1.0 nm
+        +0.24 at.%, and the cross-fit removes the rest.
+    plateau_prior : float, atoms, [0, 1e9]
+        Weight of the pooled plateaus of all objects in each object's own (see
+        :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window.
+    score : {"contrast", "species"}
+        Profile of every element weighted by its contrast (:func:`~apt_filters.refine.composition.contrast_weights`),
+        or of the iso-surface species alone.
+    distance : {"mesh", "tangent"}
+        Each ion's profile coordinate: its signed distance to the faces around its nearest vertex, or its offset
+        along that vertex's normal (biased inward on convex surfaces: -0.02 nm at cube edges; for comparison).
+
+    Iterations
+
+    iterations : int, [0, 1000]
+        At most this many; they stop when no vertex moves more than ``tolerance``.
+    far_iterations : int, [0, iterations]
+        Iterations that use the equal-area rule (robust far from the interface); later ones use the matched
+        filter with each object's measured profile width.
+    full_steps : int, [1, 1000]
+        Iterations whose moves are the full (smoothed) offsets; iteration ``k`` after them moves
+        ``full_steps / k`` of it (Robbins-Monro): it keeps a small sphere from following its noise. 4: gamma-prime
+        seeds 1-5 all better by 0.2-0.6 points of volume and area than 3; full steps throughout do better on cubes
+        but roughen 3 nm spheres.
+    max_step : float, nm, (0, 5]
+        Largest move per iteration.
+    tolerance : float, nm, [0, 1]
+        Convergence: largest move of an iteration (times its gain).
+
+    Regularisation
+
+    smoothing : int, [0, 100]
+        Umbrella-Laplacian passes (bilateral) over each iteration's offsets: noise cannot roughen the surface
+        faster than neighbours agree.
+    crease_angle : float, degrees, [0, 180]
+    crease_smoothing : int, [0, smoothing]
+        Vertices whose smoothed normal differs by more than ``crease_angle`` from a neighbour's (cube edges and
+        corners as they form; not a 3 nm sphere, ~10° between neighbours) get ``crease_smoothing`` passes
+        instead: gamma-prime seeds 1-3, corners -0.130 -> -0.105 nm, volume 5.7 -> 5.6 % mean abs.
+    normal_smoothing : int, [0, 100]
+        Umbrella passes over the vertex normals used for the bilateral weights and the moves (the raw normals
+        of a marching-cubes mesh keep its roughness).
+    tangential : float, [0, 1]
+        Weight of the tangential relaxation per iteration (evens out triangles without changing the shape).
+    subdivisions : int, [0, 3]
+        Midpoint subdivisions of the input first: each halves the edge length, so that edges and corners can form.
+    relax_start : int, [0, 1000]
+        Rounds of guarded tangential relaxation of the subdivided input (fewer sliver triangles, whose flips
+        the fold guard would otherwise cancel vertex by vertex).
+
+    Stages after the iterations
+
+    cross_fit : bool
+        Measure the plateaus on ions that did not place the surface they are measured against (each half of the
+        ions, even and odd rows, places a surface of its own; each half's windows are counted against the other
+        half's surface). Against the same ions' surface the inside plateau reads high (gamma-prime seeds 1-5,
+        20 objects: +0.35 +- 0.12 at.% Al, cross-fitted +0.03 +- 0.14). Costs two placements of half the ions.
+    select_modes : bool
+        Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
+        (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
+        ``cross_fit``.
+    blur : (lateral, depth) nm >= 0, "auto" or None
+        Reconstruction blur whose curvature bias ``(1/2) tr(Sigma S)`` is undone (:mod:`apt_filters.refine.blur`).
+        ``"auto"``: the lateral sigma read off the ions (the profile width's orientation dependence, of a
+        segregant's peak where one peaks at the surface, else of the score's step; depth 0; no correction where
+        the orientations allow no estimate). None or zeros: no correction.
+    facets : bool
+        Rebuild sharp edges and corners where planar facets of an object meet, on planes fitted to its ions where
+        they close it (:mod:`apt_filters.refine.facets`).
+    marker : bool
+        Where the ranged species the basis leaves out (segregants) peak at an object's surface, combine that
+        peak's reading of its offset with the step's (:mod:`apt_filters.refine.marker`; needs two objects).
+        Gamma-prime seeds 1-8: 31 of 32 volumes within 5 % (25 without).
+    """
+
+    half_width: float = 1.5
+    bin_width: float = 0.25
+    pool_radius: float = 2.0
+    normal_power: float = 8.0
+    plateau_window: tuple[float, float] = REFINE_WINDOW
+    plateau_prior: float = PLATEAU_PRIOR
+    score: str = "contrast"
+    distance: str = "mesh"
+    iterations: int = 12
+    far_iterations: int = 2
+    full_steps: int = 4
+    max_step: float = 0.5
+    tolerance: float = 0.02
+    smoothing: int = 10
+    crease_angle: float = 20.0
+    crease_smoothing: int = 6
+    normal_smoothing: int = 2
+    tangential: float = 0.3
+    subdivisions: int = 1
+    relax_start: int = 10
+    cross_fit: bool = True
+    select_modes: bool = True
+    blur: tuple[float, float] | str | None = "auto"
+    facets: bool = True
+    marker: bool = True
+
+    def __post_init__(self):
+        if not isinstance(self.plateau_window, tuple):
+            object.__setattr__(self, "plateau_window", tuple(self.plateau_window))
+        if isinstance(self.blur, list):
+            object.__setattr__(self, "blur", tuple(self.blur))
+        problem = _problem(self)
+        if problem:
+            raise ValueError(f"RefineParams: {problem}")
+
+
+_RANGES = {"half_width": (0.5, 5.0), "bin_width": (0.05, 2.5), "pool_radius": (0.0, 10.0), "normal_power": (0.0, 64.0),
+           "plateau_prior": (0.0, 1e9), "iterations": (0, 1000), "far_iterations": (0, 1000), "full_steps": (1, 1000),
+           "max_step": (1e-6, 5.0), "tolerance": (0.0, 1.0), "smoothing": (0, 100), "crease_angle": (0.0, 180.0),
+           "crease_smoothing": (0, 100), "normal_smoothing": (0, 100), "tangential": (0.0, 1.0),
+           "subdivisions": (0, 3), "relax_start": (0, 1000)}
+_INTEGERS = {"iterations", "far_iterations", "full_steps", "smoothing", "crease_smoothing", "normal_smoothing",
+             "subdivisions", "relax_start"}
+
+
+def _problem(p: RefineParams) -> str:
+    """What is wrong with ``p`` in words ('' if nothing)."""
+    for name, (lo, hi) in _RANGES.items():
+        value = getattr(p, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            return f"{name} must be a number, got {value!r}"
+        if name in _INTEGERS and int(value) != value:
+            return f"{name} must be a whole number, got {value!r}"
+        if not lo <= value <= hi:
+            return f"{name} must lie in [{lo:g}, {hi:g}], got {value!r}"
+    for name in ("cross_fit", "select_modes", "facets", "marker"):
+        if not isinstance(getattr(p, name), bool):
+            return f"{name} must be True or False, got {getattr(p, name)!r}"
+    window = p.plateau_window
+    if len(window) != 2 or not all(np.isfinite(window)) or not 0.0 <= window[0] < window[1] <= 20.0:
+        return f"plateau_window must be (inner, outer) nm with 0 <= inner < outer <= 20, got {window!r}"
+    if p.bin_width > p.half_width / 2:
+        return f"bin_width {p.bin_width:g} nm leaves fewer than 4 bins over +-half_width {p.half_width:g} nm"
+    if p.far_iterations > p.iterations:
+        return f"far_iterations ({p.far_iterations}) exceeds iterations ({p.iterations})"
+    if p.crease_smoothing > p.smoothing:
+        return f"crease_smoothing ({p.crease_smoothing}) exceeds smoothing ({p.smoothing})"
+    if p.score not in ("contrast", "species"):
+        return f"score must be 'contrast' or 'species', got {p.score!r}"
+    if p.distance not in ("mesh", "tangent"):
+        return f"distance must be 'mesh' or 'tangent', got {p.distance!r}"
+    if p.select_modes and not p.cross_fit:
+        return "select_modes needs cross_fit (its held-out ions are the cross-fit's halves)"
+    blur = p.blur
+    if not (blur is None or blur == "auto" or (isinstance(blur, tuple) and len(blur) == 2
+                                               and all(np.isfinite(blur)) and min(blur) >= 0)):
+        return f"blur must be (lateral, depth) sigmas >= 0 nm, 'auto' or None, got {blur!r}"
+    return ""
+
+
+@dataclass
+class StageReport:
+    """What one stage of :func:`refine_surface` did.
+
+    Attributes
+    ----------
+    name : str
+        ``prepare`` (subdivision, unfolding, relaxation), ``cross_fit`` (two half placements and the plateaus
+        from them), ``place`` (the iterations), ``modes``, ``blur_and_marker``, ``facets``, ``untangle``.
+    moved : int
+        Vertices the stage moved by more than 1e-6 nm.
+    mean_move, max_move : float, nm
+        Mean and largest distance a vertex moved in the stage.
+    iterations : int
+        Iterations (place, cross_fit: the most of either half) or rounds (untangle); 0 where there are none.
+    seconds : float
+        Wall time.
+    note : str
+        What it decided, in words (modes kept, blur used, facets found).
+    """
+
+    name: str
+    moved: int = 0
+    mean_move: float = 0.0
+    max_move: float = 0.0
+    iterations: int = 0
+    seconds: float = 0.0
+    note: str = ""
+
+    @classmethod
+    def between(cls, name: str, before: np.ndarray, after: np.ndarray, since: float, iterations: int = 0,
+                note: str = "") -> "StageReport":
+        """The report of a stage that took the vertices from ``before`` to ``after`` (same count), started at
+        ``since`` (``time.perf_counter()``)."""
+        move = np.sqrt(np.sum((after - before) ** 2, axis=1)) if len(before) == len(after) else np.zeros(0)
+        return cls(name, int(np.count_nonzero(move > 1e-6)), float(move.mean()) if len(move) else 0.0,
+                   float(move.max()) if len(move) else 0.0, int(iterations), time.perf_counter() - since, note)
 
 
 @dataclass
@@ -163,6 +376,10 @@ class RefineResult:
     marker : MarkerOffsets or None
         Each object's segregant peak, the layer's common offset and the moves (``marker``), None where no
         species left out of the basis is ranged or ``marker=False``.
+    params : RefineParams
+        The settings it ran with.
+    stages : list of StageReport
+        What each stage did (vertices moved, iterations, time, a note).
     """
 
     mesh: TriMesh
@@ -184,6 +401,8 @@ class RefineResult:
     widths: np.ndarray = field(default_factory=lambda: np.zeros(0))
     offset_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     marker: MarkerOffsets | None = None
+    params: RefineParams = field(default_factory=RefineParams)
+    stages: list[StageReport] = field(default_factory=list)
 
 
 def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: float = 0.0) -> csr_matrix:
@@ -328,112 +547,115 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
     return mesh, vertices, plain
 
 
-def _place(vertices: np.ndarray, faces: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
-           basis: ConcentrationBasis, fixed: list[ObjectLevels] | None, *, score: str, half_width: float,
-           bin_width: float, pool_radius: float, normal_power: float, smoothing: int, max_step: float,
-           tangential: float, iterations: int, far_iterations: int, tolerance: float, plateau_window,
-           plateau_prior: float, distance: str, normal_smoothing: int, full_steps: int, crease_angle: float,
-           crease_smoothing: int) -> _Placed:
-    """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``."""
+def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str,
+           fixed: list[ObjectLevels] | None, p: RefineParams) -> _Placed:
+    """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``.
+
+    ``near``: the ions within ``reach + RESELECT`` of the start, completed from the ion table where the surface
+    moves farther than :data:`RESELECT` (:meth:`~apt_filters.refine.band.NearIons.cover`)."""
     vertices = vertices.copy()
     n = len(vertices)
-    components = topology(faces, n).vertex_components
+    topo = topology(faces, n)
+    components, pairs = topo.vertex_components, topo.face_pairs
     n_comp = int(components.max()) + 1 if n else 0
     adj = adjacency(faces, n)
-    pairs = topology(faces, n).face_pairs
     plain = umbrella(adj)
-    reach = max(plateau_window[1], half_width) + 1.0
-    # ions within reach of the surface, selected once (chunked) and again only if it moves far
-    near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-    pairs_near = Pairs.find(vertices, components, pool_radius)
+    reach = _reach(p)
+    pairs_near = Pairs.find(vertices, components, p.pool_radius)
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
     it = 0
-    for it in range(1, iterations + 1):
+    for it in range(1, p.iterations + 1):
         normals = vertex_normals(vertices, faces)
-        for _ in range(normal_smoothing):
+        for _ in range(p.normal_smoothing):
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        if near.moved(vertices) > RESELECT:
-            near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-        band = near.band(vertices, normals, reach, distance)
+        band = near.cover(vertices, reach).band(vertices, normals, reach, p.distance)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
-                                                          plateau_window, plateau_prior)
-        scores = object_scores(levels, near.atoms.elements, species, score, plateau_prior)
+                                                          p.plateau_window, p.plateau_prior)
+        scores = object_scores(levels, near.atoms.elements, species, p.score, p.plateau_prior)
         usable = np.append(scores.usable, False)  # last entry: unused vertices (-1)
         s_in, s_out = scores.inside, scores.outside
         ion_score, ion_total = scores.fraction(near.atoms.atoms[band.index], components[band.vertex])
         pairs_near = pairs_near.update(vertices, components)
-        mean_of_neighbours = umbrella(adj, normals, normal_power)
-        raw_s = binned(band.vertex, band.distance, ion_score, n, half_width, bin_width)
-        raw_t = binned(band.vertex, band.distance, ion_total, n, half_width, bin_width)
-        s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, normal_power), 2)
+        mean_of_neighbours = umbrella(adj, normals, p.normal_power)
+        raw_s = binned(band.vertex, band.distance, ion_score, n, p.half_width, p.bin_width)
+        raw_t = binned(band.vertex, band.distance, ion_total, n, p.half_width, p.bin_width)
+        s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, p.normal_power), 2)
         ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
-        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], half_width, bin_width)
+        u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], p.half_width, p.bin_width)
         used = components >= 0
         obj_s, obj_t = (np.zeros((n_comp, raw_s.shape[1])) for _ in range(2))
         np.add.at(obj_s, components[used], raw_s[used])
         np.add.at(obj_t, components[used], raw_t[used])
         widths = np.array([profile_width(normalised_profile(obj_s[c:c + 1], obj_t[c:c + 1], s_in[c:c + 1],
-                                                            s_out[c:c + 1], half_width, bin_width), bin_width)
+                                                            s_out[c:c + 1], p.half_width, p.bin_width), p.bin_width)
                            if usable[c] else 1.0 for c in range(n_comp)])
         offset = np.zeros(n)
-        if it <= far_iterations:
-            offset[ok] = equal_area_offset(u[ok], half_width, bin_width)
+        if it <= p.far_iterations:
+            offset[ok] = equal_area_offset(u[ok], p.half_width, p.bin_width)
         else:
-            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], bin_width),
-                                        half_width, bin_width)
-        offset = np.clip(offset, -max_step, max_step)
-        crease = creases(adj, normals, crease_angle)
+            offset[ok] = matched_offset(u[ok], t_sum[ok], np.maximum(widths[components[ok]], p.bin_width),
+                                        p.half_width, p.bin_width)
+        offset = np.clip(offset, -p.max_step, p.max_step)
+        crease = creases(adj, normals, p.crease_angle)
         at_crease = offset
-        for k in range(smoothing):
+        for k in range(p.smoothing):
             offset = np.where(ok, mean_of_neighbours @ offset, 0.0)
-            if k + 1 == min(crease_smoothing, smoothing):
+            if k + 1 == min(p.crease_smoothing, p.smoothing):
                 at_crease = offset
         # fewer passes where the surface bends sharply: a cube's corner needs a larger step than its faces
         offset = np.where(crease, at_crease, offset)
         # full steps first, then Robbins-Monro averaging of the noisy estimates
-        gain = min(1.0, full_steps / it)
+        gain = min(1.0, p.full_steps / it)
         new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
         step = np.einsum("ij,ij->i", new - vertices, normals)
         guarded += g
         vertices = new
-        if tangential > 0:
+        if p.tangential > 0:
             normals = vertex_normals(vertices, faces)
             lap = plain @ vertices - vertices
             lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
-            vertices, g = guarded_move(vertices, faces, tangential * np.where(ok[:, None], lap, 0.0), pairs)
+            vertices, g = guarded_move(vertices, faces, p.tangential * np.where(ok[:, None], lap, 0.0), pairs)
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
-        if history[-1] < tolerance * gain:
+        if history[-1] < p.tolerance * gain:
             break
-    if near.moved(vertices) > RESELECT:
-        near = NearIons.select(ions, ranges, basis, vertices, faces, reach + RESELECT)
-    normals = smoothed_normals(vertices, faces, normal_smoothing)
+    near.cover(vertices, reach)
+    normals = smoothed_normals(vertices, faces, p.normal_smoothing)
     if fixed is None:
-        levels = plateaus(near.band(vertices, normals, reach, distance), near.atoms, components, n_comp, species,
-                          plateau_window, plateau_prior)
+        levels = plateaus(near.band(vertices, normals, reach, p.distance), near.atoms, components, n_comp, species,
+                          p.plateau_window, p.plateau_prior)
     return _Placed(vertices, levels, widths, normals, near, guarded, history, it)
 
 
-def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, halves: list[IonTable], ranges: RangeTable,
-                         species: str, basis: ConcentrationBasis, window, prior: float,
-                         distance: str) -> list[ObjectLevels]:
+def _reach(p: RefineParams) -> float:
+    """nm from the surface within which the iterations use ions (profiles and plateau windows)."""
+    return max(p.plateau_window[1], p.half_width) + 1.0
+
+
+def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
+    """The ions of ``near`` (completed from the table where needed) whose nearest vertex of ``vertices`` (the same
+    mesh, moved) lies within ``radius``, assigned to it."""
+    return near.cover(vertices, radius).subset(np.arange(len(near.rows)), vertices, radius)
+
+
+def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
+                         p: RefineParams) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
-    even ions' (see ``cross_fit`` of :func:`refine_surface`)."""
+    even ions' (see ``cross_fit`` of :class:`RefineParams`); ``held[k]``: the ions of half ``k`` assigned to the
+    other half's surface."""
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
-    reach = window[1] + 1.0
-    sums, elements = 0.0, None
+    reach = p.plateau_window[1] + 1.0
+    sums = 0.0
     for k in (0, 1):
         other = fits[1 - k]
-        near = NearIons.select(halves[k], ranges, basis, other.vertices, faces, reach)
-        band = near.band(other.vertices, other.normals, reach, distance)
-        sums = sums + plateau_sums(band, near.atoms, components, n_comp, window)
-        elements = near.atoms.elements
-    return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), elements, species, prior)
+        band = held[k].band(other.vertices, other.normals, reach, p.distance)
+        sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
+    return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), held[0].atoms.elements, species, p.plateau_prior)
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -459,25 +681,21 @@ def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
     return lateral_blur(band.distance[keep], u, total, nz ** 2, half_width=half_width)
 
 
-def _segregant(ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray, faces: np.ndarray,
-               normals: np.ndarray, components: np.ndarray, scores: ObjectScores, step_errors: np.ndarray,
-               half_width: float, distance: str, blur: bool, marker: bool
-               ) -> tuple[BlurEstimate | None, MarkerOffsets | None]:
+def _segregant(near: NearIons, basis: ConcentrationBasis, vertices: np.ndarray, normals: np.ndarray,
+               components: np.ndarray, scores: ObjectScores, step_errors: np.ndarray, half_width: float,
+               distance: str, blur: bool, marker: bool) -> tuple[BlurEstimate | None, MarkerOffsets | None]:
     """The ranged species left out of ``basis`` (segregants, by the basis's own account) around the objects with
     both plateaus: the blur from their pooled peak's width (:func:`~apt_filters.refine.blur.peak_blur`, if
     ``blur``; None without a peak) and each object's peak centre combined with its step (:func:`marker_offsets`,
-    if ``marker``); (None, None) without such species.
-
-    Reads the ions once more (chunked) for those within ``half_width`` + 1 nm, with all their species.
-    """
-    left_out = [e for e in basis.exclude if e in ranges.elements]
+    if ``marker``); (None, None) without such species. ``near``: the ions near the surface, with all their
+    species."""
+    left_out = [e for e in basis.exclude if e in near.everything.elements]
     if not left_out or not (blur or marker):
         return None, None
-    near = NearIons.select(ions, ranges, ConcentrationBasis(), vertices, faces, half_width + 1.0)
     band = near.band(vertices, normals, half_width, distance)
     use = scores.usable[components[band.vertex]]
-    atoms = near.atoms.atoms[band.index[use]].astype(np.float64)
-    mark = atoms[:, [near.atoms.elements.index(e) for e in left_out]].sum(axis=1)
+    atoms = near.everything.atoms[band.index[use]].astype(np.float64)
+    mark = atoms[:, [near.everything.elements.index(e) for e in left_out]].sum(axis=1)
     total, name = atoms.sum(axis=1), "+".join(left_out)
     return ((peak_blur(band.distance[use], mark, total, normals[band.vertex[use], 2] ** 2, name,
                        half_width=half_width) if blur else None),
@@ -542,7 +760,8 @@ def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
 def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tuple[float, float] | None,
               lift: np.ndarray | None = None, components: np.ndarray | None = None):
     """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
-    of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened).
+    of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened, the vertices
+    after the blur correction and before the facets, the ``time.perf_counter()`` there).
 
     ``lift`` (c,) nm moves each object (``components``: of each vertex) out on top of the blur's shift, and its
     facets' planes with it (the segregant's mark, :mod:`apt_filters.refine.marker`).
@@ -556,7 +775,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
         found = [replace(f, offset=f.offset + lift[f.component]) for f in found]
         lift = np.where(components >= 0, lift[np.maximum(components, 0)], 0.0)
 
-    def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int]:
+    def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray, float]:
         guarded = 0
         if (blur is not None and any(blur)) or lift is not None:
             shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0))
@@ -564,7 +783,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
                 shift = shift + lift
             vertices, g = guarded_move(vertices, faces, shift[:, None] * along, pairs)
             guarded += g
-        sharpened = 0
+        sharpened, corrected, between = 0, vertices, time.perf_counter()
         if found:
             step, along = facet_steps(vertices, faces, found)
             vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
@@ -572,7 +791,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
             vertices, g2 = guarded_move(vertices, faces, corners, pairs)
             guarded += g + g2
             sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
-        return vertices, len(found), sharpened, guarded
+        return vertices, len(found), sharpened, guarded, corrected, between
 
     return finish
 
@@ -585,42 +804,12 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
 
 
-def refine_surface(
-    mesh: TriMesh,
-    ions: IonTable,
-    ranges: RangeTable,
-    species: str,
-    basis: ConcentrationBasis = ConcentrationBasis(),
-    *,
-    score: str = "contrast",
-    half_width: float = 1.5,
-    bin_width: float = 0.25,
-    pool_radius: float = 2.0,
-    normal_power: float = 8.0,
-    smoothing: int = 10,
-    max_step: float = 0.5,
-    tangential: float = 0.3,
-    iterations: int = 12,
-    far_iterations: int = 2,
-    tolerance: float = 0.02,
-    plateau_window=REFINE_WINDOW,
-    plateau_prior: float = PLATEAU_PRIOR,
-    subdivisions: int = 1,
-    distance: str = "mesh",
-    normal_smoothing: int = 2,
-    relax_start: int = 10,
-    full_steps: int = 4,
-    crease_angle: float = 20.0,
-    crease_smoothing: int = 6,
-    blur: tuple[float, float] | str | None = "auto",
-    facets: bool = True,
-    cross_fit: bool = True,
-    select_modes: bool = True,
-    marker: bool = True,
-) -> RefineResult:
+def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
+                   basis: ConcentrationBasis = ConcentrationBasis(), params: RefineParams = RefineParams()
+                   ) -> RefineResult:
     """Move each vertex of an iso-surface along its normal to where the ions' composition crosses midway.
 
-    See the module docstring for the method and its regularisation.
+    See the module docstring for the method and :class:`RefineParams` for every setting.
 
     Parameters
     ----------
@@ -628,143 +817,67 @@ def refine_surface(
         Iso-surface, e.g. from :func:`apt_filters.contour.marching_cubes` (normals out of the
         region above iso). Remove specks first (:func:`remove_specks`).
     ions : IonTable
+        May be memory-mapped: the ions within reach of the surface are selected in one streamed pass (again
+        only where the surface moves farther than :data:`RESELECT`).
     ranges : RangeTable
     species : str
         The iso-surface element (its plateaus give each object's midpoint iso-value).
     basis : ConcentrationBasis
         Which elements count in the fractions; leave segregants out (``exclude=("B",)``) so that
         their shell does not dilute the profile at the interface.
-    score : {"contrast", "species"}
-        Profile of every element weighted by its contrast, or of ``species`` alone.
-    half_width, bin_width : float, nm
-        Profile range each side of the current surface and its bins. The range should hold ~5 profile
-        widths: a curved interface's blurred profile has a longer tail inside, and cut short it loses part
-        of the curvature shift the blur correction then adds back (a dense 3 nm sphere under an isotropic
-        0.45 nm blur, profile width ~0.5 nm: shift -4.2 % of the volume at 1.5 nm, -7.1 % at 2.5 nm, theory
-        -6.75 %; under the gamma-prime blur, 0.3 / 0.1 nm, 1.5 nm keeps it).
-    pool_radius : float, nm
-        Vertices within this distance pool their profiles (Gaussian, sigma = radius / 2).
-    normal_power : float
-        Bilateral factor of pooling and smoothing, ``max(0, n_i . n_j) ** normal_power``
-        (:func:`~apt_filters.refine.band.normal_weight`); 0 pools across edges, which rounds them.
-    smoothing : int
-        Umbrella-Laplacian passes (bilateral, same factor) over each iteration's displacements.
-    max_step : float, nm
-        Largest move per iteration.
-    tangential : float
-        Weight of the tangential relaxation per iteration (0 = none).
-    far_iterations : int
-        Iterations that use the equal-area rule (robust far from the interface); later ones use
-        the matched filter (:func:`matched_offset`) with each object's measured profile width.
-    iterations : int
-        At most this many iterations; stops when no vertex moves more than ``tolerance`` nm.
-    full_steps : int
-        Iterations whose moves are the full (smoothed) offsets; iteration ``k`` after them moves
-        ``full_steps / k`` of it (Robbins-Monro). Every iteration bins the same ions, so the damping
-        averages little independent noise, but it keeps the surface of a small sphere from following
-        its noise; it also keeps rounded cube edges and corners from coming out. 4 (it was 3, tied to
-        ``far_iterations``): gamma-prime seeds 1-5 all better by 0.2-0.6 points of volume and area;
-        full steps throughout do better on cubes but roughen 3 nm spheres (see docs/refine.md).
-    crease_angle : float, degrees
-    crease_smoothing : int
-        Vertices whose (smoothed) normal differs by more than ``crease_angle`` from a neighbour's
-        (:func:`creases`: cube edges and corners as they form; not a 3 nm sphere, ~10° between
-        neighbours) get ``crease_smoothing`` passes instead of ``smoothing``: the smoothed step of
-        a corner is a mean of its own and its faces' steps, which kept corners in (-0.13 nm) while
-        faces overshot. Gamma-prime seeds 1-3: corners -0.130 -> -0.105 nm, volume 5.7 -> 5.6 %
-        mean abs (worst 10.1 -> 9.1 %), area 5.2 -> 4.7 %; seeds 4-5 likewise (benchmarks/results_refine.md).
-    plateau_window : (inner, outer) nm
-    plateau_prior : float, atoms
-        See :func:`~apt_filters.refine.levels.object_levels`.
-    subdivisions : int
-        Midpoint subdivisions of the input first (:func:`~apt_filters.refine.subdivide.subdivide`):
-        each one halves the edge length, so that edges and corners can form.
-    distance : {"mesh", "tangent"}
-        Each ion's profile coordinate: its signed distance to the faces around its nearest vertex,
-        or its offset along that vertex's normal (biased inward on convex surfaces; for comparison).
-    normal_smoothing : int
-        Umbrella passes over the vertex normals used for the bilateral weights and the moves: the
-        raw normals of a marching-cubes mesh vary from vertex to vertex, which keeps its roughness.
-    relax_start : int
-        Rounds of tangential relaxation (weight 0.5, guarded) of the subdivided input: fewer sliver
-        triangles, whose flips the fold guard would otherwise cancel vertex by vertex.
-    blur : (lateral, depth) float nm, "auto" or None
-        Reconstruction blur whose curvature bias is undone after the iterations
-        (:mod:`apt_filters.refine.blur`: each vertex moves out by ``(1/2) tr(Sigma S)``). ``"auto"``
-        (default): the lateral sigma estimated from the profile width's orientation dependence, depth
-        taken as 0: of the peak of the ranged species ``basis`` leaves out, pooled, where they peak at the
-        surface (:func:`~apt_filters.refine.blur.peak_blur`; a segregant layer marks the blur with a
-        quarter of the scatter), else of the score's step (:func:`~apt_filters.refine.blur.lateral_blur`); no
-        correction where the orientations do not allow an estimate. None or zeros: no correction.
-    facets : bool
-        Rebuild sharp edges and corners where planar facets of an object meet
-        (:mod:`apt_filters.refine.facets`; objects without facets, such as spheres, are untouched). The
-        planes of an object they close are fitted to its ions (:func:`~apt_filters.refine.facets.fit_to_ions`).
-    cross_fit : bool
-        Measure the plateaus the refinement uses on ions that did not place the surface they are
-        measured against: the ions are split in two (even and odd rows), each half places its own
-        surface (same keywords), each half's plateau windows are counted against the OTHER half's
-        surface, the two counts are added (all the ions, so no more noise than one window) and these
-        plateaus are kept fixed while all the ions place the surface. Measured against the surface
-        the same ions placed, the inside plateau reads high: where the surface has moved out over an
-        Al-rich fluctuation, ions of that fluctuation near the inner edge of the window enter it, and
-        where it moved in over an Al-poor one they leave it. Against the same ions' plateaus in the
-        windows of the TRUE surfaces (gamma-prime seeds 1-5, 20 objects, no prior): +0.35 +- 0.12 at.%
-        Al measured against the refined surface, +0.03 +- 0.14 cross-fitted, with the same scatter.
-        The two half surfaces also serve ``select_modes``. Costs two placements of half the ions
-        (about 2.3x the time of one). ``False``: plateaus measured against the current surface in
-        every iteration.
-    select_modes : bool
-        Low-pass each closed object in its manifold harmonics (:mod:`apt_filters.refine.spectral`) to
-        the number of modes that best predicts held-out ions (two-fold cross-validation on the halves of
-        ``cross_fit``, :mod:`apt_filters.refine.crossval`); needs ``cross_fit``.
-    marker : bool
-        Where the ranged species ``basis`` leaves out (segregants) peak at an object's surface, read its mean
-        offset off that peak too and move it by the combination with the step's
-        (:mod:`apt_filters.refine.marker`; the layer's common offset from the midpoint is fitted over the
-        objects, so it needs two objects at least). Gamma-prime seeds 1-8: 31 of 32 precipitates' volumes
-        within 5 % of the truth (25 without), mean abs error 2.8 -> 1.8 %.
+    params : RefineParams
 
     Returns
     -------
     RefineResult
+        With one :class:`StageReport` per stage (``stages``).
     """
-    if not (blur is None or blur == "auto" or (not isinstance(blur, str) and len(blur) == 2 and min(blur) >= 0)):
-        raise ValueError(f"blur must be (lateral, depth) sigmas >= 0 nm, 'auto' or None, got {blur!r}")
+    p = params
     if mesh.n_faces == 0:  # nothing to move (every component was a speck): the empty surface passes through
         return RefineResult(mesh, [], {"mean": 0.0, "rms": 0.0, "max_abs": 0.0, "last_step_max": 0.0}, 0, 0, 0, 0,
-                            0, score, basis.describe())
-    keywords = dict(score=score, half_width=half_width, bin_width=bin_width, pool_radius=pool_radius,
-                    normal_power=normal_power, smoothing=smoothing, max_step=max_step, tangential=tangential,
-                    iterations=iterations, far_iterations=far_iterations, tolerance=tolerance,
-                    plateau_window=plateau_window, plateau_prior=plateau_prior, distance=distance,
-                    normal_smoothing=normal_smoothing, full_steps=full_steps, crease_angle=crease_angle,
-                    crease_smoothing=crease_smoothing)
-    mesh, start, plain = _prepare(mesh, subdivisions, relax_start)
+                            0, p.score, basis.describe(), params=p)
+    clock = time.perf_counter()
+    mesh, start, plain = _prepare(mesh, p.subdivisions, p.relax_start)
     faces = mesh.faces
     n = len(start)
-    components = topology(faces, n).vertex_components
-    pairs = topology(faces, n).face_pairs
-    fits, halves, fixed = [], [], None
-    if cross_fit:
-        # strided views: no copy of a memory-mapped table
-        halves = [IonTable(ions.positions[k::2], ions.mz[k::2]) for k in (0, 1)]
-        fits = [_place(start, faces, half, ranges, species, basis, None, **keywords) for half in halves]
-        fixed = _cross_fitted_levels(fits, faces, halves, ranges, species, basis, plateau_window, plateau_prior,
-                                     distance)
-    placed = _place(start, faces, ions, ranges, species, basis, fixed, **keywords)
-    scores = object_scores(placed.levels, placed.near.atoms.elements, species, score, plateau_prior)
+    stages = [StageReport.between("prepare", mesh.vertices.astype(np.float64), start, clock, p.relax_start,
+                                  f"{p.subdivisions} subdivision(s), {n:,} vertices")]
+    topo = topology(faces, n)
+    components, pairs = topo.vertex_components, topo.face_pairs
+    radius = _reach(p) + RESELECT
+
+    near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
+    fits, held, fixed = [], [], None
+    if p.cross_fit:
+        clock = time.perf_counter()
+        fits = [_place(start, faces, near.half(k, start), species, None, p) for k in (0, 1)]
+        # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
+        # smoothness selection
+        reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
+        held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
+        fixed = _cross_fitted_levels(fits, faces, held, species, p)
+        stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
+                                          max(f.iterations for f in fits),
+                                          "plateaus of each half's ions against the other half's surface"))
+    clock = time.perf_counter()
+    placed = _place(start, faces, near, species, fixed, p)
+    stages.append(StageReport.between("place", start, placed.vertices, clock, placed.iterations,
+                                      f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
+    scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
     closed = np.ones(len(scores.usable), dtype=bool)
     closed[np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])] = False
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
-    auto = isinstance(blur, str)
+    auto = isinstance(p.blur, str)
+    blur = p.blur
     selection = None
     vertices, guarded = placed.vertices, placed.guarded
-    if select_modes and cross_fit and objects:
+    clock = time.perf_counter()
+    if p.select_modes and objects:
         # candidates are finished with the blur given, or without one while it is still to be estimated
-        half_facets = [_placed_facets(fit, faces, components, scores, facets, half_width, distance) for fit in fits]
-        selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, halves, ranges,
-                                          basis, scores, placed.widths,
+        half_facets = [_placed_facets(fit, faces, components, scores, p.facets, p.half_width, p.distance)
+                       for fit in fits]
+        selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
+                                          placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found})
@@ -778,26 +891,44 @@ def refine_surface(
                 target, g = guarded_move(vertices, faces, target - vertices, pairs)
                 guarded += g
             vertices = target
-    found = _placed_facets(placed, faces, components, scores, facets, half_width, distance)
+        stages.append(StageReport.between("modes", placed.vertices, vertices, clock, 0,
+                                          f"{len(kept)} of {len(objects)} closed objects low-passed"))
+    clock = time.perf_counter()
+    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance)
     if selection is not None:  # facets only where held-out ions preferred them
         found = [f for f in found if selection.facets.get(f.component, True)]
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
-    along = smoothed_normals(finished, faces, normal_smoothing)
-    errors = _offset_errors(placed.near, finished, along, components, placed.levels, scores, placed.widths,
-                            half_width, distance)
-    estimate, marks = _segregant(ions, ranges, basis, finished, faces, along, components, scores, errors, half_width,
-                                 distance, auto, marker)
+    along = smoothed_normals(finished, faces, p.normal_smoothing)
+    ions_near = placed.near.cover(finished, p.half_width + 1.0)
+    errors = _offset_errors(ions_near, finished, along, components, placed.levels, scores, placed.widths,
+                            p.half_width, p.distance)
+    estimate, marks = _segregant(ions_near, basis, finished, along, components, scores, errors, p.half_width,
+                                 p.distance, auto, p.marker)
     if auto:
-        estimate = estimate or _estimate_blur(placed.near, finished, along, components, scores, half_width, distance)
+        estimate = estimate or _estimate_blur(ions_near, finished, along, components, scores, p.half_width,
+                                              p.distance)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
-    vertices, n_facets, sharpened, g = _finisher(found, faces, pairs, blur, lift, components)(vertices)
+    before = vertices
+    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, pairs, blur, lift,
+                                                                     components)(vertices)
     guarded += g
+    # the facets' time from where the blur's correction ended; the blur's from the facets' finding on
+    stages.append(replace(StageReport.between(
+        "blur_and_marker", before, corrected, clock, 0,
+        f"blur {'none' if not blur or not any(blur) else f'{blur[0]:.3f}/{blur[1]:.3f} nm'}"
+        f"{'' if lift is None else f', segregant mark moved {np.count_nonzero(lift)} objects'}"),
+        seconds=between - clock))
+    stages.append(StageReport.between("facets", corrected, vertices, between, 0,
+                                      f"{n_facets} facets, {sharpened} vertices on edges and corners"))
     if marks is not None:
         errors = marks.errors
+    clock = time.perf_counter()
+    before = vertices
     vertices, untangled = untangle(vertices, faces, start, plain)
+    stages.append(StageReport.between("untangle", before, vertices, clock, untangled))
     original = mesh.vertices.astype(np.float64)
     moved_total = np.einsum("ij,ij->i", vertices - original, vertex_normals(original, faces))
     out = TriMesh(vertices, faces.copy(), {**mesh.vertex_scalars, "displacement": moved_total},
@@ -808,6 +939,6 @@ def refine_surface(
              "last_step_max": placed.history[-1] if placed.history else 0.0}
     crossing = int(self_intersecting_faces(vertices, faces).sum())
     return RefineResult(out, placed.levels, stats, placed.iterations, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
-                        crossing, guarded, untangled, score, basis.describe(), placed.history,
+                        crossing, guarded, untangled, p.score, basis.describe(), placed.history,
                         tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened, estimate, selection,
-                        placed.widths, errors, marks)
+                        placed.widths, errors, marks, p, stages)

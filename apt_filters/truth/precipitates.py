@@ -18,7 +18,10 @@ from numba import njit, prange
 from apt_filters.core.checks import folded_pairs
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh, split_components
-from apt_filters.refine import ion_atoms, object_excess, object_levels, per_object_iso, recontour, remove_specks
+from apt_filters.refine import object_excess, remove_specks
+from apt_filters.refine.composition import ion_atoms
+from apt_filters.refine.levels import object_levels, per_object_iso
+from apt_filters.refine.recontour import recontour
 from apt_filters.truth.counting import counting_floor
 from apt_filters.truth.specimen import counted_truths
 from apt_filters.truth.surface import match_objects, surface_error

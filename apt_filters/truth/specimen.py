@@ -14,7 +14,7 @@ import numpy as np
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine import ion_atoms
+from apt_filters.refine.composition import ion_atoms
 from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.synth import shape_from_params
 from apt_filters.truth.counting import CountedTruth, counted_truth
