@@ -116,11 +116,12 @@ def defects(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray) ->
     bad = np.zeros(len(vertices), bool)
     if len(faces) == 0:
         return bad
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    undirected, _, _, counts = unique_rows(np.sort(half, axis=1))
+    topo = topology(faces, len(vertices))
+    undirected, counts = topo.edge_vertices, topo.edge_faces
     opened = (counts == 1) & ~on_boundary[undirected].all(axis=1)
     bad[undirected[(counts > 2) | opened].ravel()] = True
-    directed, _, _, repeats = unique_rows(half)
+    # faces running an edge the same way (opposite orientations): not in the undirected topology
+    directed, _, _, repeats = unique_rows(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2))
     bad[directed[repeats > 1].ravel()] = True
     return bad | non_manifold_vertices(vertices, faces)
 
