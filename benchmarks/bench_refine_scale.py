@@ -43,8 +43,10 @@ def prepare(work: Path, ions: int | None, name: str = "many") -> None:
     ranges = read_ranges(work / "spec" / "specimen.rrng")
     basis = ConcentrationBasis(("B",))
     fields = voxelize(table, ranges, kernel="gaussian", delocalization=(3.0, 3.0, 1.5), voxel=1.0, basis=basis)
-    mesh = contour_surface(fields, inside_mask(fields).dense(), "Al", 0.15)
-    mesh, _ = remove_specks(mesh)
+    mask = inside_mask(fields).dense()
+    mesh = contour_surface(fields, mask, "Al", 0.15)
+    mesh, _ = remove_specks(mesh, fields=fields, mask=mask, ions=table, ranges=ranges, species="Al", iso=0.15,
+                            basis=basis)
     np.savez(work / "mesh.npz", vertices=mesh.vertices, faces=mesh.faces)
 
 

@@ -32,8 +32,9 @@ def face_quality(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray]:
     p = sides.sum(axis=1) / 2
     q = 6 / np.sqrt(3) * area / np.maximum(p * sides.max(axis=1), 1e-300)
     a, b, c = sides[:, 0], sides[:, 1], sides[:, 2]
-    cosines = np.stack([(a**2 + c**2 - b**2) / (2 * a * c), (a**2 + b**2 - c**2) / (2 * a * b),
-                        (b**2 + c**2 - a**2) / (2 * b * c)], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a side of length 0: that corner's angle reads 0 below
+        cosines = np.stack([(a**2 + c**2 - b**2) / (2 * a * c), (a**2 + b**2 - c**2) / (2 * a * b),
+                            (b**2 + c**2 - a**2) / (2 * b * c)], 1)
     return np.degrees(np.arccos(np.clip(np.nan_to_num(cosines, nan=1.0), -1, 1))), q
 
 
