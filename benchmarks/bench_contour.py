@@ -13,7 +13,6 @@ the repeats), so their ratios share the machine's load; best of ``repeats`` wall
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
@@ -22,7 +21,7 @@ from apt_filters.contour.cells import find_active_cells, prepare_field
 from apt_filters.truth.metrics import evaluate
 from apt_filters.truth.shapes import benchmark_shapes, field_gradient, grid
 from apt_filters.core.mesh import TriMesh
-from benchmarks.results import ratio, write_results
+from benchmarks.results import best_of, ratio, write_results
 
 
 def skimage_mc(values, iso, spacing, origin) -> TriMesh:
@@ -59,15 +58,6 @@ def outward(mesh: TriMesh) -> TriMesh:
     return mesh if mesh.signed_volume() >= 0 else TriMesh(mesh.vertices, mesh.faces[:, ::-1])
 
 
-def best_time(fn, repeats: int) -> tuple[float, object]:
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
-
-
 def timing_table(n: int, repeats: int) -> str:
     shape_name = "box_minus_sphere"  # flat, curved, convex and concave edges
     values, spacing, origin = grid(benchmark_shapes()[shape_name], n)
@@ -84,7 +74,7 @@ def timing_table(n: int, repeats: int) -> str:
     times = {name: (np.inf, None) for name in methods}
     for _ in range(repeats):  # round-robin, so that every method sees the same spells of load
         for name, fn in methods.items():
-            t, mesh = best_time(fn, 1)
+            t, mesh = best_of(fn, 1)
             times[name] = (min(t, times[name][0]), mesh)
     ref = times["skimage lewiner"][0]
     rows = [f"Field: {shape_name}, {n}³ float64.", "", "| method | time (s) | × skimage | faces |", "|---|---|---|---|"]
@@ -107,9 +97,9 @@ def scaling_table(n: int, repeats: int) -> str:
             d = 6.0 - np.sqrt(sum((sub[a] - c[a]) ** 2 for a in range(3)))
             values[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = np.maximum(values[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], d)
         active = len(find_active_cells(prepare_field(values, 0.0, 1, 0, None, False)).cell)
-        t_mc = best_time(lambda: marching_cubes(values, 0.0), repeats)[0]
-        t_dc = best_time(lambda: dual_contouring(values, 0.0), repeats)[0]
-        t_sk = best_time(lambda: skimage_mc(values, 0.0, np.ones(3), np.zeros(3)), repeats)[0]
+        t_mc = best_of(lambda: marching_cubes(values, 0.0), repeats)[0]
+        t_dc = best_of(lambda: dual_contouring(values, 0.0), repeats)[0]
+        t_sk = best_of(lambda: skimage_mc(values, 0.0, np.ones(3), np.zeros(3)), repeats)[0]
         rows.append(f"| {k} | {active} | {t_mc:.3f} | {t_dc:.3f} | {t_sk:.3f} | {1e6 * t_mc / active:.1f} |")
     return "\n".join(rows)
 

@@ -15,7 +15,6 @@ without a distance engine does). Both in the same process, one after the other, 
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -27,19 +26,10 @@ from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.band import NearIons
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
-from benchmarks.results import ratio, write_results
+from benchmarks.results import best_of, ratio, write_results
 
 REACH = 4.0
 NO_B = ConcentrationBasis(exclude=("B",))
-
-
-def best_of(fn, repeat: int = 3) -> tuple[float, object]:
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def main(argv: list[str] | None = None) -> str:

@@ -18,7 +18,9 @@ gathers the blocks into RESULTS.md. The history of what was tried lives in
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
+from typing import Callable
 
 from apt_filters.core.atomic import atomic_write_text
 
@@ -28,6 +30,16 @@ HEADER = ["| step | measure | ours | peer | ours / peer |", "|---|---|---:|---:|
 
 Row = tuple[str, str, str, str, str]
 """(step, measure, ours, peer, ours / peer); peer and ratio are "-" where there is no peer."""
+
+
+def best_of(fn: Callable[[], object], repeat: int = 3) -> tuple[float, object]:
+    """The shortest wall time (s) of ``repeat`` calls of ``fn`` and the last call's result."""
+    best, out = float("inf"), None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
 
 
 def ratio(ours: float, peer: float) -> str:
