@@ -98,10 +98,11 @@ class SignedDistanceRows:
 
 
 FAR, WITHIN, SEARCH = 0, 1, 2
-"""What :meth:`ReachGrid.classify` says of an ion: beyond reach, within it, or to be searched."""
+"""What :meth:`ReachGrid.classify` says of an ion: outside the shell (proved), inside it (proved), or to be
+searched (the bound straddles one of its distances)."""
 
 MAX_CELLS = 1 << 22
-"""Most cells of a :class:`ReachGrid` (4 bytes each); the cell grows beyond :data:`ION_CELL` to stay under."""
+"""Most fine cells of a :class:`ReachGrid` (4 bytes each); the cell grows beyond :data:`ION_CELL` to stay under."""
 
 ION_CELL = 0.5
 """nm: edge of a reach-grid cell. A cell holds ~5 ions at the 40 ions/nm³ of a reconstruction, so the
@@ -111,42 +112,54 @@ the distance to their centre (0.24 nm on average) of the reach."""
 
 @dataclass
 class ReachGrid:
-    """Unsigned distances (nm) from the centres of a coarse grid's cells to a mesh, to bound the ions' own.
+    """Distances (nm) from the centres of a two-level grid's cells to a mesh, to bound the ions' own.
+
+    The unsigned distance is 1-Lipschitz: an ion ``r`` nm from a centre at distance ``d`` lies between
+    ``d - r`` and ``d + r`` from the mesh. On a closed mesh the signed distance is continuous too, so an
+    ion within ``|d|`` of a centre lies on the centre's side. The grid decides, for the shell of
+    unsigned distances (``inner``, ``reach``], which ions lie in it (and on which side) and which outside.
 
     Attributes
     ----------
     origin : (3,) float64
         Corner of cell (0, 0, 0), nm.
     cell : float
-        Cell edge, nm.
-    distance : (nx, ny, nz) float32
-        Exact unsigned distance of each cell's centre to the mesh; NaN where no point of the cell is
-        within reach, -1 where every point is.
-    reach : float
+        Fine cell edge, nm (coarse cells: twice that).
+    state : (nx, ny, nz) int8
+        Per coarse cell: :data:`FAR` (every point outside the shell), :data:`WITHIN` (every point inside it),
+        :data:`SEARCH` (its eight fine cells were measured).
+    coarse : (nx, ny, nz) float32
+        Signed distance of each coarse centre (NaN beyond the reach and half the cell's diagonal).
+    fine : (2 nx, 2 ny, 2 nz) float32
+        Signed distance of each fine centre of the coarse cells in state :data:`SEARCH` (NaN elsewhere and
+        beyond the reach and half the cell's diagonal).
+    reach, inner : float
         nm.
 
     Notes
     -----
-    The grid covers the mesh's bounding box grown by the reach and a cell; a point outside it is farther than
-    the reach from every triangle. Memory: 4 bytes per cell, at most :data:`MAX_CELLS`.
+    The grid covers the mesh's bounding box grown by the reach and a coarse cell; a point outside it is
+    farther than the reach from every triangle. Memory: 4.6 bytes per fine cell, at most :data:`MAX_CELLS`.
     """
 
     origin: np.ndarray
     cell: float
-    distance: np.ndarray
+    state: np.ndarray
+    coarse: np.ndarray
+    fine: np.ndarray
     reach: float
+    inner: float = 0.0
 
     @classmethod
-    def of(cls, engine: SurfaceDistance, reach: float, cell: float = ION_CELL) -> "ReachGrid":
-        """The grid of ``engine``'s mesh for ``reach`` nm (``cell`` nm, grown to at most :data:`MAX_CELLS`).
-
-        Built coarse to fine: the centres of cells twice as large are measured first, and only the
-        children of those their own bound leaves undecided are measured again (the others are marked
-        within reach, -1, or beyond it, NaN, whole).
-        """
+    def of(cls, engine: SurfaceDistance, reach: float, inner: float = 0.0, cell: float = ION_CELL) -> "ReachGrid":
+        """The grid of ``engine``'s mesh for the shell (``inner``, ``reach``] nm (``cell`` nm, grown to at most
+        :data:`MAX_CELLS`). Built coarse to fine: the coarse centres are measured first, and only the fine
+        centres of the coarse cells their own bound leaves undecided."""
         vertices = engine.mesh.vertices
         if not len(vertices) or not engine.mesh.n_faces:
-            return cls(np.zeros(3), 1.0, np.full((0, 0, 0), np.nan, np.float32), float(reach))
+            empty = np.zeros((0, 0, 0))
+            return cls(np.zeros(3), 1.0, empty.astype(np.int8), empty.astype(np.float32), empty.astype(np.float32),
+                       float(reach), float(inner))
         eps = _margin(reach)
         while True:
             coarse = 2.0 * cell
@@ -158,58 +171,69 @@ class ReachGrid:
         half = coarse * np.sqrt(3.0) / 2
         axes = [lo[k] + coarse * (np.arange(shape[k]) + 0.5) for k in range(3)]
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        d = np.abs(engine.query(centres, max_distance=reach + half).distance)
+        d = engine.query(centres, max_distance=reach + half).distance.reshape(tuple(shape))
+        a = np.abs(d)
+        within = (a + half < reach - eps) & ((a - half > inner + eps) if inner > 0 else True)
+        state = np.full(tuple(shape), SEARCH, np.int8)
+        state[np.isnan(a) | (a - half > reach + eps)] = FAR
+        state[within] = WITHIN
+        measured = np.repeat(np.repeat(np.repeat(state == SEARCH, 2, 0), 2, 1), 2, 2)
         fine = np.full(tuple(2 * shape), np.nan, np.float32)
-        whole = np.repeat(np.repeat(np.repeat((d + half < reach - eps).reshape(tuple(shape)), 2, 0), 2, 1), 2, 2)
-        fine[whole] = -1.0
-        undecided = np.repeat(np.repeat(np.repeat(
-            (np.abs(d - reach) <= half + eps).reshape(tuple(shape)), 2, 0), 2, 1), 2, 2)
-        centres = lo + cell * (np.column_stack(np.nonzero(undecided)) + 0.5)
-        fine[undecided] = np.abs(engine.query(centres, max_distance=reach + cell * np.sqrt(3.0) / 2).distance)
-        return cls(lo, float(cell), fine, float(reach))
+        centres = lo + cell * (np.column_stack(np.nonzero(measured)) + 0.5)
+        fine[measured] = engine.query(centres, max_distance=reach + cell * np.sqrt(3.0) / 2).distance
+        return cls(lo, float(cell), state, d, fine, float(reach), float(inner))
 
-    def classify(self, points: np.ndarray) -> np.ndarray:
-        """(k,) int8 of points (k, 3) nm: :data:`FAR` (farther than the reach from the mesh, proved),
-        :data:`WITHIN` (within it, proved), :data:`SEARCH` (undecided: the bound straddles the reach)."""
-        out = np.empty(len(points), np.int8)
+    def classify(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Verdicts (k,) int8 on points (k, 3) nm: :data:`FAR`, :data:`WITHIN` or :data:`SEARCH`; and (k,) int8
+        the side (+1 along the normals, -1 against, 0 unknown) of those :data:`WITHIN` a shell with ``inner`` > 0
+        (meaningful on a closed mesh only)."""
+        out, side = np.empty(len(points), np.int8), np.zeros(len(points), np.int8)
         with _threads_for(len(points)):
-            _classify(np.ascontiguousarray(points), self.origin, self.cell, self.distance, self.reach,
-                      _margin(self.reach), out)
-        return out
+            _classify(np.ascontiguousarray(points), self.origin, self.cell, self.state, self.coarse, self.fine,
+                      self.reach, self.inner, _margin(self.reach), out, side)
+        return out, side
 
 
 def _margin(reach: float) -> float:
-    """nm by which a bound must clear the reach: far above float32 rounding, so that an ion whose distance is the
-    reach itself stays undecided and is searched."""
+    """nm by which a bound must clear the shell's distances: far above float32 rounding, so that an ion whose
+    distance is the reach itself stays undecided and is searched."""
     return 1e-4 * max(1.0, reach)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _classify(points, origin, cell, distance, reach, eps, out):
-    nx, ny, nz = distance.shape
+def _classify(points, origin, cell, state, coarse, fine, reach, inner, eps, out, side):
+    nx, ny, nz = state.shape
     for i in prange(points.shape[0]):
         x = (np.float64(points[i, 0]) - origin[0]) / cell
         y = (np.float64(points[i, 1]) - origin[1]) / cell
         z = (np.float64(points[i, 2]) - origin[2]) / cell
         out[i] = FAR
-        if not (0.0 <= x < nx and 0.0 <= y < ny and 0.0 <= z < nz):
+        if not (0.0 <= x < 2 * nx and 0.0 <= y < 2 * ny and 0.0 <= z < 2 * nz):
             continue
         ix, iy, iz = int(x), int(y), int(z)
-        d = distance[ix, iy, iz]
+        s = state[ix // 2, iy // 2, iz // 2]
+        if s == FAR:
+            continue
+        if s == WITHIN:
+            out[i] = WITHIN
+            side[i] = 1 if coarse[ix // 2, iy // 2, iz // 2] > 0 else -1
+            continue
+        d = fine[ix, iy, iz]
         if np.isnan(d):
             continue
-        if d < 0.0:
-            out[i] = WITHIN
-            continue
         r = cell * np.sqrt((x - ix - 0.5) ** 2 + (y - iy - 0.5) ** 2 + (z - iz - 0.5) ** 2)
-        if d - r > reach + eps:
+        lower, upper = abs(d) - r, abs(d) + r
+        if lower > reach + eps:
             continue
-        out[i] = WITHIN if d + r < reach - eps else SEARCH
+        out[i] = SEARCH
+        if upper < reach - eps and (inner <= 0.0 or lower > inner + eps):
+            out[i] = WITHIN
+            side[i] = 0 if lower <= 0.0 else (1 if d > 0 else -1)
 
 
 def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: float,
                 chunk: int = CHUNK, *, also: Callable[[np.ndarray], np.ndarray] | None = None,
-                carry: tuple[np.ndarray, ...] = (), distances: bool = True) -> NearSurface:
+                carry: tuple[np.ndarray, ...] = (), distances: bool | float = True) -> NearSurface:
     """The rows of ``positions`` within ``reach`` nm of a mesh, in one streamed pass.
 
     Parameters
@@ -228,10 +252,13 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     carry : tuple of arrays, optional
         Further columns of the same table (N rows each, e.g. m/z; memory maps too), read in the same
         pass: :attr:`NearSurface.carried` holds their selected rows.
-    distances : bool
-        False: only the selection is asked for. The ions a :class:`ReachGrid` proves within ``reach``
-        are kept unsearched (distance NaN, face -1, as those kept by ``also``); only those it leaves
-        undecided (within about a cell of the reach) are searched. The rows are the same either way.
+    distances : bool or float
+        True: every selected ion's exact signed distance. False: only the selection is asked for; the
+        ions a :class:`ReachGrid` proves within ``reach`` are kept unsearched (distance NaN, face -1, as
+        those kept by ``also``), only those it leaves undecided (within about a cell of the reach) are
+        searched. A float ``x`` < ``reach``: exact distances within ``x`` nm; on a closed mesh the ions the
+        grid proves between ``x`` and ``reach`` get only their side (distance +-inf, face -1). The rows
+        are the same in every case.
 
     Returns
     -------
@@ -239,7 +266,10 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         Memory: 48 bytes per selected ion, and those of the carried columns.
     """
     engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh, reach=reach)
-    grid = None if distances else ReachGrid.of(engine, reach)
+    closed = engine.mesh.n_faces > 0 and not engine.topology.boundary_vertex.any()
+    exact = reach if distances is True else 0.0 if distances is False else float(distances)
+    # beyond ``exact`` only the side is asked, which the grid's centres give on a closed mesh alone
+    grid = None if exact >= reach or (exact > 0 and not closed) else ReachGrid.of(engine, reach, inner=exact)
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
     carried = [[np.zeros((0, *np.shape(c)[1:]), np.asarray(c[:0]).dtype)] for c in carry]
@@ -249,11 +279,13 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
             sd = engine.query(part, max_distance=reach)
             d, f, near = sd.distance, sd.face, np.abs(sd.distance) <= reach
         else:
-            kind = grid.classify(part)
+            kind, side = grid.classify(part)
             search = np.flatnonzero(kind == SEARCH)
             sd = engine.query(part[search], max_distance=reach)
             d, f = np.full(len(part), np.nan, np.float32), np.full(len(part), -1, np.int64)
             d[search], f[search] = sd.distance, sd.face
+            if grid.inner > 0:  # the shell's ions: only their side
+                d[kind == WITHIN] = side[kind == WITHIN] * np.float32(np.inf)
             near = (kind == WITHIN) | (np.abs(d) <= reach)
         keep = np.flatnonzero(near if also is None else near | also(part))
         rows.append(start + keep)

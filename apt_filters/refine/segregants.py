@@ -94,14 +94,17 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     Segregants
     """
     near_reach, far = REACH
-    # one streamed pass: the exact signed distance of every ion within reach of the references
-    near = select_near(ions.positions, mesh, far, carry=(ions.mz,))
+    # One streamed pass over the ions within reach of the references. Beyond near_reach + GAP an ion only
+    # counts in the reference on its side, so there its side is enough (on a closed mesh the reach grid
+    # proves most of them without a search); it goes to the outermost bin on that side.
+    near = select_near(ions.positions, mesh, far, carry=(ions.mz,), distances=near_reach + GAP)
     everything = ion_atoms(IonTable(near.positions, near.carried[0]), ranges, ConcentrationBasis())
     atoms = everything.atoms.astype(np.float64)
     # fine bins over [-far, far]: each candidate bin's references are sums of whole fine bins
     fine = bin_width / 5
     edges = np.arange(-far, far + fine / 2, fine)
-    b = np.digitize(near.distance, edges) - 1
+    distance = np.where(np.isinf(near.distance), np.sign(near.distance) * (far - fine / 2), near.distance)
+    b = np.digitize(distance, edges) - 1
     ok = (b >= 0) & (b < len(edges) - 1)
     n_fine = len(edges) - 1
     counts = np.stack([np.bincount(b[ok], weights=atoms[ok, k], minlength=n_fine) for k in range(atoms.shape[1])])
