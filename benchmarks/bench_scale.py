@@ -26,7 +26,8 @@ the summary rows and sections of sizes not measured again are kept) after every 
    contouring benchmark's box minus sphere) beside scikit-image's Lewiner marching cubes and VTK's
    flying edges, same process, round-robin, best of 5 wall and CPU times (``--no-mc`` skips it).
 4. ``--run``: ``apt-filters run`` on the N-ion file (Cu at 20 at.%, ``--memory-budget`` passed on),
-   wall and CPU time, and each step's wall and CPU time and peak RSS (from its report).
+   wall and CPU time, and each step's wall and CPU time and peak RSS (from its report); then the
+   same run with a budget nothing fits, which must be refused up front (exit 2, one line).
 
 Pure numpy / numba / scipy except the optional skimage peer and ``--run`` (pymeshlab, open3d).
 """
@@ -286,9 +287,29 @@ def run_table(pos: Path, n: int, work: Path, budget: float | None) -> tuple[list
     rows += [f"| {s['step']} | {s['seconds']:.1f} | {s.get('cpu_seconds', float('nan')):.1f} | {s['peak_mib']:,.0f} | "
              f"{s['peak_mib'] * 2**20 / n:.0f} |" for s in report["steps"]]
     print("\n".join(rows), flush=True)
+    refusal = refused(pos, work)
+    rows += ["", f"Refusal: the same run with a {REFUSED_BUDGET:g} GB budget (not even the fields fit) {refusal}."]
+    print(rows[-1], flush=True)
     mapped = " (ions memory-mapped)" if "memory-mapped" in report["steps"][0]["summary"] else ""
     return rows, [("scale", f"`apt-filters run`, {n / 1e6:g}M ions{mapped}, wall / CPU / peak RSS (target: 25 s for 10M)",
                    f"{wall:.0f} s / {cpu:.0f} s / {peak:,.0f} MiB", "-", "-")]
+
+
+REFUSED_BUDGET = 0.001
+"""GB: a budget no run fits, for the refusal check."""
+
+
+def refused(pos: Path, work: Path) -> str:
+    """Words on how ``apt-filters run`` with :data:`REFUSED_BUDGET` ends: it must refuse up front, exit 2 with
+    one line on stderr and no output folder (raises AssertionError otherwise)."""
+    out = work / "refused"
+    cmd = [sys.executable, "-m", "apt_filters", "run", str(pos), "-r", str(pos.with_suffix(".rrng")), "-o", str(out),
+           "--species", "Cu", "--iso", "0.2", "-q", "--memory-budget", str(REFUSED_BUDGET)]
+    t = time.perf_counter()
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and not out.exists(), (done.returncode, done.stderr)
+    return f"exits 2 after {time.perf_counter() - t:.1f} s with one line: `{lines[0]}`"
 
 
 def machine() -> str:

@@ -189,6 +189,46 @@ def test_near_surface_selection_keeps_what_it_is_also_asked_and_carries_columns(
     assert np.all(np.isnan(near.distance[extra])) and np.all(near.face[extra] == -1)
 
 
+def test_selection_without_distances_keeps_the_same_rows_and_searches_only_near_the_reach():
+    """``distances=False``: the reach grid's Lipschitz bounds decide most ions (a FAR or WITHIN verdict is
+    never wrong against the box's exact distance); the rows are those the exact search keeps, the ions
+    decided within reach carry NaN, and only a shell about the reach is searched. ``distances=0.5`` on a
+    closed mesh: exact within 0.5 nm, the right side beyond."""
+    from apt_filters.core.nearby import FAR, SEARCH, WITHIN, ReachGrid, select_near
+    from apt_filters.core.distance import SurfaceDistance
+
+    half, reach = np.array([2.0, 3.0, 4.0]), 1.5
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-7, 7, size=(60_000, 3)).astype(np.float32)
+    exact = np.abs(_box_sdf(positions.astype(np.float64), half))
+    # ions at the reach itself, up to float32 rounding: the bound must leave them to the search
+    on = rng.uniform(-1, 1, size=(500, 3)) * half
+    on[:, 2] = half[2] + reach
+    positions[:500] = on
+    exact[:500] = np.abs(_box_sdf(positions[:500].astype(np.float64), half))
+    kind, _ = ReachGrid.of(SurfaceDistance(_box(half), reach=reach), reach).classify(positions)
+    assert np.all(exact[kind == FAR] > reach) and np.all(exact[kind == WITHIN] <= reach)
+    assert np.mean(kind == SEARCH) < 0.25 and np.all(kind[:500] == SEARCH)
+    fast = select_near(positions, _box(half), reach, chunk=7_001, distances=False)
+    slow = select_near(positions, _box(half), reach, chunk=7_001)
+    assert np.array_equal(fast.rows, slow.rows) and np.array_equal(fast.rows, np.flatnonzero(exact <= reach))
+    searched = ~np.isnan(fast.distance)
+    np.testing.assert_array_equal(fast.distance[searched], slow.distance[searched])
+    assert 0 < searched.sum() < 0.5 * len(fast.rows)
+    # exact within 0.5 nm only: on the closed box the shell (0.5, 1.5] nm gets its side, proved, and nothing else
+    signed = _box_sdf(positions.astype(np.float64), half)
+    kind, side = ReachGrid.of(SurfaceDistance(_box(half), reach=reach), reach, inner=0.5).classify(positions)
+    shell = kind == WITHIN
+    assert np.all((exact[shell] > 0.5) & (exact[shell] <= reach)) and np.all(side[shell] == np.sign(signed[shell]))
+    assert np.all(exact[kind == FAR] > reach) and shell.sum() > 0.3 * (exact <= reach).sum()
+    part = select_near(positions, _box(half), reach, chunk=7_001, distances=0.5)
+    assert np.array_equal(part.rows, slow.rows)
+    finite = np.isfinite(part.distance)
+    np.testing.assert_array_equal(part.distance[finite], slow.distance[finite])
+    assert np.all(np.abs(slow.distance[~finite]) > 0.5)
+    assert np.array_equal(np.sign(part.distance[~finite]), np.sign(slow.distance[~finite]))
+
+
 def test_closest_points_and_nearest_on_a_plane():
     from apt_filters.core.distance import SurfaceDistance
 

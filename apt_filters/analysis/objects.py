@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy import ndimage
 
 from apt_filters.core import jsontext
@@ -298,11 +298,8 @@ class _LabelGrid:
 
     def touched(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: points in a voxel inside or crossed by an object (all the ions any object may hold)."""
-        cell = np.floor((np.asarray(points, dtype=np.float64) - self.origin) / self.voxel)
-        within = np.all((cell >= 0) & (cell < np.array(self.labels.shape)), axis=1)
-        out = np.zeros(len(cell), dtype=bool)
-        i, j, k = cell[within].astype(np.int64).T
-        out[within] = self.labels[i, j, k] != 0
+        out = np.empty(len(points), dtype=bool)
+        _touched(np.ascontiguousarray(points), self.origin, self.voxel, self.labels, out)
         return out
 
 
@@ -313,6 +310,16 @@ LABEL_MARGIN = 1e-3
 """nm added around each triangle's box when marking crossed voxels: covers the rounding of
 float32 ion coordinates (about 1e-4 nm at 1000 nm), so a voxel not marked holds no ion that
 could lie on the other side of the surface."""
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _touched(points, origin, voxel, labels, out):  # pragma: no cover - compiled
+    nx, ny, nz = labels.shape
+    for n in prange(points.shape[0]):
+        i = np.floor((np.float64(points[n, 0]) - origin[0]) / voxel)
+        j = np.floor((np.float64(points[n, 1]) - origin[1]) / voxel)
+        k = np.floor((np.float64(points[n, 2]) - origin[2]) / voxel)
+        out[n] = (0 <= i < nx and 0 <= j < ny and 0 <= k < nz) and labels[int(i), int(j), int(k)] != 0
 
 
 @njit(cache=True, nogil=True)

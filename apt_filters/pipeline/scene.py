@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from apt_filters.core.mesh import TriMesh
+from apt_filters.core.threads import available_cores
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 
@@ -111,11 +112,14 @@ def vertex_composition(*, vertices: np.ndarray, ions: IonTable, ranges: RangeTab
         done = np.zeros(len(todo), dtype=bool)
         for start in range(0, len(todo), _VERTEX_BLOCK):
             block = todo[start:start + _VERTEX_BLOCK]
-            dist, idx = tree.query(vertices[block], k=kk)
+            dist, idx = tree.query(vertices[block], k=kk, workers=available_cores())
             dist, idx = dist.reshape(len(block), -1), idx.reshape(len(block), -1)
             ok = np.ones(len(block), dtype=bool) if whole else (dist[:, -1] <= reach) & (kk == k)
+            # ions of each species per vertex, then atoms: (vertices, species) instead of (vertices, k, elements)
             sp = kinds[idx[ok]]
-            out[block[ok]] = 100 * matrix[sp].sum(axis=1) / atoms_per_ion[sp].sum(axis=1)[:, None]
+            counts = np.bincount((np.arange(len(sp))[:, None] * len(matrix) + sp).ravel(),
+                                 minlength=len(sp) * len(matrix)).reshape(len(sp), len(matrix)).astype(np.float64)
+            out[block[ok]] = 100 * (counts @ matrix) / (counts @ atoms_per_ion)[:, None]
             done[start:start + len(block)] = ok
         todo = todo[~done]
         reach *= 2

@@ -247,7 +247,8 @@ def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool
     from apt_filters.analysis.objects import ions_in_objects
     from apt_filters.core.nearby import select_near
 
-    near = select_near(ions.positions, mesh, reach, also=ions_in_objects(mesh, cap_open), carry=(ions.mz,))
+    near = select_near(ions.positions, mesh, reach, also=ions_in_objects(mesh, cap_open), carry=(ions.mz,),
+                       distances=False)
     return IonTable(near.positions.astype(np.float32), near.carried[0], source=ions.source)
 
 

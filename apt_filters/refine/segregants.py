@@ -6,7 +6,8 @@ between the phases steps monotonically from one plateau to the other under any b
 concentration's denominator, a segregant dilutes every other species where it sits, which pulls the
 iso-surface of the species drawn inward (gamma-prime-like specimens: object volumes -39 to -54 % with
 the 8 % B shell counted, ~0 % without). So :func:`find_segregants` measures, over all the objects
-pooled, each species' fraction in bins of the distance to a first surface and calls it a segregant
+pooled, each species' fraction in bins of the exact signed distance to a first surface (one streamed
+pass, :func:`~apt_filters.core.nearby.select_near`) and calls it a segregant
 where a bin near that surface stands ``significance`` binomial standard errors above the higher of its
 two references, all the atoms more than ``GAP`` nm beyond the bin on each side (out to 4 nm): under a
 monotone step no bin exceeds the mean of what lies beyond it on its higher side, however wide the
@@ -21,10 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apt_filters.core.mesh import TriMesh, vertex_normals
+from apt_filters.core.mesh import TriMesh
+from apt_filters.core.nearby import select_near
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import NearIons
+from apt_filters.refine.composition import ion_atoms
 from apt_filters.voxel import ConcentrationBasis
 
 SIGNIFICANCE = 5.0
@@ -92,14 +94,17 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     Segregants
     """
     near_reach, far = REACH
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    near = NearIons.select(ions, ranges, ConcentrationBasis(), vertices, mesh.faces, far + 1.0)
-    band = near.band(vertices, vertex_normals(vertices, mesh.faces), far + 1.0)
-    atoms = near.atoms.atoms[band.index].astype(np.float64)
+    # One streamed pass over the ions within reach of the references. Beyond near_reach + GAP an ion only
+    # counts in the reference on its side, so there its side is enough (on a closed mesh the reach grid
+    # proves most of them without a search); it goes to the outermost bin on that side.
+    near = select_near(ions.positions, mesh, far, carry=(ions.mz,), distances=near_reach + GAP)
+    everything = ion_atoms(IonTable(near.positions, near.carried[0]), ranges, ConcentrationBasis())
+    atoms = everything.atoms.astype(np.float64)
     # fine bins over [-far, far]: each candidate bin's references are sums of whole fine bins
     fine = bin_width / 5
     edges = np.arange(-far, far + fine / 2, fine)
-    b = np.digitize(band.distance, edges) - 1
+    distance = np.where(np.isinf(near.distance), np.sign(near.distance) * (far - fine / 2), near.distance)
+    b = np.digitize(distance, edges) - 1
     ok = (b >= 0) & (b < len(edges) - 1)
     n_fine = len(edges) - 1
     counts = np.stack([np.bincount(b[ok], weights=atoms[ok, k], minlength=n_fine) for k in range(atoms.shape[1])])
@@ -115,7 +120,7 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
         return (cum[k, z] - cum[k, a]) / np.maximum(n, 1.0), n
 
     found, peaks, kept = [], {}, []
-    for k, element in enumerate(near.atoms.elements):
+    for k, element in enumerate(everything.elements):
         if element == species or element in basis.exclude:
             continue
         f, n = share(k, lo, hi)
