@@ -91,13 +91,17 @@ def _plain(value):
     return value.item() if hasattr(value, "item") else str(value)
 
 
-def run(split: str, count: int, names: list[str], say, save: str | None = None) -> list[dict]:
-    """One record per (draw, variant): its rows (bench_zoo.evaluate), spurious objects and refine seconds."""
+def run(split: str, count: int, names: list[str], say, save: str | None = None, families=None) -> list[dict]:
+    """One record per (draw, variant): its rows (bench_zoo.evaluate), spurious objects and refine seconds; of the
+    first ``count`` draws of ``split``, those of ``families`` (default all)."""
     settings = VARIANTS | EXTRA
     config = PipelineConfig()
     records = []
     for family, seed in draws(split, count):
+        if families and family not in families:
+            continue
         sp, species, iso, header = specimen(family, seed)
+        header = "#" + header  # a heading below the results file's sections
         say(header)
         truth = truths(sp, species)
         fields, mask, basis = run_fields(sp, config)
@@ -108,16 +112,35 @@ def run(split: str, count: int, names: list[str], say, save: str | None = None) 
                                        basis=basis, params=params, step=clock)
             wall = time.perf_counter() - t
             rows, spurious = evaluate(sp, mesh, species, truth, seed, family)
-            records.append({"split": split, "family": family, "seed": seed, "variant": name, "rows": rows,
-                            "spurious": spurious, "refine_cpu": clock.cpu.get("refine", 0.0), "wall": wall})
             steps = ", ".join(f"{k} {v:.1f}" for k, v in clock.cpu.items())
-            say(f"  {name}: CPU s {steps}; {wall:.1f} s wall, {spurious} spurious; "
-                + "; ".join(_brief(r) for r in rows))
+            line = (f"  {name}: CPU s {steps}; {wall:.1f} s wall, {spurious} spurious; "
+                    + "; ".join(_brief(r) for r in rows))
+            records.append({"split": split, "family": family, "seed": seed, "variant": name, "rows": rows,
+                            "spurious": spurious, "refine_cpu": clock.cpu.get("refine", 0.0), "wall": wall,
+                            "header": header, "line": line})
+            say(line)
             if save:
                 with open(save, "w", encoding="utf-8") as f:
                     json.dump(records, f, default=_plain)
-        say()
     return records
+
+
+def sections(records: list[dict]) -> list[str]:
+    """The results file's sections of one split's records: effects, totals, families, the draws."""
+    split, variants = records[0]["split"], _by_variant(records)
+    seeds = list(dict.fromkeys((r["family"], r["seed"]) for r in records))
+    what = f"{split}, {len(seeds)} draws ({', '.join(f'{f} {s}' for f, s in seeds)})"
+    draws_text = []
+    for rec in records:
+        if rec["variant"] == "defaults":
+            draws_text += ["", rec["header"]]
+        draws_text.append(rec["line"])
+    return [f"## {split}: what each stage buys\n\n{what}; Δ = variant minus defaults of each object's figure, "
+            f"mean ± standard error over the objects found by both\n\n{effects_table(variants)}",
+            f"## {split}: per variant\n\n{totals_table(variants)}",
+            f"## {split}: per family\n\n{family_table(variants)}",
+            f"## {split}: draws\n\nmachine: 2 cores shared with other jobs; CPU s per pipeline step"
+            + "\n".join(draws_text)]
 
 
 def _brief(r: dict) -> str:
@@ -170,6 +193,13 @@ def totals_table(variants: dict) -> str:
     return "\n".join(lines)
 
 
+def _changed(variants: dict, name: str) -> int:
+    """Objects whose surface the variant changed (any figure, or found/not found; the pipeline is deterministic)."""
+    base = {(r["seed"], r["name"]): r for r in variants["defaults"]["rows"]}
+    keys = ("found", "volume", "area", "mean", "hausdorff", "excess", "plateau_in")
+    return sum(any(r.get(k) != base[(r["seed"], r["name"])].get(k) for k in keys) for r in variants[name]["rows"])
+
+
 def effects(variants: dict) -> dict:
     """Per variant and figure: (mean difference from the defaults, its standard error, objects compared)."""
     base = {(r["seed"], r["name"]): r for r in variants["defaults"]["rows"] if r["found"]}
@@ -201,8 +231,8 @@ def effects_table(variants: dict) -> str:
     base = variants["defaults"]
     lines = ["| switched off | " + " | ".join(f"Δ {label}" + (f" ({unit})" if unit else "")
                                              for label, _, unit in FIGURES.values())
-             + " | Δ found | CPU / defaults | what the stage does (beyond 2 SE) |",
-             "|---|" + "---:|" * (len(FIGURES) + 2) + "---|"]
+             + " | Δ found | objects changed | CPU / defaults | what the stage does (beyond 2 SE) |",
+             "|---|" + "---:|" * (len(FIGURES) + 3) + "---|"]
     n_found = sum(r["found"] for r in base["rows"])
     for name, effect in eff.items():
         v = variants[name]
@@ -211,7 +241,8 @@ def effects_table(variants: dict) -> str:
         cells = [f"{m:+.3f} ± {se:.3f}" if key in ("mean", "hausdorff") else f"{m:+.2f} ± {se:.2f}"
                  for key, (m, se, _) in effect.items()]
         lines.append(f"| {name} | " + " | ".join(cells)
-                     + f" | {sum(r['found'] for r in v['rows']) - n_found:+d} | {cpu:.2f} | {_reading(effect)} |")
+                     + f" | {sum(r['found'] for r in v['rows']) - n_found:+d} | {_changed(variants, name)} of "
+                       f"{len(v['rows'])} | {cpu:.2f} | {_reading(effect)} |")
     return "\n".join(lines)
 
 
@@ -247,42 +278,34 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="dev", choices=list(SPLITS))
     ap.add_argument("--count", type=int, default=6, help="draws, families in turn")
+    ap.add_argument("--families", nargs="+", help="only these families (of the split's first --count draws)")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS | EXTRA),
                     help="variants to run (the defaults are always run first)")
     ap.add_argument("--save", help="JSON file the records are written to after every variant")
-    ap.add_argument("--load", help="tabulate the records of an earlier --save instead of running")
-    ap.add_argument("--write", action="store_true",
-                    help="write benchmarks/results_ablation.md (this split's sections; other splits' kept)")
+    ap.add_argument("--load", nargs="+", help="tabulate the records of earlier --save files instead of running")
+    ap.add_argument("--write", action="store_true", help="write benchmarks/results_ablation.md (the splits run "
+                    "or loaded: `--load dev.json heldout.json --write` gathers two runs)")
     ap.add_argument("--intro", help="a file whose text goes between the summary block and the sections")
     args = ap.parse_args(argv)
-    lines: list[str] = []
-
-    def say(text=""):
-        lines.append(text)
-        print(text, flush=True)
-
     if args.load:
-        with open(args.load, encoding="utf-8") as f:
-            records = json.load(f)
-        split = records[0]["split"]
+        records = []
+        for path in args.load:
+            with open(path, encoding="utf-8") as f:
+                records += json.load(f)
     else:
-        split = args.split
         names = ["defaults"] + [n for n in args.variants if n != "defaults"]
-        records = run(split, args.count, names, say, args.save)
-    variants = _by_variant(records)
-    seeds = list(dict.fromkeys((r["family"], r["seed"]) for r in records))
-    what = f"{split}, {len(seeds)} draws ({', '.join(f'{f} {s}' for f, s in seeds)})"
-    sections = [f"## {split}: what each stage buys\n\n{what}; Δ = variant minus defaults of each object's figure, "
-                f"mean ± standard error over the objects found by both\n\n{effects_table(variants)}",
-                f"## {split}: per variant\n\n{totals_table(variants)}",
-                f"## {split}: per family\n\n{family_table(variants)}"]
-    if lines:
-        sections.append(f"## {split}: draws\n\nmachine: 2 cores shared with other jobs\n\n" + "\n".join(lines))
-    print("\n\n".join(sections[:3]))
+        records = run(args.split, args.count, names, print, args.save, args.families)
+    splits = {}
+    for rec in records:
+        splits.setdefault(rec["split"], []).append(rec)
+    text, rows = [], []
+    for split, mine in splits.items():
+        text += sections(mine)
+        rows += summary_rows(_by_variant(mine), split)
+        print("\n\n".join(text[-4:-1]))
     if args.write:
         intro = open(args.intro, encoding="utf-8").read() if args.intro else ""
-        write_results("ablation", "bench_ablation: what each stage of the refinement buys",
-                      summary_rows(variants, split), sections, intro=intro, merge=True)
+        write_results("ablation", "bench_ablation: what each stage of the refinement buys", rows, text, intro=intro)
     return 0
 
 
