@@ -62,6 +62,15 @@ def user_iso(spec, species: str) -> float:
     return 0.5 * (inside + spec.matrix.get(species, 0.0))
 
 
+def run_fields(sp, config: PipelineConfig):
+    """(fields, mask, basis) as `apt-filters run` builds them from ``config``: the input of its surface."""
+    v = config.voxel
+    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
+    fields = voxelize(sp.ions, sp.ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size, basis=basis,
+                      efficiency=config.analysis.efficiency)
+    return fields, inside_mask(fields).dense(), basis
+
+
 def surfaces(sp, species: str, iso: float) -> dict:
     """(mesh, seconds, note) of each pipeline."""
     t = time.perf_counter()
@@ -72,13 +81,10 @@ def surfaces(sp, species: str, iso: float) -> dict:
                           fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species=species, iso=iso)
     out = {"AP": (ap, time.perf_counter() - t, "")}
     t = time.perf_counter()
-    config = PipelineConfig()  # as `apt-filters run` builds its fields and mask
-    v = config.voxel
-    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
-    fields = voxelize(sp.ions, sp.ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size, basis=basis,
-                      efficiency=config.analysis.efficiency)
-    mesh, record = finished_surface(fields, inside_mask(fields).dense(), sp.ions, sp.ranges, SurfaceConfig(species, iso),
-                                    config=config, basis=basis)
+    config = PipelineConfig()
+    fields, mask, basis = run_fields(sp, config)
+    mesh, record = finished_surface(fields, mask, sp.ions, sp.ranges, SurfaceConfig(species, iso), config=config,
+                                    basis=basis)
     note = f"basis: {record.refine['basis']}" if record.refine else "; ".join(record.warnings)
     out["defaults"] = (mesh, time.perf_counter() - t, note)
     return out
@@ -285,6 +291,23 @@ def _describe(artefact) -> str:
     return "depths " + ", ".join(f"{d:.2f}" for d in artefact.depths)
 
 
+def specimen(family: str, seed: int):
+    """(specimen, iso species, user's iso-value, a heading line describing the draw) of one zoo draw."""
+    spec = zoo_specimen(family, seed)
+    sp = generate(spec, seed)
+    species = sp.truth["features"][0]["composition_inside"]
+    species = max(species, key=lambda e: species[e] - spec.matrix.get(e, 0.0))
+    iso = user_iso(spec, species)
+    f0 = spec.features[0]
+    seg = f0.segregation[0] if f0.segregation else None
+    header = (f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
+              f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
+              f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
+              f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}"
+              + "".join(f"; {a.kind} {_describe(a)}" for a in spec.artefacts[:2]))
+    return sp, species, iso, header
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="heldout", choices=list(SPLITS))
@@ -307,18 +330,8 @@ def main(argv=None) -> int:
     for family, seed in draws(args.split, args.count)[args.skip:]:
         if args.families and family not in args.families:
             continue
-        spec = zoo_specimen(family, seed)
-        sp = generate(spec, seed)
-        species = sp.truth["features"][0]["composition_inside"]
-        species = max(species, key=lambda e: species[e] - spec.matrix.get(e, 0.0))
-        iso = user_iso(spec, species)
-        f0 = spec.features[0]
-        seg = f0.segregation[0] if f0.segregation else None
-        say(f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "
-            f"{100 * f0.composition[species]:.1f} at.%, iso {100 * iso:.1f}, width {f0.width:.2f} nm, efficiency "
-            f"{spec.efficiency:.2f}, blur {spec.blur[0]:.2f}/{spec.blur[1]:.2f}, segregant "
-            f"{'none' if seg is None else f'{seg.species} peak {seg.peak:.3f} sigma {seg.sigma:.2f}'}"
-            + "".join(f"; {a.kind} {_describe(a)}" for a in spec.artefacts[:2]))
+        sp, species, iso, header = specimen(family, seed)
+        say(header)
         truth = truths(sp, species)
         for p, (mesh, seconds, note) in surfaces(sp, species, iso).items():
             r, n_spurious = evaluate(sp, mesh, species, truth, seed, family)

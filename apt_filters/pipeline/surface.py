@@ -126,7 +126,8 @@ def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()
 
 def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, surface: SurfaceConfig, *,
                      config: PipelineConfig | None = None, basis=None, clean_script: str | os.PathLike | None = None,
-                     step: Callable[[str], ContextManager] = _quiet_step) -> tuple[TriMesh, SurfaceRecord]:
+                     step: Callable[[str], ContextManager] = _quiet_step, params=None
+                     ) -> tuple[TriMesh, SurfaceRecord]:
     """The finished iso-surface of ``surface`` from voxelized ``fields`` and their ``ions``.
 
     Parameters
@@ -148,6 +149,9 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     step : callable, optional
         ``step(name)`` gives a context manager around each step whose ``summary`` it may set
         (``StepLog.step`` times and prints them).
+    params : refine.RefineParams, optional
+        Every setting of the refinement (default: :func:`refine_params` of ``config.refine``), for settings
+        ``[refine]`` does not name (benchmarks/bench_ablation.py switches stages and knobs one at a time).
 
     Returns
     -------
@@ -181,7 +185,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
                                          alpha=r.speck_alpha)
             record.specks = specks
-            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis, refine_params(r))
+            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
+                                     refine_params(r) if params is None else params)
             mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
