@@ -170,7 +170,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
     mark("init")
-    surfaces = cvt.patch_surfaces(mesh, features)  # one closest-point engine per patch, for Lloyd and smoothing
+    surfaces = cvt.PatchSurfaces(mesh, features.patch)  # closest points per patch, for Lloyd and smoothing
     result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge,
                        surfaces=surfaces)
     labels = result.labels
@@ -201,7 +201,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
-    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge)
+    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge, surfaces.whole)
     mark("scalars")
     checks = []
     if verify:
@@ -246,9 +246,9 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
               kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
-              surfaces: list) -> tuple[np.ndarray, np.ndarray]:
+              surfaces: cvt.PatchSurfaces) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay. Patch vertices are projected onto their patch (``surfaces``, :func:`cvt.patch_surfaces`),
+    corners stay. Patch vertices are projected onto their patch (``surfaces``),
     searched within ``edge`` (nm) first."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
@@ -265,9 +265,8 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     def project(points, ids):
         out = points.copy()
-        for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
-            sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
-            out[sel] = surfaces[p].closest(points[sel], edge)[0]
+        sel = kind[ids] == cvt.PATCH
+        out[sel] = surfaces.closest(points[sel], owner[ids][sel], edge)
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
@@ -316,11 +315,11 @@ def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
     return near[np.arange(len(points)), best]
 
 
-def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float) -> TriMesh:
-    """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face."""
+def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float, surface: SurfaceDistance) -> TriMesh:
+    """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face
+    (``surface``: ``source``'s closest-point engine)."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
-    surface = SurfaceDistance(source)
     _, face, weights = surface.closest(target.vertices, edge)
     corners = source.faces[face]
     for name, values in source.vertex_scalars.items():
