@@ -244,7 +244,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         generator_component = _generator_components(mesh, features, gens, source_component)[used]
         corner = generator_component[faces]
         result_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
-        checks = check.check_components(mesh, out, source_component, result_component, edge=edge)
+        checks = check.check_components(mesh, out, source_component, result_component, edge=edge,
+                                        source_surface=surfaces.whole)
         failed = np.array([not c.ok for c in checks])
         if failed.any():
             out = check.keep_input(mesh, out, source_component, result_component, failed)
