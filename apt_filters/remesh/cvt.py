@@ -98,18 +98,47 @@ class _Curve:
         return np.mod(new, self.length) if self.closed else new
 
 
-def patch_surfaces(mesh: TriMesh, features: Features) -> list:
-    """One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) per patch, over
-    the patch's own vertices (its closest points are positions; face ids are the patch's)."""
-    from apt_filters.core.distance import SurfaceDistance
+class PatchSurfaces:
+    """Closest points of ``mesh`` restricted to one patch per point.
 
-    order = np.argsort(features.patch, kind="stable")
-    bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
-    out = []
-    for p in range(features.n_patches):
-        used, local = np.unique(mesh.faces[order[bounds[p]:bounds[p + 1]]], return_inverse=True)
-        out.append(SurfaceDistance(TriMesh(mesh.vertices[used], local.reshape(-1, 3))))
-    return out
+    One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) over the whole
+    mesh answers most queries exactly: when a point's closest face lies on the patch asked for,
+    it is also the closest face of that patch. Only the other points (near a crease, or in a
+    pocket where another patch is closer) ask an engine of their patch alone, built when first
+    needed. (An engine per patch, built up front, was a tenth of the remesh's time and memory on
+    bumpy surfaces, which have hundreds of small patches.)
+
+    ``patch`` (f,) is the patch of every face of ``mesh``.
+    """
+
+    def __init__(self, mesh: TriMesh, patch: np.ndarray):
+        from apt_filters.core.distance import SurfaceDistance
+
+        self.mesh, self.patch, self.whole = mesh, patch, SurfaceDistance(mesh)
+        self._order = np.argsort(patch, kind="stable")
+        self._bounds = np.searchsorted(patch[self._order], np.arange(int(patch.max(initial=-1)) + 2))
+        self._own: dict = {}
+
+    def closest(self, points: np.ndarray, patches: np.ndarray, near: float | None = None) -> np.ndarray:
+        """(n, 3) closest point on patch ``patches[i]`` (n,) to each of ``points`` (n, 3) nm; ``near``
+        (nm): how far most points are expected to be (the search's first reach)."""
+        if len(points) == 0:
+            return np.empty((0, 3))
+        out, face, _ = self.whole.closest(points, near)
+        wrong = np.flatnonzero(self.patch[face] != patches)
+        for p in np.unique(patches[wrong]).tolist():
+            sel = wrong[patches[wrong] == p]
+            out[sel] = self._of(p).closest(points[sel], near)[0]
+        return out
+
+    def _of(self, p: int):
+        if p not in self._own:
+            from apt_filters.core.distance import SurfaceDistance
+
+            faces = self.mesh.faces[self._order[self._bounds[p]:self._bounds[p + 1]]]
+            used, local = np.unique(faces, return_inverse=True)
+            self._own[p] = SurfaceDistance(TriMesh(self.mesh.vertices[used], local.reshape(-1, 3)))
+        return self._own[p]
 
 
 def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
@@ -412,7 +441,8 @@ def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, al
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
           curves: list, density: np.ndarray, max_iter: int = 30, tol: float = 1e-4, k: int = 10,
-          project_every: int = 3, near: float | None = None, surfaces: list | None = None) -> LloydResult:
+          project_every: int = 3, near: float | None = None,
+          surfaces: PatchSurfaces | None = None) -> LloydResult:
     """Lloyd iterations until the relative energy change is below ``tol`` or ``max_iter`` steps.
 
     Each step assigns every sample to the nearest of ``k`` candidates: the allowed generators
@@ -426,21 +456,19 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     sit off a curved surface by about L²/8R) and at the end; the returned labels belong to the
     returned positions. ``near`` (nm, about the edge length): how far a moved generator is
     expected to be from its patch (the projection's search reach; farther ones are found too).
-    ``surfaces``: the patches' closest-point engines (:func:`patch_surfaces`), built here if not given.
+    ``surfaces``: closest points on the patches (:class:`PatchSurfaces`), built here if not given.
     """
-    surfaces = patch_surfaces(mesh, features) if surfaces is None else surfaces
+    surfaces = PatchSurfaces(mesh, features.patch) if surfaces is None else surfaces
     permitted = allowed(features, gens)
     candidates = _Candidates(permitted, len(gens.positions), k)
     w = samples.face_area * density / samples.per_face
     energy: list = []
-    patch_ids = [np.flatnonzero((gens.kind == PATCH) & (gens.owner == p)) for p in range(features.n_patches)]
+    free = np.flatnonzero(gens.kind == PATCH)
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
     labels = _first_labels(samples, group, gens.positions, permitted)
 
     def project():
-        for p, mine in enumerate(patch_ids):
-            if len(mine):
-                gens.positions[mine] = surfaces[p].closest(gens.positions[mine], near)[0]
+        gens.positions[free] = surfaces.closest(gens.positions[free], gens.owner[free], near)
 
     on_surface = True
     for it in range(max_iter + 1):

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from numba import njit
+
 from apt_filters.core.mesh import TriMesh
 
 
@@ -210,54 +212,194 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
     Candidates for a vertex are points part-way to and away from each ring neighbour and the
     ring's centroid, put back on the surface by ``project(points, ids)`` (curve vertices thus
     slide along their curve); the best one is kept if it raises the ring's smallest angle and
-    turns no ring face by more than ``max_turn`` degrees. Vertices go one after the other
-    (each sees its neighbours' moves), for up to ``rounds`` rounds while anything moves. The
-    uniform relaxation before it optimises the mean shape; near feature corners, where curves
-    meet at acute angles, it leaves triangles that a move of one neighbour fixes. A vertex is tried
-    again only once something in its ring has moved since its last try (the same ring gives the
-    same answer): on bumpy surfaces most vertices of bad triangles cannot improve, and trying them
-    every round was most of the remesh's time.
+    turns no ring face by more than ``max_turn`` degrees. The uniform relaxation before it
+    optimises the mean shape; near feature corners, where curves meet at acute angles, it leaves
+    triangles that a move of one neighbour fixes.
+
+    Vertices move in batches of non-adjacent ones (a greedy independent set, the vertices of the
+    worst triangles first):
+    no vertex of a batch lies in another's ring, so each sees its ring as a one-by-one sweep
+    would, and the candidates of a whole batch are projected in one call (vertex by vertex, the
+    Python loop and one projection per vertex were most of the remesh's time on bumpy surfaces).
+    A vertex is tried again only once something in its ring has moved since its last try (the
+    same ring gives the same answer), for up to ``rounds`` rounds while anything moves.
     """
-    out = vertices.copy()
+    out = np.ascontiguousarray(vertices, np.float64).copy()
+    faces = np.ascontiguousarray(faces, np.int64)
     n = len(vertices)
     order = np.argsort(faces.ravel(), kind="stable")
     start = np.searchsorted(faces.ravel()[order], np.arange(n + 1))
     ring_of = order // 3  # faces around vertex v: ring_of[start[v]:start[v + 1]]
     steps = np.array([0.05, 0.1, 0.2, 0.35, 0.6, -0.05, -0.1, -0.2])
     cos_turn = np.cos(np.radians(max_turn))
-    clock = 0  # one tick per move
+    clock = 0  # one tick per batch
     last_move = np.zeros(n, np.int64)  # tick of each vertex's last move
     last_try = np.full(n, -1, np.int64)  # tick at each vertex's last try
     for _ in range(rounds):
-        bad = _min_angles(out[faces]) < np.radians(threshold)
+        angle = _min_angles(out[faces])
+        bad = angle < np.radians(threshold)
         todo = _unique_ids(faces[bad], movable)
+        worst = np.full(n, np.inf)
+        np.minimum.at(worst, faces[bad].ravel(), np.repeat(angle[bad], 3))
+        todo = todo[np.argsort(worst[todo], kind="stable")]  # the worst rings first: they win the batches
         moved = 0
-        for v in todo.tolist():
-            ring = faces[ring_of[start[v]:start[v + 1]]]
-            if last_try[v] >= last_move[ring].max():
-                continue
-            last_try[v] = clock
-            old = _face_normals(out, ring)
-            nbrs = np.unique(ring[ring != v])
-            toward = np.vstack([out[nbrs], out[nbrs].mean(axis=0)]) - out[v]
-            cands = out[v] + (toward[None] * steps[:, None, None]).reshape(-1, 3)
-            cands = project(cands, np.full(len(cands), v))
-            p = np.broadcast_to(out[ring], (len(cands),) + ring.shape + (3,)).copy()
-            p[:, ring == v] = cands[:, None]
-            score = _min_angles(p).min(axis=1)
-            normal = np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0])
-            normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
-            ok = (np.einsum("cfi,fi->cf", normal, old) > cos_turn).all(axis=1)
-            score = np.where(ok, score, -np.inf)
-            best = int(np.argmax(score))
-            if score[best] > _min_angles(out[ring]).min() + 1e-3:
-                out[v] = cands[best]
-                clock += 1
-                last_move[v] = clock
-                moved += 1
+        while len(todo):
+            todo = todo[_ring_changed(todo, faces, start, ring_of, last_move, last_try)]
+            batch, todo = _independent(todo, faces, start, ring_of, n)
+            if len(batch) == 0:
+                break
+            ptr, cands = _candidates(out, faces, start, ring_of, batch, steps)
+            cands = project(cands, np.repeat(batch, np.diff(ptr)))
+            last_try[batch] = clock
+            clock += 1
+            went = _choose(out, faces, start, ring_of, batch, ptr, np.ascontiguousarray(cands, np.float64), cos_turn)
+            last_move[batch[went]] = clock
+            moved += int(went.sum())
         if not moved:
             break
     return out
+
+
+@njit(cache=True)
+def _ring_changed(ids, faces, start, ring_of, last_move, last_try):
+    """(k,) bool: something in the ring of vertex ``ids[i]`` moved since its last try."""
+    keep = np.zeros(len(ids), np.bool_)
+    for i in range(len(ids)):
+        v = ids[i]
+        for s in range(start[v], start[v + 1]):
+            for k in range(3):
+                if last_move[faces[ring_of[s], k]] > last_try[v]:
+                    keep[i] = True
+    return keep
+
+
+@njit(cache=True)
+def _independent(ids, faces, start, ring_of, n):
+    """Split ``ids`` (in the given order) into a greedy independent set (no two in one face) and the rest."""
+    taken = np.zeros(n, np.bool_)
+    chosen = np.zeros(len(ids), np.bool_)
+    for i in range(len(ids)):
+        v = ids[i]
+        free = True
+        for s in range(start[v], start[v + 1]):
+            for k in range(3):
+                if taken[faces[ring_of[s], k]]:
+                    free = False
+        if free:
+            chosen[i] = True
+            for s in range(start[v], start[v + 1]):
+                for k in range(3):
+                    taken[faces[ring_of[s], k]] = True
+    return ids[chosen], ids[~chosen]
+
+
+@njit(cache=True)
+def _candidates(out, faces, start, ring_of, batch, steps):
+    """Candidate positions of every vertex of ``batch``: ``steps`` of the way to each ring neighbour and
+    to the neighbours' centroid. Returns (len(batch) + 1,) offsets and (c, 3) points."""
+    ptr = np.zeros(len(batch) + 1, np.int64)
+    for b in range(len(batch)):
+        v = batch[b]
+        ptr[b + 1] = ptr[b] + len(steps) * (2 * (start[v + 1] - start[v]) + 1)  # neighbours at most 2 per face
+    cands = np.empty((ptr[-1], 3))
+    used = np.zeros(len(batch) + 1, np.int64)
+    for b in range(len(batch)):
+        v = batch[b]
+        nbrs = np.empty(2 * (start[v + 1] - start[v]), np.int64)
+        m = 0
+        for s in range(start[v], start[v + 1]):
+            for k in range(3):
+                u = faces[ring_of[s], k]
+                if u == v:
+                    continue
+                seen = False
+                for j in range(m):
+                    if nbrs[j] == u:
+                        seen = True
+                if not seen:
+                    nbrs[m] = u
+                    m += 1
+        centre = np.zeros(3)
+        for j in range(m):
+            centre += out[nbrs[j]]
+        centre /= max(m, 1)
+        c = ptr[b]
+        for st in steps:
+            for j in range(m + 1):
+                target = centre if j == m else out[nbrs[j]]
+                for k in range(3):
+                    cands[c, k] = out[v, k] + st * (target[k] - out[v, k])
+                c += 1
+        used[b] = c
+    # compact: rings with fewer neighbours than the bound leave gaps
+    total = 0
+    new_ptr = np.zeros(len(batch) + 1, np.int64)
+    for b in range(len(batch)):
+        count = used[b] - ptr[b]
+        cands[total:total + count] = cands[ptr[b]:used[b]]
+        total += count
+        new_ptr[b + 1] = total
+    return new_ptr, cands[:total].copy()
+
+
+@njit(cache=True)
+def _angle_at(ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Angle (radians) at corner a of the triangle (a, b, c), without temporaries."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    wx, wy, wz = cx - ax, cy - ay, cz - az
+    nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+    return np.arctan2(np.sqrt(nx * nx + ny * ny + nz * nz), ux * wx + uy * wy + uz * wz)
+
+
+@njit(cache=True)
+def _ring_score(out, faces, start, ring_of, v, point, old_normals, cos_turn):
+    """Smallest angle (radians) of the ring of ``v`` with ``v`` at ``point``; -inf if a face turns by
+    more than arccos(``cos_turn``) from ``old_normals`` (r, 3), the ring's unit normals as it is."""
+    worst = np.inf
+    q = np.empty(9)  # corners of one face, v at point
+    for s in range(start[v], start[v + 1]):
+        f = ring_of[s]
+        for k in range(3):
+            u = faces[f, k]
+            for i in range(3):
+                q[3 * k + i] = point[i] if u == v else out[u, i]
+        ux, uy, uz = q[3] - q[0], q[4] - q[1], q[5] - q[2]
+        wx, wy, wz = q[6] - q[0], q[7] - q[1], q[8] - q[2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        length = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+        o = old_normals[s - start[v]]
+        if (nx * o[0] + ny * o[1] + nz * o[2]) / length <= cos_turn:
+            return -np.inf
+        worst = min(worst, _angle_at(q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q[8]),
+                    _angle_at(q[3], q[4], q[5], q[6], q[7], q[8], q[0], q[1], q[2]),
+                    _angle_at(q[6], q[7], q[8], q[0], q[1], q[2], q[3], q[4], q[5]))
+    return worst
+
+
+@njit(cache=True)
+def _choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn):
+    """Move each vertex of ``batch`` to its best candidate if that raises its ring's smallest angle by over
+    1e-3 rad; ``out`` is updated in place. Returns (len(batch),) bool: moved."""
+    went = np.zeros(len(batch), np.bool_)
+    for b in range(len(batch)):
+        v = batch[b]
+        r = start[v + 1] - start[v]
+        old = np.zeros((r, 3))
+        for s in range(r):
+            f = ring_of[start[v] + s]
+            a, bb, c = out[faces[f, 0]], out[faces[f, 1]], out[faces[f, 2]]
+            normal = np.cross(bb - a, c - a)
+            old[s] = normal / max(np.sqrt((normal**2).sum()), 1e-300)
+        now = _ring_score(out, faces, start, ring_of, v, out[v].copy(), old, -2.0)
+        best, arg = -np.inf, -1
+        for c in range(ptr[b], ptr[b + 1]):
+            score = _ring_score(out, faces, start, ring_of, v, cands[c], old, cos_turn)
+            if score > best:
+                best, arg = score, c
+        if arg >= 0 and best > now + 1e-3:
+            out[v] = cands[arg]
+            went[b] = True
+    return went
 
 
 def _unique_ids(tris: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -76,7 +76,8 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     κL²/6 at its circumcentre; CVT triangles are not all equilateral, and a circumradius 1.4 times
     as large (angles of 30-90°) doubles it. Without the second, the remesh at 0.5 nm of the
     pipeline's refined cuboid (bends of radius 0.2-0.3 nm) left input points 0.20 nm from it
-    (0.4 edge; 0.14 with the sagitta of equilateral triangles only).
+    (0.4 edge; 0.14 with the sagitta of equilateral triangles only). A third factor,
+    :func:`crease_shrink`, covers the turns between input faces that vertex normals spread out.
     """
     normals = vertex_normals(mesh.vertices, mesh.faces)
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
@@ -89,11 +90,13 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     edges = edges[lone[edges].all(axis=1)]
     length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
     turn = np.linalg.norm(normals[edges[:, 0]] - normals[edges[:, 1]], axis=1)
-    kappa = turn / np.maximum(length, 0.25 * edge)  # short sliver edges would inflate κ
+    kappa = turn / np.clip(length, 0.25 * edge, edge)  # short sliver edges would inflate κ
     k = np.zeros(len(mesh.vertices))
     np.maximum.at(k, edges[:, 0], kappa)
     np.maximum.at(k, edges[:, 1], kappa)
-    shrink = np.clip(np.maximum(1.0 + adaptive * edge * k, np.sqrt(edge * k / (3.0 * tolerance))), 1.0, MAX_SHRINK)
+    shrink = np.maximum(1.0 + adaptive * edge * k, np.sqrt(edge * k / (3.0 * tolerance)))
+    # creases inside a patch: a turn θ between two faces that the input's edges do not resolve
+    shrink = np.clip(np.maximum(shrink, crease_shrink(mesh, patch, edge, tolerance)), 1.0, MAX_SHRINK)
     # graded: the factor falls by at most GRADATION per target edge away from where it is needed, so
     # that Lloyd is not asked for a jump in size it can only meet with poor triangles
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
@@ -103,6 +106,38 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
         np.maximum.at(shrink, edges[:, 0], shrink[edges[:, 1]] / step)
         np.maximum.at(shrink, edges[:, 1], shrink[edges[:, 0]] / step)
     return shrink**4
+
+
+def crease_shrink(mesh: TriMesh, patch: np.ndarray, edge: float, tolerance: float) -> np.ndarray:
+    """(v,) edge shrink factor ``θ / (2·tolerance)`` at the ends of every input edge whose two faces
+    (of one patch, ``patch`` (f,)) turn by θ (radians) across it and are both at least L = ``edge``
+    (nm) high over it; 0 elsewhere.
+
+    A piecewise-flat input bends at its edges. Where its faces are narrower than the target edge,
+    the curvature from vertex normals (:func:`curvature_density`: the turn over an input edge, at
+    most L long) sees such a bend at the output's resolution; where they are wider (coarse input),
+    it spreads the turn over the input's edge and hides it. A triangle of edge L' across a crease of
+    turn θ misses it by up to θ·L'/4 when equilateral, twice that with angles of 30-90° (as in
+    :func:`curvature_density`): within ``tolerance``·L this asks for L' = L · 2·tolerance / θ.
+    Without it a marching-cubes plate remeshed at 0.4 of its edge length came out 0.32 edge inside
+    its rim, and was given back.
+    """
+    top = mesh.topology
+    pairs = top.face_pairs
+    ends = top.edge_vertices[top.edge_faces == 2]
+    same = patch[pairs[:, 0]] == patch[pairs[:, 1]]
+    pairs, ends = pairs[same], ends[same]
+    area2 = mesh.face_normals(normalize=False)
+    length2 = np.linalg.norm(area2, axis=1)
+    normal = area2 / np.maximum(length2, 1e-300)[:, None]
+    theta = np.arccos(np.clip(np.einsum("ij,ij->i", normal[pairs[:, 0]], normal[pairs[:, 1]]), -1.0, 1.0))
+    base = np.maximum(np.linalg.norm(mesh.vertices[ends[:, 0]] - mesh.vertices[ends[:, 1]], axis=1), 1e-300)
+    height = np.minimum(length2[pairs[:, 0]], length2[pairs[:, 1]]) / base
+    factor = np.where(height >= edge, theta / (2.0 * tolerance), 0.0)
+    out = np.zeros(mesh.n_vertices)
+    np.maximum.at(out, ends[:, 0], factor)
+    np.maximum.at(out, ends[:, 1], factor)
+    return out
 
 
 def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | None = None,
@@ -170,7 +205,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
     mark("init")
-    surfaces = cvt.patch_surfaces(mesh, features)  # one closest-point engine per patch, for Lloyd and smoothing
+    surfaces = cvt.PatchSurfaces(mesh, features.patch)  # closest points per patch, for Lloyd and smoothing
     result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge,
                        surfaces=surfaces)
     labels = result.labels
@@ -201,7 +236,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
-    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge)
+    out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge, surfaces.whole)
     mark("scalars")
     checks = []
     if verify:
@@ -209,7 +244,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         generator_component = _generator_components(mesh, features, gens, source_component)[used]
         corner = generator_component[faces]
         result_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
-        checks = check.check_components(mesh, out, source_component, result_component, edge=edge)
+        checks = check.check_components(mesh, out, source_component, result_component, edge=edge,
+                                        source_surface=surfaces.whole)
         failed = np.array([not c.ok for c in checks])
         if failed.any():
             out = check.keep_input(mesh, out, source_component, result_component, failed)
@@ -246,9 +282,9 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
               kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
-              surfaces: list) -> tuple[np.ndarray, np.ndarray]:
+              surfaces: cvt.PatchSurfaces) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay. Patch vertices are projected onto their patch (``surfaces``, :func:`cvt.patch_surfaces`),
+    corners stay. Patch vertices are projected onto their patch (``surfaces``),
     searched within ``edge`` (nm) first."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
@@ -265,9 +301,8 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     def project(points, ids):
         out = points.copy()
-        for p in unique(owner[ids][kind[ids] == cvt.PATCH]):
-            sel = (owner[ids] == p) & (kind[ids] == cvt.PATCH)
-            out[sel] = surfaces[p].closest(points[sel], edge)[0]
+        sel = kind[ids] == cvt.PATCH
+        out[sel] = surfaces.closest(points[sel], owner[ids][sel], edge)
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
@@ -316,11 +351,11 @@ def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
     return near[np.arange(len(points)), best]
 
 
-def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float) -> TriMesh:
-    """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face."""
+def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float, surface: SurfaceDistance) -> TriMesh:
+    """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face
+    (``surface``: ``source``'s closest-point engine)."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
-    surface = SurfaceDistance(source)
     _, face, weights = surface.closest(target.vertices, edge)
     corners = source.faces[face]
     for name, values in source.vertex_scalars.items():
