@@ -3,6 +3,8 @@ small spheres; and every input component is checked against its remesh and given
 when it fails (``apt_filters.remesh.verify``). Lengths in voxels (= nm); the pipeline's edge is
 half a voxel."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -119,3 +121,33 @@ def test_check_flags_a_lost_component_and_an_area_change(spheres):
     checks = verify.check_components(mesh, grown, comp, owner, edge=EDGE)
     assert [c.ok for c in checks] == [False, True, True]
     assert checks[0].reasons == [f"area {100 * checks[0].area_change:+.2f} %"]
+
+
+_SCALAR_ORDER = """
+import numpy as np
+from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh import verify
+faces = np.array([[0, 1, 2], [0, 2, 3]])
+names = ["value", "displacement", "quality", "at_pct_Al", "at_pct_B", "curvature", "offset_se", "z"]
+meshes = []
+for shift in (0.0, 5.0):
+    m = TriMesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float) + shift, faces)
+    for n in names:
+        m.vertex_scalars[n] = np.zeros(4)
+        m.face_scalars[n] = np.zeros(2)
+    meshes.append(m)
+one = np.zeros(2, dtype=np.int64)
+out = verify.keep_input(meshes[0], meshes[1], one, one, np.array([False]))
+print(",".join(out.vertex_scalars) + ";" + ",".join(out.face_scalars))
+"""
+
+
+def test_a_kept_inputs_scalars_keep_their_order_whatever_the_hash_seed():
+    # The PLY's vertex properties come in this order: two runs of the same input must write the same bytes.
+    import subprocess
+    import sys
+
+    orders = {subprocess.run([sys.executable, "-c", _SCALAR_ORDER], capture_output=True, text=True, check=True,
+                             env={**os.environ, "PYTHONHASHSEED": str(seed)}).stdout.strip() for seed in range(4)}
+    names = "value,displacement,quality,at_pct_Al,at_pct_B,curvature,offset_se,z"
+    assert orders == {f"{names};{names}"}

@@ -215,10 +215,12 @@ def keep_input(source: TriMesh, result: TriMesh, source_component: np.ndarray, r
         parts.append((mesh, used, local.reshape(-1, 3)))
     (m1, u1, f1), (m2, u2, f2) = parts
     out = TriMesh(np.vstack([m1.vertices[u1], m2.vertices[u2]]), np.vstack([f1, f2 + len(u1)]))
-    for name in set(m1.vertex_scalars) & set(m2.vertex_scalars):
+    # In the remeshed mesh's order: a set's order follows string hashing, which changes from run to run
+    # (and with it the order of the PLY's properties).
+    for name in (n for n in m1.vertex_scalars if n in m2.vertex_scalars):
         out.vertex_scalars[name] = np.concatenate([np.asarray(m1.vertex_scalars[name])[u1],
                                                    np.asarray(m2.vertex_scalars[name])[u2]])
-    for name in set(m1.face_scalars) & set(m2.face_scalars):
+    for name in (n for n in m1.face_scalars if n in m2.face_scalars):
         out.face_scalars[name] = np.concatenate([np.asarray(m1.face_scalars[name])[~drop],
                                                  np.asarray(m2.face_scalars[name])[mine]])
     return out
