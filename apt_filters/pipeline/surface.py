@@ -161,6 +161,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     """
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.refine.thin import add_thin_objects
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis
 
@@ -184,14 +185,19 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
                                          alpha=r.speck_alpha)
-            record.specks = specks
+            # objects thinner than the delocalization, drawn one octave finer where this scale thins them
+            mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
+                                          species=surface.species, iso=surface.iso, basis=surface_basis,
+                                          alpha=r.speck_alpha)
+            record.specks = thin.specks
             refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
                                      refine_params(r) if params is None else params)
             mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
-                             **_refine_record(specks, refined)}
-            s.summary = (f"{label}: {specks.count} specks removed, mean displacement "
+                             "thin": thin.as_dict(),
+                             **_refine_record(thin.specks, refined)}
+            s.summary = (f"{label}: {specks.count} specks removed, {thin.describe()}, mean displacement "
                          f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
         record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")

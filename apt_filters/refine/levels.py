@@ -65,18 +65,38 @@ def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_componen
 
     Sums, so that the windows of separate ion sets (e.g. the two halves of :func:`refine_surface`'s
     cross-fit) add up before :func:`levels_from_sums`.
+
+    An object with no ion ``window[0]`` deep (a rod or plate thinner than the delocalization, or a first contour
+    that is a sliver of one) is measured from halfway to its deepest ion instead (:func:`inside_inner`).
     """
     inner, outer = window
     comp = components[band.vertex]
     a = atoms.atoms[band.index].astype(np.float64)
     window_of = np.full(len(comp), -1)  # 0: inside plateau window, 1: outside
-    window_of[(band.distance <= -inner) & (band.distance >= -outer)] = 0
+    starts = inside_inner(band, comp, n_components, inner)
+    window_of[(band.distance <= -starts[np.maximum(comp, 0)]) & (band.distance >= -outer)] = 0
     window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
     use = (window_of >= 0) & (comp >= 0)
     key = 2 * comp[use] + window_of[use]
     per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
                    axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
     return per.reshape(n_components, 2, a.shape[1])
+
+
+def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) -> np.ndarray:
+    """(n_components,) nm: where each object's inside plateau window starts: ``inner``, or half its ``depth`` where
+    no ion of it lies ``inner`` deep (``depth``: the largest distance inside its surface of the band's ions
+    assigned to it; ``comp``: each ion's object, -1 none).
+
+    An object whose half-thickness is under ``inner`` (a rod or plate thinner than the delocalization, or a first
+    contour that is a sliver of one) would have no inside plateau at all, and its surface could not be moved.
+    Its deeper half is the part of it least mixed with its interface; once it is grown to where the ions put
+    its interface, its ions reach ``inner`` again where it is that thick.
+    """
+    depth = np.zeros(n_components)
+    inside = (band.distance < 0) & (comp >= 0)
+    np.maximum.at(depth, comp[inside], -band.distance[inside])
+    return np.where(depth > inner, inner, 0.5 * depth)
 
 
 def levels_from_sums(sums: np.ndarray, elements: list[str], species: str,
@@ -113,7 +133,7 @@ def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: st
 
     Ions are assigned to their nearest vertex and measured along its normal; the inside plateau
     is every ion between ``window[0]`` and ``window[1]`` nm inside, the outside one likewise.
-    For a thin object (less than ``2 window[0]`` thick) the inside plateau is empty (NaN).
+    An object with no ion ``window[0]`` deep is measured from halfway to its deepest ion (:func:`inside_inner`).
 
     Parameters
     ----------

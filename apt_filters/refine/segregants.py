@@ -67,6 +67,15 @@ class Segregants:
         return "segregants " + text + (f"; kept in the basis as asked: {', '.join(self.kept)}" if self.kept else "")
 
 
+def _rise(f: np.ndarray, n: np.ndarray, p: np.ndarray, n_p: np.ndarray) -> np.ndarray:
+    """Binomial z of fractions ``f`` of ``n`` atoms above references ``p`` of ``n_p`` atoms, under the null that
+    the bin holds the reference's fraction (-inf where either is empty); a pseudo-count keeps a reference with
+    none of the species from making a few atoms significant."""
+    q = (p * n_p + 0.5) / (n_p + 1.0)
+    se = np.sqrt(q * (1 - q) * (1 / np.maximum(n, 1.0) + 1 / np.maximum(n_p, 1.0)))
+    return np.where((n > 0) & (n_p > 0), (f - p) / np.maximum(se, 1e-12), -np.inf)
+
+
 def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str, *,
                     basis: ConcentrationBasis = ConcentrationBasis(), include=(), bin_width: float = 0.25,
                     significance: float = SIGNIFICANCE) -> Segregants:
@@ -126,14 +135,14 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
         f, n = share(k, lo, hi)
         p_in, n_in = share(k, np.zeros_like(lo), inner_end)
         p_out, n_out = share(k, outer_start, np.full_like(lo, n_fine))
-        # under a monotone step no bin rises above everything beyond it on its higher side
+        # under a monotone step no bin rises above everything beyond it on its higher side; it must stand above
+        # each side by that side's own error: a side with few atoms (inside a sliver of an object thinner than
+        # the delocalization) cannot show that the species drops there, and an object's own enrichment beyond
+        # the sliver is no peak
+        z_in, z_out = _rise(f, n, p_in, n_in), _rise(f, n, p_out, n_out)
+        z = np.minimum(z_in, z_out)
         higher = p_in > p_out
-        p, n_p = np.where(higher, p_in, p_out), np.where(higher, n_in, n_out)
-        # binomial standard error under the null (the bin holds the reference's fraction); a pseudo-count keeps
-        # a reference with none of the species from making a few atoms significant
-        q = (p * n_p + 0.5) / (n_p + 1.0)
-        se = np.sqrt(q * (1 - q) * (1 / np.maximum(n, 1.0) + 1 / np.maximum(n_p, 1.0)))
-        z = np.where((n > 0) & (n_p > 0), (f - p) / np.maximum(se, 1e-12), -np.inf)
+        p = np.where(higher, p_in, p_out)
         j = int(np.argmax(z))
         peaks[element] = {"peak_at_nm": round(float(edges[lo[j]] + bin_width / 2), 3), "peak": float(f[j]),
                           "plateau": float(p[j]), "z": float(z[j])}

@@ -1,0 +1,58 @@
+"""Objects thinner than the delocalization (issue 25), found and refined with the run's defaults.
+
+Truth: a synthetic specimen whose only object is a rod of radius 1.2 nm (exact volume, signed distance and
+level-set areas), at a contrast where the default 3 x 3 x 1.5 nm delocalization leaves its axis about at the
+iso-value: the first contour is a sliver of it (the refinement used to keep it: -91 % in volume).
+"""
+
+import pytest
+
+from apt_filters.core.mesh import split_components
+from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+from apt_filters.pipeline.surface import contour_surface, finished_surface
+from apt_filters.synth import Capsule, generate
+from apt_filters.synth.geometry import Box
+from apt_filters.synth.specimen import Feature, SpecimenSpec
+from apt_filters.refine.composition import ion_atoms
+from apt_filters.truth import counting_floor, surface_error
+from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+
+MATRIX = {"Ni": 0.75, "Al": 0.03, "Cr": 0.22}
+INSIDE = {"Ni": 0.62, "Al": 0.29, "Cr": 0.09}
+ISO = 0.5 * (MATRIX["Al"] + INSIDE["Al"])
+
+
+@pytest.fixture(scope="module")
+def rod():
+    spec = SpecimenSpec(Box((14.0, 14.0, 18.0)), MATRIX,
+                        (Feature(Capsule((0.3, -0.2, -9.0), 1.2, 8.0, rotation=3), INSIDE, 0.4, (), "rod"),),
+                        efficiency=0.5, name="thin rod")
+    sp = generate(spec, seed=4)
+    fields = voxelize(sp.ions, sp.ranges)
+    mask = inside_mask(fields).dense()
+    return sp, fields, mask
+
+
+def test_the_delocalization_leaves_the_rod_a_sliver(rod):
+    sp, fields, mask = rod
+    # the default kernel keeps about half of a 1.2 nm rod's contrast on its axis: the first contour is far too small
+    parts = split_components(contour_surface(fields, mask, "Al", ISO))
+    assert sum(abs(p.signed_volume()) for p in parts) < 0.2 * sp.truth["features"][0]["volume_nm3"]
+
+
+def test_defaults_find_the_thin_rod_and_its_volume(rod):
+    sp, fields, mask = rod
+    mesh, record = finished_surface(fields, mask, sp.ions, sp.ranges, SurfaceConfig("Al", ISO))
+    parts = split_components(mesh)
+    assert len(parts) == 1, "the rod, and nothing else"
+    truth = sp.truth["features"][0]
+    err = surface_error(parts[0], sp.feature_sdf(0), sp.meshes[0], truth["volume_nm3"], truth["area_nm2"], seed=1)
+    # the issue's target: within max(5 %, 2 counting sigma), sigma the Cramer-Rao floor of the rod's own ions
+    floor, = counting_floor([sp.feature_sdf(0)], [sp.spec.features[0].shape.level_area], [truth["volume_nm3"]],
+                            sp.ions.positions, ion_atoms(sp.ions, sp.ranges, ConcentrationBasis()).atoms)
+    assert abs(err.volume_error) <= max(0.05, 2 * floor.volume), (err, floor)
+    assert abs(err.area_error) <= max(0.05, 2 * floor.area), (err, floor)
+    assert err.mean_distance <= 0.15 and err.hausdorff <= 1.0, err
+    assert len(record.refine["thin"]["replaced_nm3"]) == 1
+    p, z = record.specks.of(mesh, 2.0)
+    assert p[0] < 1e-3 and z[0] > 3, "the object table's p-value is its finer test's"
