@@ -8,7 +8,7 @@ iso-value: the first contour is a sliver of it (the refinement used to keep it: 
 import pytest
 
 from apt_filters.core.mesh import split_components
-from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+from apt_filters.pipeline.config import SurfaceConfig
 from apt_filters.pipeline.surface import contour_surface, finished_surface
 from apt_filters.synth import Capsule, generate
 from apt_filters.synth.geometry import Box
