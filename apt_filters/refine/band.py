@@ -220,15 +220,14 @@ class NearIons:
         far = np.flatnonzero(moved > 0.5 * slack) if np.isfinite(moved).all() else np.arange(len(moved))
         ions, ranges, basis = self.source
         used, local = np.unique(self.faces[far], return_inverse=True)
-        candidates = _near_cells(ions.positions, vertices[used], self.radius)
+        # only the rows not held yet (and of this half's parity) are searched exactly
+        held = np.zeros(len(ions.positions), dtype=bool)
+        held[self.rows] = True
+        candidates = _near_cells(ions.positions, vertices[used], self.radius, held, self.parity)
         near = select_near(ions.positions[candidates], TriMesh(vertices[used], local.reshape(-1, 3)), self.radius)
-        member = np.zeros(len(ions.positions), dtype=bool)
-        member[self.rows] = True
-        rows = candidates[near.rows]
-        fresh = ~member[rows] & ((rows % 2 == self.parity) if self.parity >= 0 else True)
-        rows, positions = rows[fresh], near.positions[fresh]
+        rows, positions = candidates[near.rows], near.positions
         # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
-        ring = used[local.reshape(-1, 3)[near.face[fresh]]]
+        ring = used[local.reshape(-1, 3)[near.face]]
         start = ring[np.arange(len(rows)), np.argmin(((vertices[ring] - positions[:, None]) ** 2).sum(axis=2), axis=1)]
         vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT)
         keep = d2 <= self.radius * self.radius
@@ -392,11 +391,32 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact
         signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
 
 
-def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, chunk: int = 1 << 21) -> np.ndarray:
+@njit(cache=True, nogil=True)
+def _in_cells(part, start, low, reach, shape, occupied, held, parity, out):
+    """Rows ``start + i`` of the chunk ``part`` (k, 3) whose grid cell (see :func:`_near_cells`) is occupied and
+    that are wanted (not ``held``, of the ``parity`` if >= 0), written to ``out``; returns how many."""
+    n = 0
+    for i in range(part.shape[0]):
+        row = start + i
+        if held[row] or (parity >= 0 and row % 2 != parity):
+            continue
+        # the same arithmetic as numpy's floor((p - low) / reach) + 1, clipped to the padded grid
+        cx = min(max(np.int64(np.floor((np.float64(part[i, 0]) - low[0]) / reach)) + 1, 0), shape[0] + 1)
+        cy = min(max(np.int64(np.floor((np.float64(part[i, 1]) - low[1]) / reach)) + 1, 0), shape[1] + 1)
+        cz = min(max(np.int64(np.floor((np.float64(part[i, 2]) - low[2]) / reach)) + 1, 0), shape[2] + 1)
+        if occupied[cx, cy, cz]:
+            out[n] = row
+            n += 1
+    return n
+
+
+def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, held: np.ndarray | None = None,
+                parity: int = -1, chunk: int = 1 << 21) -> np.ndarray:
     """(c,) int64 rows of ``positions`` (N, 3; may be memory-mapped, read ``chunk`` rows at a time) that lie in
     a grid cell (edge ``reach``) within one cell of a cell holding one of ``points`` (n, 3): every row within
-    ``reach`` of the points is among them. A coarse filter in front of the exact distance: a few numpy passes per
-    ion instead of the search's ordering of the whole table."""
+    ``reach`` of the points is among them. A coarse filter in front of the exact distance: one compiled pass
+    instead of the search's ordering of the whole table. Rows ``held`` (N,) bool, and with ``parity`` 0 or 1
+    the rows of the other parity, are left out (they would be dropped after the exact search)."""
     if not len(points) or not len(positions):
         return np.zeros(0, dtype=np.int64)
     low = points.min(axis=0) - 1.5 * reach
@@ -407,12 +427,12 @@ def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, chunk: 
         for dy in (-1, 0, 1):
             for dz in (-1, 0, 1):
                 occupied[cell[:, 0] + dx, cell[:, 1] + dy, cell[:, 2] + dz] = True
-    out = []
+    held = np.zeros(len(positions), dtype=bool) if held is None else held
+    out, buffer = [], np.empty(min(chunk, len(positions)), dtype=np.int64)
     for start in range(0, len(positions), chunk):
-        part = np.asarray(positions[start:start + chunk], dtype=np.float64)
-        index = np.floor((part - low) / reach).astype(np.int64) + 1
-        np.clip(index, 0, shape + 1, out=index)  # the border cells are never occupied
-        out.append(start + np.flatnonzero(occupied[index[:, 0], index[:, 1], index[:, 2]]))
+        part = np.asarray(positions[start:start + chunk])
+        n = _in_cells(part, start, low.astype(np.float64), float(reach), shape, occupied, held, int(parity), buffer)
+        out.append(buffer[:n].copy())
     return np.concatenate(out)
 
 
