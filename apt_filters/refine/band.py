@@ -26,13 +26,13 @@ from scipy.sparse import coo_matrix, csr_matrix
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, face_normals
 from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import IonAtoms, basis_atoms, ion_atoms
-from apt_filters.refine.nearest import descend
+from apt_filters.refine.nearest import descend, second_ring
 from apt_filters.voxel import ConcentrationBasis
 
 REASSIGN = 0.15
@@ -163,6 +163,8 @@ class NearIons:
         Each face's corners when the ions within ``radius`` of it were last selected.
     indptr, indices : int arrays
         CSR vertex adjacency of the mesh (the walk's edges).
+    second : (ptr, ring) int arrays
+        The vertices' second rings (:func:`~apt_filters.refine.nearest.second_ring`), where a walk looks further.
     fan : Fan
         The faces around each vertex.
     source : (IonTable, RangeTable, ConcentrationBasis)
@@ -183,6 +185,7 @@ class NearIons:
     covered: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
+    second: tuple
     fan: "Fan"
     source: tuple
     parity: int = -1
@@ -202,7 +205,8 @@ class NearIons:
         everything = ion_atoms(IonTable(np.zeros((0, 3), np.float32), np.zeros(0, np.float32)), ranges,
                                ConcentrationBasis())
         out = cls(empty, np.zeros((0, 3)), basis_atoms(everything, basis), everything, empty, radius, faces,
-                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
+                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, second_ring(adj.indptr, adj.indices),
+                  Fan.of(faces, len(vertices)),
                   (ions, ranges, basis))
         return out.cover(vertices, 0.0)
 
@@ -229,7 +233,7 @@ class NearIons:
         # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
         ring = used[local.reshape(-1, 3)[near.face]]
         start = ring[np.arange(len(rows)), np.argmin(((vertices[ring] - positions[:, None]) ** 2).sum(axis=2), axis=1)]
-        vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT)
+        vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT, self.second)
         keep = d2 <= self.radius * self.radius
         rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
         everything = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, ConcentrationBasis())
@@ -249,13 +253,14 @@ class NearIons:
         ``vertices`` where these are (:meth:`cover` them first)."""
         radius = self.radius if radius is None else radius
         keep = np.flatnonzero(keep) if keep.dtype == bool else keep
-        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT)
+        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT,
+                             self.second)
         inside = d2 <= radius * radius
         keep, vertex = keep[inside], vertex[inside]
         return NearIons(self.rows[keep], self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
                         IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, radius, self.faces,
-                        vertices[self.faces], self.indptr, self.indices, self.fan, self.source, self.parity,
-                        vertices.copy())
+                        vertices[self.faces], self.indptr, self.indices, self.second, self.fan, self.source,
+                        self.parity, vertices.copy())
 
     def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
         """The ions of these in the even (``parity`` 0) or odd (1) rows of the table (the cross-fit's halves),
@@ -282,12 +287,13 @@ class NearIons:
         nm: the Voronoi patches of the vertices, ~0.4 nm across, barely change).
         """
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
-            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
+                                     self.second)
             self.assigned = vertices.copy()
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
-            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, EXACT,
-                         reach * reach, d2, signed)
+            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
+                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach, d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -308,11 +314,13 @@ def _offsets(points, vertex, vertices, normals, d2, signed):
 @dataclass
 class Fan:
     """The faces around each vertex (CSR): ``a[k], b[k]`` for ``k`` in ``indptr[v]:indptr[v + 1]`` are the other
-    two corners of a face of ``v`` in the face's winding order (``(v, a, b)`` has the outward normal)."""
+    two corners of a face of ``v`` in the face's winding order (``(v, a, b)`` has the outward normal), and
+    ``face[k]`` that face."""
 
     indptr: np.ndarray
     a: np.ndarray
     b: np.ndarray
+    face: np.ndarray
 
     @classmethod
     def of(cls, faces: np.ndarray, n_vertices: int) -> "Fan":
@@ -321,7 +329,8 @@ class Fan:
         indptr = np.zeros(n_vertices + 1, dtype=np.int64)
         np.cumsum(np.bincount(corner, minlength=n_vertices), out=indptr[1:])
         a, b = np.roll(faces, -1, axis=1).T.ravel(), np.roll(faces, -2, axis=1).T.ravel()
-        return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64))
+        face = np.tile(np.arange(len(faces), dtype=np.int64), 3)
+        return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64), face[order])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -344,51 +353,67 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, limit, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
     from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
-    their vertex (left out of the band) get NaN."""
-    for i in prange(points.shape[0]):
-        v = vertex[i]
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        q = vertices[v]
-        d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
-        if d2[i] > limit:
-            signed[i] = np.nan
-            continue
-        tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
-        if abs(tangent) > exact:
-            signed[i] = tangent
-            continue
-        best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
-        for k in range(fan_ptr[v], fan_ptr[v + 1]):
-            a, b = fan_a[k], fan_b[k]
-            cx, cy, cz, on_face = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
-                                                       vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
-            d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
-            if d < best:
-                best, bx_, by_, bz_, best_k, inner = d, cx, cy, cz, k, on_face
-        if best_k < 0:
-            signed[i] = tangent
-            continue
-        if inner:
-            nx, ny, nz = _face_normal(vertices, q, fan_a[best_k], fan_b[best_k])
-        else:
-            nx = ny = nz = 0.0
-            tol = 1e-18 + 1e-12 * best
-            for k in range(fan_ptr[v], fan_ptr[v + 1]):
+    their vertex (left out of the band) get NaN. ``plane`` (k, 3): the unit normal of each fan face (zeros if
+    degenerate), whose plane's distance bounds the face's from below."""
+    n = points.shape[0]
+    widest = 0
+    for v in range(fan_ptr.shape[0] - 1):
+        widest = max(widest, fan_ptr[v + 1] - fan_ptr[v])
+    size = 4096
+    for block in prange((n + size - 1) // size):
+        # each fan face's closest point (NaN where its plane alone was too far), for the pseudo-normal's
+        # search of the faces sharing the best one
+        near = np.empty((widest, 3))
+        for i in range(block * size, min(n, (block + 1) * size)):
+            v = vertex[i]
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            q = vertices[v]
+            d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
+            if d2[i] > limit:
+                signed[i] = np.nan
+                continue
+            tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
+            if abs(tangent) > exact:
+                signed[i] = tangent
+                continue
+            first = fan_ptr[v]
+            best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
+            for k in range(first, fan_ptr[v + 1]):
+                h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]
+                # farther than the best by a margin far above rounding: neither nearer nor sharing its closest
+                # point (which would put it within 2e-6 of the best, relatively)
+                if h * h > best * (1.0 + 1e-5) + 1e-18:
+                    near[k - first, 0] = np.nan
+                    continue
                 a, b = fan_a[k], fan_b[k]
-                cx, cy, cz, _ = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+                cx, cy, cz, on_face = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
                                                      vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
-                if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
-                    fx, fy, fz = _face_normal(vertices, q, a, b)
-                    nx += fx
-                    ny += fy
-                    nz += fz
-        side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
-        signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
+                near[k - first, 0], near[k - first, 1], near[k - first, 2] = cx, cy, cz
+                d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
+                if d < best:
+                    best, bx_, by_, bz_, best_k, inner = d, cx, cy, cz, k, on_face
+            if best_k < 0:
+                signed[i] = tangent
+                continue
+            if inner:
+                nx, ny, nz = _face_normal(vertices, q, fan_a[best_k], fan_b[best_k])
+            else:
+                nx = ny = nz = 0.0
+                tol = 1e-18 + 1e-12 * best
+                for k in range(first, fan_ptr[v + 1]):
+                    cx, cy, cz = near[k - first, 0], near[k - first, 1], near[k - first, 2]
+                    if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
+                        fx, fy, fz = _face_normal(vertices, q, fan_a[k], fan_b[k])
+                        nx += fx
+                        ny += fy
+                        nz += fz
+            side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
+            signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
 
 
 @njit(cache=True, nogil=True)
