@@ -261,3 +261,14 @@ def test_edge_pairs_of_an_open_tetrahedron():
     assert (pairs[~inner, 1] == -1).all()
     for e in np.flatnonzero(~inner):  # a rim edge's one face holds both its vertices
         assert set(top.edge_vertices[e]) <= set(faces[pairs[e, 0]])
+
+
+def test_serial_blas_runs_blas_on_one_thread_and_restores_it():
+    from threadpoolctl import threadpool_info
+
+    from apt_filters.core.threads import serial_blas
+
+    before = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+    inside = serial_blas(lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"])()
+    assert inside and all(n == 1 for n in inside)
+    assert [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"] == before

@@ -125,3 +125,40 @@ def test_unfold_removes_the_folds_of_a_mesh():
     assert len(folded_pairs(out, mesh.faces)) == 0 and rounds >= 1
     far = np.linalg.norm(mesh.vertices - mesh.vertices[100], axis=1) > 2.0
     assert np.array_equal(out[far], v[far])  # a local repair
+
+
+def test_second_ring_lists_the_vertices_two_edges_away_once():
+    from apt_filters.refine.nearest import second_ring
+
+    mesh = _blob()
+    adj = adjacency(mesh.faces, mesh.n_vertices)
+    ptr, ring = second_ring(adj.indptr, adj.indices)
+    one = (adj > 0).astype(np.int64)
+    two = ((one @ one) > 0).toarray() & ~(one > 0).toarray()
+    np.fill_diagonal(two, False)
+    for v in range(0, mesh.n_vertices, 7):
+        listed = ring[ptr[v]:ptr[v + 1]]
+        assert len(set(listed.tolist())) == len(listed)
+        assert set(listed.tolist()) == set(np.flatnonzero(two[v]).tolist())
+
+
+def test_band_distance_is_the_nearest_face_of_the_fan():
+    from apt_filters.core.triangle import closest_on_triangle
+    from apt_filters.refine.band import EXACT
+
+    mesh = _blob()
+    rng = np.random.default_rng(6)
+    positions = rng.uniform(-8, 8, size=(40_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
+    ions = IonTable(positions, np.full(len(positions), 27.0, dtype=np.float32))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    normals = vertex_normals(mesh.vertices, mesh.faces)
+    band = near.band(mesh.vertices, normals, 3.0)
+    p = near.positions[band.index]
+    q = mesh.vertices[band.vertex]
+    exact = np.abs(np.einsum("ij,ij->i", p - q, normals[band.vertex])) <= EXACT
+    for i in np.flatnonzero(exact)[::10]:
+        fan = mesh.faces[(mesh.faces == band.vertex[i]).any(axis=1)]
+        best = min(closest_on_triangle(*p[i], *mesh.vertices[f[0]], *mesh.vertices[f[1]], *mesh.vertices[f[2]])[0]
+                   for f in fan)
+        assert abs(abs(band.distance[i]) - np.sqrt(best)) <= 1e-9

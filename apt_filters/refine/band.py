@@ -26,13 +26,13 @@ from scipy.sparse import coo_matrix, csr_matrix
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, face_normals
 from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import IonAtoms, basis_atoms, ion_atoms
-from apt_filters.refine.nearest import descend
+from apt_filters.refine.nearest import descend, second_ring
 from apt_filters.voxel import ConcentrationBasis
 
 REASSIGN = 0.15
@@ -163,6 +163,8 @@ class NearIons:
         Each face's corners when the ions within ``radius`` of it were last selected.
     indptr, indices : int arrays
         CSR vertex adjacency of the mesh (the walk's edges).
+    second : (ptr, ring) int arrays
+        The vertices' second rings (:func:`~apt_filters.refine.nearest.second_ring`), where a walk looks further.
     fan : Fan
         The faces around each vertex.
     source : (IonTable, RangeTable, ConcentrationBasis)
@@ -183,6 +185,7 @@ class NearIons:
     covered: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
+    second: tuple
     fan: "Fan"
     source: tuple
     parity: int = -1
@@ -202,7 +205,8 @@ class NearIons:
         everything = ion_atoms(IonTable(np.zeros((0, 3), np.float32), np.zeros(0, np.float32)), ranges,
                                ConcentrationBasis())
         out = cls(empty, np.zeros((0, 3)), basis_atoms(everything, basis), everything, empty, radius, faces,
-                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, Fan.of(faces, len(vertices)),
+                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, second_ring(adj.indptr, adj.indices),
+                  Fan.of(faces, len(vertices)),
                   (ions, ranges, basis))
         return out.cover(vertices, 0.0)
 
@@ -220,17 +224,16 @@ class NearIons:
         far = np.flatnonzero(moved > 0.5 * slack) if np.isfinite(moved).all() else np.arange(len(moved))
         ions, ranges, basis = self.source
         used, local = np.unique(self.faces[far], return_inverse=True)
-        candidates = _near_cells(ions.positions, vertices[used], self.radius)
+        # only the rows not held yet (and of this half's parity) are searched exactly
+        held = np.zeros(len(ions.positions), dtype=bool)
+        held[self.rows] = True
+        candidates = _near_cells(ions.positions, vertices[used], self.radius, held, self.parity)
         near = select_near(ions.positions[candidates], TriMesh(vertices[used], local.reshape(-1, 3)), self.radius)
-        member = np.zeros(len(ions.positions), dtype=bool)
-        member[self.rows] = True
-        rows = candidates[near.rows]
-        fresh = ~member[rows] & ((rows % 2 == self.parity) if self.parity >= 0 else True)
-        rows, positions = rows[fresh], near.positions[fresh]
+        rows, positions = candidates[near.rows], near.positions
         # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
-        ring = used[local.reshape(-1, 3)[near.face[fresh]]]
+        ring = used[local.reshape(-1, 3)[near.face]]
         start = ring[np.arange(len(rows)), np.argmin(((vertices[ring] - positions[:, None]) ** 2).sum(axis=2), axis=1)]
-        vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT)
+        vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT, self.second)
         keep = d2 <= self.radius * self.radius
         rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
         everything = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, ConcentrationBasis())
@@ -250,13 +253,14 @@ class NearIons:
         ``vertices`` where these are (:meth:`cover` them first)."""
         radius = self.radius if radius is None else radius
         keep = np.flatnonzero(keep) if keep.dtype == bool else keep
-        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT)
+        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT,
+                             self.second)
         inside = d2 <= radius * radius
         keep, vertex = keep[inside], vertex[inside]
         return NearIons(self.rows[keep], self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
                         IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, radius, self.faces,
-                        vertices[self.faces], self.indptr, self.indices, self.fan, self.source, self.parity,
-                        vertices.copy())
+                        vertices[self.faces], self.indptr, self.indices, self.second, self.fan, self.source,
+                        self.parity, vertices.copy())
 
     def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
         """The ions of these in the even (``parity`` 0) or odd (1) rows of the table (the cross-fit's halves),
@@ -283,12 +287,13 @@ class NearIons:
         nm: the Voronoi patches of the vertices, ~0.4 nm across, barely change).
         """
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
-            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT)
+            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
+                                     self.second)
             self.assigned = vertices.copy()
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
-            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b, EXACT,
-                         reach * reach, d2, signed)
+            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
+                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach, d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -309,11 +314,13 @@ def _offsets(points, vertex, vertices, normals, d2, signed):
 @dataclass
 class Fan:
     """The faces around each vertex (CSR): ``a[k], b[k]`` for ``k`` in ``indptr[v]:indptr[v + 1]`` are the other
-    two corners of a face of ``v`` in the face's winding order (``(v, a, b)`` has the outward normal)."""
+    two corners of a face of ``v`` in the face's winding order (``(v, a, b)`` has the outward normal), and
+    ``face[k]`` that face."""
 
     indptr: np.ndarray
     a: np.ndarray
     b: np.ndarray
+    face: np.ndarray
 
     @classmethod
     def of(cls, faces: np.ndarray, n_vertices: int) -> "Fan":
@@ -322,7 +329,8 @@ class Fan:
         indptr = np.zeros(n_vertices + 1, dtype=np.int64)
         np.cumsum(np.bincount(corner, minlength=n_vertices), out=indptr[1:])
         a, b = np.roll(faces, -1, axis=1).T.ravel(), np.roll(faces, -2, axis=1).T.ravel()
-        return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64))
+        face = np.tile(np.arange(len(faces), dtype=np.int64), 3)
+        return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64), face[order])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -345,58 +353,95 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, exact, limit, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
     from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
-    their vertex (left out of the band) get NaN."""
-    for i in prange(points.shape[0]):
-        v = vertex[i]
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        q = vertices[v]
-        d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
-        if d2[i] > limit:
-            signed[i] = np.nan
-            continue
-        tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
-        if abs(tangent) > exact:
-            signed[i] = tangent
-            continue
-        best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
-        for k in range(fan_ptr[v], fan_ptr[v + 1]):
-            a, b = fan_a[k], fan_b[k]
-            cx, cy, cz, on_face = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
-                                                       vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
-            d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
-            if d < best:
-                best, bx_, by_, bz_, best_k, inner = d, cx, cy, cz, k, on_face
-        if best_k < 0:
-            signed[i] = tangent
-            continue
-        if inner:
-            nx, ny, nz = _face_normal(vertices, q, fan_a[best_k], fan_b[best_k])
-        else:
-            nx = ny = nz = 0.0
-            tol = 1e-18 + 1e-12 * best
-            for k in range(fan_ptr[v], fan_ptr[v + 1]):
+    their vertex (left out of the band) get NaN. ``plane`` (k, 3): the unit normal of each fan face (zeros if
+    degenerate), whose plane's distance bounds the face's from below."""
+    n = points.shape[0]
+    widest = 0
+    for v in range(fan_ptr.shape[0] - 1):
+        widest = max(widest, fan_ptr[v + 1] - fan_ptr[v])
+    size = 4096
+    for block in prange((n + size - 1) // size):
+        # each fan face's closest point (NaN where its plane alone was too far), for the pseudo-normal's
+        # search of the faces sharing the best one
+        near = np.empty((widest, 3))
+        for i in range(block * size, min(n, (block + 1) * size)):
+            v = vertex[i]
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            q = vertices[v]
+            d2[i] = (px - q[0]) ** 2 + (py - q[1]) ** 2 + (pz - q[2]) ** 2
+            if d2[i] > limit:
+                signed[i] = np.nan
+                continue
+            tangent = (px - q[0]) * normals[v, 0] + (py - q[1]) * normals[v, 1] + (pz - q[2]) * normals[v, 2]
+            if abs(tangent) > exact:
+                signed[i] = tangent
+                continue
+            first = fan_ptr[v]
+            best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
+            for k in range(first, fan_ptr[v + 1]):
+                h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]
+                # farther than the best by a margin far above rounding: neither nearer nor sharing its closest
+                # point (which would put it within 2e-6 of the best, relatively)
+                if h * h > best * (1.0 + 1e-5) + 1e-18:
+                    near[k - first, 0] = np.nan
+                    continue
                 a, b = fan_a[k], fan_b[k]
-                cx, cy, cz, _ = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
+                cx, cy, cz, on_face = _closest_point(px, py, pz, q[0], q[1], q[2], vertices[a, 0], vertices[a, 1],
                                                      vertices[a, 2], vertices[b, 0], vertices[b, 1], vertices[b, 2])
-                if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
-                    fx, fy, fz = _face_normal(vertices, q, a, b)
-                    nx += fx
-                    ny += fy
-                    nz += fz
-        side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
-        signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
+                near[k - first, 0], near[k - first, 1], near[k - first, 2] = cx, cy, cz
+                d = (px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2
+                if d < best:
+                    best, bx_, by_, bz_, best_k, inner = d, cx, cy, cz, k, on_face
+            if best_k < 0:
+                signed[i] = tangent
+                continue
+            if inner:
+                nx, ny, nz = _face_normal(vertices, q, fan_a[best_k], fan_b[best_k])
+            else:
+                nx = ny = nz = 0.0
+                tol = 1e-18 + 1e-12 * best
+                for k in range(first, fan_ptr[v + 1]):
+                    cx, cy, cz = near[k - first, 0], near[k - first, 1], near[k - first, 2]
+                    if (cx - bx_) ** 2 + (cy - by_) ** 2 + (cz - bz_) ** 2 <= tol:
+                        fx, fy, fz = _face_normal(vertices, q, fan_a[k], fan_b[k])
+                        nx += fx
+                        ny += fy
+                        nz += fz
+            side = (px - bx_) * nx + (py - by_) * ny + (pz - bz_) * nz
+            signed[i] = np.sqrt(best) if side >= 0.0 else -np.sqrt(best)
 
 
-def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, chunk: int = 1 << 21) -> np.ndarray:
+@njit(cache=True, nogil=True)
+def _in_cells(part, start, low, reach, shape, occupied, held, parity, out):
+    """Rows ``start + i`` of the chunk ``part`` (k, 3) whose grid cell (see :func:`_near_cells`) is occupied and
+    that are wanted (not ``held``, of the ``parity`` if >= 0), written to ``out``; returns how many."""
+    n = 0
+    for i in range(part.shape[0]):
+        row = start + i
+        if held[row] or (parity >= 0 and row % 2 != parity):
+            continue
+        # the same arithmetic as numpy's floor((p - low) / reach) + 1, clipped to the padded grid
+        cx = min(max(np.int64(np.floor((np.float64(part[i, 0]) - low[0]) / reach)) + 1, 0), shape[0] + 1)
+        cy = min(max(np.int64(np.floor((np.float64(part[i, 1]) - low[1]) / reach)) + 1, 0), shape[1] + 1)
+        cz = min(max(np.int64(np.floor((np.float64(part[i, 2]) - low[2]) / reach)) + 1, 0), shape[2] + 1)
+        if occupied[cx, cy, cz]:
+            out[n] = row
+            n += 1
+    return n
+
+
+def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, held: np.ndarray | None = None,
+                parity: int = -1, chunk: int = 1 << 21) -> np.ndarray:
     """(c,) int64 rows of ``positions`` (N, 3; may be memory-mapped, read ``chunk`` rows at a time) that lie in
     a grid cell (edge ``reach``) within one cell of a cell holding one of ``points`` (n, 3): every row within
-    ``reach`` of the points is among them. A coarse filter in front of the exact distance: a few numpy passes per
-    ion instead of the search's ordering of the whole table."""
+    ``reach`` of the points is among them. A coarse filter in front of the exact distance: one compiled pass
+    instead of the search's ordering of the whole table. Rows ``held`` (N,) bool, and with ``parity`` 0 or 1
+    the rows of the other parity, are left out (they would be dropped after the exact search)."""
     if not len(points) or not len(positions):
         return np.zeros(0, dtype=np.int64)
     low = points.min(axis=0) - 1.5 * reach
@@ -407,12 +452,12 @@ def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, chunk: 
         for dy in (-1, 0, 1):
             for dz in (-1, 0, 1):
                 occupied[cell[:, 0] + dx, cell[:, 1] + dy, cell[:, 2] + dz] = True
-    out = []
+    held = np.zeros(len(positions), dtype=bool) if held is None else held
+    out, buffer = [], np.empty(min(chunk, len(positions)), dtype=np.int64)
     for start in range(0, len(positions), chunk):
-        part = np.asarray(positions[start:start + chunk], dtype=np.float64)
-        index = np.floor((part - low) / reach).astype(np.int64) + 1
-        np.clip(index, 0, shape + 1, out=index)  # the border cells are never occupied
-        out.append(start + np.flatnonzero(occupied[index[:, 0], index[:, 1], index[:, 2]]))
+        part = np.asarray(positions[start:start + chunk])
+        n = _in_cells(part, start, low.astype(np.float64), float(reach), shape, occupied, held, int(parity), buffer)
+        out.append(buffer[:n].copy())
     return np.concatenate(out)
 
 

@@ -20,21 +20,55 @@ from numba import njit, prange
 
 
 @njit(cache=True, nogil=True)
-def _closer(x, y, z, vertices, indptr, indices, v, best):
-    """The vertex among ``v``'s neighbours and their neighbours nearest to (x, y, z) if nearer than ``best``."""
+def _closer(x, y, z, vertices, ptr2, ring2, v, best):
+    """The vertex of ``v``'s second ring nearest to (x, y, z) if nearer than ``best``."""
     found, found_d = -1, best
-    for k in range(indptr[v], indptr[v + 1]):
-        w = indices[k]
-        for l in range(indptr[w], indptr[w + 1]):
-            u = indices[l]
-            d = (vertices[u, 0] - x) ** 2 + (vertices[u, 1] - y) ** 2 + (vertices[u, 2] - z) ** 2
-            if d < found_d:
-                found, found_d = u, d
+    for k in range(ptr2[v], ptr2[v + 1]):
+        u = ring2[k]
+        d = (vertices[u, 0] - x) ** 2 + (vertices[u, 1] - y) ** 2 + (vertices[u, 2] - z) ** 2
+        if d < found_d:
+            found, found_d = u, d
     return found, found_d
 
 
+@njit(cache=True, nogil=True)
+def _second_ring(indptr, indices):
+    n = indptr.shape[0] - 1
+    mark = np.full(n, -1, np.int64)
+    counts = np.zeros(n + 1, np.int64)
+    for sweep in range(2):
+        if sweep == 1:
+            for v in range(n):
+                counts[v + 1] += counts[v]
+            out = np.empty(counts[n], np.int64)
+            fill = counts[:n].copy()
+            mark[:] = -1
+        for v in range(n):
+            mark[v] = v
+            for k in range(indptr[v], indptr[v + 1]):
+                mark[indices[k]] = v
+            for k in range(indptr[v], indptr[v + 1]):
+                w = indices[k]
+                for l in range(indptr[w], indptr[w + 1]):
+                    u = indices[l]
+                    if mark[u] != v:
+                        mark[u] = v
+                        if sweep == 0:
+                            counts[v + 1] += 1
+                        else:
+                            out[fill[v]] = u
+                            fill[v] += 1
+    return counts, out
+
+
+def second_ring(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR (ptr, ring) of each vertex's neighbours' neighbours that are neither it nor its neighbours, in the
+    order a walk over its neighbours' rows meets them first (``indptr``, ``indices``: the vertex adjacency)."""
+    return _second_ring(indptr.astype(np.int64), indices.astype(np.int64))
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _descend(points, vertices, indptr, indices, start, exact2, out, out_d2):
+def _descend(points, vertices, indptr, indices, ptr2, ring2, start, exact2, out, out_d2):
     for i in prange(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         v = start[i]
@@ -49,8 +83,9 @@ def _descend(points, vertices, indptr, indices, start, exact2, out, out_d2):
             if not moved:
                 if best > exact2:
                     break
-                # a local minimum over the 1-ring (sliver triangles): look one ring further
-                w, d = _closer(x, y, z, vertices, indptr, indices, v, best)
+                # a local minimum over the 1-ring (sliver triangles): look one ring further (the 1-ring and v
+                # itself are no nearer)
+                w, d = _closer(x, y, z, vertices, ptr2, ring2, v, best)
                 if w < 0:
                     break
                 best, v = d, w
@@ -59,15 +94,19 @@ def _descend(points, vertices, indptr, indices, start, exact2, out, out_d2):
 
 
 def descend(points: np.ndarray, vertices: np.ndarray, indptr: np.ndarray, indices: np.ndarray,
-            start: np.ndarray, exact: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+            start: np.ndarray, exact: float = np.inf,
+            second: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nearest vertex of each point (m, 3), walking the mesh's edges from ``start`` (m,).
 
     ``indptr``, ``indices``: the CSR vertex adjacency (:func:`~apt_filters.refine.band.adjacency`).
     Where the walk stops within ``exact`` nm, the 2-ring is searched as well (it steps over
     sliver triangles, which trap a 1-ring walk for ~5% of the ions); farther points keep the
-    1-ring minimum. Returns the (m,) int64 vertices and (m,) float64 squared distances (nm²).
+    1-ring minimum. ``second``: :func:`second_ring` of the adjacency, if kept from an earlier call.
+    Returns the (m,) int64 vertices and (m,) float64 squared distances (nm²).
     """
+    ptr2, ring2 = second_ring(indptr, indices) if second is None else second
     out, d2 = np.empty(len(points), dtype=np.int64), np.empty(len(points))
     _descend(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(vertices, dtype=np.float64),
-             indptr.astype(np.int64), indices.astype(np.int64), start.astype(np.int64), exact * exact, out, d2)
+             indptr.astype(np.int64), indices.astype(np.int64), ptr2, ring2, start.astype(np.int64), exact * exact,
+             out, d2)
     return out, d2

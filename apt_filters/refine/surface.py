@@ -83,6 +83,7 @@ from scipy.sparse import csr_matrix, diags
 
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normals
+from apt_filters.core.threads import serial_blas
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
@@ -804,6 +805,7 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
 
 
+@serial_blas  # its parallel work runs in numba; OpenBLAS threads would spin around its small solves
 def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
                    basis: ConcentrationBasis = ConcentrationBasis(), params: RefineParams = RefineParams()
                    ) -> RefineResult:
