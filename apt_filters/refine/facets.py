@@ -172,6 +172,46 @@ def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area
     return mine
 
 
+def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: float) -> list:
+    """``mine`` (:func:`_modes`) and the further modes where the normals crowd (step 1, ``peak``).
+
+    A mode counts when the area per solid angle of the normals in its cone not yet taken is at least ``peak``
+    times that in the ring around it (out to twice the cone's angle, every vertex counted: a cone beside a
+    facet found has that facet in its ring), and its cone holds at least half of what it would on a sphere of the
+    object's area, and it lies more than twice the cone's angle from every mode found (nearer, it is the
+    rest of that mode's face, see :func:`_modes`). Candidates are taken in order of the area their cone holds among the normals no mode
+    has taken yet.
+    """
+    ring = np.cos(2 * np.arccos(detect))
+    apart = np.cos(3 * np.arccos(detect))
+    solid = (1.0 - detect) / (detect - ring)  # cone's solid angle over the ring's
+    floor = 0.5 * 0.5 * (1.0 - detect) * aa.sum()
+    free = np.ones(len(nn), dtype=bool)
+    for m in mine:
+        free &= ~m[1]
+    out = list(mine)
+    spent = ~free  # normals no longer tried as a start: taken, or within twice the cone of a mode
+    for m in out:
+        spent |= _dot(nn, m[0]) > apart
+    while not spent.all():
+        cand = np.flatnonzero(~spent)[:: max(1, int((~spent).sum()) // MAX_CANDIDATES)]
+        held = _held(nn[cand], nn[free], aa[free], detect)
+        around = _held(nn[cand], nn, aa, ring) - _held(nn[cand], nn, aa, detect)
+        crowded = (held >= floor) & (held >= peak * solid * around)
+        if not crowded.any():
+            break
+        # the crowdest start itself, not mean-shifted: the shift drifts onto a facet's rounded rim beside it
+        best = cand[np.argmax(np.where(crowded, held, -1.0))]
+        mode = nn[best]
+        cosine = _dot(nn, mode)
+        detected = free & (cosine > detect)
+        found = aa[detected].sum()
+        out.append((mode, detected, free.copy(), float(found)))
+        free &= ~detected
+        spent |= cosine > apart
+    return out
+
+
 def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndarray, fit_from: np.ndarray,
          detected: np.ndarray, mode: np.ndarray, fit: float, component: int, found: float) -> Facet:
     """The plane of a facet: least squares over the connected part of ``fit_from`` within ``fit`` of ``mode``."""
@@ -189,7 +229,7 @@ def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndar
 
 def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_cap: float = 40.0,
                 share: float = 0.06, min_area: float = 12.0, smooth: int = 5, opposite: float = 0.5,
-                closed_area: float = 8.0) -> list[Facet]:
+                closed_area: float = 8.0, peak: float = 1.5) -> list[Facet]:
     """Planar facets of every object of a closed or open surface (method: module docstring, step 1).
 
     Parameters
@@ -243,6 +283,10 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
             small = _modes(nn, aa, detect, share, closed_area, opposite)
             if _normals_close(np.array([m[0] for m in small])):
                 mine = small
+            else:
+                peaked = _peaks(nn, aa, detect, mine, peak)
+                if _normals_close(np.array([m[0] for m in peaked])):
+                    mine = peaked
         out += [_fit(vertices, adj, idx, nn, aa, fit_from, detected, mode, fit, int(c), found)
                 for mode, detected, fit_from, found in mine]
     return out
