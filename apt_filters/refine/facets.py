@@ -193,6 +193,9 @@ def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: floa
     spent = ~free  # normals no longer tried as a start: taken, or within twice the cone of a mode
     for m in out:
         spent |= _dot(nn, m[0]) > apart
+    clear = free.copy()  # normals beyond every mode's ring
+    for m in out:
+        clear &= _dot(nn, m[0]) <= ring
     while not spent.all():
         cand = np.flatnonzero(~spent)[:: max(1, int((~spent).sum()) // MAX_CANDIDATES)]
         held = _held(nn[cand], nn[free], aa[free], detect)
@@ -200,14 +203,18 @@ def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: floa
         crowded = (held >= floor) & (held >= peak * solid * around)
         if not crowded.any():
             break
-        # the crowdest start itself, not mean-shifted: the shift drifts onto a facet's rounded rim beside it
-        best = cand[np.argmax(np.where(crowded, held, -1.0))]
-        mode = nn[best]
+        # mean-shifted within the ring's cone over the normals away from every mode's rim: a thin object's
+        # narrow face is a ridge of normals from one broad facet to the opposite one, and its centre (the
+        # face's normal) is the middle of what the broad facets' rims leave of it
+        mode = nn[cand[np.argmax(np.where(crowded, held, -1.0))]]
+        for _ in range(3):
+            mode = _mode(nn, aa, clear, mode, ring)
         cosine = _dot(nn, mode)
         detected = free & (cosine > detect)
         found = aa[detected].sum()
         out.append((mode, detected, free.copy(), float(found)))
         free &= ~detected
+        clear &= cosine <= ring
         spent |= cosine > apart
     return out
 
@@ -470,9 +477,10 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     -------
     list of Facet
         The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices); the facets as given if there are too few ions, or if a fitted plane has turned by
-        more than ``cap`` from its start (out of the cone its facet was found in: the fit has found
-        something else).
+        the vertices); the facets as given if there are too few ions, or if the fit has found something
+        else: a fitted plane nearer another facet's start than its own, or planes that no longer close
+        (:func:`closes`). A plane may turn further than ``cap``: the narrow faces of a thin lath, found
+        where the normals crowd on the ridge from one broad face to the other, start 15-25° off theirs.
     """
     m = len(facets)
     if len(positions) < min_ions * m:
@@ -524,7 +532,10 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         if np.abs(free).max() < tolerance:
             break
     normals = planes(params)
-    if np.any(np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(np.radians(cap))):
+    start = np.array([f.normal for f in facets])
+    # the fit has found something else where a plane has turned nearer another facet's start than its own,
+    # or the planes no longer bound a polyhedron
+    if np.any((normals @ start.T).argmax(axis=1) != np.arange(m)) or not _normals_close(normals):
         return list(facets)
     return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2]), f.vertices, f.core, f.area,
                   f.rms) for k, f in enumerate(facets)]
