@@ -156,7 +156,7 @@ def test_a_lath_rounded_off_on_its_narrow_faces_is_rebuilt_to_its_area():
     so neither ``min_area`` nor ``share`` finds them; the normals still crowd there (1.9-3.5 times the
     area per solid angle of the ring around), which a smooth body's do not at its ends (an ellipsoid's
     long-axis poles 0.7-0.8, a capsule's caps 1.1). With all six facets the edges and corners are rebuilt:
-    area within 2 % of the box (measured +0.1, -0.8 %; Hausdorff 0.28 nm); with the two or four facets the
+    area within 2 % of the box (measured -0.2, -0.7 %; Hausdorff 0.30, 0.27 nm); with the two or four facets the
     first search finds, -13 to -16 % (Hausdorff 0.7-0.9 nm)."""
     from apt_filters.refine.facets import edge_and_corner_steps
     from apt_filters.truth import surface_error

@@ -177,10 +177,10 @@ def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: floa
 
     A mode counts when the area per solid angle of the normals in its cone not yet taken is at least ``peak``
     times that in the ring around it (out to twice the cone's angle, every vertex counted: a cone beside a
-    facet found has that facet in its ring), and its cone holds at least half of what it would on a sphere of the
-    object's area, and it lies more than twice the cone's angle from every mode found (nearer, it is the
-    rest of that mode's face, see :func:`_modes`). Candidates are taken in order of the area their cone holds among the normals no mode
-    has taken yet.
+    facet found has that facet in its ring), its cone holds at least half of what it would on a sphere of
+    the object's area, and it lies more than three cones' angle from every mode found (nearer, the crowd
+    is the rounded rim beside that mode's face). Candidates are taken in order of the area their cone
+    holds among the normals no mode has taken yet.
     """
     ring = np.cos(2 * np.arccos(detect))
     apart = np.cos(3 * np.arccos(detect))
@@ -190,7 +190,7 @@ def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: floa
     for m in mine:
         free &= ~m[1]
     out = list(mine)
-    spent = ~free  # normals no longer tried as a start: taken, or within twice the cone of a mode
+    spent = ~free  # normals no longer tried as a start: taken, tried, or within three cones of a mode
     for m in out:
         spent |= _dot(nn, m[0]) > apart
     clear = free.copy()  # normals beyond every mode's ring
@@ -206,9 +206,13 @@ def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: floa
         # mean-shifted within the ring's cone over the normals away from every mode's rim: a thin object's
         # narrow face is a ridge of normals from one broad facet to the opposite one, and its centre (the
         # face's normal) is the middle of what the broad facets' rims leave of it
-        mode = nn[cand[np.argmax(np.where(crowded, held, -1.0))]]
+        best = cand[np.argmax(np.where(crowded, held, -1.0))]
+        spent[best] = True
+        mode = nn[best]
         for _ in range(3):
             mode = _mode(nn, aa, clear, mode, ring)
+        if any(mode @ m[0] > apart for m in out):  # shifted onto a mode's rim after all
+            continue
         cosine = _dot(nn, mode)
         detected = free & (cosine > detect)
         found = aa[detected].sum()
