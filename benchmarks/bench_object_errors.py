@@ -7,7 +7,9 @@ default (segregants found and left out, the speck test of :mod:`apt_filters.refi
 its components are matched to the true objects (:func:`~apt_filters.truth.match_objects`). Reported: true
 objects of >= 30 nm³ found, spurious components kept, components removed as specks; per found object its
 family-wise p-value and z, and the volume and area errors against the truth divided by the counting errors
-the run states (``sigma_V = A sigma_offset``, ``sigma_A = |dA/dd| sigma_offset``, ``RefineResult.offset_errors``):
+the run states (``sigma_V = A sigma_offset``, ``sigma_A = |dA/dd| sigma_offset``, ``RefineResult.offset_errors``,
+raised for faceted objects to the spread of the two cross-fit halves, ``RefineResult.shape_errors``:
+:func:`~apt_filters.analysis.objects.size_errors`):
 their spread over objects is ~1 where the stated errors cover the counting noise and the method adds no bias.
 """
 
@@ -23,7 +25,7 @@ from apt_filters.pipeline.config import PipelineConfig
 from apt_filters.pipeline.surface import contour_surface, segregant_basis
 from apt_filters.refine import refine_surface, remove_specks
 from apt_filters.refine.specks import REACH
-from apt_filters.analysis.objects import area_growth
+from apt_filters.analysis.objects import size_errors
 from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
 from apt_filters.truth import match_objects
@@ -65,10 +67,10 @@ def run_draw(family: str, seed: int, ion_seed: int | None = None, refine: bool =
         if m is not None:
             row |= {"p": float(kept_p[m]), "z": float(kept_z[m])}
             if refined is not None and tf["bounded"] and len(parts[m].boundary_edges()) == 0:
-                part, se = parts[m], float(refined.offset_errors[m])
-                volume, area = part.signed_volume(), part.area()
-                row |= {"volume": volume, "area": area, "sigma_v": se * area,
-                        "sigma_a": se * abs(area_growth(part)), "true_area": tf["area_nm2"]}
+                part = parts[m]
+                sigma_v, sigma_a = size_errors(part, float(refined.offset_errors[m]), refined.shape_errors[m])
+                row |= {"volume": part.signed_volume(), "area": part.area(), "sigma_v": sigma_v,
+                        "sigma_a": sigma_a, "true_area": tf["area_nm2"]}
         rows.append(row)
     spurious = sum(1 for j in range(len(parts)) if j not in set(match))
     f0 = spec.features[0]

@@ -41,3 +41,18 @@ def test_objects_without_a_reference_keep_nan_errors():
     mesh = Sphere((0, 0, 0), 3.0).mesh(0.25)
     table = object_table(mesh)
     assert math.isnan(table.objects[0].volume_se) and math.isnan(table.objects[0].p_value)
+
+
+def test_the_halves_spread_raises_a_faceted_objects_errors_where_it_is_larger():
+    """``shape_se`` (the two cross-fit halves' spread of a faceted object's volume and area) replaces the
+    offset's error where it is larger, and leaves it where it is smaller or unknown (NaN)."""
+    a, b = Sphere((0, 0, 0), 3.0).mesh(0.25), Cuboid((12, 0, 0), (4.0, 4.0, 4.0)).mesh(0.2)
+    mesh = merge(a, b)
+    table = object_table(mesh)
+    counting_errors(table, mesh, reference=mesh, offset_se=np.array([0.02, 0.02]),
+                    shape_se=np.array([[np.nan, np.nan], [0.5, 9.0]]))
+    sphere, cube = sorted(table.objects, key=lambda o: o.centroid[0])
+    assert sphere.volume_se == pytest.approx(0.02 * sphere.area, rel=1e-12)
+    assert sphere.area_se == pytest.approx(0.02 * 8 * math.pi * 3.0, rel=0.02)
+    assert cube.volume_se == pytest.approx(0.02 * cube.area, rel=1e-12)  # 1.92 nm³ > 0.5
+    assert cube.area_se == 9.0  # > 0.02 * 6 pi 4 = 1.5 nm²

@@ -520,7 +520,8 @@ def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
 
 
 def counting_errors(table: ObjectTable, mesh: TriMesh, *, reference: TriMesh, offset_se: np.ndarray,
-                    p_value: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
+                    shape_se: np.ndarray | None = None, p_value: np.ndarray | None = None,
+                    z: np.ndarray | None = None) -> None:
     """Fill each object's counting errors (and speck-test figures) in ``table``, in place.
 
     The counting error of an object's surface position is that of its mean offset along its normals,
@@ -534,6 +535,12 @@ def counting_errors(table: ObjectTable, mesh: TriMesh, *, reference: TriMesh, of
     offset noise is common to the object (its low-passed shape, :mod:`apt_filters.refine.spectral`);
     higher modes add area only at second order.
 
+    A faceted object's figures also carry the spread of a discrete decision: which facets its surface
+    finds, and so which edges and corners are rebuilt sharp (a lath whose narrow faces are found on one
+    draw of its ions and not on the next changes its area by several times ``|dA/dd| sigma_d``). Where
+    ``shape_se`` holds it (:attr:`apt_filters.refine.RefineResult.shape_errors`, from the two cross-fit
+    halves of the ions), each error is the larger of the two (:func:`size_errors`).
+
     Parameters
     ----------
     table : ObjectTable
@@ -546,6 +553,8 @@ def counting_errors(table: ObjectTable, mesh: TriMesh, *, reference: TriMesh, of
         nearest to its own.
     offset_se : (c,) float, nm
         Per component of ``reference``; NaN where unknown.
+    shape_se : (c, 2) float, nm³ and nm², optional
+        Per component of ``reference``: volume and area errors from the halves; NaN where unknown.
     p_value, z : (k,) float, optional
         Per component of ``mesh`` (:meth:`apt_filters.refine.Specks.of`).
     """
@@ -565,10 +574,33 @@ def counting_errors(table: ObjectTable, mesh: TriMesh, *, reference: TriMesh, of
             continue
         mine = vertex_object == o.object_id
         votes = np.bincount(nearest[mine], minlength=len(offset_se))
-        se = float(offset_se[int(np.argmax(votes))]) if votes.any() else math.nan
+        c = int(np.argmax(votes)) if votes.any() else -1
+        se = float(offset_se[c]) if c >= 0 else math.nan
+        halves = shape_se[c] if shape_se is not None and 0 <= c < len(shape_se) else (math.nan, math.nan)
         part = _submesh(mesh.vertices, mesh.faces[labels == o.object_id])
-        o.area_se = se * abs(area_growth(part))
-        o.volume_se = se * o.area if o.status != "open" else math.nan
+        o.volume_se, o.area_se = size_errors(part, se, halves, area=o.area)
+        if o.status == "open":
+            o.volume_se = math.nan
+
+
+def size_errors(part: TriMesh, offset_se: float, halves=(math.nan, math.nan), area: float | None = None
+                ) -> tuple[float, float]:
+    """(volume_se nm³, area_se nm²) of one object: ``A sigma_d`` and ``|dA/dd| sigma_d`` (:func:`counting_errors`),
+    each raised to the halves' spread ``halves`` (nm³, nm²) where that is larger (NaN: not known).
+
+    Parameters
+    ----------
+    part : TriMesh
+        The object's surface.
+    offset_se : float, nm
+        Counting error of its mean offset.
+    halves : (2,) float, nm³ and nm²
+    area : float, nm², optional
+        Its area, if already measured (else ``part.area()``).
+    """
+    area = part.area() if area is None else area
+    return (float(np.fmax(offset_se * area, halves[0])),
+            float(np.fmax(offset_se * abs(area_growth(part)), halves[1])))
 
 
 def area_growth(part: TriMesh) -> float:

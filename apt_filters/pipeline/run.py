@@ -233,6 +233,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
             from apt_filters.refine.specks import REACH
 
             counting_errors(table, mesh, reference=record.refined.mesh, offset_se=record.refined.offset_errors,
+                            shape_se=record.refined.shape_errors,
                             **dict(zip(("p_value", "z"), record.specks.of(mesh, REACH))))
         table.write_csv(stage / f"objects_{label}.csv")
         table.write_json(stage / f"objects_{label}.json")

@@ -290,21 +290,26 @@ def _refine_record(specks, refined) -> dict:
              "layer_offset_se_nm": _finite([marks.layer_offset_se])[0],
              "peak_centre_nm": _finite(marks.centre), "peak_centre_se_nm": _finite(marks.centre_se),
              "shift_nm": _finite(marks.shift)},
-            "counting_errors": _counting_errors(refined.mesh, refined.offset_errors),
+            "counting_errors": _counting_errors(refined.mesh, refined.offset_errors, refined.shape_errors),
             # without their seconds: a rerun's report is identical (the step's time is in report["steps"])
             "stages": [{k: v for k, v in dataclasses.asdict(stage).items() if k != "seconds"}
                        for stage in refined.stages]}
 
 
-def _counting_errors(mesh: TriMesh, offset_errors) -> list[dict]:
-    """Per refined object: the counting-statistics standard error of its mean offset and, if closed, of its volume."""
+def _counting_errors(mesh: TriMesh, offset_errors, shape_errors) -> list[dict]:
+    """Per refined object: the counting-statistics standard error of its mean offset, and of its area and, if
+    closed, its volume (:func:`~apt_filters.analysis.objects.size_errors`, the halves' spread included)."""
+    from apt_filters.analysis.objects import size_errors
+
     out = []
     for c, (e, part) in enumerate(zip(offset_errors, split_components(mesh))):
         if np.isfinite(e):
             closed = len(part.boundary_edges()) == 0  # an open interface encloses no volume
-            out.append({"component": c, "offset_se_nm": float(e), "area_nm2": part.area(),
+            volume_se, area_se = size_errors(part, float(e), shape_errors[c] if c < len(shape_errors)
+                                             else (np.nan, np.nan))
+            out.append({"component": c, "offset_se_nm": float(e), "area_nm2": part.area(), "area_se_nm2": area_se,
                         "volume_nm3": part.signed_volume() if closed else None,
-                        "volume_se_nm3": float(e) * part.area() if closed else None})
+                        "volume_se_nm3": volume_se if closed else None})
     return out
 
 

@@ -172,6 +172,57 @@ def _modes(nn: np.ndarray, aa: np.ndarray, detect: float, share: float, min_area
     return mine
 
 
+def _peaks(nn: np.ndarray, aa: np.ndarray, detect: float, mine: list, peak: float) -> list:
+    """``mine`` (:func:`_modes`) and the further modes where the normals crowd (step 1, ``peak``).
+
+    A mode counts when the area per solid angle of the normals in its cone not yet taken is at least ``peak``
+    times that in the ring around it (out to twice the cone's angle, every vertex counted: a cone beside a
+    facet found has that facet in its ring), its cone holds at least half of what it would on a sphere of
+    the object's area, and it lies more than three cones' angle from every mode found (nearer, the crowd
+    is the rounded rim beside that mode's face). Candidates are taken in order of the area their cone
+    holds among the normals no mode has taken yet.
+    """
+    ring = np.cos(2 * np.arccos(detect))
+    apart = np.cos(3 * np.arccos(detect))
+    solid = (1.0 - detect) / (detect - ring)  # cone's solid angle over the ring's
+    floor = 0.5 * 0.5 * (1.0 - detect) * aa.sum()
+    free = np.ones(len(nn), dtype=bool)
+    for m in mine:
+        free &= ~m[1]
+    out = list(mine)
+    spent = ~free  # normals no longer tried as a start: taken, tried, or within three cones of a mode
+    for m in out:
+        spent |= _dot(nn, m[0]) > apart
+    clear = free.copy()  # normals beyond every mode's ring
+    for m in out:
+        clear &= _dot(nn, m[0]) <= ring
+    while not spent.all():
+        cand = np.flatnonzero(~spent)[:: max(1, int((~spent).sum()) // MAX_CANDIDATES)]
+        held = _held(nn[cand], nn[free], aa[free], detect)
+        around = _held(nn[cand], nn, aa, ring) - _held(nn[cand], nn, aa, detect)
+        crowded = (held >= floor) & (held >= peak * solid * around)
+        if not crowded.any():
+            break
+        # mean-shifted within the ring's cone over the normals away from every mode's rim: a thin object's
+        # narrow face is a ridge of normals from one broad facet to the opposite one, and its centre (the
+        # face's normal) is the middle of what the broad facets' rims leave of it
+        best = cand[np.argmax(np.where(crowded, held, -1.0))]
+        spent[best] = True
+        mode = nn[best]
+        for _ in range(3):
+            mode = _mode(nn, aa, clear, mode, ring)
+        if any(mode @ m[0] > apart for m in out):  # shifted onto a mode's rim after all
+            continue
+        cosine = _dot(nn, mode)
+        detected = free & (cosine > detect)
+        found = aa[detected].sum()
+        out.append((mode, detected, free.copy(), float(found)))
+        free &= ~detected
+        clear &= cosine <= ring
+        spent |= cosine > apart
+    return out
+
+
 def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndarray, fit_from: np.ndarray,
          detected: np.ndarray, mode: np.ndarray, fit: float, component: int, found: float) -> Facet:
     """The plane of a facet: least squares over the connected part of ``fit_from`` within ``fit`` of ``mode``."""
@@ -189,7 +240,7 @@ def _fit(vertices: np.ndarray, adj, idx: np.ndarray, nn: np.ndarray, aa: np.ndar
 
 def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_cap: float = 40.0,
                 share: float = 0.06, min_area: float = 12.0, smooth: int = 5, opposite: float = 0.5,
-                closed_area: float = 8.0) -> list[Facet]:
+                closed_area: float = 8.0, peak: float = 1.5) -> list[Facet]:
     """Planar facets of every object of a closed or open surface (method: module docstring, step 1).
 
     Parameters
@@ -243,6 +294,10 @@ def find_facets(vertices: np.ndarray, faces: np.ndarray, cap: float = 20.0, fit_
             small = _modes(nn, aa, detect, share, closed_area, opposite)
             if _normals_close(np.array([m[0] for m in small])):
                 mine = small
+            else:
+                peaked = _peaks(nn, aa, detect, mine, peak)
+                if _normals_close(np.array([m[0] for m in peaked])):
+                    mine = peaked
         out += [_fit(vertices, adj, idx, nn, aa, fit_from, detected, mode, fit, int(c), found)
                 for mode, detected, fit_from, found in mine]
     return out
@@ -426,9 +481,11 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     -------
     list of Facet
         The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices); the facets as given if there are too few ions, or if a fitted plane has turned by
-        more than ``cap`` from its start (out of the cone its facet was found in: the fit has found
-        something else).
+        the vertices); the facets as given if there are too few ions, or if the fit has found something
+        else: a plane turned by more than twice ``cap`` from its start, or planes that no longer close
+        (:func:`closes`). A plane may turn further than ``cap``: the narrow faces of a thin lath, found
+        where the normals crowd on the ridge from one broad face to the other, start 15-25° off theirs and
+        turned by 17-30° (held-out `lath` seed 10007).
     """
     m = len(facets)
     if len(positions) < min_ions * m:
@@ -480,7 +537,10 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         if np.abs(free).max() < tolerance:
             break
     normals = planes(params)
-    if np.any(np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(np.radians(cap))):
+    # the fit has found something else where a plane has turned out of twice the cone its facet was found in,
+    # or the planes no longer bound a polyhedron
+    turned = np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(2 * np.radians(cap))
+    if turned.any() or not _normals_close(normals):
         return list(facets)
     return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2]), f.vertices, f.core, f.area,
                   f.rms) for k, f in enumerate(facets)]

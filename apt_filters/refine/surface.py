@@ -381,6 +381,13 @@ class RefineResult:
         The settings it ran with.
     stages : list of StageReport
         What each stage did (vertices moved, iterations, time, a note).
+    shape_errors : (c, 2) float64, nm³ and nm²
+        Of each faceted object (facets kept on either half's surface): the standard errors of its volume and
+        area from the two cross-fit halves, each finished as the whole is (its modes, its facets), ``|X_0 -
+        X_1| / 2`` (each half holds half the ions: twice the variance of the whole). Which facets a surface
+        finds, and so how many of its edges are rebuilt, is a discrete decision whose spread an offset's
+        counting error does not hold (:func:`~apt_filters.analysis.objects.counting_errors` takes the larger
+        of the two). NaN for other objects, and without ``cross_fit`` and ``select_modes``.
     """
 
     mesh: TriMesh
@@ -404,6 +411,7 @@ class RefineResult:
     marker: MarkerOffsets | None = None
     params: RefineParams = field(default_factory=RefineParams)
     stages: list[StageReport] = field(default_factory=list)
+    shape_errors: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 def umbrella(adj: csr_matrix, normals: np.ndarray | None = None, normal_power: float = 0.0) -> csr_matrix:
@@ -805,6 +813,27 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
 
 
+def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
+                  pairs: np.ndarray, components: np.ndarray, low_pass) -> np.ndarray:
+    """(c, 2) standard errors of the faceted objects' volumes and areas from the two halves' surfaces, each
+    low-passed (``low_pass(vertices)``) and finished with its own facets as the whole is
+    (``RefineResult.shape_errors``); NaN elsewhere."""
+    out = np.full((int(components.max()) + 1, 2), np.nan)
+    objects = sorted({f.component for found in half_facets for f in found if keep.get(f.component, True)})
+    if not objects:
+        return out
+    face_object = components[faces[:, 0]]
+    sizes = np.zeros((2, len(objects), 2))
+    for k, fit in enumerate(fits):
+        found = [f for f in half_facets[k] if keep.get(f.component, True)]
+        vertices = _finisher(found, faces, pairs, None)(low_pass(fit.vertices))[0]
+        for i, c in enumerate(objects):
+            part = TriMesh(vertices, faces[face_object == c])
+            sizes[k, i] = part.signed_volume(), part.area()
+    out[objects] = 0.5 * np.abs(sizes[0] - sizes[1])
+    return out
+
+
 @serial_blas  # its parallel work runs in numba; OpenBLAS threads would spin around its small solves
 def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
                    basis: ConcentrationBasis = ConcentrationBasis(), params: RefineParams = RefineParams()
@@ -873,6 +902,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     blur = p.blur
     selection = None
     vertices, guarded = placed.vertices, placed.guarded
+    shape_errors = np.full((len(closed), 2), np.nan)
     clock = time.perf_counter()
     if p.select_modes and objects:
         # candidates are finished with the blur given, or without one while it is still to be estimated
@@ -884,8 +914,11 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found})
         kept = {c: k for c, k in selection.modes.items() if k}
+        bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
+                 if kept else None)
+        shape_errors = _half_spreads(fits, half_facets, selection.facets, faces, pairs, components,
+                                     lambda v: apply_modes(v, bases, kept) if kept else v)
         if kept:
-            bases = object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
             target = apply_modes(vertices, bases, kept)
             # the low-passed shape is smooth: taken whole unless it folds; the guard would cancel the moves of
             # the noisy start's tilted slivers (whose normals turn past 90° on the way) and crumple the mesh
@@ -943,4 +976,4 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     return RefineResult(out, placed.levels, stats, placed.iterations, len(folded_pairs(vertices, faces, FOLD_ANGLE)),
                         crossing, guarded, untangled, p.score, basis.describe(), placed.history,
                         tuple(blur) if blur is not None else (0.0, 0.0), n_facets, sharpened, estimate, selection,
-                        placed.widths, errors, marks, p, stages)
+                        placed.widths, errors, marks, p, stages, shape_errors)
