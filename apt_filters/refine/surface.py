@@ -88,8 +88,9 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (SCORED, ModeSelection, apply_modes, basis_size, cross_validated_modes,
-                                        object_harmonics)
+from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
+                                        cross_validated_lengths, cross_validated_modes, object_harmonics,
+                                        open_low_pass, open_start)
 from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
@@ -844,6 +845,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                   f"{p.subdivisions} subdivision(s), {n:,} vertices")]
     topo = topology(faces, n)
     components, pairs = topo.vertex_components, topo.face_pairs
+    rimmed = np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])
+    if p.select_modes:  # open surfaces: no noise of the start shared by the halves' surfaces (open_start)
+        start = open_start(start, faces, components, rimmed, p.smoothing)
     radius = _reach(p) + RESELECT
 
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
@@ -865,7 +869,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                       f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
     scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
     closed = np.ones(len(scores.usable), dtype=bool)
-    closed[np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])] = False
+    closed[rimmed] = False
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
@@ -893,6 +897,20 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
             vertices = target
         stages.append(StageReport.between("modes", placed.vertices, vertices, clock, 0,
                                           f"{len(kept)} of {len(objects)} closed objects low-passed"))
+    opened = [c for c in range(len(closed)) if not closed[c] and scores.usable[c]]
+    if p.select_modes and opened:  # open surfaces: a smoothing length by held-out ions, the rim held
+        clock, before = time.perf_counter(), vertices
+        lengths = cross_validated_lengths([f.vertices for f in fits], faces, components, opened, held, scores,
+                                          placed.widths)
+        target = open_low_pass(vertices, faces, components, lengths)
+        if len(folded_pairs(target, faces, FOLD_ANGLE)):
+            target, g = guarded_move(vertices, faces, target - vertices, pairs)
+            guarded += g
+        vertices = target
+        selection = selection or ModeSelection({}, CANDIDATES, np.full((len(closed), len(CANDIDATES) + 1), np.nan))
+        selection.lengths = lengths
+        stages.append(StageReport.between("lengths", before, vertices, clock, 0, "open objects low-passed at "
+                                          + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
     found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance)
     if selection is not None:  # facets only where held-out ions preferred them
