@@ -121,10 +121,9 @@ def truths(sp, species: str) -> dict:
         ct = counted_truth(lambda p, d=d[near]: d, pos[near], everything.atoms[near], inside, outside)
         band = np.abs(d[near]) <= 1.5
         n_seg = float(everything.atoms[near][band, k_seg].sum()) if seg else 0.0
-        c_in = ct.inside[k_iso]
         out[i] = {"floor": floors.get(i), "counted": ct, "seg": seg, "k_seg": k_seg, "k_iso": k_iso,
-                  "excess_sigma": np.sqrt(max(n_seg, 1.0)),
-                  "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(ct.n_inside, 1))}
+                  "excess_sigma": np.sqrt(max(n_seg, 1.0)), "distance": d, "region": _interior(sp, i, pos),
+                  "atoms": everything.atoms}
     return out
 
 
@@ -178,7 +177,7 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
     """What ``apt-filters run`` reports of each object of ``mesh`` (default options): object id (or ``POOLED``,
     the pieces together) -> (the solute's Krakauer-Seidman excess in detected atoms per nm² or NaN, the iso
     species' fraction in the inside plateau window), as the run's proxigram step computes them
-    (:func:`apt_filters.pipeline.run`)."""
+    (:func:`apt_filters.pipeline.run`); and the plateau windows (inner, outer nm) it fitted."""
     config = PipelineConfig()
     p = config.proxigram
     solutes = [solute] if solute else []
@@ -197,7 +196,7 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
                                                      shell_volumes=prox.shell_volumes[k:k + 1])
         inside = window_composition(profile, windows.inner, windows.outer)["inside"]["fraction"].get(species)
         out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside)
-    return out
+    return out, (windows.inner, windows.outer)
 
 
 def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tuple[list[dict], int]:
@@ -206,7 +205,7 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
     feats = list(range(len(sp.truth["features"])))
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
     seg = truth[0]["seg"]
-    chemistry = run_chemistry(mesh, sp.ions, sp.ranges, species, seg) if parts else {}
+    chemistry, windows = run_chemistry(mesh, sp.ions, sp.ranges, species, seg) if parts else ({}, None)
     rows, used = [], set()
     for i, m in zip(feats, match):
         tf, tr = sp.truth["features"][i], truth[i]
@@ -234,14 +233,19 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
         if _reaches_edge(sp, i):  # the surface, its ions and their count inside the compared region only
             inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
-            found = run_chemistry(inner, ions, sp.ranges, species, seg)
+            found, windows = run_chemistry(inner, ions, sp.ranges, species, seg)
             (per_area, inside), true_area = found.get(POOLED, found.get(0)), err.true_area
         else:
             (per_area, inside), true_area = chemistry[m], tf["area_nm2"]
+        # the inside plateau the object's own ions hold in the run's window, counted in its true frame
+        d, atoms = tr["distance"], tr["atoms"]
+        window = tr["region"] & (d <= -windows[0]) & (d >= -windows[1])
+        n_in = float(atoms[window].sum())
+        c_in = float(atoms[window, tr["k_iso"]].sum()) / max(n_in, 1.0)
         if seg:  # per area, scaled to the true area
             held, measured = ct.excess_ions[tr["k_seg"]], per_area * true_area
             row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
-        row |= {"plateau_in": inside - ct.inside[tr["k_iso"]], "plateau_sigma": tr["plateau_sigma"]}
+        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0))}
         rows.append(row)
     return rows, sum(1 for j in range(len(parts)) if j not in used)
 

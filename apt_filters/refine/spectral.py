@@ -135,9 +135,12 @@ def rim_held_low_pass(vertices: np.ndarray, faces: np.ndarray, length: float) ->
     a minimal surface spanning it) and a part vanishing on the rim, low-passed in the Dirichlet harmonics
     ``L_II phi = mu M phi`` without computing them: Tikhonov's ``z = (M + l^4 L M^-1 L)^-1 M x`` damps
     harmonic ``mu`` by ``1 / (1 + a)``, ``a = (l^2 mu)^2`` (cut-off wavelength ``2 pi l``); applied twice as
-    ``2 z - F z`` (Tukey's twicing) the damping is ``(1 + 2a) / (1 + a)^2``, ``1 - a^2`` at long wavelengths,
-    so a sphere cap's bulge (the lowest harmonic of a 24 nm wide cap, ``a`` ~ 0.07 at ``l`` = 2.8 nm, a
-    2.4 nm sagitta) keeps all but 0.01 nm of its height where the plain filter would lose 0.17 nm.
+    ``2 z - F z`` (Tukey's twicing) the damping is ``(1 + 2a) / (1 + a)^2``, ``1 - a^2`` at long wavelengths.
+    A curved sheet's part vanishing on the rim is not band-limited (a sphere cap's is the torsion function of
+    its outline, with content up to the rim's corners): a 30 nm cap over a 24 nm square (4.9 nm sagitta) keeps
+    its shape to 0.034 nm at ``l`` = 1.4 nm and loses up to 0.14 nm at 2.8 nm (0.23 without the twicing). That
+    bias grows with ``l`` and the noise removed with it: :func:`~apt_filters.refine.crossval.cross_validated_lengths`
+    lets held-out ions weigh the two.
 
     Parameters
     ----------
