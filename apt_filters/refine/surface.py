@@ -41,7 +41,11 @@ After the iterations (each step can be switched off):
    surfaces of the cross-fit, low-passed in their manifold harmonics (:mod:`apt_filters.refine.spectral`)
    to 4-36 modes and finished as below, are scored on the other half's ions; the object keeps the
    fewest modes within one standard error of the best. A 3 nm sphere keeps 4-9 (its noise and the
-   start's grid pattern at degrees 2-8 go), a cube 4-36 (the facets then rebuild its edges).
+   start's grid pattern at degrees 2-8 go), a cube 4-36 (the facets then rebuild its edges). Each open
+   object (an interface leaving the specimen, a bicontinuous structure, an object cut by the edge) is
+   low-passed with its rim held at the length the held-out ions choose
+   (:func:`~apt_filters.refine.crossval.cross_validated_lengths`), its start smoothed first below the
+   length the iterations smooth their moves over (:func:`~apt_filters.refine.crossval.open_start`).
 6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
@@ -293,7 +297,8 @@ class StageReport:
     ----------
     name : str
         ``prepare`` (subdivision, unfolding, relaxation), ``cross_fit`` (two half placements and the plateaus
-        from them), ``place`` (the iterations), ``modes``, ``blur_and_marker``, ``facets``, ``untangle``.
+        from them), ``place`` (the iterations), ``modes``, ``lengths`` (open objects), ``blur_and_marker``,
+        ``facets``, ``untangle``.
     moved : int
         Vertices the stage moved by more than 1e-6 nm.
     mean_move, max_move : float, nm
