@@ -282,11 +282,10 @@ def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, component
                             candidates: tuple[float, ...] = LENGTHS) -> dict[int, float]:
     """Each open object's smoothing length by two-fold cross-validation, as :func:`cross_validated_modes`
     chooses a closed object's modes: each half's surface low-passed at each candidate length (rim held) is
-    scored on the other half's ions; the object keeps the candidate of least held-out loss (0: the surface as
-    it is), among those whose cut-off wavelength ``2 pi l`` is within the object's extent (the square root of
-    its area). Not the smoothest within one standard error, as the modes are: fewer modes are a simpler shape,
-    a longer length is not, only a flatter one (the rim-held filter flattens a curved sheet's bulge, and with
-    few ions the standard errors are wide enough to let the flattest candidate through: a 40 nm cap across a
+    scored on the other half's ions; the object keeps the smoothest candidate within one standard error of the
+    best (0: the surface as it is), among those whose cut-off wavelength ``2 pi l`` is within the object's
+    extent (the square root of its area): longer ones flatten the object's shape, not its noise, and with few
+    ions the standard errors are wide enough to let the flattest candidate through (a 40 nm cap across a
     14 nm box came out 0.26 nm flat). Arguments as :func:`cross_validated_modes`'s.
 
     The halves' surfaces must not share noise the held-out ions hold: a start contoured from all the ions does,
@@ -306,7 +305,8 @@ def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, component
                                                       {c: length for c in objects if 2 * np.pi * length <= extent[c]}))
                                    for length in plain])
         _accumulate(per_ion, comp, objects, sums, gram, count)
-    return {c: float(plain[np.argmin(np.where(2 * np.pi * plain <= extent[c], sums[c], np.inf))]) for c in objects}
+    return {c: float(plain[smoothest_within_one_se(np.where(2 * np.pi * plain <= extent[c], sums[c], np.inf), gram[c],
+                                                   sums[c], count[c])]) for c in objects}
 
 
 def open_start(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, smoothing: int
