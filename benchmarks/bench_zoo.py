@@ -15,16 +15,18 @@ species' two phases (all ranged species in the denominator):
 
 Per true object: volume and area errors with their counting sigma (the Cramér-Rao floor of
 :func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one), mean and
-Hausdorff distance to the true surface, the segregant's excess per area against what the object's own ions
-hold in its true frame (:func:`~apt_filters.refine.evaluate.counted_truth`) with that count's Poisson sigma,
-and the iso species' inside plateau (0.75-3 nm) against the count. Surfaces that end at the specimen
+Hausdorff distance to the true surface, and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
+the proxigram over the range its fitted width asks for, :func:`~apt_filters.analysis.width.fitted_proxigram`, and
+per object the segregant's Krakauer-Seidman excess, :func:`~apt_filters.analysis.excess.interfacial_excess`, and
+the iso species' inside plateau, the window composition of the report's summary) against what the object's
+own ions hold in its true frame (:func:`~apt_filters.refine.evaluate.counted_truth`) with that count's Poisson
+and binomial sigma. Surfaces that end at the specimen
 edge (open, curved and bicontinuous interfaces, objects cut by the edge) are compared inside the box
 shrunk by ``MARGIN`` nm (:func:`~apt_filters.truth.surface_error_within`): area (for an interface, its area
 per volume of that region), distances and, for a cut object, volume; an interface's pieces are all the
-components near it. Their excess and plateaus too are measured on the faces and ions inside that region
-and compared with the count of its ions (the analysis counts the ions beyond an open surface's rim as
-if across it: on the whole box a spinodal's excess came out +14 % and its inside plateau -1.8 at.%,
-inside the region -3 % and +0.03 at.%). Per specimen: objects not found and spurious objects (components that match no true
+components near it. Their chemistry is measured on the faces and ions inside that region (the ions beyond
+the clipped surface's rim left out, as the run leaves out those beyond the specimen edge) and compared with
+the count of its ions. Per specimen: objects not found and spurious objects (components that match no true
 object). The summary checks the issue's targets per family.
 """
 
@@ -32,18 +34,21 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
+from apt_filters.analysis.excess import POOLED, interfacial_excess
+from apt_filters.analysis.width import fitted_proxigram
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.metrics import sample_mesh
 from apt_filters.core.mesh import TriMesh, split_components
 from apt_filters.io.ions import IonTable
 from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 from apt_filters.pipeline.surface import finished_surface
-from apt_filters.refine import object_excess, remove_specks
+from apt_filters.pipeline.summary import window_composition
+from apt_filters.refine import remove_specks
 from apt_filters.refine.composition import ion_atoms
-from apt_filters.refine.levels import object_levels
 from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
 from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error, surface_error_within
@@ -116,10 +121,9 @@ def truths(sp, species: str) -> dict:
         ct = counted_truth(lambda p, d=d[near]: d, pos[near], everything.atoms[near], inside, outside)
         band = np.abs(d[near]) <= 1.5
         n_seg = float(everything.atoms[near][band, k_seg].sum()) if seg else 0.0
-        c_in = ct.inside[k_iso]
         out[i] = {"floor": floors.get(i), "counted": ct, "seg": seg, "k_seg": k_seg, "k_iso": k_iso,
-                  "excess_sigma": np.sqrt(max(n_seg, 1.0)),
-                  "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(ct.n_inside, 1))}
+                  "excess_sigma": np.sqrt(max(n_seg, 1.0)), "distance": d, "region": _interior(sp, i, pos),
+                  "atoms": everything.atoms}
     return out
 
 
@@ -169,14 +173,39 @@ def _edge_error(sp, i: int, part: TriMesh, seed: int):
                                 seed=seed)
 
 
+def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: str | None) -> dict:
+    """What ``apt-filters run`` reports of each object of ``mesh`` (default options): object id (or ``POOLED``,
+    the pieces together) -> (the solute's Krakauer-Seidman excess in detected atoms per nm² or NaN, the iso
+    species' fraction in the inside plateau window), as the run's proxigram step computes them
+    (:func:`apt_filters.pipeline.run`); and the plateau windows (inner, outer nm) it fitted."""
+    config = PipelineConfig()
+    p = config.proxigram
+    solutes = [solute] if solute else []
+    prox, windows = fitted_proxigram(ions=ions, ranges=ranges, mesh=mesh, species=species, solutes=solutes,
+                                     bin_width=p.bin, inner=p.inner or None, outer=p.extent or None,
+                                     keep_edge=not p.exclude_edge)
+    gamma = {}
+    if solute:
+        for e in interfacial_excess(prox, solute, config.analysis.efficiency, windows.inner, windows.outer,
+                                    skip_unmeasurable=True, fallback=windows.levels(solute)):
+            gamma[e.object_id] = e.cumulative.gamma_detected
+    out = {}
+    for k, obj in enumerate(list(prox.object_ids) + ([POOLED] if len(prox.object_ids) > 1 else [])):
+        profile = prox if obj == POOLED else replace(prox, object_ids=prox.object_ids[k:k + 1], counts=prox.counts[k:k + 1],
+                                                     unranged=prox.unranged[k:k + 1], areas=prox.areas[k:k + 1],
+                                                     shell_volumes=prox.shell_volumes[k:k + 1])
+        inside = window_composition(profile, windows.inner, windows.outer)["inside"]["fraction"].get(species)
+        out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside)
+    return out, (windows.inner, windows.outer)
+
+
 def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tuple[list[dict], int]:
     """Rows per true feature, and the number of spurious objects."""
     parts = split_components(mesh) if mesh.n_faces else []
     feats = list(range(len(sp.truth["features"])))
     match = match_objects(parts, [sp.feature_sdf(i) for i in feats])
     seg = truth[0]["seg"]
-    excess = object_excess(mesh, sp.ions, sp.ranges, seg) if seg and parts else []
-    levels = object_levels(mesh, sp.ions, sp.ranges, species, prior=0.0) if parts else []
+    chemistry, windows = run_chemistry(mesh, sp.ions, sp.ranges, species, seg) if parts else ({}, None)
     rows, used = [], set()
     for i, m in zip(feats, match):
         tf, tr = sp.truth["features"][i], truth[i]
@@ -204,19 +233,19 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
         if _reaches_edge(sp, i):  # the surface, its ions and their count inside the compared region only
             inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
-            pieces = split_components(inner)
-            weights = np.array([p.area() for p in pieces])
-            per_area = (float(np.dot([e.ions_per_nm2 for e in object_excess(inner, ions, sp.ranges, seg)], weights)
-                              / weights.sum()) if seg else np.nan)
-            level, true_area = object_levels(inner, ions, sp.ranges, species, prior=0.0)[int(np.argmax(weights))], \
-                err.true_area
+            found, windows = run_chemistry(inner, ions, sp.ranges, species, seg)
+            (per_area, inside), true_area = found.get(POOLED, found.get(0)), err.true_area
         else:
-            per_area, level, true_area = (excess[m].ions_per_nm2 if seg else np.nan), levels[m], tf["area_nm2"]
+            (per_area, inside), true_area = chemistry[m], tf["area_nm2"]
+        # the inside plateau the object's own ions hold in the run's window, counted in its true frame
+        d, atoms = tr["distance"], tr["atoms"]
+        window = tr["region"] & (d <= -windows[0]) & (d >= -windows[1])
+        n_in = float(atoms[window].sum())
+        c_in = float(atoms[window, tr["k_iso"]].sum()) / max(n_in, 1.0)
         if seg:  # per area, scaled to the true area
             held, measured = ct.excess_ions[tr["k_seg"]], per_area * true_area
             row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
-        k = level.elements.index(species)
-        row |= {"plateau_in": level.inside[k] - ct.inside[tr["k_iso"]], "plateau_sigma": tr["plateau_sigma"]}
+        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0))}
         rows.append(row)
     return rows, sum(1 for j in range(len(parts)) if j not in used)
 

@@ -42,10 +42,10 @@ from typing import Callable
 import numpy as np
 from scipy.special import erfc
 
-from apt_filters.core.mesh import vertex_normals
+from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.refine.band import NearIons
 from apt_filters.refine.composition import ObjectScores
-from apt_filters.refine.spectral import Harmonics, harmonics, low_pass
+from apt_filters.refine.spectral import Harmonics, harmonics, low_pass, rim_held_low_pass
 
 CANDIDATES = (4, 9, 16, 25, 36)
 """Numbers of modes tried: complete spherical-harmonic degrees 1-5 on a sphere. 64 modes would be chosen for
@@ -74,12 +74,15 @@ class ModeSelection:
         Component -> whether its facets are kept: every object with facets on either half's surface, tried
         with and without them; dropped where its best candidate without them has a held-out loss lower by more
         than one standard error than its best with them.
+    lengths : dict[int, float]
+        Open object -> its smoothing length, nm (:func:`cross_validated_lengths`; 0: as it is).
     """
 
     modes: dict[int, int]
     candidates: tuple[int, ...]
     losses: np.ndarray
     facets: dict[int, bool] = field(default_factory=dict)
+    lengths: dict[int, float] = field(default_factory=dict)
 
 
 def object_harmonics(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, k: int
@@ -155,33 +158,16 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     for k, fit in enumerate(fits):
         bases = object_harmonics(fit, faces, components, objects, top)
         finish = {True: finisher(k, True), False: finisher(k, False)}
-        held = held_out[1 - k].subset(np.arange(len(held_out[1 - k].rows)), fit, SCORED + 1.0)
-        start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
-        keep = np.abs(start.distance) < SCORED
-        rows, comp = start.index[keep], components[start.vertex[keep]]
-        score, total = scores.fraction(held.atoms.atoms[rows], comp)
-        ok = (total > 0) & np.isin(comp, objects)
-        rows, comp, fraction, total = rows[ok], comp[ok], score[ok] / total[ok], total[ok]
-        lo, hi = scores.outside[comp], scores.inside[comp]
-        sigma = np.sqrt(2) * widths[comp]
-        per_ion = np.empty((len(rows), m))
+        comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
+        per_ion = np.empty((len(comp), m))
         for j, (modes, with_facets) in enumerate(columns):
             trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
             missing[[c for c in objects if c not in trial and modes], j] = True
             if not with_facets and not faceted.any():
                 missing[:, j] = True
                 continue
-            vertices = finish[with_facets](apply_modes(fit, bases, trial))[0]
-            band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
-            distance = np.full(len(held.positions), SCORED + 1.0)
-            distance[band.index] = band.distance
-            model = lo + (hi - lo) * 0.5 * erfc(distance[rows] / sigma)
-            per_ion[:, j] = total * (fraction - model) ** 2
-        for c in objects:
-            mine = per_ion[comp == c]
-            sums[c] += mine.sum(axis=0)
-            gram[c] += mine.T @ mine
-            count[c] += len(mine)
+            per_ion[:, j] = loss(finish[with_facets](apply_modes(fit, bases, trial))[0])
+        _accumulate(per_ion, comp, objects, sums, gram, count)
     half = len(plain)
     missing[~faceted, half:] = True
     losses = np.full((n_comp, half), np.nan)
@@ -201,11 +187,138 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
             keep_facets[c] = with_facets
         side = slice(0, half) if with_facets else slice(half, m)
         loss, g, s_c = loss[side], gram[c][side, side], sums[c][side]
-        best = int(np.argmin(loss))
-        # standard error of each candidate's loss minus the best one's (sum over ions of the difference)
-        diff_sq = np.diag(g) + g[best, best] - 2 * g[:, best]
-        se = np.sqrt(np.maximum(diff_sq - (s_c - s_c[best]) ** 2 / max(count[c], 1.0), 0.0))
-        # the smoothest candidate within one standard error of the best (columns run smooth to rough)
-        chosen[c] = plain[int(np.flatnonzero(loss <= loss[best] + ONE_SE * se)[0])]
+        chosen[c] = plain[smoothest_within_one_se(loss, g, s_c, count[c])]
         losses[c] = np.where(np.isinf(loss), np.nan, s_c - s_c[-1])
     return ModeSelection(chosen, tuple(candidates), losses, keep_facets)
+
+
+def held_out_loss(fit: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, held: NearIons,
+                  scores: ObjectScores, widths: np.ndarray) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """The held-out ions a half surface is scored on, and their loss against a candidate surface.
+
+    Parameters
+    ----------
+    fit : (n, 3) float64
+        The surface one half of the ions placed (its candidates are the same mesh, moved).
+    faces : (m, 3) int
+    components : (n,) int
+    objects : list of int
+        The objects scored.
+    held : NearIons
+        The OTHER half's ions near ``fit`` (at least ``SCORED + 1`` nm from it).
+    scores : ObjectScores
+    widths : (c,) float64, nm
+
+    Returns
+    -------
+    comp : (h,) int
+        Object of each scored ion (those within ``SCORED`` of ``fit`` on an object of ``objects``).
+    loss : callable
+        ``loss(vertices)`` (h,): each ion's atoms times the squared difference of its score fraction from its
+        object's error-function step at its signed distance to ``vertices``.
+    """
+    held = held.subset(np.arange(len(held.rows)), fit, SCORED + 1.0)
+    start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
+    keep = np.abs(start.distance) < SCORED
+    rows, comp = start.index[keep], components[start.vertex[keep]]
+    score, total = scores.fraction(held.atoms.atoms[rows], comp)
+    ok = (total > 0) & np.isin(comp, objects)
+    rows, comp, fraction, total = rows[ok], comp[ok], score[ok] / total[ok], total[ok]
+    lo, hi = scores.outside[comp], scores.inside[comp]
+    sigma = np.sqrt(2) * widths[comp]
+
+    def loss(vertices: np.ndarray) -> np.ndarray:
+        band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
+        distance = np.full(len(held.positions), SCORED + 1.0)
+        distance[band.index] = band.distance
+        model = lo + (hi - lo) * 0.5 * erfc(distance[rows] / sigma)
+        return total * (fraction - model) ** 2
+
+    return comp, loss
+
+
+def _accumulate(per_ion: np.ndarray, comp: np.ndarray, objects, sums: np.ndarray, gram: np.ndarray,
+                count: np.ndarray) -> None:
+    """Adds each object's per-ion losses (ions x candidates) to its sums, Gram matrix and ion count."""
+    for c in objects:
+        mine = per_ion[comp == c]
+        sums[c] += mine.sum(axis=0)
+        gram[c] += mine.T @ mine
+        count[c] += len(mine)
+
+
+def smoothest_within_one_se(loss: np.ndarray, gram: np.ndarray, sums: np.ndarray, count: float) -> int:
+    """Index of the smoothest candidate (columns run smooth to rough) whose held-out loss is within
+    :data:`ONE_SE` standard errors of the smallest; the error of each candidate's loss minus the best one's is
+    that of a sum over ions of their differences (``gram``: the candidates' per-ion Gram matrix, ``sums`` their
+    sums, ``count`` ions; ``loss`` is ``sums`` with inf where a candidate is missing)."""
+    best = int(np.argmin(loss))
+    diff_sq = np.diag(gram) + gram[best, best] - 2 * gram[:, best]
+    se = np.sqrt(np.maximum(diff_sq - (sums - sums[best]) ** 2 / max(count, 1.0), 0.0))
+    return int(np.flatnonzero(loss <= loss[best] + ONE_SE * se)[0])
+
+
+LENGTHS = (8.0, 5.6, 4.0, 2.8, 2.0, 1.4, 1.0)
+"""Smoothing lengths (nm) tried for open surfaces, smooth to rough (:func:`~apt_filters.refine.spectral.rim_held_low_pass`:
+cut-off wavelengths 6-50 nm); the surface as it is is tried last."""
+
+
+def open_low_pass(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, lengths: dict[int, float]
+                  ) -> np.ndarray:
+    """(n, 3) ``vertices`` with each open object ``c`` of ``lengths`` low-passed at ``lengths[c]`` nm, its rim
+    held (:func:`~apt_filters.refine.spectral.rim_held_low_pass`)."""
+    out = vertices.copy()
+    for c, length in lengths.items():
+        if length > 0:
+            idx = np.flatnonzero(components == c)
+            local = np.full(len(vertices), -1, dtype=np.int64)
+            local[idx] = np.arange(len(idx))
+            out[idx] = rim_held_low_pass(vertices[idx], local[faces[components[faces[:, 0]] == c]], length)
+    return out
+
+
+def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
+                            held_out: list[NearIons], scores: ObjectScores, widths: np.ndarray,
+                            candidates: tuple[float, ...] = LENGTHS) -> dict[int, float]:
+    """Each open object's smoothing length by two-fold cross-validation, as :func:`cross_validated_modes`
+    chooses a closed object's modes: each half's surface low-passed at each candidate length (rim held) is
+    scored on the other half's ions; the object keeps the smoothest candidate within one standard error of the
+    best (0: the surface as it is), among those whose cut-off wavelength ``2 pi l`` is within the object's
+    extent (the square root of its area): longer ones flatten the object's shape, not its noise, and with few
+    ions the standard errors are wide enough to let the flattest candidate through (a 40 nm cap across a
+    14 nm box came out 0.26 nm flat). Arguments as :func:`cross_validated_modes`'s.
+
+    The halves' surfaces must not share noise the held-out ions hold: a start contoured from all the ions does,
+    and where the placement cannot undo it (shorter than its own smoothing of the moves) the held-out ions
+    agree with it and the selection keeps it; :func:`refine_surface` smooths an open start first
+    (:func:`open_start`).
+    """
+    plain = np.array(list(candidates) + [0.0])
+    n_comp = len(scores.usable)
+    sums, gram, count = np.zeros((n_comp, len(plain))), np.zeros((n_comp, len(plain), len(plain))), np.zeros(n_comp)
+    # no cut-off wavelength (2 pi l) beyond the object's own extent (the square root of its area): there the
+    # filter would flatten the object's shape, not its noise
+    extent = np.sqrt(np.bincount(components[faces[:, 0]], TriMesh(fits[0], faces).face_areas(), minlength=n_comp))
+    for k, fit in enumerate(fits):
+        comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
+        per_ion = np.column_stack([loss(open_low_pass(fit, faces, components,
+                                                      {c: length for c in objects if 2 * np.pi * length <= extent[c]}))
+                                   for length in plain])
+        _accumulate(per_ion, comp, objects, sums, gram, count)
+    return {c: float(plain[smoothest_within_one_se(np.where(2 * np.pi * plain <= extent[c], sums[c], np.inf), gram[c],
+                                                   sums[c], count[c])]) for c in objects}
+
+
+def open_start(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, smoothing: int
+               ) -> np.ndarray:
+    """(n, 3) the start of the refinement with its open ``objects`` low-passed below the length the placement
+    smooths its own moves over: ``smoothing`` umbrella passes spread a move over ``sqrt(smoothing / 2)`` edges
+    (a random walk of one edge per pass in two dimensions). Shorter than that the placement cannot correct the
+    start, so the noise of a start contoured from all the ions would stay in both halves' surfaces and in the
+    held-out ions alike (on a low-contrast curved interface the selection then kept a 0.3 nm roughness it
+    would otherwise have removed)."""
+    if not len(objects):
+        return vertices
+    edges = np.linalg.norm(vertices[faces[:, 0]] - vertices[faces[:, 1]], axis=1)
+    length = float(np.sqrt(smoothing / 2.0) * np.median(edges))
+    return open_low_pass(vertices, faces, components, {c: length for c in objects})

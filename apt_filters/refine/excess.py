@@ -18,7 +18,7 @@ from apt_filters.core.mesh import TriMesh, topology, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import NearIons
-from apt_filters.refine.levels import plateaus
+from apt_filters.refine.levels import plateaus, within_rim
 from apt_filters.voxel import ConcentrationBasis
 
 EXCESS_WINDOW = (1.0, 3.0)
@@ -67,7 +67,8 @@ def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str
     beyond the blurred segregation shell).
 
     Fractions count every ranged element (the solute must be in the denominator here).
-    ``half_width`` (nm) must cover the segregation shell and the blur on both sides.
+    ``half_width`` (nm) must cover the segregation shell and the blur on both sides. Ions beyond the rim of
+    an open surface count nowhere (:func:`~apt_filters.refine.levels.within_rim`).
     """
     components = topology(mesh.faces, mesh.n_vertices).vertex_components
     n_comp = int(components.max()) + 1 if mesh.n_vertices else 0
@@ -78,7 +79,7 @@ def object_excess(mesh: TriMesh, ions: IonTable, ranges: RangeTable, solute: str
     if solute not in atoms.elements:
         raise AptFiltersError(f"solute {solute!r} is not a ranged element ({', '.join(atoms.elements)})")
     k = atoms.elements.index(solute)
-    band = ions_near.band(vertices, vertex_normals(vertices, mesh.faces), reach)
+    band = within_rim(ions_near.band(vertices, vertex_normals(vertices, mesh.faces), reach), ions_near, mesh, reach)
     levels = plateaus(band, atoms, components, n_comp, solute, window)
     near = np.abs(band.distance) <= half_width
     comp = components[band.vertex]

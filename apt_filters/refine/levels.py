@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
@@ -57,6 +58,32 @@ class ObjectLevels:
         return {"component": self.component, "iso": self.iso, "n_inside": self.n_inside, "n_outside": self.n_outside,
                 "inside": dict(zip(self.elements, self.inside.tolist())),
                 "outside": dict(zip(self.elements, self.outside.tolist()))}
+
+
+def within_rim(band: Band, near: NearIons, mesh: TriMesh, reach: float) -> Band:
+    """The ions of ``band`` whose closest point on ``mesh`` is not on its rim.
+
+    An open surface (an interface that leaves the specimen, an object cut by its edge) has ions beyond its
+    rim: their nearest vertex is a rim vertex and their offset along its normal says nothing about which
+    side of the interface they are on, yet counted they enter a plateau window or the excess band as if
+    across the surface (a spinodal's Si excess +14 % and its inside plateau 14 sigma low on the whole box).
+    They are the ions whose exact closest surface point lies on a boundary edge or vertex
+    (:attr:`~apt_filters.core.distance.SignedDistance.on_boundary`, as the proxigram leaves them out); a
+    closed mesh keeps every ion.
+
+    Parameters
+    ----------
+    band : Band
+        Ions of ``near`` within ``reach`` of their nearest vertex of ``mesh``.
+    near : NearIons
+    mesh : TriMesh
+        The surface ``band`` was measured against.
+    reach : float, nm
+    """
+    if not len(mesh.boundary_edges()) or not len(band.index):
+        return band
+    rim = SurfaceDistance(mesh, reach=reach).query(near.positions[band.index], max_distance=reach).on_boundary
+    return Band(band.index[~rim], band.vertex[~rim], band.distance[~rim])
 
 
 def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int,
@@ -132,7 +159,8 @@ def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: st
     """Inside and outside plateaus of every connected surface of ``mesh``, and its midpoint iso-value.
 
     Ions are assigned to their nearest vertex and measured along its normal; the inside plateau
-    is every ion between ``window[0]`` and ``window[1]`` nm inside, the outside one likewise.
+    is every ion between ``window[0]`` and ``window[1]`` nm inside, the outside one likewise. Ions beyond
+    the rim of an open surface are not counted (:func:`within_rim`).
     An object with no ion ``window[0]`` deep is measured from halfway to its deepest ion (:func:`inside_inner`).
 
     Parameters
@@ -160,7 +188,8 @@ def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: st
     components = topology(mesh.faces, mesh.n_vertices).vertex_components
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     near = NearIons.select(ions, ranges, basis, vertices, mesh.faces, window[1] + 1.0)
-    band = near.band(vertices, vertex_normals(vertices, mesh.faces), window[1] + 1.0)
+    band = within_rim(near.band(vertices, vertex_normals(vertices, mesh.faces), window[1] + 1.0), near, mesh,
+                      window[1] + 1.0)
     return plateaus(band, near.atoms, components, int(components.max()) + 1, species, window, prior)
 
 

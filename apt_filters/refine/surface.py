@@ -41,7 +41,11 @@ After the iterations (each step can be switched off):
    surfaces of the cross-fit, low-passed in their manifold harmonics (:mod:`apt_filters.refine.spectral`)
    to 4-36 modes and finished as below, are scored on the other half's ions; the object keeps the
    fewest modes within one standard error of the best. A 3 nm sphere keeps 4-9 (its noise and the
-   start's grid pattern at degrees 2-8 go), a cube 4-36 (the facets then rebuild its edges).
+   start's grid pattern at degrees 2-8 go), a cube 4-36 (the facets then rebuild its edges). Each open
+   object (an interface leaving the specimen, a bicontinuous structure, an object cut by the edge) is
+   low-passed with its rim held at the length the held-out ions choose
+   (:func:`~apt_filters.refine.crossval.cross_validated_lengths`), its start smoothed first below the
+   length the iterations smooth their moves over (:func:`~apt_filters.refine.crossval.open_start`).
 6. The blur's curvature bias (:mod:`apt_filters.refine.blur`, ``blur``): a blurred interface's midpoint
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
@@ -89,8 +93,9 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (SCORED, ModeSelection, apply_modes, basis_size, cross_validated_modes,
-                                        object_harmonics)
+from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
+                                        cross_validated_lengths, cross_validated_modes, object_harmonics,
+                                        open_low_pass, open_start)
 from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
@@ -293,7 +298,8 @@ class StageReport:
     ----------
     name : str
         ``prepare`` (subdivision, unfolding, relaxation), ``cross_fit`` (two half placements and the plateaus
-        from them), ``place`` (the iterations), ``modes``, ``blur_and_marker``, ``facets``, ``untangle``.
+        from them), ``place`` (the iterations), ``modes``, ``lengths`` (open objects), ``blur_and_marker``,
+        ``facets``, ``untangle``.
     moved : int
         Vertices the stage moved by more than 1e-6 nm.
     mean_move, max_move : float, nm
@@ -875,6 +881,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                   f"{p.subdivisions} subdivision(s), {n:,} vertices")]
     topo = topology(faces, n)
     components, pairs = topo.vertex_components, topo.face_pairs
+    rimmed = np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])
+    if p.select_modes:  # open surfaces: no noise of the start shared by the halves' surfaces (open_start)
+        start = open_start(start, faces, components, rimmed, p.smoothing)
     radius = _reach(p) + RESELECT
 
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
@@ -896,7 +905,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                       f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
     scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
     closed = np.ones(len(scores.usable), dtype=bool)
-    closed[np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])] = False
+    closed[rimmed] = False
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
@@ -928,6 +937,20 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
             vertices = target
         stages.append(StageReport.between("modes", placed.vertices, vertices, clock, 0,
                                           f"{len(kept)} of {len(objects)} closed objects low-passed"))
+    opened = [c for c in range(len(closed)) if not closed[c] and scores.usable[c]]
+    if p.select_modes and opened:  # open surfaces: a smoothing length by held-out ions, the rim held
+        clock, before = time.perf_counter(), vertices
+        lengths = cross_validated_lengths([f.vertices for f in fits], faces, components, opened, held, scores,
+                                          placed.widths)
+        target = open_low_pass(vertices, faces, components, lengths)
+        if len(folded_pairs(target, faces, FOLD_ANGLE)):
+            target, g = guarded_move(vertices, faces, target - vertices, pairs)
+            guarded += g
+        vertices = target
+        selection = selection or ModeSelection({}, CANDIDATES, np.full((len(closed), len(CANDIDATES) + 1), np.nan))
+        selection.lengths = lengths
+        stages.append(StageReport.between("lengths", before, vertices, clock, 0, "open objects low-passed at "
+                                          + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
     found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance)
     if selection is not None:  # facets only where held-out ions preferred them
