@@ -262,7 +262,10 @@ def fmt(r: dict) -> str:
     cells += [f"d {r['mean']:.3f}", f"H {r['hausdorff']:.2f}"]
     if "excess_rel" in r:
         cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
-    cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / max(r['plateau_sigma'], 1e-9):+.1f}σ)")
+    if r["plateau_sigma"] > 0:
+        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ)")
+    else:  # the run's window lies deeper than the object: no count to compare with (not within)
+        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% (none of the object's ions in the run's window)")
     return ", ".join(cells)
 
 
