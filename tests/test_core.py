@@ -189,6 +189,19 @@ def test_near_surface_selection_keeps_what_it_is_also_asked_and_carries_columns(
     assert np.all(np.isnan(near.distance[extra])) and np.all(near.face[extra] == -1)
 
 
+def test_near_surface_selection_flags_the_ions_beyond_an_open_meshs_rim():
+    """On the square z = 0, |x|, |y| <= 2 (two triangles, normal +z) an ion's closest point is on the rim
+    exactly where |x| > 2 or |y| > 2; over the square it lies across the surface (unflagged)."""
+    from apt_filters.core.nearby import select_near
+
+    square = TriMesh(np.array([[-2.0, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    positions = np.random.default_rng(3).uniform(-4, 4, size=(20_000, 3))
+    near = select_near(positions, square, 1.5)
+    beyond = (np.abs(near.positions[:, :2]) > 2).any(axis=1)
+    assert 1_000 < beyond.sum() < len(near.rows) - 1_000
+    assert np.array_equal(near.on_boundary, beyond)
+
+
 def test_selection_without_distances_keeps_the_same_rows_and_searches_only_near_the_reach():
     """``distances=False``: the reach grid's Lipschitz bounds decide most ions (a FAR or WITHIN verdict is
     never wrong against the box's exact distance); the rows are those the exact search keeps, the ions

@@ -49,6 +49,10 @@ class NearSurface:
         The mesh's vertices at selection.
     carried : tuple of arrays
         The selected rows of the columns given as ``carry`` to :func:`select_near` (e.g. m/z).
+    on_boundary : (b,) bool
+        Whether an ion's closest point is on the mesh's rim (an open surface's boundary edge or vertex,
+        :attr:`~apt_filters.core.distance.SignedDistance.on_boundary`): it lies beyond the rim, not across the
+        surface, so its side is no phase's (False where no distance was searched).
     """
 
     rows: np.ndarray
@@ -58,6 +62,7 @@ class NearSurface:
     reach: float
     anchor: np.ndarray
     carried: tuple = ()
+    on_boundary: np.ndarray | None = None
 
     def moved(self, vertices: np.ndarray) -> float:
         """Largest move (nm) of a vertex of the same mesh since the selection."""
@@ -272,18 +277,20 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     grid = None if exact >= reach or (exact > 0 and not closed) else ReachGrid.of(engine, reach, inner=exact)
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
+    rim = [np.zeros(0, bool)]
     carried = [[np.zeros((0, *np.shape(c)[1:]), np.asarray(c[:0]).dtype)] for c in carry]
     for start in range(0, len(positions), chunk):
         part = np.asarray(positions[start:start + chunk])
         if grid is None:
             sd = engine.query(part, max_distance=reach)
-            d, f, near = sd.distance, sd.face, np.abs(sd.distance) <= reach
+            d, f, r, near = sd.distance, sd.face, sd.on_boundary, np.abs(sd.distance) <= reach
         else:
             kind, side = grid.classify(part)
             search = np.flatnonzero(kind == SEARCH)
             sd = engine.query(part[search], max_distance=reach)
             d, f = np.full(len(part), np.nan, np.float32), np.full(len(part), -1, np.int64)
-            d[search], f[search] = sd.distance, sd.face
+            r = np.zeros(len(part), bool)
+            d[search], f[search], r[search] = sd.distance, sd.face, sd.on_boundary
             if grid.inner > 0:  # the shell's ions: only their side
                 d[kind == WITHIN] = side[kind == WITHIN] * np.float32(np.inf)
             near = (kind == WITHIN) | (np.abs(d) <= reach)
@@ -292,7 +299,9 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         points.append(part[keep].astype(np.float64))
         dist.append(d[keep])
         face.append(f[keep])
+        rim.append(r[keep])
         for column, out in zip(carry, carried):
             out.append(np.asarray(column[start:start + chunk])[keep])
     return NearSurface(np.concatenate(rows), np.concatenate(points), np.concatenate(dist), np.concatenate(face),
-                       float(reach), engine.mesh.vertices.copy(), tuple(np.concatenate(c) for c in carried))
+                       float(reach), engine.mesh.vertices.copy(), tuple(np.concatenate(c) for c in carried),
+                       np.concatenate(rim))

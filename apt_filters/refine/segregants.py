@@ -9,7 +9,8 @@ the 8 % B shell counted, ~0 % without). So :func:`find_segregants` measures, ove
 pooled, each species' fraction in bins of the exact signed distance to a first surface (one streamed
 pass, :func:`~apt_filters.core.nearby.select_near`) and calls it a segregant
 where a bin near that surface stands ``significance`` binomial standard errors above the higher of its
-two references, all the atoms more than ``GAP`` nm beyond the bin on each side (out to 4 nm): under a
+two references, all the atoms more than ``GAP`` nm beyond the bin on each side (out to 4 nm; the ions beyond
+an open surface's rim, on neither side of it, left out): under a
 monotone step no bin exceeds the mean of what lies beyond it on its higher side, however wide the
 interface or thin the object (a 3 nm sphere has few atoms 2-4 nm inside its first contour). The surface
 only has to lie near the interface: the contour of the user's own basis
@@ -114,7 +115,10 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     edges = np.arange(-far, far + fine / 2, fine)
     distance = np.where(np.isinf(near.distance), np.sign(near.distance) * (far - fine / 2), near.distance)
     b = np.digitize(distance, edges) - 1
-    ok = (b >= 0) & (b < len(edges) - 1)
+    # an ion whose closest point is an open surface's rim lies beyond the rim, not across the surface: its side
+    # is no phase's (on a bicontinuous or open surface cut by the specimen, the inside phase's ions beyond the
+    # rim read as "outside" and would pull that side's reference toward the inside's composition)
+    ok = (b >= 0) & (b < len(edges) - 1) & ~near.on_boundary
     n_fine = len(edges) - 1
     counts = np.stack([np.bincount(b[ok], weights=atoms[ok, k], minlength=n_fine) for k in range(atoms.shape[1])])
     cum = np.concatenate([np.zeros((len(counts), 1)), np.cumsum(counts, axis=1)], axis=1)
