@@ -22,8 +22,9 @@ From the fits, the windows (:func:`plateau_windows`):
 
 - ``inner``: the distance from the surface beyond which every profile is on its plateau, i.e. less than
   ``tail`` (0.5 %) of the step and of each significant peak lies further out: ``-F⁻¹(tail)``,
-  ``F⁻¹(1 - tail)`` and ``|s1| + z τ`` with z = Φ⁻¹(1 - tail) = 2.58 (for a symmetric step about
-  one 10–90 % width beyond its centre). Nearer, the plateau windows count the interface as plateau and
+  ``F⁻¹(1 - tail)`` and ``|s1| + z τ`` with z = Φ⁻¹(1 - t) (for a symmetric step about one 10–90 % width
+  beyond its centre), t = tail (2.58) or, for a peak holding N ions, :data:`TAIL_SIGMAS` / sqrt(N) where
+  smaller (a rich shell's tail left in the windows would bias its excess by more than its counting error). Nearer, the plateau windows count the interface as plateau and
   the excess comes out low (the real Si Cr/Si interface, 10–90 % 4.3 nm, against fixed 1–3 nm windows:
   C excess 0.35 detected atoms/nm², half of what a 1D profile through a central cylinder gives);
   further, the integration collects counting noise from plateau ions for nothing.
@@ -66,6 +67,12 @@ MAX_RANGE = 50.0
 PEAK_SIGMAS = 3.0
 """A solute's peak is kept when its amplitude stands this many standard errors above zero."""
 
+TAIL_SIGMAS = 0.1
+"""A peak's expected count beyond the inner edge of the plateau windows, each side, is at most this many of
+its counting sigma (the square root of its count), where that is less than ``tail`` of it: the excess such
+a tail leaves in the plateau windows (a loss, about doubled where the fitted levels extrapolate its slope
+to the surface) stays a small part of the excess's counting sigma however many ions the peak holds."""
+
 
 @dataclass
 class ProfileFit:
@@ -92,7 +99,8 @@ class ProfileFit:
         Reduced chi-square of the fit (errors are scaled by its root where above 1).
     reach : float
         Distance (nm) from the surface beyond which less than ``tail`` of the step (and of a
-        significant peak) lies, on either side.
+        significant peak, less than ``tail`` and than :data:`TAIL_SIGMAS` / sqrt(its count)) lies,
+        on either side.
     """
 
     species: str
@@ -273,7 +281,8 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
         amplitude, centre and width are fitted (a solute's profile). Without it, the step's plateaus,
         mode and two widths are fitted.
     tail : float
-        Fraction of the step's (peak's) integral beyond the returned ``reach``.
+        Fraction of the step's (peak's) integral beyond the returned ``reach``; a peak's at most
+        :data:`TAIL_SIGMAS` / sqrt(its expected count).
 
     Returns
     -------
@@ -329,7 +338,8 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
     if step is not None:
         err = np.sqrt(np.maximum(np.diag(cov), 0.0))
         significant = p[2] > PEAK_SIGMAS * err[2]
-        z = float(ndtri(1.0 - tail))
+        held = p[2] * float(np.sum(total * np.exp(-0.5 * ((s - p[3]) / p[4]) ** 2)))  # the peak's expected count
+        z = float(ndtri(1.0 - min(tail, TAIL_SIGMAS / np.sqrt(max(held, 1.0)))))
         reach = max(step.reach, float(abs(p[3]) + z * p[4])) if significant else step.reach
         return replace(step, species=species, outside=float(p[0]), inside=float(p[1]), outside_error=float(err[0]),
                        inside_error=float(err[1]),
@@ -477,5 +487,5 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
     return prox, windows
 
 
-__all__ = ["FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "Windows", "first_range",
+__all__ = ["FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "TAIL_SIGMAS", "Windows", "first_range",
            "fit_profile", "fitted_proxigram", "midpoint", "plateau_windows"]
