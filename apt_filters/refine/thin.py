@@ -70,8 +70,10 @@ class ThinObjects:
 
     def describe(self) -> str:
         """One line for the run's log."""
-        return (f"{len(self.replaced)} thinned objects drawn at "
-                f"{'x'.join(f'{d:g}' for d in self.delocalization)} nm")
+        finer = "x".join(f"{d:g}" for d in self.delocalization)
+        if not self.replaced:
+            return f"no object too thin for the delocalization (checked at {finer} nm)"
+        return f"{len(self.replaced)} object(s) too thin for the delocalization drawn again at {finer} nm"
 
     def as_dict(self) -> dict:
         return {"delocalization_nm": list(self.delocalization), "replaced_nm3": [list(r) for r in self.replaced]}
