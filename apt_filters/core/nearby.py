@@ -263,7 +263,8 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         those kept by ``also``), only those it leaves undecided (within about a cell of the reach) are
         searched. A float ``x`` < ``reach``: exact distances within ``x`` nm; on a closed mesh the ions the
         grid proves between ``x`` and ``reach`` get only their side (distance +-inf, face -1). The rows
-        are the same in every case.
+        are the same in every case; in every case the ions the grid proves farther than ``reach`` are not
+        searched.
 
     Returns
     -------
@@ -273,8 +274,11 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh, reach=reach)
     closed = engine.mesh.n_faces > 0 and not engine.topology.boundary_vertex.any()
     exact = reach if distances is True else 0.0 if distances is False else float(distances)
-    # beyond ``exact`` only the side is asked, which the grid's centres give on a closed mesh alone
-    grid = None if exact >= reach or (exact > 0 and not closed) else ReachGrid.of(engine, reach, inner=exact)
+    # Beyond ``exact`` only the side is asked, which the grid's centres give on a closed mesh alone; where every
+    # kept ion needs its exact distance the grid still spares the search of those it proves beyond the reach.
+    side_only = 0 < exact < reach and closed
+    unsearched = exact == 0 or side_only  # ions the grid proves within the reach are kept without a search
+    grid = ReachGrid.of(engine, reach, inner=exact if side_only else 0.0) if engine.mesh.n_faces else None
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
     rim = [np.zeros(0, bool)]
@@ -286,7 +290,7 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
             d, f, r, near = sd.distance, sd.face, sd.on_boundary, np.abs(sd.distance) <= reach
         else:
             kind, side = grid.classify(part)
-            search = np.flatnonzero(kind == SEARCH)
+            search = np.flatnonzero(kind == SEARCH if unsearched else kind != FAR)
             sd = engine.query(part[search], max_distance=reach)
             d, f = np.full(len(part), np.nan, np.float32), np.full(len(part), -1, np.int64)
             r = np.zeros(len(part), bool)
