@@ -284,7 +284,8 @@ def _refine_record(specks, refined) -> dict:
              "source": estimate.source},
             "cross_fit": refined.params.cross_fit,
             "modes": None if refined.modes is None else {str(c): k for c, k in sorted(refined.modes.modes.items())},
-            "lengths_nm": None if refined.modes is None else {str(c): v for c, v in sorted(refined.modes.lengths.items())},
+            "lengths_nm": (None if refined.modes is None
+                           else {str(c): v for c, v in sorted(refined.modes.lengths.items())}),
             "marker": None if marks is None else
             {"species": marks.name, "objects_moved": marks.marked,
              "layer_offset_nm": _finite([marks.layer_offset])[0],

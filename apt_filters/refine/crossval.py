@@ -259,8 +259,9 @@ def smoothest_within_one_se(loss: np.ndarray, gram: np.ndarray, sums: np.ndarray
 
 
 LENGTHS = (8.0, 5.6, 4.0, 2.8, 2.0, 1.4, 1.0)
-"""Smoothing lengths (nm) tried for open surfaces, smooth to rough (:func:`~apt_filters.refine.spectral.rim_held_low_pass`:
-cut-off wavelengths 6-50 nm); the surface as it is is tried last."""
+"""Smoothing lengths (nm) tried for open surfaces, smooth to rough
+(:func:`~apt_filters.refine.spectral.rim_held_low_pass`: cut-off wavelengths 6-50 nm); the surface as it is is
+tried last."""
 
 
 def open_low_pass(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, lengths: dict[int, float]

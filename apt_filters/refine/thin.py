@@ -85,8 +85,8 @@ def _thickness(part: TriMesh) -> float:
     return abs(part.signed_volume()) / area if area > 0 else 0.0
 
 
-def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
-                     iso: float, basis: ConcentrationBasis | None = None,
+def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mask: np.ndarray, ions: IonTable,
+                     ranges: RangeTable, species: str, iso: float, basis: ConcentrationBasis | None = None,
                      alpha: float = ALPHA) -> tuple[TriMesh, ThinObjects]:
     """``mesh`` with the objects its scale thins drawn one octave finer (see the module docstring).
 
