@@ -26,7 +26,8 @@ From the fits, the windows (:func:`plateau_windows`):
   beyond its centre), t = tail (2.58) or, for a peak holding N ions, :data:`TAIL_SIGMAS` / sqrt(N) where
   smaller (a rich shell's tail left in the windows would bias its excess by more than its counting error).
   Nearer, the plateau windows count the interface as plateau and the excess comes out low (the real Si Cr/Si
-  interface, 10–90 % 4.3 nm, against fixed 1–3 nm windows: C excess 0.35 detected atoms/nm², half of what a 1D profile through a central cylinder gives);
+  interface, 10–90 % 4.3 nm, against fixed 1–3 nm windows: C excess 0.35 detected atoms/nm², half of what a 1D
+  profile through a central cylinder gives);
   further, the integration collects counting noise from plateau ions for nothing.
 - ``outer = 3 inner``: the plateau windows are twice as long as the integrated half-width, so the
   fitted levels' error adds at most half the counting variance of the integrated ions (flat plateaus:
