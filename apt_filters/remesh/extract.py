@@ -17,7 +17,7 @@ from numba import njit
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh.sampling import Samples
+from apt_filters.remesh.sampling import Samples, refined_corner
 
 
 def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -> list:
@@ -53,10 +53,10 @@ def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarr
 
 
 @njit(cache=True)
-def _voronoi_fans(faces, labels, n_vertices):
+def _voronoi_fans(lattice, labels, n_vertices):
     """The cells around every refined vertex where three or more meet (a Voronoi vertex), in fan order.
 
-    Two passes over the refined ``faces`` (f, 3) find those vertices (the first two labels met at
+    Two passes over the refined faces (made face by face from ``lattice``, :meth:`Lattice.args`) find those vertices (the first two labels met at
     each vertex, int32) and the faces around them (a CSR table of the meeting vertices only); each
     fan is then walked counter-clockwise from connectivity alone: face ``(v, x, y)`` is followed by
     the face holding ``(v, y, z)``, from the face without a predecessor (an open fan) or else from
@@ -68,10 +68,10 @@ def _voronoi_fans(faces, labels, n_vertices):
     """
     seen = np.full((n_vertices, 2), -1, np.int32)  # the first two labels met at each vertex
     n_meet = 0
-    for i in range(len(faces)):
+    for i in range(len(labels)):
         label = labels[i]
         for k in range(3):
-            v = faces[i, k]
+            v = refined_corner(lattice, i, k)
             if seen[v, 1] == -2:  # already a meeting vertex
                 continue
             if seen[v, 0] < 0 or seen[v, 0] == label:
@@ -89,18 +89,18 @@ def _voronoi_fans(faces, labels, n_vertices):
         else:
             seen[v, 0] = -1
     ptr = np.zeros(n_meet + 1, np.int64)
-    for i in range(len(faces)):
+    for i in range(len(labels)):
         for k in range(3):
-            r = seen[faces[i, k], 0]
+            r = seen[refined_corner(lattice, i, k), 0]
             if r >= 0:
                 ptr[r + 1] += 1
     for r in range(n_meet):
         ptr[r + 1] += ptr[r]
     around = np.empty(ptr[-1], np.int32)
     fill = ptr[:-1].copy()
-    for i in range(len(faces)):  # faces in ascending order: each fan's list is sorted
+    for i in range(len(labels)):  # faces in ascending order: each fan's list is sorted
         for k in range(3):
-            r = seen[faces[i, k], 0]
+            r = seen[refined_corner(lattice, i, k), 0]
             if r >= 0:
                 around[fill[r]] = i
                 fill[r] += 1
@@ -122,8 +122,8 @@ def _voronoi_fans(faces, labels, n_vertices):
         for j in range(m):
             f = around[lo + j]
             for k in range(3):
-                if faces[f, k] == v:
-                    nxt[j], prv[j] = faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+                if refined_corner(lattice, f, k) == v:
+                    nxt[j], prv[j] = refined_corner(lattice, f, (k + 1) % 3), refined_corner(lattice, f, (k + 2) % 3)
         first = 0
         for j in range(m):  # an open fan starts at its face without a predecessor (no face ends at its x)
             has_pred = False
@@ -163,7 +163,7 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     A Voronoi vertex is skipped when a cell appears twice around it (a cell that is not a
     disk there); the repair step closes the resulting gap.
     """
-    counts, cl = _voronoi_fans(samples.faces, labels, len(samples.vertices))
+    counts, cl = _voronoi_fans(samples.lattice.args(), labels, samples.n_vertices)
     cstart = np.r_[0, np.cumsum(counts)[:-1]]
     tri = np.flatnonzero(counts == 3)
     out = [np.stack([cl[cstart[tri]], cl[cstart[tri] + 1], cl[cstart[tri] + 2]], 1)]
