@@ -391,14 +391,14 @@ def _lloyd_pass(lattice, face_weight, group, previous, positions, slot_ptr, slot
     mass (n,), moments (n, 3), energy (sum of w·d²).
     """
     n = len(positions)
-    per_face = len(lattice[5])
+    vertices, faces, centroid = lattice[0], lattice[1], lattice[6]
     labels = np.empty(len(previous), np.int32)
     mass = np.zeros(n)
     moment = np.zeros((n, 3))
     energy = 0.0
     point = np.empty(3)
     for i in range(len(previous)):
-        sample_point(lattice, i, point)
+        sample_point(vertices, faces, centroid, i, point)
         c = previous[i]
         row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
         best, arg = np.inf, c
@@ -411,7 +411,7 @@ def _lloyd_pass(lattice, face_weight, group, previous, positions, slot_ptr, slot
             if d < best:
                 best, arg = d, g
         labels[i] = arg
-        w = face_weight[i // per_face]
+        w = face_weight[i // len(centroid)]
         mass[arg] += w
         moment[arg, 0] += w * point[0]
         moment[arg, 1] += w * point[1]

@@ -17,7 +17,7 @@ from numba import njit
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh.sampling import Samples, refined_corner
+from apt_filters.remesh.sampling import Samples, point_id, lattice_ids
 
 
 def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -> list:
@@ -66,21 +66,26 @@ def _voronoi_fans(lattice, labels, n_vertices):
     Returns (k,) int64 counts of corners per Voronoi vertex, in vertex order, and the corners' labels
     concatenated.
     """
+    vertices, in_faces, face_edge, forward, point, pattern, _, n, n_inner, n_edges = lattice
+    per_face = len(pattern)
+    ids = np.empty(len(lattice[4]), np.int64)  # refined vertex ids of one input face's lattice points
     seen = np.full((n_vertices, 2), -1, np.int32)  # the first two labels met at each vertex
     n_meet = 0
-    for i in range(len(labels)):
-        label = labels[i]
-        for k in range(3):
-            v = refined_corner(lattice, i, k)
-            if seen[v, 1] == -2:  # already a meeting vertex
-                continue
-            if seen[v, 0] < 0 or seen[v, 0] == label:
-                seen[v, 0] = label
-            elif seen[v, 1] < 0 or seen[v, 1] == label:
-                seen[v, 1] = label
-            else:
-                seen[v, 1] = -2  # a third label: a meeting vertex; seen[v, 0] becomes its rank below
-                n_meet += 1
+    for f in range(len(labels) // per_face):
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            label = labels[f * per_face + j]
+            for k in range(3):
+                v = ids[pattern[j, k]]
+                if seen[v, 1] == -2:  # already a meeting vertex
+                    continue
+                if seen[v, 0] < 0 or seen[v, 0] == label:
+                    seen[v, 0] = label
+                elif seen[v, 1] < 0 or seen[v, 1] == label:
+                    seen[v, 1] = label
+                else:
+                    seen[v, 1] = -2  # a third label: a meeting vertex; seen[v, 0] becomes its rank below
+                    n_meet += 1
     rank = 0
     for v in range(n_vertices):
         if seen[v, 1] == -2:
@@ -89,21 +94,25 @@ def _voronoi_fans(lattice, labels, n_vertices):
         else:
             seen[v, 0] = -1
     ptr = np.zeros(n_meet + 1, np.int64)
-    for i in range(len(labels)):
-        for k in range(3):
-            r = seen[refined_corner(lattice, i, k), 0]
-            if r >= 0:
-                ptr[r + 1] += 1
+    for f in range(len(labels) // per_face):
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            for k in range(3):
+                r = seen[ids[pattern[j, k]], 0]
+                if r >= 0:
+                    ptr[r + 1] += 1
     for r in range(n_meet):
         ptr[r + 1] += ptr[r]
     around = np.empty(ptr[-1], np.int32)
     fill = ptr[:-1].copy()
-    for i in range(len(labels)):  # faces in ascending order: each fan's list is sorted
-        for k in range(3):
-            r = seen[refined_corner(lattice, i, k), 0]
-            if r >= 0:
-                around[fill[r]] = i
-                fill[r] += 1
+    for f in range(len(labels) // per_face):  # faces in ascending order: each fan's list is sorted
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            for k in range(3):
+                r = seen[ids[pattern[j, k]], 0]
+                if r >= 0:
+                    around[fill[r]] = f * per_face + j
+                    fill[r] += 1
     counts = np.zeros(n_meet, np.int64)
     corners = np.empty(ptr[-1], np.int64)
     n_corners = 0
@@ -120,10 +129,13 @@ def _voronoi_fans(lattice, labels, n_vertices):
         lo, hi = ptr[r], ptr[r + 1]
         m = hi - lo
         for j in range(m):
-            f = around[lo + j]
+            f, p = around[lo + j] // per_face, around[lo + j] % per_face
             for k in range(3):
-                if refined_corner(lattice, f, k) == v:
-                    nxt[j], prv[j] = refined_corner(lattice, f, (k + 1) % 3), refined_corner(lattice, f, (k + 2) % 3)
+                if point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f, pattern[p, k]) == v:
+                    nxt[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
+                                       pattern[p, (k + 1) % 3])
+                    prv[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
+                                       pattern[p, (k + 2) % 3])
         first = 0
         for j in range(m):  # an open fan starts at its face without a predecessor (no face ends at its x)
             has_pred = False

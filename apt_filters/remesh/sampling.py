@@ -8,7 +8,7 @@ restricted Voronoi cells be read off later. The refined faces' centroids are the
 Nothing of the refined size is stored: refined face ``i`` lies in input face ``i // n²`` and is
 face ``i % n²`` of one lattice pattern, so its corners' refined vertex ids, its centroid, area (the
 sample weight) and normal follow from the input face, its edges (:class:`Lattice`, read inside the
-compiled kernels by :func:`refined_corner` and :func:`sample_point`) and the pattern. Refined
+compiled kernels by :func:`point_id`, :func:`lattice_ids` and :func:`sample_point`) and the pattern. Refined
 vertex ids: the input's vertices, then ``n - 1`` per input edge, then the lattice points inside
 each input face. Memory: the input's face areas and normals and one orientation flag per face edge.
 """
@@ -77,11 +77,9 @@ class Lattice:
 
 
 @njit(nogil=True, cache=True)
-def refined_corner(lattice, i, k):
-    """Refined vertex id of corner ``k`` of refined face ``i`` (``lattice``: :meth:`Lattice.args`)."""
-    vertices, faces, face_edge, forward, point, pattern, _, n, n_inner, n_edges = lattice
-    per_face = len(pattern)
-    f, j = i // per_face, pattern[i % per_face, k]
+def point_id(vertices, faces, face_edge, forward, point, n, n_inner, n_edges, f, j):
+    """Refined vertex id of lattice point ``j`` of input face ``f`` (the fields of :class:`Lattice`, unpacked:
+    the compiled kernels unpack them once, not per point)."""
     kind, index, t = point[j, 0], point[j, 1], point[j, 2]
     if kind == 0:
         return faces[f, index]
@@ -91,10 +89,19 @@ def refined_corner(lattice, i, k):
 
 
 @njit(nogil=True, cache=True)
-def sample_point(lattice, i, out):
-    """Centroid (nm) of refined face ``i`` written into ``out`` (3,)."""
-    vertices, faces, _, _, _, pattern, centroid, _, _, _ = lattice
-    per_face = len(pattern)
+def lattice_ids(lattice, f, out):
+    """Refined vertex ids of every lattice point of input face ``f`` written into ``out`` (p,): corner ``k``
+    of its refined face ``j`` (refined face ``f·n² + j``) is ``out[pattern[j, k]]``. One input face at a
+    time, this is cheaper than :func:`point_id` for each corner of each of its refined faces."""
+    vertices, faces, face_edge, forward, point, _, _, n, n_inner, n_edges = lattice
+    for j in range(len(point)):
+        out[j] = point_id(vertices, faces, face_edge, forward, point, n, n_inner, n_edges, f, j)
+
+
+@njit(nogil=True, cache=True)
+def sample_point(vertices, faces, centroid, i, out):
+    """Centroid (nm) of refined face ``i`` written into ``out`` (3,) (the fields of :class:`Lattice`)."""
+    per_face = len(centroid)
     f, j = i // per_face, i % per_face
     u, w = centroid[j, 0], centroid[j, 1]
     a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -104,10 +111,13 @@ def sample_point(lattice, i, out):
 
 @njit(nogil=True, cache=True)
 def _corners(lattice, ids):
+    vertices, faces, face_edge, forward, point, pattern, _, n, n_inner, n_edges = lattice
+    per_face = len(pattern)
     out = np.empty((len(ids), 3), np.int64)
     for r in range(len(ids)):
+        f, j = ids[r] // per_face, ids[r] % per_face
         for k in range(3):
-            out[r, k] = refined_corner(lattice, ids[r], k)
+            out[r, k] = point_id(vertices, faces, face_edge, forward, point, n, n_inner, n_edges, f, pattern[j, k])
     return out
 
 
