@@ -383,23 +383,23 @@ def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_r
 
 
 @njit(nogil=True, cache=True)
-def _lloyd_pass(lattice, face_weight, group, previous, positions, slot_ptr, slot_group, slot_row, table):
+def _lloyd_pass(lattice, face_weight, group, labels, positions, slot_ptr, slot_group, slot_row, table):
     """Nearest candidate generator of every sample, and the cells' weighted mass, first moments and energy.
 
     One pass over the samples (made face by face from ``lattice``, :meth:`Lattice.args`; weight
-    ``face_weight`` of their input face) with no temporaries of their size: labels (f,) int32,
-    mass (n,), moments (n, 3), energy (sum of w·d²).
+    ``face_weight`` of their input face) with no temporaries of their size: ``labels`` (f,) int32,
+    each sample's previous generator, become the new ones in place; returns mass (n,), moments (n, 3)
+    and energy (sum of w·d²).
     """
     n = len(positions)
     vertices, faces, centroid = lattice[0], lattice[1], lattice[6]
-    labels = np.empty(len(previous), np.int32)
     mass = np.zeros(n)
     moment = np.zeros((n, 3))
     energy = 0.0
     point = np.empty(3)
-    for i in range(len(previous)):
+    for i in range(len(labels)):
         sample_point(vertices, faces, centroid, i, point)
-        c = previous[i]
+        c = labels[i]
         row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
         best, arg = np.inf, c
         for j in range(table.shape[1]):
@@ -417,7 +417,395 @@ def _lloyd_pass(lattice, face_weight, group, previous, positions, slot_ptr, slot
         moment[arg, 1] += w * point[1]
         moment[arg, 2] += w * point[2]
         energy += w * best
-    return labels, mass, moment, energy
+    return mass, moment, energy
+
+
+def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
+    """Nearest allowed generator of every sample point, per group (KD-tree of each group's generators)."""
+    labels = np.full(len(points), -1)
+    order = np.argsort(group, kind="stable")
+    bounds = np.searchsorted(group[order], np.arange(len(allowed) + 1))
+    for g, ids in enumerate(allowed):
+        sel = order[bounds[g]:bounds[g + 1]]
+        if len(sel) and len(ids):
+            labels[sel] = ids[_knn(positions[ids], points[sel], 1)[:, 0]]
+    return labels
+
+
+@njit(cache=True)
+def _run_starts(group, per_face):
+    """(r,) int64 first sample of every run of samples of one input face (``per_face`` consecutive
+    samples) and one group."""
+    count = 0
+    for i in range(len(group)):
+        if i % per_face == 0 or group[i] != group[i - 1]:
+            count += 1
+    starts = np.empty(count, np.int64)
+    count = 0
+    for i in range(len(group)):
+        if i % per_face == 0 or group[i] != group[i - 1]:
+            starts[count] = i
+            count += 1
+    return starts
+
+
+@njit(cache=True)
+def _spread(starts, label, n):
+    """(n,) int32: ``label[r]`` over the run of samples from ``starts[r]`` to the next start."""
+    out = np.empty(n, np.int32)
+    for r in range(len(starts)):
+        out[starts[r]:starts[r + 1] if r + 1 < len(starts) else n] = label[r]
+    return out
+
+
+def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
+    """A nearby allowed generator for every sample: the nearest one of the first sample of each run of
+    samples with the same input face and group (refined faces are stored by input face), so the
+    KD-tree answers one query per input face instead of one per sample; (f,) int32 and arrays of
+    the runs' size only."""
+    starts = _run_starts(group, samples.per_face)
+    return _spread(starts, assign(samples.points(starts), group[starts], positions, allowed), len(group))
+
+
+def lloyd(self, arc: np.ndarray) -> np.ndarray:
+        """One 1D Lloyd step on sorted arc positions (open curve ends are fixed corners)."""
+        if len(arc) == 0:
+            return arc
+        if self.closed:
+            ext = np.concatenate([[arc[-1] - self.length], arc, [arc[0] + self.length]])
+        else:
+            ext = np.concatenate([[0.0], arc, [self.length]])
+        lo, hi = 0.5 * (ext[:-2] + ext[1:-1]), 0.5 * (ext[1:-1] + ext[2:])
+
+        def integral(table, x):
+            return np.interp(x, self.table_t, table)
+
+        mass = integral(self.m0, hi) - integral(self.m0, lo)
+        new = (integral(self.m1, hi) - integral(self.m1, lo)) / np.maximum(mass, 1e-300)
+        new = np.where(mass > 0, new, arc)
+        return np.mod(new, self.length) if self.closed else new
+
+
+class PatchSurfaces:
+    """Closest points of ``mesh`` restricted to one patch per point.
+
+    One closest-point engine (:class:`apt_filters.core.distance.SurfaceDistance`) over the whole
+    mesh answers most queries exactly: when a point's closest face lies on the patch asked for,
+    it is also the closest face of that patch. Only the other points (near a crease, or in a
+    pocket where another patch is closer) ask an engine of their patch alone, built when first
+    needed. (An engine per patch, built up front, was a tenth of the remesh's time and memory on
+    bumpy surfaces, which have hundreds of small patches.)
+
+    ``patch`` (f,) is the patch of every face of ``mesh``.
+    """
+
+    def __init__(self, mesh: TriMesh, patch: np.ndarray):
+        from apt_filters.core.distance import SurfaceDistance
+
+        self.mesh, self.patch, self.whole = mesh, patch, SurfaceDistance(mesh)
+        self._order = np.argsort(patch, kind="stable")
+        self._bounds = np.searchsorted(patch[self._order], np.arange(int(patch.max(initial=-1)) + 2))
+        self._own: dict = {}
+
+    def closest(self, points: np.ndarray, patches: np.ndarray, near: float | None = None) -> np.ndarray:
+        """(n, 3) closest point on patch ``patches[i]`` (n,) to each of ``points`` (n, 3) nm; ``near``
+        (nm): how far most points are expected to be (the search's first reach)."""
+        out = np.empty((len(points), 3))
+        step = chunk_length(self.mesh.n_faces)  # the engines' temporaries, a chunk of points at a time
+        for start in range(0, len(points), step):
+            block = slice(start, start + step)
+            out[block], face, _ = self.whole.closest(points[block], near)
+            wrong = start + np.flatnonzero(self.patch[face] != patches[block])
+            for p in np.unique(patches[wrong]).tolist():
+                sel = wrong[patches[wrong] == p]
+                out[sel] = self._of(p).closest(points[sel], near)[0]
+        return out
+
+    def _of(self, p: int):
+        if p not in self._own:
+            from apt_filters.core.distance import SurfaceDistance
+
+            faces = self.mesh.faces[self._order[self._bounds[p]:self._bounds[p + 1]]]
+            used, local = np.unique(faces, return_inverse=True)
+            self._own[p] = SurfaceDistance(TriMesh(self.mesh.vertices[used], local.reshape(-1, 3)))
+        return self._own[p]
+
+
+def _initial_patch_points(chunks, area: float, count: int, seed: int) -> np.ndarray:
+    """``count`` evenly spread points among the points that ``chunks()`` yields ((k, 3) arrays, a patch's
+    samples a chunk at a time) over an ``area`` (nm²): voxel down-sampling, then a random subset."""
+    if count <= 0:
+        return np.empty((0, 3))
+    rng = np.random.default_rng(seed)
+    size = np.sqrt(area / count)
+    origin = np.min([points.min(axis=0) for points in chunks()], axis=0)
+    for _ in range(6):
+        down = _voxel_means(chunks, origin, size)
+        if len(down) >= count:
+            break
+        size *= 0.8 * np.sqrt(max(len(down), 1) / count)
+    if len(down) < count:  # a patch too small to hold them apart: take samples at random
+        down = np.vstack(list(chunks()))
+    chosen = down[rng.choice(len(down), size=count, replace=False)]
+    return chosen[_spatial_order(chosen, size)]
+
+
+def _voxel_means(chunks, origin: np.ndarray, size: float) -> np.ndarray:
+    """Mean of the points that ``chunks()`` yields in each occupied cube of side ``size`` (nm) counted
+    from ``origin`` (3,), no point below it (voxel down-sampling): sums per cube chunk by chunk, so that
+    only one chunk and the cubes (about as many as generators) are held."""
+    cells, sums, counts = [], [], []
+    for points in chunks():
+        cell, _, inverse, count = unique_rows(np.floor((points - origin) / size).astype(np.int64))
+        cells.append(cell)
+        counts.append(count)
+        sums.append(np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1))
+    inverse = unique_rows(np.vstack(cells))[2]
+    total = np.stack([np.bincount(inverse, np.concatenate([s[:, k] for s in sums])) for k in range(3)], 1)
+    return total / np.bincount(inverse, np.concatenate(counts))[:, None]
+
+
+def _spatial_order(points: np.ndarray, cell: float) -> np.ndarray:
+    """Order of ``points`` (n, 3) along a Z-order curve of cells of size ``cell``: neighbours end up
+    near each other in memory, which the compiled passes over generators and samples need (in
+    random order the candidate refresh of 160k generators took twice as long)."""
+    if len(points) == 0:
+        return np.arange(0)
+    q = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
+    q = np.minimum(q, (1 << 20) - 1)
+    key = np.zeros(len(points), np.int64)
+    for bit in range(20):
+        for axis in range(3):
+            key |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return np.argsort(key, kind="stable")
+
+
+def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float, density: np.ndarray,
+               vertex_density, seed: int = 0) -> tuple[Generators, list]:
+    """Place generators: corners, evenly spaced curve generators, evenly spread patch generators.
+
+    ``density`` (m,) is the density ρ ≥ 1 on each input face; edges scale as ρ^-1/4, so a patch gets
+    ∫ρ^1/2 dA / (√3/2 L²) vertices, less the strip that its curve generators' cells take.
+    """
+    pos, kind, owner, arc = [mesh.vertices[features.corners]], [np.full(len(features.corners), CORNER)], \
+        [np.arange(len(features.corners))], [np.full(len(features.corners), np.nan)]
+    curves = []
+    border = np.zeros(features.n_patches)
+    for i, c in enumerate(features.curves):
+        curve = _Curve(mesh.vertices[c], c[0] == c[-1] and len(c) > 2, vertex_density, edge / 8)
+        curves.append(curve)
+        t = curve.initial(edge)
+        pos.append(curve.at(t))
+        kind.append(np.full(len(t), CURVE))
+        owner.append(np.full(len(t), i))
+        arc.append(t)
+        border[features.curve_patches[i]] += curve.size[-1]
+    order = np.argsort(features.patch, kind="stable")
+    bounds = np.searchsorted(features.patch[order], np.arange(features.n_patches + 1))
+    for p in range(features.n_patches):
+        mine = order[bounds[p]:bounds[p + 1]]
+        measure = (samples.face_area[mine] * np.sqrt(density[mine])).sum()
+        free = (measure - 0.5 * _AREA_PER_VERTEX * edge * border[p]) / (_AREA_PER_VERTEX * edge**2)
+        count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
+        count = min(max(count, 0), len(mine) * samples.per_face)
+        step = max(samples.chunk // samples.per_face, 1)
+
+        def chunks(mine=mine, step=step):
+            for start in range(0, len(mine), step):
+                yield samples.points(samples.of_faces(mine[start:start + step]))
+
+        pts = _initial_patch_points(chunks, samples.face_area[mine].sum(), count, seed + p)
+        pos.append(pts)
+        kind.append(np.full(len(pts), PATCH))
+        owner.append(np.full(len(pts), p))
+        arc.append(np.full(len(pts), np.nan))
+    gens = Generators(np.vstack(pos), np.concatenate(kind), np.concatenate(owner), np.concatenate(arc))
+    return gens, curves
+
+
+def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
+    """Generators that each sample group may belong to.
+
+    Group ``p`` holds the samples of patch ``p``: its own generators and those of the curves
+    and corners around it. Group ``n_patches + p`` holds the samples of ``p`` that touch a
+    feature curve: only curve and corner generators, so that consecutive generators on a curve
+    always have adjacent cells and the curve becomes a chain of mesh edges.
+    """
+    n = features.n_patches
+    rim = [[] for _ in range(n)]
+    for g_kind, lists in ((CORNER, features.corner_patches), (CURVE, features.curve_patches)):
+        for i, patches in enumerate(lists):
+            ids = np.flatnonzero((gens.kind == g_kind) & (gens.owner == i))
+            for p in patches:
+                rim[p].append(ids)
+    rim = [np.concatenate(r) if r else np.empty(0, np.int64) for r in rim]
+    full = [np.concatenate([rim[p], np.flatnonzero((gens.kind == PATCH) & (gens.owner == p))]) for p in range(n)]
+    return full + [r if len(r) else f for r, f in zip(rim, full)]
+
+
+def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.ndarray:
+    """(f,) int32 group of each sample for :func:`allowed`: its patch, plus ``n_patches`` where its
+    refined face touches a feature curve or the open boundary (a refined vertex on an input vertex
+    or edge between two patches, or on the rim)."""
+    top = mesh.topology
+    pair = top.edge_pairs()
+    feature_edge = (top.edge_faces == 1) | ((pair[:, 1] >= 0) & (features.patch[pair[:, 0]]
+                                                                  != features.patch[np.maximum(pair[:, 1], 0)]))
+    lo = np.full(mesh.n_vertices, np.iinfo(np.int64).max)
+    hi = np.full(mesh.n_vertices, -1)
+    np.minimum.at(lo, mesh.faces.ravel(), np.repeat(features.patch, 3))
+    np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
+    flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
+    group = np.empty(samples.n_samples, np.int32)
+    for start in range(0, samples.n_samples, samples.chunk):
+        ids = slice(start, min(start + samples.chunk, samples.n_samples))
+        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.corners(ids)].any(axis=1)
+    return group
+
+
+def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
+    """(q, k) indices of the k nearest reference points (scipy KD-tree; open3d's gave the same
+    indices at the same speed)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(reference).query(queries, k)[1].astype(np.int64).reshape(len(queries), k)
+
+
+class _Candidates:
+    """Where each sample may look for its nearest generator, given its previous one.
+
+    Samples of group ``g`` whose generator was ``c`` look at the ``k`` generators of
+    ``allowed[g]`` nearest to ``c``. A generator may be allowed in several groups (curve and
+    corner generators border two or more patches), so its rows are found through a small CSR
+    table (``slot_*``: for each generator, its groups and its row in the table).
+    """
+
+    def __init__(self, allowed: list, n_generators: int, k: int):
+        self.allowed, self.k = allowed, k
+        sizes = np.array([len(ids) for ids in allowed])
+        self.offset = np.r_[0, np.cumsum(sizes)]
+        self.row_generator = np.concatenate(allowed) if len(allowed) else np.empty(0, np.int64)
+        self.row_group = np.repeat(np.arange(len(allowed)), sizes)
+        order = np.argsort(self.row_generator, kind="stable")
+        self.slot_group, self.slot_row = self.row_group[order], order
+        self.slot_ptr = np.r_[0, np.cumsum(np.bincount(self.row_generator, minlength=n_generators))]
+        self._table, self._built, self._spacing = None, None, 0.0
+
+    def table(self, positions: np.ndarray) -> np.ndarray:
+        """(rows, k) global generator ids, -1 padded: the k nearest allowed generators of each slot.
+
+        Built once with KD-trees (one per distinct allowed list). Afterwards, once some
+        generator has moved more than a quarter of the generator spacing since the last update,
+        each row is refreshed from its old row and its old neighbours' rows
+        (:func:`_refresh_table`): the new k nearest are among the old 2-ring. (A KD-tree over
+        160k generators costs about a second; rebuilt every step it was a third of the Lloyd
+        time of a 200k-face input.) On the test shapes and the 30k torus the final labels
+        equal a full search.
+        """
+        if self._table is not None:
+            if np.sqrt(((positions - self._built) ** 2).sum(axis=1).max()) > 0.25 * self._spacing:
+                self._table = _refresh_table(self._table, self.row_generator, self.row_group, self.slot_ptr,
+                                             self.slot_group, self.slot_row, positions)
+                self._built = positions.copy()
+            return self._table
+        out = np.full((self.offset[-1], self.k), -1, np.int64)
+        done = {}
+        for g, ids in enumerate(self.allowed):
+            if len(ids) == 0:
+                continue
+            if id(ids) not in done:  # a patch without curves shares its list between its two groups
+                kk = min(self.k, len(ids))
+                done[id(ids)] = ids[_knn(positions[ids], positions[ids], kk)]
+            rows = done[id(ids)]
+            out[self.offset[g]:self.offset[g + 1], :rows.shape[1]] = rows
+        near = out[:, 1] >= 0
+        self._spacing = float(np.median(np.linalg.norm(positions[out[near, 1]] - positions[out[near, 0]], axis=1))) \
+            if near.any() else 0.0
+        self._table, self._built = out, positions.copy()
+        return out
+
+
+@njit(nogil=True, cache=True)
+def _row_of(c, group, slot_ptr, slot_group, slot_row):
+    for s in range(slot_ptr[c], slot_ptr[c + 1]):
+        if slot_group[s] == group:
+            return slot_row[s]
+    return -1
+
+
+@njit(nogil=True, cache=True)
+def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_row, positions):
+    """New k nearest of every row's generator among its old neighbours and their old neighbours (same group)."""
+    rows, k = table.shape
+    out = np.full((rows, k), -1, np.int64)
+    stamp = np.full(len(positions), -1, np.int64)
+    best_d = np.empty(k)
+    for r in range(rows):
+        c = row_generator[r]
+        n_best = 0
+        for j in range(-1, k):
+            g = c if j < 0 else table[r, j]
+            if g < 0:
+                break
+            rg = _row_of(g, row_group[r], slot_ptr, slot_group, slot_row)
+            for i in range(-1, k):
+                h = g if i < 0 else table[rg, i]
+                if h < 0:
+                    break
+                if stamp[h] == r:
+                    continue
+                stamp[h] = r
+                d = (positions[h, 0] - positions[c, 0]) ** 2 + (positions[h, 1] - positions[c, 1]) ** 2 \
+                    + (positions[h, 2] - positions[c, 2]) ** 2
+                if n_best == k and d >= best_d[k - 1]:
+                    continue
+                pos = min(n_best, k - 1)
+                while pos > 0 and best_d[pos - 1] > d:  # insertion into the sorted k best
+                    best_d[pos] = best_d[pos - 1]
+                    out[r, pos] = out[r, pos - 1]
+                    pos -= 1
+                best_d[pos] = d
+                out[r, pos] = h
+                n_best = min(n_best + 1, k)
+    return out
+
+
+@njit(nogil=True, cache=True)
+def _lloyd_pass(lattice, face_weight, group, labels, positions, slot_ptr, slot_group, slot_row, table):
+    """Nearest candidate generator of every sample, and the cells' weighted mass, first moments and energy.
+
+    One pass over the samples (made face by face from ``lattice``, :meth:`Lattice.args`; weight
+    ``face_weight`` of their input face) with no temporaries of their size: ``labels`` (f,) int32,
+    each sample's previous generator, become the new ones in place; returns mass (n,), moments (n, 3)
+    and energy (sum of w·d²).
+    """
+    n = len(positions)
+    vertices, faces, centroid = lattice[0], lattice[1], lattice[6]
+    mass = np.zeros(n)
+    moment = np.zeros((n, 3))
+    energy = 0.0
+    point = np.empty(3)
+    for i in range(len(labels)):
+        sample_point(vertices, faces, centroid, i, point)
+        c = labels[i]
+        row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
+        best, arg = np.inf, c
+        for j in range(table.shape[1]):
+            g = table[row, j]
+            if g < 0:
+                break
+            d = (point[0] - positions[g, 0]) ** 2 + (point[1] - positions[g, 1]) ** 2 \
+                + (point[2] - positions[g, 2]) ** 2
+            if d < best:
+                best, arg = d, g
+        labels[i] = arg
+        w = face_weight[i // len(centroid)]
+        mass[arg] += w
+        moment[arg, 0] += w * point[0]
+        moment[arg, 1] += w * point[1]
+        moment[arg, 2] += w * point[2]
+        energy += w * best
+    return mass, moment, energy
 
 
 def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
@@ -486,9 +874,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
 
     on_surface = True
     for it in range(max_iter + 1):
-        labels, mass, moment, e = _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
-                                              candidates.slot_group, candidates.slot_row,
-                                              candidates.table(gens.positions))
+        mass, moment, e = _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
+                                      candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))
         energy.append(float(e))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
             break
@@ -505,8 +892,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
                 gens.positions[order] = curve.at(gens.arc[order])
     if not on_surface:  # the last centroids were not projected: project, then label once more
         project()
-        labels = _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
-                             candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))[0]
+        _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
+                    candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))
     return LloydResult(gens, labels, energy)
 
 
