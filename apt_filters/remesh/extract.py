@@ -56,9 +56,9 @@ def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarr
 def _voronoi_fans(lattice, labels, n_vertices):
     """The cells around every refined vertex where three or more meet (a Voronoi vertex), in fan order.
 
-    Two passes over the refined faces (made face by face from ``lattice``, :meth:`Lattice.args`) find those vertices (the first two labels met at
-    each vertex, int32) and the faces around them (a CSR table of the meeting vertices only); each
-    fan is then walked counter-clockwise from connectivity alone: face ``(v, x, y)`` is followed by
+    Two passes over the refined faces (made face by face from ``lattice``, :meth:`Lattice.args`) find
+    those vertices (the first two labels met at each vertex, int32) and the faces around them (a CSR
+    table of the meeting vertices only); each fan is then walked counter-clockwise from connectivity alone: face ``(v, x, y)`` is followed by
     the face holding ``(v, y, z)``, from the face without a predecessor (an open fan) or else from
     the lowest face id, so no geometry enters and sliver faces cannot swap places. Along the walk,
     runs of one label (compared cyclically, the last with the first) become one polygon corner.

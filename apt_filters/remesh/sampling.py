@@ -213,12 +213,12 @@ class Samples:
         t = np.arange(1, n) / n
         ev = lat.vertices[ends]
         vertices[v_in:v_in + e_in * (n - 1)] = (ev[:, :1] + t[None, :, None] * (ev[:, 1:] - ev[:, :1])).reshape(-1, 3)
-        inner = lat.point[lat.point[:, 0] == 2]
-        if len(inner):
+        if lat.n_inner:
             bary = _lattice(n)[0][_inner_mask(n)] / n
             corner = lat.vertices[lat.faces]
-            vertices[v_in + e_in * (n - 1):] = (corner[:, None, 0] + bary[None, :, :1] * (corner[:, None, 1] - corner[:, None, 0])
-                                                + bary[None, :, 1:] * (corner[:, None, 2] - corner[:, None, 0])).reshape(-1, 3)
+            a = corner[:, None, 0]
+            vertices[v_in + e_in * (n - 1):] = (a + bary[None, :, :1] * (corner[:, None, 1] - a)
+                                                + bary[None, :, 1:] * (corner[:, None, 2] - a)).reshape(-1, 3)
         return TriMesh(vertices, self.corners())
 
 
