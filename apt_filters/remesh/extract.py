@@ -58,10 +58,11 @@ def _voronoi_fans(lattice, labels, n_vertices):
 
     Two passes over the refined faces (made face by face from ``lattice``, :meth:`Lattice.args`) find
     those vertices (the first two labels met at each vertex, int32) and the faces around them (a CSR
-    table of the meeting vertices only); each fan is then walked counter-clockwise from connectivity alone: face ``(v, x, y)`` is followed by
-    the face holding ``(v, y, z)``, from the face without a predecessor (an open fan) or else from
-    the lowest face id, so no geometry enters and sliver faces cannot swap places. Along the walk,
-    runs of one label (compared cyclically, the last with the first) become one polygon corner.
+    table of the meeting vertices only); each fan is then walked counter-clockwise from connectivity
+    alone: face ``(v, x, y)`` is followed by the face holding ``(v, y, z)``, from the face without a
+    predecessor (an open fan) or else from the lowest face id, so no geometry enters and sliver faces
+    cannot swap places. Along the walk, runs of one label (compared cyclically, the last with the first)
+    become one polygon corner.
 
     Returns (k,) int64 counts of corners per Voronoi vertex, in vertex order, and the corners' labels
     concatenated.
