@@ -23,7 +23,7 @@ fractions of the edge; from every vertex, edge midpoint and face centroid of one
 other), area change, topology (components, boundary loops, genus as pymeshlab counts them),
 feature-edge F1 (dihedral over 40°, samples every edge/10 matched within edge/10), smallest angle,
 % of triangles under 30°; for ours also the components given back unchanged by the check. Prints a
-markdown table.
+markdown table, then ours stage by stage (CPU time and numpy bytes held / at the peak per input face).
 """
 
 from __future__ import annotations
@@ -112,6 +112,70 @@ def measured(name: str, mesh: TriMesh, edge: float) -> tuple[TriMesh, str, float
     return TriMesh(v, f), note, seconds, cpu, peak
 
 
+# The remesher's stages as (module, attribute the remesh looks up, label); the stage table wraps each.
+STAGES = (("apt_filters.remesh.features", "detect", "features"), ("apt_filters.remesh.remesh", "refine", "samples"),
+          ("apt_filters.remesh.remesh", "curvature_density", "density"),
+          ("apt_filters.remesh.cvt", "initialise", "generators"), ("apt_filters.remesh.cvt", "sample_groups", "groups"),
+          ("apt_filters.remesh.cvt", "lloyd", "Lloyd"), ("apt_filters.remesh.extract", "dual_faces", "extraction"),
+          ("apt_filters.remesh.cvt", "connect_cells", "connect cells"),
+          ("apt_filters.remesh.repair", "repair", "repair"),
+          ("apt_filters.remesh.remesh", "_optimise", "flips, relaxation"),
+          ("apt_filters.remesh.optimize", "centre_on_samples", "centring"),
+          ("apt_filters.remesh.optimize", "undo_crossings", "undo crossings"),
+          ("apt_filters.remesh.verify", "check_components", "check"))
+
+
+def _stage_child(conn, vertices: np.ndarray, faces: np.ndarray, edge: float) -> None:
+    """Ours with every stage of :data:`STAGES` wrapped: its CPU seconds and the numpy bytes (``tracemalloc``)
+    held when it starts and at its peak, above what was held before the call."""
+    import importlib
+    import tracemalloc
+
+    ours(shapes.sphere(4.0), 1.0)
+    figures = {}
+    base = [0]
+
+    def wrapped(fn, label):
+        def call(*args, **kwargs):
+            held = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+            cpu = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                f = figures.setdefault(label, [0.0, 0, 0])
+                f[0] += time.process_time() - cpu
+                f[1] = max(f[1], held - base[0])
+                f[2] = max(f[2], tracemalloc.get_traced_memory()[1] - base[0])
+        return call
+
+    for module, name, label in STAGES:
+        module = importlib.import_module(module)
+        setattr(module, name, wrapped(getattr(module, name), label))
+    tracemalloc.start()
+    base[0] = tracemalloc.get_traced_memory()[0]
+    ours(TriMesh(vertices, faces), edge)
+    # each stage resets the peak: the whole call's is the largest of theirs and of what came after the last
+    whole = max([tracemalloc.get_traced_memory()[1] - base[0]] + [f[2] for f in figures.values()])
+    conn.send((figures, whole))
+    conn.close()
+
+
+def stages(mesh: TriMesh, edge: float) -> tuple[dict, int]:
+    """Per-stage figures of ours on ``mesh`` (:func:`_stage_child`, in a spawned process) and the whole
+    call's traced peak (bytes)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, conn = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_stage_child, args=(conn, mesh.vertices, mesh.faces, edge))
+    proc.start()
+    conn.close()
+    out = parent.recv()
+    proc.join()
+    return out
+
+
 def one_way(a: TriMesh, b: TriMesh, edge: float) -> float:
     """Farthest vertex, edge midpoint or face centroid of ``a`` from ``b``."""
     return float(verify.farthest(a, b, np.zeros(a.n_faces, np.int64), 1, edge)[0])
@@ -175,6 +239,8 @@ def main(argv=None) -> None:
     load = os.getloadavg()[0]
     print("\n".join(lines), flush=True)
     figures = []  # (kind, input faces, method, figures)
+    labels = [label for _, _, label in STAGES]
+    stage_lines = ["| surface | whole call | " + " | ".join(labels) + " |", "|---|" + "---:|" * (len(labels) + 1)]
     for kind, mesh, edge, sharp in surfaces(args.quick):
         if args.only and not any(kind.startswith(o) for o in args.only):
             continue
@@ -188,10 +254,16 @@ def main(argv=None) -> None:
                 lines.append(line)
                 figures.append((kind, mesh.n_faces, name, fig))
                 print(line, flush=True)
-    write(figures, lines, load)
+        per_stage, whole = stages(mesh, edge)
+        cells = [f"{per_stage[label][0]:.2f} s, {per_stage[label][1] / mesh.n_faces:,.0f} / "
+                 f"{per_stage[label][2] / mesh.n_faces:,.0f} B" if label in per_stage else "" for label in labels]
+        stage_lines.append(f"| {kind.split(':')[0]} ({mesh.n_faces} faces) | {whole / mesh.n_faces:,.0f} B | "
+                           + " | ".join(cells) + " |")
+        print(stage_lines[-1], flush=True)
+    write(figures, lines, load, stage_lines)
 
 
-def write(figures: list, lines: list, load: float) -> None:
+def write(figures: list, lines: list, load: float, stage_lines: list) -> None:
     """results_remesh.md: the summary (ours against pymeshlab) and the table."""
     by = {(kind, n): f for kind, _, n, f in figures}
     kinds = list(dict.fromkeys(kind for kind, _, _, _ in figures))
@@ -223,7 +295,11 @@ def write(figures: list, lines: list, load: float) -> None:
     section = (f"## Ours, pymeshlab's isotropic explicit remeshing and pyacvd\n\nOne run, load average {load:.2f} at "
                f"the start (2 shared cores: compare within a surface; on a loaded machine wall time follows the "
                f"load of the moment, CPU time does not).\n\n" + "\n".join(lines))
-    print(write_results("remesh", "benchmarks/bench_remesh.py results", rows, [section], intro=intro))
+    staged = ("## Ours stage by stage\n\nEach stage's CPU seconds, then the numpy bytes per input face held when it "
+              "starts / at its peak (``tracemalloc``, above what was held before the call; compiled kernels' own "
+              "arrays are not traced), in a separate run of ours; the whole call's traced peak first.\n\n"
+              + "\n".join(stage_lines))
+    print(write_results("remesh", "benchmarks/bench_remesh.py results", rows, [section, staged], intro=intro))
 
 if __name__ == "__main__":
     main()

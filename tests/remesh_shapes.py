@@ -229,8 +229,8 @@ def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
 
     rng = np.random.default_rng(seed)
     normals = mesh.vertex_normals()
-    fine = split(TriMesh(mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals, mesh.faces), 2)
-    return TriMesh(fine.vertices, fine.faces)
+    moved = mesh.vertices + amplitude * rng.standard_normal((len(normals), 1)) * normals
+    return split(TriMesh(moved, mesh.faces), 2).mesh()
 
 
 # The issue's own inputs: the analytic shapes contoured by our dual contouring at 1 nm voxels

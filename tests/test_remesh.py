@@ -138,12 +138,12 @@ def test_small_bumpy_torus_keeps_its_genus():
 # its own.
 def test_cell_bordered_by_two_cells_is_dissolved():
     samples = refine(shapes.sphere(3.0), 0.2)
-    faces = samples.faces
+    faces = samples.corners()
     k = np.arange(60) + 0.5
     z, phi = 1 - 2 * k / 60, np.pi * (3 - np.sqrt(5)) * k  # even sites on the sphere
     sites = 3.0 * np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
     labels = cKDTree(sites).query(samples.points())[1]
-    seen = [set() for _ in samples.vertices]
+    seen = [set() for _ in range(samples.n_vertices)]
     for v, label in zip(faces.ravel(), np.repeat(labels, 3)):
         seen[v].add(label)
     around = [set().union(*(seen[v] for v in face)) for face in faces]
@@ -311,8 +311,10 @@ def test_lattice_refinement_is_conforming_and_exact(max_edge):
     mesh = shapes.sphere(3.0)
     samples = refine(mesh, max_edge)
     n2 = samples.per_face
-    fine = TriMesh(samples.vertices, samples.faces)
+    fine = samples.mesh()
     assert fine.n_faces == n2 * mesh.n_faces
+    # the samples made face by face are the centroids of the refined mesh's faces
+    assert np.allclose(samples.points(), fine.vertices[fine.faces].mean(axis=1), rtol=0, atol=1e-12)
     assert len(fine.boundary_edges()) == 0 and fine.topology.genus == 0 and fine.topology.n_components == 1
     assert np.isclose(fine.area(), mesh.area(), rtol=1e-12)
     assert np.allclose(fine.face_areas(), samples.weights(), rtol=1e-9, atol=1e-15)
@@ -321,5 +323,5 @@ def test_lattice_refinement_is_conforming_and_exact(max_edge):
     # centroids of the children of a face average to its centroid
     centre = samples.points().reshape(mesh.n_faces, n2, 3).mean(axis=1)
     assert np.allclose(centre, mesh.vertices[mesh.faces].mean(axis=1))
-    lengths = np.linalg.norm(samples.vertices[samples.faces] - samples.vertices[np.roll(samples.faces, 1, axis=1)], axis=2)
+    lengths = np.linalg.norm(fine.vertices[fine.faces] - fine.vertices[np.roll(fine.faces, 1, axis=1)], axis=2)
     assert np.quantile(lengths, 0.9) < max_edge

@@ -20,7 +20,7 @@ from numba import njit
 from apt_filters.remesh._arrays import isin, unique_rows
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.features import Features
-from apt_filters.remesh.sampling import CHUNK, Samples
+from apt_filters.remesh.sampling import Samples, chunk_length, sample_point
 
 CORNER, CURVE, PATCH = 0, 1, 2
 # Patch generators move this many times the way to their centroid (over-relaxed Lloyd). Against
@@ -122,13 +122,15 @@ class PatchSurfaces:
     def closest(self, points: np.ndarray, patches: np.ndarray, near: float | None = None) -> np.ndarray:
         """(n, 3) closest point on patch ``patches[i]`` (n,) to each of ``points`` (n, 3) nm; ``near``
         (nm): how far most points are expected to be (the search's first reach)."""
-        if len(points) == 0:
-            return np.empty((0, 3))
-        out, face, _ = self.whole.closest(points, near)
-        wrong = np.flatnonzero(self.patch[face] != patches)
-        for p in np.unique(patches[wrong]).tolist():
-            sel = wrong[patches[wrong] == p]
-            out[sel] = self._of(p).closest(points[sel], near)[0]
+        out = np.empty((len(points), 3))
+        step = chunk_length(self.mesh.n_faces)  # the engines' temporaries, a chunk of points at a time
+        for start in range(0, len(points), step):
+            block = slice(start, start + step)
+            out[block], face, _ = self.whole.closest(points[block], near)
+            wrong = start + np.flatnonzero(self.patch[face] != patches[block])
+            for p in np.unique(patches[wrong]).tolist():
+                sel = wrong[patches[wrong] == p]
+                out[sel] = self._of(p).closest(points[sel], near)[0]
         return out
 
     def _of(self, p: int):
@@ -141,30 +143,38 @@ class PatchSurfaces:
         return self._own[p]
 
 
-def _initial_patch_points(points: np.ndarray, weights: np.ndarray, count: int, seed: int) -> np.ndarray:
-    """``count`` evenly spread points among ``points``: voxel down-sampling, then a random subset."""
+def _initial_patch_points(chunks, area: float, count: int, seed: int) -> np.ndarray:
+    """``count`` evenly spread points among the points that ``chunks()`` yields ((k, 3) arrays, a patch's
+    samples a chunk at a time) over an ``area`` (nm²): voxel down-sampling, then a random subset."""
     if count <= 0:
         return np.empty((0, 3))
     rng = np.random.default_rng(seed)
-    area = weights.sum()
     size = np.sqrt(area / count)
+    origin = np.min([points.min(axis=0) for points in chunks()], axis=0)
     for _ in range(6):
-        down = _voxel_means(points, size)
+        down = _voxel_means(chunks, origin, size)
         if len(down) >= count:
             break
         size *= 0.8 * np.sqrt(max(len(down), 1) / count)
     if len(down) < count:  # a patch too small to hold them apart: take samples at random
-        down = points
+        down = np.vstack(list(chunks()))
     chosen = down[rng.choice(len(down), size=count, replace=False)]
     return chosen[_spatial_order(chosen, size)]
 
 
-def _voxel_means(points: np.ndarray, size: float) -> np.ndarray:
-    """Mean of the ``points`` (n, 3) in each occupied cube of side ``size`` (voxel down-sampling)."""
-    cell = np.floor((points - points.min(axis=0)) / size).astype(np.int64)
-    inverse = unique_rows(cell)[2]
-    count = np.bincount(inverse)
-    return np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1) / count[:, None]
+def _voxel_means(chunks, origin: np.ndarray, size: float) -> np.ndarray:
+    """Mean of the points that ``chunks()`` yields in each occupied cube of side ``size`` (nm) counted
+    from ``origin`` (3,), no point below it (voxel down-sampling): sums per cube chunk by chunk, so that
+    only one chunk and the cubes (about as many as generators) are held."""
+    cells, sums, counts = [], [], []
+    for points in chunks():
+        cell, _, inverse, count = unique_rows(np.floor((points - origin) / size).astype(np.int64))
+        cells.append(cell)
+        counts.append(count)
+        sums.append(np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1))
+    inverse = unique_rows(np.vstack(cells))[2]
+    total = np.stack([np.bincount(inverse, np.concatenate([s[:, k] for s in sums])) for k in range(3)], 1)
+    return total / np.bincount(inverse, np.concatenate(counts))[:, None]
 
 
 def _spatial_order(points: np.ndarray, cell: float) -> np.ndarray:
@@ -209,9 +219,14 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
         measure = (samples.face_area[mine] * np.sqrt(density[mine])).sum()
         free = (measure - 0.5 * _AREA_PER_VERTEX * edge * border[p]) / (_AREA_PER_VERTEX * edge**2)
         count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
-        ids = samples.of_faces(mine)
-        count = min(max(count, 0), len(ids))
-        pts = _initial_patch_points(samples.points(ids), samples.weights(ids), count, seed + p)
+        count = min(max(count, 0), len(mine) * samples.per_face)
+        step = max(samples.chunk // samples.per_face, 1)
+
+        def chunks(mine=mine, step=step):
+            for start in range(0, len(mine), step):
+                yield samples.points(samples.of_faces(mine[start:start + step]))
+
+        pts = _initial_patch_points(chunks, samples.face_area[mine].sum(), count, seed + p)
         pos.append(pts)
         kind.append(np.full(len(pts), PATCH))
         owner.append(np.full(len(pts), p))
@@ -254,9 +269,9 @@ def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.nda
     np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
     flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
     group = np.empty(samples.n_samples, np.int32)
-    for start in range(0, samples.n_samples, CHUNK):
-        ids = slice(start, min(start + CHUNK, samples.n_samples))
-        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.faces[ids]].any(axis=1)
+    for start in range(0, samples.n_samples, samples.chunk):
+        ids = slice(start, min(start + samples.chunk, samples.n_samples))
+        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.corners(ids)].any(axis=1)
     return group
 
 
@@ -368,24 +383,23 @@ def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_r
 
 
 @njit(nogil=True, cache=True)
-def _lloyd_pass(vertices, faces, face_weight, per_face, group, previous, positions, slot_ptr, slot_group, slot_row,
-                table):
+def _lloyd_pass(lattice, face_weight, group, labels, positions, slot_ptr, slot_group, slot_row, table):
     """Nearest candidate generator of every sample, and the cells' weighted mass, first moments and energy.
 
-    One pass over the samples (centroids of the refined ``faces``, weight ``face_weight`` of
-    their input face ``i // per_face``) with no temporaries of their size: labels (f,) int32, mass (n,),
-    moments (n, 3), energy (sum of w·d²).
+    One pass over the samples (made face by face from ``lattice``, :meth:`Lattice.args`; weight
+    ``face_weight`` of their input face) with no temporaries of their size: ``labels`` (f,) int32,
+    each sample's previous generator, become the new ones in place; returns mass (n,), moments (n, 3)
+    and energy (sum of w·d²).
     """
     n = len(positions)
-    labels = np.empty(len(faces), np.int32)
+    vertices, faces, centroid = lattice[0], lattice[1], lattice[6]
     mass = np.zeros(n)
     moment = np.zeros((n, 3))
     energy = 0.0
     point = np.empty(3)
-    for i in range(len(faces)):
-        for k in range(3):
-            point[k] = (vertices[faces[i, 0], k] + vertices[faces[i, 1], k] + vertices[faces[i, 2], k]) / 3.0
-        c = previous[i]
+    for i in range(len(labels)):
+        sample_point(vertices, faces, centroid, i, point)
+        c = labels[i]
         row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
         best, arg = np.inf, c
         for j in range(table.shape[1]):
@@ -397,13 +411,13 @@ def _lloyd_pass(vertices, faces, face_weight, per_face, group, previous, positio
             if d < best:
                 best, arg = d, g
         labels[i] = arg
-        w = face_weight[i // per_face]
+        w = face_weight[i // len(centroid)]
         mass[arg] += w
         moment[arg, 0] += w * point[0]
         moment[arg, 1] += w * point[1]
         moment[arg, 2] += w * point[2]
         energy += w * best
-    return labels, mass, moment, energy
+    return mass, moment, energy
 
 
 def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
@@ -419,24 +433,38 @@ def assign(points: np.ndarray, group: np.ndarray, positions: np.ndarray, allowed
 
 
 @njit(cache=True)
-def _runs(group, per_face):
-    """(f,) int64 first sample of the run each sample is in: runs of samples of one input face
-    (``per_face`` consecutive samples) and one group."""
-    first = np.empty(len(group), np.int64)
+def _run_starts(group, per_face):
+    """(r,) int64 first sample of every run of samples of one input face (``per_face`` consecutive
+    samples) and one group."""
+    count = 0
     for i in range(len(group)):
-        first[i] = i if i % per_face == 0 or group[i] != group[i - 1] else first[i - 1]
-    return first
+        if i % per_face == 0 or group[i] != group[i - 1]:
+            count += 1
+    starts = np.empty(count, np.int64)
+    count = 0
+    for i in range(len(group)):
+        if i % per_face == 0 or group[i] != group[i - 1]:
+            starts[count] = i
+            count += 1
+    return starts
+
+
+@njit(cache=True)
+def _spread(starts, label, n):
+    """(n,) int32: ``label[r]`` over the run of samples from ``starts[r]`` to the next start."""
+    out = np.empty(n, np.int32)
+    for r in range(len(starts)):
+        out[starts[r]:starts[r + 1] if r + 1 < len(starts) else n] = label[r]
+    return out
 
 
 def _first_labels(samples: Samples, group: np.ndarray, positions: np.ndarray, allowed: list) -> np.ndarray:
     """A nearby allowed generator for every sample: the nearest one of the first sample of each run of
     samples with the same input face and group (refined faces are stored by input face), so the
-    KD-tree answers one query per input face instead of one per sample."""
-    first = _runs(group, samples.per_face)
-    rep = np.flatnonzero(first == np.arange(len(first)))
-    label = np.full(len(first), -1, np.int32)
-    label[rep] = assign(samples.points(rep), group[rep], positions, allowed)
-    return label[first]
+    KD-tree answers one query per input face instead of one per sample; (f,) int32 and arrays of
+    the runs' size only."""
+    starts = _run_starts(group, samples.per_face)
+    return _spread(starts, assign(samples.points(starts), group[starts], positions, allowed), len(group))
 
 
 def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray, gens: Generators,
@@ -472,10 +500,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
 
     on_surface = True
     for it in range(max_iter + 1):
-        labels, mass, moment, e = _lloyd_pass(samples.vertices, samples.faces, w, samples.per_face, group, labels,
-                                              gens.positions, candidates.slot_ptr,
-                                              candidates.slot_group, candidates.slot_row,
-                                              candidates.table(gens.positions))
+        mass, moment, e = _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
+                                      candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))
         energy.append(float(e))
         if it == max_iter or (it > 0 and abs(energy[-2] - energy[-1]) <= tol * energy[-1]):
             break
@@ -492,9 +518,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
                 gens.positions[order] = curve.at(gens.arc[order])
     if not on_surface:  # the last centroids were not projected: project, then label once more
         project()
-        labels = _lloyd_pass(samples.vertices, samples.faces, w, samples.per_face, group, labels, gens.positions,
-                             candidates.slot_ptr,
-                             candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))[0]
+        _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,
+                    candidates.slot_group, candidates.slot_row, candidates.table(gens.positions))
     return LloydResult(gens, labels, energy)
 
 
@@ -517,11 +542,11 @@ def connect_cells(samples: Samples, labels: np.ndarray, group: np.ndarray, gens:
 
     from apt_filters.core.mesh import topology
 
-    faces = samples.faces
-    near = np.zeros(len(samples.vertices), bool)
-    near[faces[cells[labels]]] = True
-    sub = np.flatnonzero(near[faces].any(axis=1))
-    a, b = topology(faces[sub], len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
+    near = np.zeros(samples.n_vertices, bool)
+    near[samples.corners(np.flatnonzero(cells[labels]))] = True
+    sub = np.concatenate([start + np.flatnonzero(near[samples.corners(slice(start, start + samples.chunk))].any(axis=1))
+                          for start in range(0, samples.n_samples, samples.chunk)])
+    a, b = topology(samples.corners(sub), len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
     local = labels[sub]
     n = len(sub)
     same = local[a] == local[b]

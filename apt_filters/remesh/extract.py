@@ -6,8 +6,8 @@ cells around it, in counter-clockwise order about the outward normal, are the co
 dual polygon (a triangle, or a polygon to triangulate where four or more cells meet).
 Orientation therefore follows the input's.
 
-Peak memory: 17 bytes per refined vertex (the labels met at each, in one compiled pass), then
-arrays of the refined faces around the Voronoi vertices only.
+Peak memory: 8 bytes per refined vertex (the first two labels met at each), then 4 bytes per
+refined face around a Voronoi vertex (a few per cent of them), all in one compiled kernel.
 """
 
 from __future__ import annotations
@@ -17,48 +17,7 @@ from numba import njit
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh.sampling import Samples
-
-
-def fan_order(faces: np.ndarray, n_vertices: int, wanted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Incidences (vertex, face) sorted counter-clockwise around each vertex, from connectivity alone.
-
-    Face ``(v, x, y)`` is followed around ``v`` by the face holding ``(v, y, z)``. Each fan
-    is cut once (at its boundary, or anywhere for a closed fan) and ranked by list ranking
-    (pointer jumping), so no geometry enters: sliver faces cannot swap places.
-
-    Returns ``vertex`` and ``face`` arrays of the incidences in that order, only around the
-    vertices flagged in ``wanted`` (v,) bool when given.
-    """
-    v = faces.ravel()
-    nxt = np.roll(faces, -1, axis=1).ravel()
-    prv = np.roll(faces, 1, axis=1).ravel()
-    face = np.repeat(np.arange(len(faces)), 3)
-    if wanted is not None:  # fans only link incidences of one vertex, so others can go
-        keep = wanted[v]
-        v, nxt, prv, face = v[keep], nxt[keep], prv[keep], face[keep]
-    key = v * n_vertices + nxt
-    order = np.argsort(key)
-    want = v * n_vertices + prv
-    pos = np.minimum(np.searchsorted(key[order], want), len(key) - 1)
-    succ = np.where(key[order[pos]] == want, order[pos], -1)
-    has_pred = np.zeros(len(v), bool)
-    has_pred[succ[succ >= 0]] = True
-    # closed fans: cut before their lowest incidence
-    open_vertex = np.zeros(n_vertices, bool)
-    open_vertex[v[~has_pred]] = True
-    first = np.full(n_vertices, len(v))
-    np.minimum.at(first, v, np.arange(len(v)))
-    cut = (succ >= 0) & ~open_vertex[v] & (succ == first[v])
-    succ[cut] = -1
-    dist = (succ >= 0).astype(np.int64)
-    jump = succ.copy()
-    while (jump >= 0).any():
-        live = jump >= 0
-        dist[live] += dist[jump[live]]
-        jump[live] = jump[jump[live]]
-    ranked = np.lexsort((-dist, v))
-    return v[ranked], face[ranked]
+from apt_filters.remesh.sampling import Samples, point_id, lattice_ids
 
 
 def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -> list:
@@ -94,21 +53,120 @@ def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarr
 
 
 @njit(cache=True)
-def _meeting_vertices(faces, labels, n_vertices):
-    """(v,) bool: refined vertices where faces of three or more labels (cells) meet."""
-    seen = np.full((n_vertices, 2), -1, np.int64)  # the first two labels met at each vertex
-    out = np.zeros(n_vertices, np.bool_)
-    for i in range(len(faces)):
-        label = labels[i]
-        for k in range(3):
-            v = faces[i, k]
-            if seen[v, 0] < 0 or seen[v, 0] == label:
-                seen[v, 0] = label
-            elif seen[v, 1] < 0 or seen[v, 1] == label:
-                seen[v, 1] = label
-            else:
-                out[v] = True
-    return out
+def _voronoi_fans(lattice, labels, n_vertices):
+    """The cells around every refined vertex where three or more meet (a Voronoi vertex), in fan order.
+
+    Two passes over the refined faces (made face by face from ``lattice``, :meth:`Lattice.args`) find
+    those vertices (the first two labels met at each vertex, int32) and the faces around them (a CSR
+    table of the meeting vertices only); each fan is then walked counter-clockwise from connectivity
+    alone: face ``(v, x, y)`` is followed by the face holding ``(v, y, z)``, from the face without a
+    predecessor (an open fan) or else from the lowest face id, so no geometry enters and sliver faces
+    cannot swap places. Along the walk, runs of one label (compared cyclically, the last with the first)
+    become one polygon corner.
+
+    Returns (k,) int64 counts of corners per Voronoi vertex, in vertex order, and the corners' labels
+    concatenated.
+    """
+    vertices, in_faces, face_edge, forward, point, pattern, _, n, n_inner, n_edges = lattice
+    per_face = len(pattern)
+    ids = np.empty(len(lattice[4]), np.int64)  # refined vertex ids of one input face's lattice points
+    seen = np.full((n_vertices, 2), -1, np.int32)  # the first two labels met at each vertex
+    n_meet = 0
+    for f in range(len(labels) // per_face):
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            label = labels[f * per_face + j]
+            for k in range(3):
+                v = ids[pattern[j, k]]
+                if seen[v, 1] == -2:  # already a meeting vertex
+                    continue
+                if seen[v, 0] < 0 or seen[v, 0] == label:
+                    seen[v, 0] = label
+                elif seen[v, 1] < 0 or seen[v, 1] == label:
+                    seen[v, 1] = label
+                else:
+                    seen[v, 1] = -2  # a third label: a meeting vertex; seen[v, 0] becomes its rank below
+                    n_meet += 1
+    rank = 0
+    for v in range(n_vertices):
+        if seen[v, 1] == -2:
+            seen[v, 0] = rank
+            rank += 1
+        else:
+            seen[v, 0] = -1
+    ptr = np.zeros(n_meet + 1, np.int64)
+    for f in range(len(labels) // per_face):
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            for k in range(3):
+                r = seen[ids[pattern[j, k]], 0]
+                if r >= 0:
+                    ptr[r + 1] += 1
+    for r in range(n_meet):
+        ptr[r + 1] += ptr[r]
+    around = np.empty(ptr[-1], np.int32)
+    fill = ptr[:-1].copy()
+    for f in range(len(labels) // per_face):  # faces in ascending order: each fan's list is sorted
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            for k in range(3):
+                r = seen[ids[pattern[j, k]], 0]
+                if r >= 0:
+                    around[fill[r]] = f * per_face + j
+                    fill[r] += 1
+    counts = np.zeros(n_meet, np.int64)
+    corners = np.empty(ptr[-1], np.int64)
+    n_corners = 0
+    widest = 0
+    for r in range(n_meet):
+        widest = max(widest, ptr[r + 1] - ptr[r])
+    nxt = np.empty(widest, np.int64)  # x and y of the face (v, x, y), per face of the fan
+    prv = np.empty(widest, np.int64)
+    order = np.empty(widest, np.int64)
+    for v in range(n_vertices):
+        r = seen[v, 0]
+        if r < 0:
+            continue
+        lo, hi = ptr[r], ptr[r + 1]
+        m = hi - lo
+        for j in range(m):
+            f, p = around[lo + j] // per_face, around[lo + j] % per_face
+            for k in range(3):
+                if point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f, pattern[p, k]) == v:
+                    nxt[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
+                                       pattern[p, (k + 1) % 3])
+                    prv[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
+                                       pattern[p, (k + 2) % 3])
+        first = 0
+        for j in range(m):  # an open fan starts at its face without a predecessor (no face ends at its x)
+            has_pred = False
+            for i in range(m):
+                if prv[i] == nxt[j]:
+                    has_pred = True
+                    break
+            if not has_pred:
+                first = j
+                break
+        order[0] = first
+        length = 1
+        while length < m:
+            j, succ = order[length - 1], -1
+            for i in range(m):
+                if nxt[i] == prv[j]:
+                    succ = i
+                    break
+            if succ < 0 or succ == first:
+                break
+            order[length] = succ
+            length += 1
+        start = n_corners
+        for j in range(length):
+            label = labels[around[lo + order[j]]]
+            if label != labels[around[lo + order[length - 1 if j == 0 else j - 1]]]:
+                corners[n_corners] = label
+                n_corners += 1
+        counts[r] = n_corners - start
+    return counts, corners[:n_corners]
 
 
 def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
@@ -118,22 +176,7 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     A Voronoi vertex is skipped when a cell appears twice around it (a cell that is not a
     disk there); the repair step closes the resulting gap.
     """
-    meeting = _meeting_vertices(samples.faces, labels, len(samples.vertices))
-    # only the refined faces around those vertices (a few per cent) take part from here
-    around = np.flatnonzero(meeting[samples.faces].any(axis=1))
-    inc_v, inc_f = fan_order(samples.faces[around].astype(np.int64), len(samples.vertices), meeting)
-    inc_f = around[inc_f]
-    inc_l = labels[inc_f]
-    first = np.r_[True, inc_v[1:] != inc_v[:-1]]
-    start = np.flatnonzero(first)
-    group = np.cumsum(first) - 1
-    last = np.r_[start[1:], len(inc_v)] - 1
-    prev = np.r_[-1, inc_l[:-1]]
-    prev[start] = inc_l[last]
-    change = inc_l != prev
-    cl = inc_l[change]
-    cgroup = group[change]
-    counts = np.bincount(cgroup, minlength=len(start))
+    counts, cl = _voronoi_fans(samples.lattice.args(), labels, samples.n_vertices)
     cstart = np.r_[0, np.cumsum(counts)[:-1]]
     tri = np.flatnonzero(counts == 3)
     out = [np.stack([cl[cstart[tri]], cl[cstart[tri] + 1], cl[cstart[tri] + 2]], 1)]

@@ -445,6 +445,7 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
             den += np.bincount(faces[face].ravel(), bary.ravel(), minlength=len(out))
         move = movable & (den > 0)
         out[move] += (num[move] / den[move])[:, None] * vertex_normals(out, faces)[move]
+        del surface  # not held while the next round builds its own
     return out
 
 

@@ -11,7 +11,7 @@ Distances are measured from every vertex, edge midpoint and face centroid of one
 other (exact point-to-triangle distances, :mod:`apt_filters.core.distance`): on triangles no larger
 than the edge length, this misses a farther point by at most a quarter of an edge's sagitta.
 Peak memory: the distance engine's grid of each mesh, one distance per vertex, edge and face of the
-measured mesh (8 bytes each), and the probes of 16k points at a time.
+measured mesh (8 bytes each), and the probes a chunk at a time (:func:`~apt_filters.remesh.sampling.chunk_length`).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import numpy as np
 from apt_filters.core.distance import mesh_distance
 from apt_filters.core.mesh import TriMesh, topology
 from apt_filters.remesh._arrays import unique_rows
+from apt_filters.remesh.sampling import chunk_length
 
 # Two-sided Hausdorff distance allowed between a component and its remesh, as a fraction of the
 # target edge length, and the relative area change allowed (the issue's targets).
@@ -152,8 +153,9 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     pieces = np.bincount(pairs[real, 1] - 1, minlength=k)
     mixed = np.zeros(k, bool)
     mixed[pairs[real & shared, 1] - 1] = True
-    d_in = farthest(source, result, source_component, k, tol)
-    d_out = farthest(result, source, result_component, k, tol, surface=source_surface)
+    chunk = chunk_length(source.n_faces)  # probes per distance query: temporaries in proportion to the input
+    d_in = farthest(source, result, source_component, k, tol, chunk)
+    d_out = farthest(result, source, result_component, k, tol, chunk, surface=source_surface)
     rim = np.zeros(k)
     r_in, rf_in = _rim_points(source, edge / 8)
     r_out, rf_out = _rim_points(result, edge / 8) if result.n_faces else (np.empty((0, 3)), np.empty(0, np.int64))
