@@ -527,8 +527,9 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     Returns
     -------
     list of Facet
-        The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices); the facets as given if there are too few ions, or if the fit has found something
+        The facets with their normals and offsets refitted and the radius of the object's rounded edges
+        where its ions show one (:func:`edge_rounding`; vertex sets unchanged; ``rms`` as fitted to the
+        vertices); the facets as given if there are too few ions, or if the fit has found something
         else: a plane turned by more than twice ``cap`` from its start, or planes that no longer close
         (:func:`closes`). A plane may turn further than ``cap``: the narrow faces of a thin lath, found
         where the normals crowd on the ridge from one broad face to the other, start 15-25° off theirs and
