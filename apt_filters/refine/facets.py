@@ -43,11 +43,17 @@ Method
    the mesh's area fell 1.3-3.7 % short of its own fitted polyhedron's without the rows (seeds 1, 2, 3, 6),
    and lies between 1.1 % over and 2.0 % short of it with them (seeds 1-8).
 
+4. **Rounded edges** (:func:`edge_rounding`). Edges where planar facets meet are not taken as sharp: after the
+   planes, the object's ions are fitted by the same blurred polyhedron with its edges rounded by a radius
+   (:func:`rounded_scores`, sharp at 0), and a radius that stands two standard errors above 0 is kept (with
+   the planes' offsets refitted alongside). Its rims then go onto the fillets (step 2 against the planes
+   moved in by the radius and grown by a ball of it) and its edge rows and corners onto the fillets' middles
+   (step 3). A cuboid rounded by 0.7 nm had kept its facets and came out +8 % in area with sharp edges
+   (dev `cuboid` seed 31 rebuilt with rounded edges); +1 % with them.
+
 A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
-the specimen edge is not a polyhedron). This is a prior: edges where found planar facets
-meet are taken as sharp, which the ions cannot confirm at the 0.1-0.3 nm scale (a blurred sharp edge and
-a ~1 nm fillet give similar profiles), so :func:`~apt_filters.refine.surface.refine_surface` lets it be
-switched off (``facets=False``) for objects known to have rounded edges.
+the specimen edge is not a polyhedron). :func:`~apt_filters.refine.surface.refine_surface` lets the facets be
+switched off (``facets=False``).
 """
 
 from __future__ import annotations
@@ -88,6 +94,9 @@ class Facet:
         Area within ``cap`` of the mode (the detection criterion).
     rms : float, nm
         Root-mean-square distance of ``vertices`` to the plane.
+    rounding : float, nm
+        Radius of the object's rounded edges and corners where its ions fit that better than sharp ones
+        (:func:`fit_to_ions`); 0 for sharp edges.
     """
 
     component: int
@@ -97,6 +106,7 @@ class Facet:
     core: np.ndarray
     area: float
     rms: float
+    rounding: float = 0.0
 
 
 def _mode(nn: np.ndarray, aa: np.ndarray, free: np.ndarray, start: np.ndarray, detect: float) -> np.ndarray:
@@ -332,6 +342,7 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
         signed = vertices[idx] @ plane_n.T - np.array([f.offset for f in mine])
         cosine = normals[idx] @ plane_n.T
         use = near & (cosine > min_cos)
+        rounded = []  # convex rim vertices of a rounded object: placed on its fillets below
         for i in np.flatnonzero(use.sum(axis=1) >= 2):
             u = use[i]
             mix, *_ = np.linalg.lstsq(plane_n[u].T, normals[idx[i]], rcond=None)
@@ -339,13 +350,44 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
                 continue
             s, k = signed[i, u], cosine[i, u]
             if np.all(s <= 0):
+                if mine[0].rounding > 0:
+                    rounded.append(i)
+                    continue
                 t = np.min(-s / k)  # convex rim: first plane the outward ray meets
             elif np.all(s >= 0):
                 t = np.max(-s / k)  # concave fillet: last plane the inward ray meets
             else:
                 continue
             step[idx[i]] = np.clip(t, -max_move, max_move)
+        if rounded:
+            rows = np.array(rounded)
+            step[idx[rows]] = _onto_fillet(np.where(use[rows], signed[rows], -np.inf), cosine[rows],
+                                           mine[0].rounding, max_move)
     return step, normals
+
+
+def _onto_fillet(signed: np.ndarray, cosine: np.ndarray, rounding: float, max_move: float) -> np.ndarray:
+    """(r,) steps (nm) along the normals that put points inside their planes (``signed`` (r, m) nm, -inf for a
+    plane that does not count; ``cosine`` of each normal to each plane) on the polyhedron rounded by ``rounding``
+    nm (:func:`rounded_distance` = 0), by bisection within ``max_move``: along an outward normal the rounded
+    distance grows monotonically."""
+    lo, hi = np.full(len(signed), -max_move), np.full(len(signed), max_move)
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        outside = rounded_distance(signed + mid[:, None] * cosine, rounding) > 0
+        hi = np.where(outside, mid, hi)
+        lo = np.where(outside, lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def rounded_distance(signed: np.ndarray, rounding: float) -> np.ndarray:
+    """(b,) signed distance (nm) to a convex polyhedron whose edges and corners are rounded by ``rounding`` nm (its
+    planes moved in by ``rounding``, grown by a ball of that radius), from the points' signed distances ``signed``
+    (b, m) to the sharp polyhedron's planes. Outside the inner polyhedron the distance to it is the root sum of
+    squares of the positive distances to its planes: exact where the planes that meet are at right angles."""
+    inner = signed + rounding
+    outside = np.sqrt(np.sum(np.maximum(inner, 0.0) ** 2, axis=1))
+    return np.where(outside > 0, outside, inner.max(axis=1)) - rounding
 
 
 def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], reach: float = 2.5,
@@ -376,7 +418,9 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
         idx = np.flatnonzero(components == c)
         tree = cKDTree(vertices[idx])
         normals = np.array([f.normal for f in mine])
-        offsets = np.array([f.offset for f in mine])
+        # a rounded object's edges and corners are those of its planes moved in by the radius, grown by a ball
+        rounding = mine[0].rounding
+        offsets = np.array([f.offset for f in mine]) - rounding
         targets = []
         for trio in itertools.combinations(range(len(mine)), 3):
             n3 = normals[list(trio)]
@@ -385,7 +429,8 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
             corner = np.linalg.solve(n3, offsets[list(trio)])
             if any(trees[k].query(corner)[0] > reach for k in trio) or np.any(normals @ corner - offsets > slack):
                 continue
-            targets.append(corner)
+            out = n3.sum(axis=0)
+            targets.append(corner + rounding * out / np.linalg.norm(out))
         n_corners = len(targets)
         if edges:
             for i, j in itertools.combinations(range(len(mine)), 2):
@@ -402,6 +447,8 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
                 outside = any(room[k] < 0 for k in others if abs(rate[k]) <= 1e-9)
                 if outside or not np.isfinite(lo) or not np.isfinite(hi) or hi - lo < 2 * spacing:
                     continue
+                out = normals[i] + normals[j]
+                point = point + rounding * out / np.linalg.norm(out)
                 for t in np.arange(lo + spacing, hi - 0.5 * spacing, spacing):
                     p = point + t * direction
                     if trees[i].query(p)[0] <= reach and trees[j].query(p)[0] <= reach:
@@ -480,8 +527,9 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     Returns
     -------
     list of Facet
-        The facets with their normals and offsets refitted (vertex sets unchanged; ``rms`` as fitted to
-        the vertices); the facets as given if there are too few ions, or if the fit has found something
+        The facets with their normals and offsets refitted and the radius of the object's rounded edges
+        where its ions show one (:func:`edge_rounding`; vertex sets unchanged; ``rms`` as fitted to the
+        vertices); the facets as given if there are too few ions, or if the fit has found something
         else: a plane turned by more than twice ``cap`` from its start, or planes that no longer close
         (:func:`closes`). A plane may turn further than ``cap``: the narrow faces of a thin lath, found
         where the normals crowd on the ridge from one broad face to the other, start 15-25° off theirs and
@@ -542,5 +590,87 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     turned = np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(2 * np.radians(cap))
     if turned.any() or not _normals_close(normals):
         return list(facets)
-    return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2]), f.vertices, f.core, f.area,
-                  f.rms) for k, f in enumerate(facets)]
+    shift, rounding = edge_rounding(q @ normals.T - params[:, 2], u, weight, width)
+    return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2] + shift[k]), f.vertices, f.core,
+                  f.area, f.rms, rounding) for k, f in enumerate(facets)]
+
+
+def rounded_scores(signed: np.ndarray, rounding: float, width: float, nodes: int = 12) -> np.ndarray:
+    """(b,) a blurred convex polyhedron's indicator at points whose signed distances to its planes are ``signed``
+    (b, m, nm), its edges rounded by ``rounding`` nm, the blur a Gaussian of sigma ``width`` nm.
+
+    Each point's two nearest planes (the largest distances, ``s_1 >= s_2``) make its edge, taken as a right-angled
+    one; every other plane adds its own step, ``Phi(-s_k / width)``. The edge's rounded quadrant, in the
+    coordinates ``(s_1, s_2)`` about the sharp edge, holds ``x <= X(t)`` at ``s_2 = t``: ``X = 0`` for ``t <= -r``,
+    ``X = -r + sqrt(r^2 - (t + r)^2)`` on the arc, none for ``t > 0``. Blurred, ``Phi(-s_1 / w) Phi(-(r + s_2) /
+    w)`` plus the arc's integral ``int phi_w(t - s_2) Phi((X(t) - s_1) / w) dt`` (Gauss-Legendre over the arc's
+    angle, ``nodes`` points). With ``rounding = 0`` the arc vanishes and this is the product of the planes' steps,
+    exact for a right-angled sharp edge under an isotropic Gaussian blur.
+    """
+    order = np.sort(signed, axis=1)
+    s1, s2 = order[:, -1], order[:, -2] if signed.shape[1] > 1 else np.full(len(signed), -np.inf)
+    root2w = np.sqrt(2) * width
+    out = 0.5 * erfc(s1 / root2w) * 0.5 * erfc((rounding + s2) / root2w)
+    if rounding > 0:
+        x, g = np.polynomial.legendre.leggauss(nodes)
+        theta, g = 0.25 * np.pi * (x + 1), 0.25 * np.pi * g  # [0, pi/2]
+        t = -rounding + rounding * np.sin(theta)  # along s_2, from -r up to the edge's outer face
+        edge = -rounding + rounding * np.cos(theta)  # X(t)
+        density = np.exp(-0.5 * ((t[None, :] - s2[:, None]) / width) ** 2) / (np.sqrt(2 * np.pi) * width)
+        out = out + (density * 0.5 * erfc((s1[:, None] - edge[None, :]) / root2w)
+                     * (g * rounding * np.cos(theta))[None, :]).sum(axis=1)
+    return out * np.prod(0.5 * erfc(order[:, :-2] / root2w), axis=1)
+
+
+def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, iterations: int = 8,
+                  max_step: float = 0.2, tolerance: float = 1e-4) -> tuple[np.ndarray, float]:
+    """How far an object's planes move out, and the radius (nm) of its rounded edges, as its ions show them.
+
+    The ions' normalised scores ``u`` against the sharp planes (``signed`` (b, m), nm, from :func:`fit_to_ions`)
+    are fitted by the blurred polyhedron with rounded edges (:func:`rounded_scores`): first the radius alone (least
+    squares, atoms-weighted, between 0 and the depth of the deepest ion), then, where it is not 0, the radius and
+    every plane's offset together (Gauss-Newton, numerical derivatives; each parameter clamped to ``max_step`` nm
+    per step, the radius to >= 0). The sharp fit reads a rounded edge's ions as planes moved in and a wider
+    profile, so the radius alone comes out short (half of a 1.5 nm fillet, dev cuboid 19). A radius within two
+    standard errors of 0 is not one the ions show: those edges stay as the sharp fit has them (a sharp cuboid's ions
+    fit best at exactly 0, dev cuboid 31; noisier ones at 0.15 +- 0.14 nm).
+
+    Returns
+    -------
+    shift : (m,) float64, nm
+        Outward moves of the planes' offsets.
+    rounding : float, nm
+    """
+    from scipy.optimize import minimize_scalar
+
+    def model(shift: np.ndarray, r: float) -> np.ndarray:
+        return rounded_scores(signed - shift, r, width)
+
+    m = signed.shape[1]
+    root_w = np.sqrt(weight)
+    shift = np.zeros(m)
+    deepest = float(np.max(-signed.max(axis=1), initial=0.0))  # the inner polyhedron must hold a point
+    alone = minimize_scalar(lambda r: float(np.sum(weight * (u - model(shift, r)) ** 2)), bounds=(0.0, deepest),
+                            method="bounded", options={"xatol": 1e-3})
+    if not alone.fun < np.sum(weight * (u - model(shift, 0.0)) ** 2):
+        return shift, 0.0
+    rounding, h = float(alone.x), 1e-3
+    for _ in range(iterations):
+        base = model(shift, rounding)
+        jac = np.empty((len(u), m + 1))
+        for k in range(m):
+            nudged = shift.copy()
+            nudged[k] += h
+            jac[:, k] = (model(nudged, rounding) - base) / h
+        jac[:, m] = (model(shift, rounding + h) - base) / h
+        delta = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w, rcond=None)[0], -max_step, max_step)
+        shift += delta[:m]
+        rounding = min(max(rounding + delta[m], 0.0), deepest)
+        if np.abs(delta).max() < tolerance:
+            break
+    # the radius's standard error from the Gauss-Newton normal matrix, scaled by the residuals' variance
+    scaled, residual = jac * root_w[:, None], (u - model(shift, rounding)) * root_w
+    variance = residual @ residual / max(len(u) - m - 1, 1)
+    if rounding < 2 * np.sqrt(variance * np.linalg.pinv(scaled.T @ scaled)[m, m]):
+        return np.zeros(m), 0.0
+    return shift, rounding
