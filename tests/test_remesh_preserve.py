@@ -185,7 +185,7 @@ def test_restore_rim_puts_a_lost_rim_generator_back_between_its_neighbours():
 
 def test_small_chamfer_keeps_its_creases():
     """A facet smaller than L² cut off a cube's corner was merged into a face, and the creases
-    between them (55°) were smoothed over (the refined cuboids of the pipeline, 0.31-0.38 edge
+    between them (55°) were smoothed over (the refined cuboids of the pipeline, 0.27-0.31 edge
     off); creases a chord could miss by more than the tolerance are never merged across."""
     from scipy.spatial import ConvexHull
 
