@@ -192,7 +192,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         clock[0] = now
 
     edge = _edge_length(mesh, edge_length, n_vertices)
-    features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps)
+    features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps,
+                           miss=check.HAUSDORFF_FRACTION * edge)
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch)
