@@ -15,6 +15,11 @@ is thinned by the coarse scale: its thickness ``V / A`` is less than half the fi
 scales an octave apart an object resolved at both keeps its thickness; one the coarse scale does not resolve
 loses more than the scale ratio, or breaks into slivers along a rod).
 
+The finer speck test costs a finer voxelization and contour per null draw and the exact distances of the ions
+near every finer component; it is drawn only where some finer component may replace a coarse one by the rule
+above (:func:`_may_replace`: bounding boxes and thicknesses), so that a specimen whose objects are all resolved
+pays for one finer voxelization and contour. Its family stays every finer component.
+
 Everything else keeps the first contour: resolved objects (their coarse contour is smoother and as close), a
 finer component holding a resolved one (at low contrast the finer field's noise joins objects), and a finer
 component holding none: at an iso-value near an object's own plateau the finer field's noise draws
@@ -57,7 +62,8 @@ class ThinObjects:
     replaced : list of (float, float)
         (coarse, finer) volumes (nm³) of the components each finer one replaced (the coarse ones summed).
     tested : Specks or None
-        The speck test of the finer contour's components.
+        The speck test of the finer contour's components (None where no finer component may replace a coarse
+        one: not drawn).
     specks : Specks or None
         The first contour's speck test with each output component's p-value and z (``Specks.kept``, for
         :meth:`Specks.of`); the input's where nothing changed.
