@@ -95,10 +95,11 @@ def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list
     """(f,) bool: the ``finer`` components that may replace coarse ones by the rule of :func:`add_thin_objects`.
 
     A necessary condition from bounding boxes and thicknesses alone, no distances: the component is closed (one
-    ending at the specimen edge has no volume to compare: the coarse scale decides) and the bounding box of its
-    vertices (grown by 1e-3 nm: a vertex found inside by a rounded distance) holds that of a coarse component's
-    vertices ``points`` (a point inside a closed surface lies in the hull of its vertices) whose ``thickness``
-    (nm) is under :data:`OCTAVE` of its own. The finer speck test, which costs a finer voxelization and contour
+    ending at the specimen edge has no volume to compare: the coarse scale decides) and holds a coarse component
+    whose ``thickness`` (nm) is under :data:`OCTAVE` of its own; where it encloses its inside (positive volume),
+    the bounding box of its vertices (grown by 1e-3 nm: a vertex found inside by a rounded distance) holds that
+    of the coarse component's vertices ``points`` (a point inside a closed surface lies in the hull of its
+    vertices); a hole's inside (negative volume) is everything around it, so there thicknesses alone decide. The finer speck test, which costs a finer voxelization and contour
     per null draw and the exact distances of the ions near every finer component, is drawn only where one may.
     """
     if not points:
@@ -110,7 +111,8 @@ def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list
         if len(part.boundary_edges()):
             continue
         own = part.vertices[np.unique(part.faces)]
-        boxed = np.all(lo >= own.min(axis=0) - 1e-3, axis=1) & np.all(hi <= own.max(axis=0) + 1e-3, axis=1)
+        boxed = (np.all(lo >= own.min(axis=0) - 1e-3, axis=1) & np.all(hi <= own.max(axis=0) + 1e-3, axis=1)
+                 if part.signed_volume() > 0 else np.ones(len(points), bool))
         out[j] = bool(np.any(boxed & (np.asarray(thickness) < OCTAVE * _thickness(part))))
     return out
 
