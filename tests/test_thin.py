@@ -67,8 +67,8 @@ def test_a_resolved_object_costs_no_finer_speck_test():
     from apt_filters.refine.thin import add_thin_objects
     from apt_filters.synth import Sphere
 
-    spec = SpecimenSpec(Box((16.0, 16.0, 16.0)), MATRIX, (Feature(Sphere((0.5, 0.0, -8.0), 3.5), INSIDE, 0.4, (), "s"),),
-                        efficiency=0.5, name="resolved sphere")
+    sphere = Feature(Sphere((0.5, 0.0, -8.0), 3.5), INSIDE, 0.4, (), "s")
+    spec = SpecimenSpec(Box((16.0, 16.0, 16.0)), MATRIX, (sphere,), efficiency=0.5, name="resolved sphere")
     sp = generate(spec, seed=2)
     fields = voxelize(sp.ions, sp.ranges)
     mask = inside_mask(fields).dense()

@@ -99,8 +99,9 @@ def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list
     whose ``thickness`` (nm) is under :data:`OCTAVE` of its own; where it encloses its inside (positive volume),
     the bounding box of its vertices (grown by 1e-3 nm: a vertex found inside by a rounded distance) holds that
     of the coarse component's vertices ``points`` (a point inside a closed surface lies in the hull of its
-    vertices); a hole's inside (negative volume) is everything around it, so there thicknesses alone decide. The finer speck test, which costs a finer voxelization and contour
-    per null draw and the exact distances of the ions near every finer component, is drawn only where one may.
+    vertices); a hole's inside (negative volume) is everything around it, so there thicknesses alone decide.
+    The finer speck test, which costs a finer voxelization and contour per null draw and the exact distances of
+    the ions near every finer component, is drawn only where one may.
     """
     if not points:
         return np.zeros(len(finer), bool)
