@@ -25,7 +25,8 @@ the summary rows and sections of sizes not measured again are kept) after every 
 3. Marching cubes on dense 128³ and 256³ fields (smoothed noise: active cells everywhere; the
    contouring benchmark's box minus sphere) beside scikit-image's Lewiner marching cubes and VTK's
    flying edges, same process, round-robin, best of 5 wall and CPU times (``--no-mc`` skips it).
-4. ``--run``: ``apt-filters run`` on the N-ion file (Cu at 20 at.%, ``--memory-budget`` passed on),
+4. ``--run``: ``apt-filters run`` on the N-ion file (Cu at 20 at.%, ``--memory-budget`` passed on; ``--run-only``:
+   this section alone),
    wall and CPU time, and each step's wall and CPU time and peak RSS (from its report); then the
    same run with a budget nothing fits, which must be refused up front (exit 2, one line).
 
@@ -327,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--big", type=float, default=0, help="also a file of this many ions, largest thread count only")
     parser.add_argument("--no-mc", action="store_true", help="skip the marching-cubes table")
     parser.add_argument("--run", action="store_true", help="also time `apt-filters run` on the main file")
+    parser.add_argument("--run-only", action="store_true",
+                        help="time `apt-filters run` on the main file and nothing else (implies --run and --no-mc)")
     parser.add_argument("--memory-budget", type=float, help="GB, for --run (default: the run's own)")
     parser.add_argument("--work", help="folder for the generated files (default: a temporary one, removed)")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
@@ -350,6 +353,8 @@ def main(argv: list[str] | None = None) -> int:
         # after every section: a run stopped part-way keeps what it measured
         write_results("scale", TITLE, summary, sections, intro=intro, merge=True)
 
+    if args.run_only:
+        args.run, args.no_mc, args.big = True, True, 0
     if not args.no_mc:
         section(mc_table())
     with tempfile.TemporaryDirectory(dir=args.work) as tmp:
@@ -360,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
             pos = work / "scale.pos"
             gen = generate(pos, n, cores)
             print(f"generated {n:,} ions in {gen:.1f} s", flush=True)
-            section(streaming_table(pos, n, counts_n))
+            if not args.run_only:
+                section(streaming_table(pos, n, counts_n))
             if args.run and n == int(args.ions):
                 section(run_table(pos, n, work, args.memory_budget))
             pos.unlink()

@@ -82,3 +82,28 @@ def test_the_level_is_a_config_key_and_a_run_option_refused_outside_0_1():
     for bad in (0.0, 1.0, float("nan")):
         with pytest.raises(AptFiltersError, match="speck_alpha"):
             cfg.with_options(cfg.PipelineConfig(), {"speck_alpha": bad}, "command line")
+
+
+@pytest.mark.parametrize("close", [False, True])
+def test_the_segregant_searchs_selection_gives_the_same_z_to_the_bit(close):
+    """The pipeline selects the ions near the first contour once, for the segregant search and the speck test:
+    the wider selection (4 nm, exact within 3, beyond by side on closed meshes) gives the very z of the test's own."""
+    from apt_filters.refine.segregants import segregant_ions
+    from apt_filters.refine.specks import kernel_sigma, side_z
+
+    inside = {"Ni": 0.75, "Al": 0.20, "Cr": 0.05}
+    spec = SpecimenSpec(Box((22.0, 22.0, 22.0)), MATRIX, (Feature(Sphere(CENTRE, 2.0), inside, 0.2, (), "s"),),
+                        efficiency=0.5, name="speck test")
+    sp = generate(spec, seed=3)
+    fields = voxelize(sp.ions, sp.ranges)
+    mesh = marching_cubes(fields.concentration("Al").dense(), 0.125, spacing=fields.grid.voxel,
+                          origin=fields.grid.origin, mask=inside_mask(fields).dense(), close=close)
+    assert len(split_components(mesh)) >= 3 and (len(mesh.boundary_edges()) == 0) == close
+    gap = kernel_sigma(fields)
+    own = side_z(mesh, ions=sp.ions, ranges=sp.ranges, species="Al", basis=fields.basis, gap=gap)
+    near = segregant_ions(mesh, sp.ions)
+    assert np.isinf(near.distance).any() == close  # on a closed mesh: ions known by their side alone
+    reused = side_z(mesh, ions=sp.ions, ranges=sp.ranges, species="Al", basis=fields.basis, gap=gap, near=near)
+    assert np.array_equal(own, reused) and np.any(own != 0)
+    with pytest.raises(ValueError):  # a selection too narrow for the test's reach is refused
+        side_z(mesh, ions=sp.ions, ranges=sp.ranges, species="Al", basis=fields.basis, gap=gap + 2.0, near=near)

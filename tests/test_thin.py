@@ -56,3 +56,26 @@ def test_defaults_find_the_thin_rod_and_its_volume(rod):
     assert len(record.refine["thin"]["replaced_nm3"]) == 1
     p, z = record.specks.of(mesh, 2.0)
     assert p[0] < 1e-3 and z[0] > 3, "the object table's p-value is its finer test's"
+
+
+def test_a_resolved_object_costs_no_finer_speck_test():
+    """A 3.5 nm sphere is resolved at both scales: no finer component can replace it (bounding boxes and
+    thicknesses tell), so the finer speck test is not drawn and the surface is the first contour's."""
+    import numpy as np
+
+    from apt_filters.refine import remove_specks
+    from apt_filters.refine.thin import add_thin_objects
+    from apt_filters.synth import Sphere
+
+    sphere = Feature(Sphere((0.5, 0.0, -8.0), 3.5), INSIDE, 0.4, (), "s")
+    spec = SpecimenSpec(Box((16.0, 16.0, 16.0)), MATRIX, (sphere,), efficiency=0.5, name="resolved sphere")
+    sp = generate(spec, seed=2)
+    fields = voxelize(sp.ions, sp.ranges)
+    mask = inside_mask(fields).dense()
+    mesh, specks = remove_specks(contour_surface(fields, mask, "Al", ISO), fields=fields, mask=mask, ions=sp.ions,
+                                 ranges=sp.ranges, species="Al", iso=ISO)
+    assert len(split_components(mesh)) == 1
+    out, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges,
+                                 species="Al", iso=ISO)
+    assert thin.tested is None and not thin.replaced
+    assert out is mesh and np.array_equal(out.faces, mesh.faces)

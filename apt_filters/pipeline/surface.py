@@ -109,16 +109,17 @@ def _quiet_step(name: str):
     yield SimpleNamespace(summary="")
 
 
-def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()):
+def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=(), near=None):
     """The basis a concentration surface of ``species`` is drawn in: ``basis`` without the segregants its first
-    contour ``mesh`` shows (:func:`~apt_filters.refine.segregants.find_segregants`; those in ``include`` stay).
+    contour ``mesh`` shows (:func:`~apt_filters.refine.segregants.find_segregants`; those in ``include`` stay;
+    ``near``: its :func:`~apt_filters.refine.segregants.segregant_ions` where the caller has them).
     Returns (basis, Segregants), or (``basis``, None) for a density surface; ``basis`` itself where none is found."""
     from apt_filters.refine.segregants import find_segregants
     from apt_filters.voxel import ConcentrationBasis
 
     if not species:
         return basis, None
-    found = find_segregants(mesh, ions, ranges, species, basis=basis, include=tuple(include))
+    found = find_segregants(mesh, ions, ranges, species, basis=basis, include=tuple(include), near=near)
     if not found.species:
         return basis, found
     return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
@@ -161,6 +162,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     """
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.refine.segregants import segregant_ions
     from apt_filters.refine.thin import add_thin_objects
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis
@@ -172,10 +174,14 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     with step("contour") as s:
         c = config.contour
         mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge)
-        surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis, config.voxel.include)
+        # one streamed pass selects the ions near the first contour for the segregant search and the speck test
+        near = segregant_ions(mesh, ions) if surface.species else None
+        surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis, config.voxel.include,
+                                                    near=near)
         if surface_basis is not basis:  # contoured again without the segregants' dilution
             mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
                                    basis=surface_basis)
+            near = None  # another mesh: the speck test selects its own ions
         record.raw_area = mesh.area()
         s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
                      + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
@@ -184,7 +190,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             r = config.refine
             mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
-                                         alpha=r.speck_alpha)
+                                         alpha=r.speck_alpha, near=near)
+            near = None  # its memory back before the refinement
             # objects thinner than the delocalization, drawn one octave finer where this scale thins them
             mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
                                           species=surface.species, iso=surface.iso, basis=surface_basis,

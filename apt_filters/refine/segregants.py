@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.core.nearby import select_near
+from apt_filters.core.nearby import NearSurface, select_near
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.composition import ion_atoms
@@ -77,9 +77,17 @@ def _rise(f: np.ndarray, n: np.ndarray, p: np.ndarray, n_p: np.ndarray) -> np.nd
     return np.where((n > 0) & (n_p > 0), (f - p) / np.maximum(se, 1e-12), -np.inf)
 
 
+def segregant_ions(mesh: TriMesh, ions: IonTable) -> NearSurface:
+    """The ions :func:`find_segregants` reads, in one streamed pass: those within ``REACH[1]`` nm of ``mesh``,
+    with exact signed distances and faces within ``REACH[0] + GAP`` nm and, beyond, on a closed mesh only their
+    side (distance +-inf); m/z carried. The speck test of the same mesh reads the ions within 3 nm from it too."""
+    near_reach, far = REACH
+    return select_near(ions.positions, mesh, far, carry=(ions.mz,), distances=near_reach + GAP)
+
+
 def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str, *,
                     basis: ConcentrationBasis = ConcentrationBasis(), include=(), bin_width: float = 0.25,
-                    significance: float = SIGNIFICANCE) -> Segregants:
+                    significance: float = SIGNIFICANCE, near: NearSurface | None = None) -> Segregants:
     """The species that peak at the surface ``mesh`` above both of their plateaus.
 
     Parameters
@@ -98,6 +106,8 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
         Profile bins.
     significance : float
         Binomial standard errors (of the bin and its reference together) a peak must clear.
+    near : NearSurface, optional
+        :func:`segregant_ions` of ``mesh`` and ``ions``, where the caller reuses it (default: selected here).
 
     Returns
     -------
@@ -107,7 +117,7 @@ def find_segregants(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: 
     # One streamed pass over the ions within reach of the references. Beyond near_reach + GAP an ion only
     # counts in the reference on its side, so there its side is enough (on a closed mesh the reach grid
     # proves most of them without a search); it goes to the outermost bin on that side.
-    near = select_near(ions.positions, mesh, far, carry=(ions.mz,), distances=near_reach + GAP)
+    near = segregant_ions(mesh, ions) if near is None else near
     everything = ion_atoms(IonTable(near.positions, near.carried[0]), ranges, ConcentrationBasis())
     atoms = everything.atoms.astype(np.float64)
     # fine bins over [-far, far]: each candidate bin's references are sums of whole fine bins

@@ -63,7 +63,7 @@ import numpy as np
 from apt_filters.contour import marching_cubes
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh
-from apt_filters.core.nearby import CHUNK, select_near
+from apt_filters.core.nearby import CHUNK, NearSurface, select_near
 from apt_filters.io import IonTable, RangeTable
 from apt_filters.refine.composition import ion_atoms
 from apt_filters.voxel import ConcentrationBasis, voxelize
@@ -154,16 +154,27 @@ def holm(p: np.ndarray) -> np.ndarray:
 
 
 def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-           reach: float = REACH, gap: float = 0.0) -> np.ndarray:
+           reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None) -> np.ndarray:
     """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
     on the side above the iso-value (signed distance in [-reach, 0)) against those on the side below, from
-    ``gap`` to ``gap + reach`` nm (pooled binomial variance; 0 where a side is empty)."""
+    ``gap`` to ``gap + reach`` nm (pooled binomial variance; 0 where a side is empty).
+
+    ``near``, optional: the ions of ``ions`` near this very ``mesh`` selected already
+    (:func:`~apt_filters.core.nearby.select_near` to at least ``reach + gap`` nm, with exact distances and faces
+    within ``reach + gap``, e.g. :func:`~apt_filters.refine.segregants.segregant_ions`); default: selected here.
+    The counts are whole atoms, so the z is the same to the bit either way."""
     labels = mesh.face_components()
     n_comp = int(labels.max()) + 1 if len(labels) else 0
-    near = select_near(ions.positions, mesh, reach + gap)
-    atoms = ion_atoms(IonTable(near.positions, np.asarray(ions.mz)[near.rows]), ranges, basis)
+    if near is None:
+        near = select_near(ions.positions, mesh, reach + gap)
+    elif near.reach < reach + gap or near.moved(mesh.vertices) != 0.0:
+        raise ValueError(f"the ions were selected within {near.reach:g} nm of another mesh or too close to this one: "
+                         f"the speck test needs {reach + gap:g} nm")
+    within = np.flatnonzero(np.abs(near.distance) <= reach + gap)  # those of a wider selection: +-inf beyond
+    rows = near.rows[within]
+    atoms = ion_atoms(IonTable(near.positions[within], np.asarray(ions.mz)[rows]), ranges, basis)
     total, mine = atoms.total.astype(np.float64), atoms.atoms[:, atoms.elements.index(species)].astype(np.float64)
-    comp, d = labels[near.face], near.distance
+    comp, d = labels[near.face[within]], near.distance[within]
     up, down = (d < 0) & (d >= -reach), (d >= gap) & (d <= gap + reach)
 
     def count(w):
@@ -220,7 +231,7 @@ def null_z(*, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, spec
 
 def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, species: str,
                   iso: float, basis: ConcentrationBasis | None = None, alpha: float = ALPHA,
-                  reach: float = REACH) -> tuple[TriMesh, Specks]:
+                  reach: float = REACH, near: NearSurface | None = None) -> tuple[TriMesh, Specks]:
     """``mesh`` without the components its ions do not show to be real (see the module docstring).
 
     Parameters
@@ -243,6 +254,9 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
         Family-wise error rate in (0, 1).
     reach : float, nm
         Ions tested each side of a component's surface.
+    near : NearSurface, optional
+        The ions near ``mesh`` selected already (:func:`side_z`), e.g. by the segregant search of the same mesh;
+        default: selected here.
 
     Returns
     -------
@@ -259,7 +273,8 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
     n_comp = int(labels.max()) + 1 if len(labels) else 0
     if not n_comp:
         return mesh, Specks([], [], [], alpha=alpha)
-    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields))
+    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields),
+               near=near)
     null, _ = null_z(fields=fields, mask=mask, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
                      reach=reach)
     centre = float(null.mean()) if len(null) else 0.0

@@ -15,6 +15,11 @@ is thinned by the coarse scale: its thickness ``V / A`` is less than half the fi
 scales an octave apart an object resolved at both keeps its thickness; one the coarse scale does not resolve
 loses more than the scale ratio, or breaks into slivers along a rod).
 
+The finer speck test costs a finer voxelization and contour per null draw and the exact distances of the ions
+near every finer component; it is drawn only where some finer component may replace a coarse one by the rule
+above (:func:`_may_replace`: bounding boxes and thicknesses), so that a specimen whose objects are all resolved
+pays for one finer voxelization and contour. Its family stays every finer component.
+
 Everything else keeps the first contour: resolved objects (their coarse contour is smoother and as close), a
 finer component holding a resolved one (at low contrast the finer field's noise joins objects), and a finer
 component holding none: at an iso-value near an object's own plateau the finer field's noise draws
@@ -57,7 +62,8 @@ class ThinObjects:
     replaced : list of (float, float)
         (coarse, finer) volumes (nm³) of the components each finer one replaced (the coarse ones summed).
     tested : Specks or None
-        The speck test of the finer contour's components.
+        The speck test of the finer contour's components (None where no finer component may replace a coarse
+        one: not drawn).
     specks : Specks or None
         The first contour's speck test with each output component's p-value and z (``Specks.kept``, for
         :meth:`Specks.of`); the input's where nothing changed.
@@ -83,6 +89,33 @@ def _thickness(part: TriMesh) -> float:
     """nm: volume over area (a sphere's radius / 3, a rod's radius / 2, a plate's half-thickness)."""
     area = part.area()
     return abs(part.signed_volume()) / area if area > 0 else 0.0
+
+
+def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list[float]) -> np.ndarray:
+    """(f,) bool: the ``finer`` components that may replace coarse ones by the rule of :func:`add_thin_objects`.
+
+    A necessary condition from bounding boxes and thicknesses alone, no distances: the component is closed (one
+    ending at the specimen edge has no volume to compare: the coarse scale decides) and holds a coarse component
+    whose ``thickness`` (nm) is under :data:`OCTAVE` of its own; where it encloses its inside (positive volume),
+    the bounding box of its vertices (grown by 1e-3 nm: a vertex found inside by a rounded distance) holds that
+    of the coarse component's vertices ``points`` (a point inside a closed surface lies in the hull of its
+    vertices); a hole's inside (negative volume) is everything around it, so there thicknesses alone decide.
+    The finer speck test, which costs a finer voxelization and contour per null draw and the exact distances of
+    the ions near every finer component, is drawn only where one may.
+    """
+    if not points:
+        return np.zeros(len(finer), bool)
+    lo = np.array([q.min(axis=0) for q in points])
+    hi = np.array([q.max(axis=0) for q in points])
+    out = np.zeros(len(finer), bool)
+    for j, part in enumerate(finer):
+        if len(part.boundary_edges()):
+            continue
+        own = part.vertices[np.unique(part.faces)]
+        boxed = (np.all(lo >= own.min(axis=0) - 1e-3, axis=1) & np.all(hi <= own.max(axis=0) + 1e-3, axis=1)
+                 if part.signed_volume() > 0 else np.ones(len(points), bool))
+        out[j] = bool(np.any(boxed & (np.asarray(thickness) < OCTAVE * _thickness(part))))
+    return out
 
 
 def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mask: np.ndarray, ions: IonTable,
@@ -129,14 +162,18 @@ def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mas
     contour = marching_cubes(values, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
     if contour.n_faces == 0:
         return mesh, report
+    coarse = split_components(mesh)
+    points = [c.vertices[np.unique(c.faces)] for c in coarse]  # each component's own vertices
+    may = _may_replace(split_components(contour), points, [_thickness(c) for c in coarse])
+    if not may.any():  # no finer component can replace a coarse one whatever its test says: none is drawn
+        return mesh, report
     real, report.tested = remove_specks(contour, fields=fine, mask=mask, ions=ions, ranges=ranges, species=species,
                                         iso=iso, basis=basis, alpha=alpha)
     finer_parts = split_components(real) if real.n_faces else []
-    coarse = split_components(mesh)
-    points = [c.vertices[np.unique(c.faces)] for c in coarse]  # each component's own vertices
+    may = may[~(report.tested.p_values > alpha)]  # of the real ones (the test removes whole components, in order)
     dropped, extra = set(), []
     for j, part in enumerate(finer_parts):
-        if len(part.boundary_edges()):  # ends at the specimen edge: no volume to compare, the coarse scale decides
+        if not may[j]:  # fails the bounds' necessary condition; an open one ends at the specimen edge
             continue
         # a coarse component lies in this one where its vertices are inside it (negative distance)
         sd = SurfaceDistance(part).query(np.vstack(points))
