@@ -280,7 +280,7 @@ def _summary(surface: dict) -> str:
               if solutes else "<p class='none'>no solute below 10 % overall</p>")
     return (f"<div class='cards'><div><h3>Objects</h3>{geometry}</div>"
             f"<div><h3>Interfacial excess Γ</h3>{excess}</div></div>" + _interface(surface)
-            + f"<h3>Composition inside and outside the interface</h3>"
+            + "<h3>Composition inside and outside the interface</h3>"
             + _table(comp_header, comp_rows, "summary", [("", 1)] + [(r["label"], 2) for r in rows]))
 
 
