@@ -269,7 +269,8 @@ class NearIons:
         out.parity = parity
         return out
 
-    def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh") -> Band:
+    def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh",
+             shell: tuple[float, float] | None = None) -> Band:
         """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances.
 
         ``distance="mesh"``: each ion's signed distance to the faces around its nearest vertex
@@ -285,6 +286,14 @@ class NearIons:
         Nearest vertices are found again only once some vertex has moved more than
         :data:`REASSIGN` nm since they were last found (late iterations move by hundredths of a
         nm: the Voronoi patches of the vertices, ~0.4 nm across, barely change).
+
+        ``shell=(lo, hi)`` (``distance="mesh"``), for a caller that only compares the distances beyond ``lo`` with
+        ``lo`` and ``hi`` (profile bins within ``lo``, plateau windows between ``lo`` and ``hi``): an ion whose
+        distance the planes of its fan's faces prove beyond ``lo`` (each face's plane is nearer than the face, and
+        on the same side for every face: the side of the closest point's pseudo-normal), and within ``hi`` by its
+        vertex or beyond ``hi`` by the planes, gets the nearest plane's signed distance instead of its own: the
+        same side, and the same place relative to ``lo`` and ``hi``. Most of the ions a plateau window counts are
+        spared the closest-point search.
         """
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
             self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
@@ -293,7 +302,8 @@ class NearIons:
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
-                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach, d2, signed)
+                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach,
+                         *(shell if shell is not None else (np.inf, np.inf)), d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -353,13 +363,17 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, lo, hi, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
     from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
     their vertex (left out of the band) get NaN. ``plane`` (k, 3): the unit normal of each fan face (zeros if
-    degenerate), whose plane's distance bounds the face's from below."""
+    degenerate), whose plane's distance bounds the face's from below. Points the planes prove beyond ``lo`` (on
+    one side of every plane), and within ``hi`` of the vertex or beyond ``hi`` by the planes, get the nearest
+    plane's signed distance (``NearIons.band``'s ``shell``; ``lo`` = inf: none)."""
+    # relative margin of the shell's proofs, far above the rounding of the planes' and faces' distances
+    tight = 1.0 + 1e-9
     n = points.shape[0]
     widest = 0
     for v in range(fan_ptr.shape[0] - 1):
@@ -382,6 +396,17 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane
                 signed[i] = tangent
                 continue
             first = fan_ptr[v]
+            if lo < np.inf:
+                # the distance to the fan is at least the nearest plane's, at most the vertex's
+                lower, sides = np.inf, 0
+                for k in range(first, fan_ptr[v + 1]):
+                    h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]
+                    lower = min(lower, abs(h))
+                    sides |= 1 if h > 0.0 else (2 if h < 0.0 else 3)
+                if (sides == 1 or sides == 2) and lower > lo * tight and (d2[i] * tight <= hi * hi
+                                                                          or lower > hi * tight):
+                    signed[i] = lower if sides == 1 else -lower
+                    continue
             best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
             for k in range(first, fan_ptr[v + 1]):
                 h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]

@@ -226,12 +226,14 @@ def held_out_loss(fit: np.ndarray, faces: np.ndarray, components: np.ndarray, ob
     rows, comp, fraction, total = rows[ok], comp[ok], score[ok] / total[ok], total[ok]
     lo, hi = scores.outside[comp], scores.inside[comp]
     sigma = np.sqrt(2) * widths[comp]
+    # only the scored ions are measured against each candidate (their nearest vertices of ``fit`` kept)
+    held = held.subset(rows, fit, SCORED + 1.0)
 
     def loss(vertices: np.ndarray) -> np.ndarray:
         band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
         distance = np.full(len(held.positions), SCORED + 1.0)
         distance[band.index] = band.distance
-        model = lo + (hi - lo) * 0.5 * erfc(distance[rows] / sigma)
+        model = lo + (hi - lo) * 0.5 * erfc(distance / sigma)
         return total * (fraction - model) ** 2
 
     return comp, loss
