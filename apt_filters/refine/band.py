@@ -19,7 +19,7 @@ within a radius (numba).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -261,6 +261,15 @@ class NearIons:
                         IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, radius, self.faces,
                         vertices[self.faces], self.indptr, self.indices, self.second, self.fan, self.source,
                         self.parity, vertices.copy())
+
+    def take(self, keep: np.ndarray) -> "NearIons":
+        """The ions ``keep`` (indices) of these as they are: their nearest vertices and the mesh those were found on
+        kept, so that later :meth:`band` calls give each of them what they would give it among all of these."""
+        return replace(self, rows=self.rows[keep], positions=self.positions[keep],
+                       atoms=IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
+                       everything=IonAtoms(self.everything.elements, self.everything.atoms[keep]),
+                       vertex=self.vertex[keep], covered=self.covered.copy(),
+                       assigned=None if self.assigned is None else self.assigned.copy())
 
     def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
         """The ions of these in the even (``parity`` 0) or odd (1) rows of the table (the cross-fit's halves),
