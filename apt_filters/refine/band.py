@@ -78,15 +78,36 @@ class Pairs:
     def find(cls, vertices: np.ndarray, components: np.ndarray, radius: float, slack: float = 0.6) -> "Pairs":
         ij = cKDTree(vertices).query_pairs(radius + slack, output_type="ndarray")
         ij = ij[components[ij[:, 0]] == components[ij[:, 1]]]
-        m = csr_matrix((np.ones(2 * len(ij)), (np.concatenate([ij[:, 0], ij[:, 1]]), np.concatenate([ij[:, 1], ij[:, 0]]))),
-                       shape=(len(vertices),) * 2)
-        return cls(m.indptr.astype(np.int64), m.indices.astype(np.int64), vertices.copy(), radius, slack)
+        indptr, indices = _symmetric_csr(ij.astype(np.int64), len(vertices))
+        return cls(indptr, indices, vertices.copy(), radius, slack)
 
     def update(self, vertices: np.ndarray, components: np.ndarray) -> "Pairs":
         """These pairs, or the pairs found again if a vertex has moved more than ``slack / 2``."""
         if _largest_move(vertices, self.anchor) <= self.slack / 2:
             return self
         return Pairs.find(vertices, components, self.radius, self.slack)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _symmetric_csr(ij, n):
+    """(indptr, indices) int64 of the (n, n) symmetric 0/1 matrix with the pairs ``ij`` (p, 2) (each once, i != j):
+    each row's columns sorted, as scipy's canonical CSR of the same matrix."""
+    counts = np.zeros(n + 1, np.int64)
+    for k in range(ij.shape[0]):
+        counts[ij[k, 0] + 1] += 1
+        counts[ij[k, 1] + 1] += 1
+    indptr = np.cumsum(counts)
+    fill = indptr[:n].copy()
+    indices = np.empty(indptr[n], np.int64)
+    for k in range(ij.shape[0]):
+        i, j = ij[k, 0], ij[k, 1]
+        indices[fill[i]] = j
+        fill[i] += 1
+        indices[fill[j]] = i
+        fill[j] += 1
+    for i in prange(n):
+        indices[indptr[i]:indptr[i + 1]] = np.sort(indices[indptr[i]:indptr[i + 1]])
+    return indptr, indices
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -100,7 +121,10 @@ def _pool(vertices, normals, indptr, indices, radius, power, profiles, out):
                   + (vertices[i, 2] - vertices[j, 2]) ** 2)
             c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
             if r2 <= radius * radius:
-                out[i] += np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power) * profiles[j]
+                # one weight per pair, column by column (no temporary row)
+                w = np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power)
+                for col in range(profiles.shape[1]):
+                    out[i, col] += w * profiles[j, col]
 
 
 def pooled(profiles: np.ndarray, vertices: np.ndarray, normals: np.ndarray, pairs: Pairs,
