@@ -162,3 +162,55 @@ def test_band_distance_is_the_nearest_face_of_the_fan():
         best = min(closest_on_triangle(*p[i], *mesh.vertices[f[0]], *mesh.vertices[f[1]], *mesh.vertices[f[2]])[0]
                    for f in fan)
         assert abs(abs(band.distance[i]) - np.sqrt(best)) <= 1e-9
+
+
+def test_band_shell_keeps_every_bin_window_and_side_of_the_exact_distances():
+    mesh = _blob()
+    rng = np.random.default_rng(6)
+    positions = rng.uniform(-9, 9, size=(120_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
+    ions = IonTable(positions, np.full(len(positions), 27.0, np.float32))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 5.0)
+    moved = mesh.vertices * 1.03
+    normals = vertex_normals(moved, mesh.faces)
+    exact = near.band(moved, normals, 4.0)
+    lo, hi = 1.5, 3.0
+    shell = near.band(moved, normals, 4.0, shell=(lo, hi))
+    assert np.array_equal(shell.index, exact.index) and np.array_equal(shell.vertex, exact.vertex)
+    d, s = exact.distance, shell.distance
+    spared = d != s
+    assert spared.mean() > 0.05  # the planes spare some ions the closest-point search
+    assert np.array_equal(d[np.abs(d) <= lo], s[np.abs(d) <= lo])  # within lo: exact
+    assert np.array_equal(np.sign(d), np.sign(s))
+    assert np.all(np.abs(s[spared]) > lo) and np.all(np.abs(s[spared]) <= np.abs(d[spared]) + 1e-12)
+    assert np.array_equal(np.abs(d) <= hi, np.abs(s) <= hi)  # the same place relative to hi
+
+
+def test_taken_ions_get_what_they_get_among_all():
+    mesh = _blob()
+    rng = np.random.default_rng(7)
+    positions = rng.uniform(-8, 8, size=(60_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
+    ions = IonTable(positions, np.full(len(positions), 27.0, np.float32))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    keep = np.flatnonzero(rng.random(len(near.rows)) < 0.3)
+    part = near.take(keep)
+    for scale in (1.01, 1.1, 1.12):  # below and above the moves that find the nearest vertices again
+        moved = mesh.vertices * scale
+        normals = vertex_normals(moved, mesh.faces)
+        whole, mine = near.band(moved, normals, 2.5), part.band(moved, normals, 2.5)
+        inside = np.isin(whole.index, keep)
+        assert np.array_equal(keep[mine.index], whole.index[inside])
+        assert np.array_equal(mine.vertex, whole.vertex[inside]) and np.array_equal(mine.distance, whole.distance[inside])
+
+
+def test_pairs_csr_is_scipys_canonical_matrix():
+    from scipy.sparse import csr_matrix
+
+    from apt_filters.refine.band import _symmetric_csr
+
+    v = np.random.default_rng(8).random((3000, 3)) * 8
+    ij = cKDTree(v).query_pairs(1.1, output_type="ndarray")
+    m = csr_matrix((np.ones(2 * len(ij)), (np.r_[ij[:, 0], ij[:, 1]], np.r_[ij[:, 1], ij[:, 0]])), shape=(3000, 3000))
+    indptr, indices = _symmetric_csr(ij.astype(np.int64), 3000)
+    assert np.array_equal(indptr, m.indptr) and np.array_equal(indices, m.indices)

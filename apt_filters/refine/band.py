@@ -19,7 +19,7 @@ within a radius (numba).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -78,15 +78,36 @@ class Pairs:
     def find(cls, vertices: np.ndarray, components: np.ndarray, radius: float, slack: float = 0.6) -> "Pairs":
         ij = cKDTree(vertices).query_pairs(radius + slack, output_type="ndarray")
         ij = ij[components[ij[:, 0]] == components[ij[:, 1]]]
-        m = csr_matrix((np.ones(2 * len(ij)), (np.concatenate([ij[:, 0], ij[:, 1]]), np.concatenate([ij[:, 1], ij[:, 0]]))),
-                       shape=(len(vertices),) * 2)
-        return cls(m.indptr.astype(np.int64), m.indices.astype(np.int64), vertices.copy(), radius, slack)
+        indptr, indices = _symmetric_csr(ij.astype(np.int64), len(vertices))
+        return cls(indptr, indices, vertices.copy(), radius, slack)
 
     def update(self, vertices: np.ndarray, components: np.ndarray) -> "Pairs":
         """These pairs, or the pairs found again if a vertex has moved more than ``slack / 2``."""
         if _largest_move(vertices, self.anchor) <= self.slack / 2:
             return self
         return Pairs.find(vertices, components, self.radius, self.slack)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _symmetric_csr(ij, n):
+    """(indptr, indices) int64 of the (n, n) symmetric 0/1 matrix with the pairs ``ij`` (p, 2) (each once, i != j):
+    each row's columns sorted, as scipy's canonical CSR of the same matrix."""
+    counts = np.zeros(n + 1, np.int64)
+    for k in range(ij.shape[0]):
+        counts[ij[k, 0] + 1] += 1
+        counts[ij[k, 1] + 1] += 1
+    indptr = np.cumsum(counts)
+    fill = indptr[:n].copy()
+    indices = np.empty(indptr[n], np.int64)
+    for k in range(ij.shape[0]):
+        i, j = ij[k, 0], ij[k, 1]
+        indices[fill[i]] = j
+        fill[i] += 1
+        indices[fill[j]] = i
+        fill[j] += 1
+    for i in prange(n):
+        indices[indptr[i]:indptr[i + 1]] = np.sort(indices[indptr[i]:indptr[i + 1]])
+    return indptr, indices
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -100,7 +121,10 @@ def _pool(vertices, normals, indptr, indices, radius, power, profiles, out):
                   + (vertices[i, 2] - vertices[j, 2]) ** 2)
             c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
             if r2 <= radius * radius:
-                out[i] += np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power) * profiles[j]
+                # one weight per pair, column by column (no temporary row)
+                w = np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power)
+                for col in range(profiles.shape[1]):
+                    out[i, col] += w * profiles[j, col]
 
 
 def pooled(profiles: np.ndarray, vertices: np.ndarray, normals: np.ndarray, pairs: Pairs,
@@ -262,6 +286,15 @@ class NearIons:
                         vertices[self.faces], self.indptr, self.indices, self.second, self.fan, self.source,
                         self.parity, vertices.copy())
 
+    def take(self, keep: np.ndarray) -> "NearIons":
+        """The ions ``keep`` (indices) of these as they are: their nearest vertices and the mesh those were found on
+        kept, so that later :meth:`band` calls give each of them what they would give it among all of these."""
+        return replace(self, rows=self.rows[keep], positions=self.positions[keep],
+                       atoms=IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
+                       everything=IonAtoms(self.everything.elements, self.everything.atoms[keep]),
+                       vertex=self.vertex[keep], covered=self.covered.copy(),
+                       assigned=None if self.assigned is None else self.assigned.copy())
+
     def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
         """The ions of these in the even (``parity`` 0) or odd (1) rows of the table (the cross-fit's halves),
         assigned to ``vertices``; later :meth:`cover` calls add only rows of that parity."""
@@ -269,7 +302,8 @@ class NearIons:
         out.parity = parity
         return out
 
-    def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh") -> Band:
+    def band(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh",
+             shell: tuple[float, float] | None = None) -> Band:
         """The ions within ``reach`` nm of ``vertices`` (same mesh, moved), with signed distances.
 
         ``distance="mesh"``: each ion's signed distance to the faces around its nearest vertex
@@ -285,6 +319,14 @@ class NearIons:
         Nearest vertices are found again only once some vertex has moved more than
         :data:`REASSIGN` nm since they were last found (late iterations move by hundredths of a
         nm: the Voronoi patches of the vertices, ~0.4 nm across, barely change).
+
+        ``shell=(lo, hi)`` (``distance="mesh"``), for a caller that only compares the distances beyond ``lo`` with
+        ``lo`` and ``hi`` (profile bins within ``lo``, plateau windows between ``lo`` and ``hi``): an ion whose
+        distance the planes of its fan's faces prove beyond ``lo`` (each face's plane is nearer than the face, and
+        on the same side for every face: the side of the closest point's pseudo-normal), and within ``hi`` by its
+        vertex or beyond ``hi`` by the planes, gets the nearest plane's signed distance instead of its own: the
+        same side, and the same place relative to ``lo`` and ``hi``. Most of the ions a plateau window counts are
+        spared the closest-point search.
         """
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
             self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
@@ -293,7 +335,8 @@ class NearIons:
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
-                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach, d2, signed)
+                         face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach,
+                         *(shell if shell is not None else (np.inf, np.inf)), d2, signed)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
@@ -353,13 +396,17 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, lo, hi, d2, signed):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
     from the vertex's tangent plane keep their offset along its normal; points farther than ``sqrt(limit)`` from
     their vertex (left out of the band) get NaN. ``plane`` (k, 3): the unit normal of each fan face (zeros if
-    degenerate), whose plane's distance bounds the face's from below."""
+    degenerate), whose plane's distance bounds the face's from below. Points the planes prove beyond ``lo`` (on
+    one side of every plane), and within ``hi`` of the vertex or beyond ``hi`` by the planes, get the nearest
+    plane's signed distance (``NearIons.band``'s ``shell``; ``lo`` = inf: none)."""
+    # relative margin of the shell's proofs, far above the rounding of the planes' and faces' distances
+    tight = 1.0 + 1e-9
     n = points.shape[0]
     widest = 0
     for v in range(fan_ptr.shape[0] - 1):
@@ -382,6 +429,17 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane
                 signed[i] = tangent
                 continue
             first = fan_ptr[v]
+            if lo < np.inf:
+                # the distance to the fan is at least the nearest plane's, at most the vertex's
+                lower, sides = np.inf, 0
+                for k in range(first, fan_ptr[v + 1]):
+                    h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]
+                    lower = min(lower, abs(h))
+                    sides |= 1 if h > 0.0 else (2 if h < 0.0 else 3)
+                if (sides == 1 or sides == 2) and lower > lo * tight and (d2[i] * tight <= hi * hi
+                                                                          or lower > hi * tight):
+                    signed[i] = lower if sides == 1 else -lower
+                    continue
             best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
             for k in range(first, fan_ptr[v + 1]):
                 h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]

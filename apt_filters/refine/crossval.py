@@ -159,6 +159,8 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         bases = object_harmonics(fit, faces, components, objects, top)
         finish = {True: finisher(k, True), False: finisher(k, False)}
         comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
+        # the candidates without facets are read for the faceted objects alone (the others' ions score 0 there)
+        faceted_ions = np.flatnonzero(faceted[comp])
         per_ion = np.empty((len(comp), m))
         for j, (modes, with_facets) in enumerate(columns):
             trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
@@ -166,7 +168,8 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
             if not with_facets and not faceted.any():
                 missing[:, j] = True
                 continue
-            per_ion[:, j] = loss(finish[with_facets](apply_modes(fit, bases, trial))[0])
+            per_ion[:, j] = loss(finish[with_facets](apply_modes(fit, bases, trial))[0],
+                                 None if with_facets else faceted_ions)
         _accumulate(per_ion, comp, objects, sums, gram, count)
     half = len(plain)
     missing[~faceted, half:] = True
@@ -214,8 +217,10 @@ def held_out_loss(fit: np.ndarray, faces: np.ndarray, components: np.ndarray, ob
     comp : (h,) int
         Object of each scored ion (those within ``SCORED`` of ``fit`` on an object of ``objects``).
     loss : callable
-        ``loss(vertices)`` (h,): each ion's atoms times the squared difference of its score fraction from its
-        object's error-function step at its signed distance to ``vertices``.
+        ``loss(vertices, only=None)`` (h,): each ion's atoms times the squared difference of its score fraction
+        from its object's error-function step at its signed distance to ``vertices``; with ``only`` (indices,
+        the same in every call that gives it, after every call without it) the other ions' losses are 0 and
+        not measured.
     """
     held = held.subset(np.arange(len(held.rows)), fit, SCORED + 1.0)
     start = held.band(fit, vertex_normals(fit, faces), SCORED + 1.0)
@@ -226,13 +231,23 @@ def held_out_loss(fit: np.ndarray, faces: np.ndarray, components: np.ndarray, ob
     rows, comp, fraction, total = rows[ok], comp[ok], score[ok] / total[ok], total[ok]
     lo, hi = scores.outside[comp], scores.inside[comp]
     sigma = np.sqrt(2) * widths[comp]
+    # only the scored ions are measured against each candidate (their nearest vertices of ``fit`` kept)
+    held = held.subset(rows, fit, SCORED + 1.0)
 
-    def loss(vertices: np.ndarray) -> np.ndarray:
-        band = held.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
-        distance = np.full(len(held.positions), SCORED + 1.0)
+    some = {}  # the ions of ``only``, taken once: their nearest vertices followed from there on
+
+    def loss(vertices: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
+        pick = slice(None) if only is None else only
+        if only is not None and "ions" not in some:
+            some["ions"] = held.take(only)
+        ions = held if only is None else some["ions"]
+        band = ions.band(vertices, vertex_normals(vertices, faces), SCORED + 1.0)
+        distance = np.full(len(ions.positions), SCORED + 1.0)
         distance[band.index] = band.distance
-        model = lo + (hi - lo) * 0.5 * erfc(distance[rows] / sigma)
-        return total * (fraction - model) ** 2
+        out = np.zeros(len(rows))
+        model = lo[pick] + (hi[pick] - lo[pick]) * 0.5 * erfc(distance / sigma[pick])
+        out[pick] = total[pick] * (fraction[pick] - model) ** 2
+        return out
 
     return comp, loss
 

@@ -577,6 +577,8 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     plain = umbrella(adj)
     reach = _reach(p)
     pairs_near = Pairs.find(vertices, components, p.pool_radius)
+    # the ions beyond the profiles only count in a plateau window (none without measuring plateaus)
+    shell = _shell(p, p.half_width, p.plateau_window[1] if fixed is None else np.inf)
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
     it = 0
@@ -585,7 +587,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
         for _ in range(p.normal_smoothing):
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        band = near.cover(vertices, reach).band(vertices, normals, reach, p.distance)
+        band = near.cover(vertices, reach).band(vertices, normals, reach, p.distance, shell)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
@@ -641,9 +643,17 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     near.cover(vertices, reach)
     normals = smoothed_normals(vertices, faces, p.normal_smoothing)
     if fixed is None:
-        levels = plateaus(near.band(vertices, normals, reach, p.distance), near.atoms, components, n_comp, species,
-                          p.plateau_window, p.plateau_prior)
+        levels = plateaus(near.band(vertices, normals, reach, p.distance, shell), near.atoms, components, n_comp,
+                          species, p.plateau_window, p.plateau_prior)
     return _Placed(vertices, levels, widths, normals, near, guarded, history, it)
+
+
+def _shell(p: RefineParams, profile: float, outer: float) -> tuple[float, float] | None:
+    """``NearIons.band``'s ``shell`` for a caller that bins distances within ``profile`` nm and counts plateau
+    windows (``p.plateau_window``, up to ``outer``): beyond both the profile and the window's inner edge only
+    the side and the place relative to ``outer`` matter."""
+    lo = max(profile, p.plateau_window[0])
+    return (lo, outer) if lo < outer else None
 
 
 def _reach(p: RefineParams) -> float:
@@ -668,7 +678,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums = 0.0
     for k in (0, 1):
         other = fits[1 - k]
-        band = held[k].band(other.vertices, other.normals, reach, p.distance)
+        band = held[k].band(other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
     return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), held[0].atoms.elements, species, p.plateau_prior)
 
