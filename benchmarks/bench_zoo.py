@@ -241,8 +241,8 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
             (per_area, inside, start), true_area = found.get(POOLED, found.get(0)), err.true_area
         else:
             (per_area, inside, start), true_area = chemistry[m], tf["area_nm2"]
-        # the inside plateau the object's own ions hold in the run's window (clipped as the run clipped it),
-        # counted in its true frame
+        # the inside plateau the object's own ions hold in the run's window (from nearer than the fitted inner edge
+        # where the run's object is thinner than it: inside_windows), counted in its true frame
         d, atoms = tr["distance"], tr["atoms"]
         window = tr["region"] & (d <= -start) & (d >= -windows[1])
         n_in = float(atoms[window].sum())
@@ -250,7 +250,8 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
         if seg:  # per area, scaled to the true area
             held, measured = ct.excess_ions[tr["k_seg"]], per_area * true_area
             row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
-        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0))}
+        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0)),
+                "plateau_from": start if start < windows[0] else None}
         rows.append(row)
     return rows, sum(1 for j in range(len(parts)) if j not in used)
 
@@ -268,7 +269,8 @@ def fmt(r: dict) -> str:
     if "excess_rel" in r:
         cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
     if r["plateau_sigma"] > 0:
-        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ)")
+        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ"
+                     + (f", window from {r['plateau_from']:.2f} nm)" if r.get("plateau_from") else ")"))
     else:  # the run's window lies deeper than the object: no count to compare with (not within)
         cells.append(f"in {100 * r['plateau_in']:+.2f} at.% (none of the object's ions in the run's window)")
     return ", ".join(cells)
