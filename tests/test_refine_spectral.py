@@ -351,3 +351,22 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
     _, p, u = _blurred_cube_ions(0, 0.9, 0.05)
     assert fit_to_ions(_tilted_faces(Cuboid((0.3, -0.2, 0.1), (6.0, 6.0, 6.0), rotation=27),
                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
+
+
+def test_rounding_fit_differences_are_those_of_full_evaluations():
+    from apt_filters.refine.facets import _forward_differences, rounded_scores
+
+    # ions around a rounded box: each plane is one of the two nearest for some ions and not for others, and the
+    # shortcut (re-evaluating the edge term only where a nudged plane is among those two) gives the same bits
+    rng = np.random.default_rng(7)
+    normals = np.vstack([np.eye(3), -np.eye(3), [np.ones(3) / np.sqrt(3)]])
+    signed = rng.uniform(-5.0, 5.0, (4000, 3)) @ normals.T - np.r_[np.full(6, 3.0), 4.5]
+    signed[:50, 1] = signed[:50, 0]  # ties between the two nearest planes
+    shift, rounding, width, h = rng.normal(0.0, 0.2, 7), 0.9, 0.4, 1e-3
+    base, jac = _forward_differences(signed, shift, rounding, width, h)
+    assert np.array_equal(base, rounded_scores(signed - shift, rounding, width))
+    for k in range(7):
+        nudged = shift + h * (np.arange(7) == k)
+        assert np.array_equal(jac[:, k], (rounded_scores(signed - nudged, rounding, width) - base) / h), k
+    assert np.array_equal(jac[:, 7], (rounded_scores(signed - shift, rounding + h, width) - base) / h)
+    assert np.abs(jac).max() > 0.1  # the differences are not all zero

@@ -58,6 +58,7 @@ switched off (``facets=False``).
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -608,18 +609,62 @@ def rounded_scores(signed: np.ndarray, rounding: float, width: float, nodes: int
     exact for a right-angled sharp edge under an isotropic Gaussian blur.
     """
     order = np.sort(signed, axis=1)
-    s1, s2 = order[:, -1], order[:, -2] if signed.shape[1] > 1 else np.full(len(signed), -np.inf)
+    return _edge_scores(order, rounding, width, nodes) * _other_steps(order, width)
+
+
+def _edge_scores(order: np.ndarray, rounding: float, width: float, nodes: int = 12) -> np.ndarray:
+    """(b,) the rounded edge's part of :func:`rounded_scores` from each point's two largest signed distances
+    (``order`` (b, m) nm, sorted along each row)."""
+    s1, s2 = order[:, -1], order[:, -2] if order.shape[1] > 1 else np.full(len(order), -np.inf)
     root2w = np.sqrt(2) * width
     out = 0.5 * erfc(s1 / root2w) * 0.5 * erfc((rounding + s2) / root2w)
     if rounding > 0:
-        x, g = np.polynomial.legendre.leggauss(nodes)
+        x, g = _legendre(nodes)
         theta, g = 0.25 * np.pi * (x + 1), 0.25 * np.pi * g  # [0, pi/2]
         t = -rounding + rounding * np.sin(theta)  # along s_2, from -r up to the edge's outer face
         edge = -rounding + rounding * np.cos(theta)  # X(t)
         density = np.exp(-0.5 * ((t[None, :] - s2[:, None]) / width) ** 2) / (np.sqrt(2 * np.pi) * width)
         out = out + (density * 0.5 * erfc((s1[:, None] - edge[None, :]) / root2w)
                      * (g * rounding * np.cos(theta))[None, :]).sum(axis=1)
-    return out * np.prod(0.5 * erfc(order[:, :-2] / root2w), axis=1)
+    return out
+
+
+@functools.cache
+def _legendre(nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1], computed once per count: the radius search evaluates the arc
+    many times."""
+    return np.polynomial.legendre.leggauss(nodes)
+
+
+def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
+    """(b,) the product of the steps of every plane but each point's two nearest (``order`` as in
+    :func:`_edge_scores`): the part of :func:`rounded_scores` the radius does not change."""
+    return np.prod(0.5 * erfc(order[:, :-2] / (np.sqrt(2) * width)), axis=1)
+
+
+def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, width: float,
+                         h: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rounded_scores` ``(b,)`` of the planes moved out by ``shift`` (m,) nm with edges rounded by
+    ``rounding`` nm, and its forward differences ``(b, m + 1)`` by ``h`` in each shift and in the radius, the same
+    numbers as evaluating :func:`rounded_scores` m + 2 times, re-evaluating only what each nudge changes."""
+    m = signed.shape[1]
+    order = np.sort(signed - shift, axis=1)
+    edge, others = _edge_scores(order, rounding, width), _other_steps(order, width)
+    base = edge * others
+    jac = np.empty((len(signed), m + 1))
+    for k in range(m):
+        nudged = shift.copy()
+        nudged[k] += h
+        moved = np.sort(signed - nudged, axis=1)
+        # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
+        # ion's edge part stays as it is and only the other planes' steps change
+        near = signed[:, k] - shift[k] >= order[:, -2]
+        moved_edge = edge.copy()
+        moved_edge[near] = _edge_scores(moved[near], rounding, width)
+        jac[:, k] = (moved_edge * _other_steps(moved, width) - base) / h
+    # the radius does not change the other planes' steps
+    jac[:, m] = (_edge_scores(order, rounding + h, width) * others - base) / h
+    return base, jac
 
 
 def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, iterations: int = 8,
@@ -643,33 +688,27 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     """
     from scipy.optimize import minimize_scalar
 
-    def model(shift: np.ndarray, r: float) -> np.ndarray:
-        return rounded_scores(signed - shift, r, width)
-
     m = signed.shape[1]
     root_w = np.sqrt(weight)
     shift = np.zeros(m)
     deepest = float(np.max(-signed.max(axis=1), initial=0.0))  # the inner polyhedron must hold a point
-    alone = minimize_scalar(lambda r: float(np.sum(weight * (u - model(shift, r)) ** 2)), bounds=(0.0, deepest),
-                            method="bounded", options={"xatol": 1e-3})
-    if not alone.fun < np.sum(weight * (u - model(shift, 0.0)) ** 2):
+    # the planes but each ion's two nearest do not depend on the radius: their steps are taken once per shift
+    order = np.sort(signed, axis=1)
+    others = _other_steps(order, width)
+    alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, width) * others) ** 2)),
+                            bounds=(0.0, deepest), method="bounded", options={"xatol": 1e-3})
+    if not alone.fun < np.sum(weight * (u - rounded_scores(signed, 0.0, width)) ** 2):
         return shift, 0.0
     rounding, h = float(alone.x), 1e-3
     for _ in range(iterations):
-        base = model(shift, rounding)
-        jac = np.empty((len(u), m + 1))
-        for k in range(m):
-            nudged = shift.copy()
-            nudged[k] += h
-            jac[:, k] = (model(nudged, rounding) - base) / h
-        jac[:, m] = (model(shift, rounding + h) - base) / h
+        base, jac = _forward_differences(signed, shift, rounding, width, h)
         delta = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w, rcond=None)[0], -max_step, max_step)
         shift += delta[:m]
         rounding = min(max(rounding + delta[m], 0.0), deepest)
         if np.abs(delta).max() < tolerance:
             break
     # the radius's standard error from the Gauss-Newton normal matrix, scaled by the residuals' variance
-    scaled, residual = jac * root_w[:, None], (u - model(shift, rounding)) * root_w
+    scaled, residual = jac * root_w[:, None], (u - rounded_scores(signed - shift, rounding, width)) * root_w
     variance = residual @ residual / max(len(u) - m - 1, 1)
     if rounding < 2 * np.sqrt(variance * np.linalg.pinv(scaled.T @ scaled)[m, m]):
         return np.zeros(m), 0.0
