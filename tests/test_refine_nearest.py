@@ -25,6 +25,15 @@ def _blob():
     return subdivide(marching_cubes(-f, -3.0, spacing=(0.5, 0.5, 0.5), origin=(-6.0, -6.0, -6.0)))
 
 
+def _near_uniform_al(mesh, seed: int, half: float, n: int, reach: float):
+    """Al ions uniform in the cube [-half, half]^3 selected within ``reach`` of ``mesh``, with the generator used."""
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(-half, half, size=(n, 3)).astype(np.float32)
+    ions = IonTable(positions, np.full(len(positions), 27.0, np.float32))
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
+    return NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, reach), rng
+
+
 def test_selection_keeps_every_point_whose_nearest_vertex_is_within_reach():
     mesh = _blob()
     rng = np.random.default_rng(1)
@@ -147,11 +156,7 @@ def test_band_distance_is_the_nearest_face_of_the_fan():
     from apt_filters.refine.band import EXACT
 
     mesh = _blob()
-    rng = np.random.default_rng(6)
-    positions = rng.uniform(-8, 8, size=(40_000, 3)).astype(np.float32)
-    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
-    ions = IonTable(positions, np.full(len(positions), 27.0, dtype=np.float32))
-    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    near, _ = _near_uniform_al(mesh, 6, 8, 40_000, 3.0)
     normals = vertex_normals(mesh.vertices, mesh.faces)
     band = near.band(mesh.vertices, normals, 3.0)
     p = near.positions[band.index]
@@ -166,11 +171,7 @@ def test_band_distance_is_the_nearest_face_of_the_fan():
 
 def test_band_shell_keeps_every_bin_window_and_side_of_the_exact_distances():
     mesh = _blob()
-    rng = np.random.default_rng(6)
-    positions = rng.uniform(-9, 9, size=(120_000, 3)).astype(np.float32)
-    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
-    ions = IonTable(positions, np.full(len(positions), 27.0, np.float32))
-    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 5.0)
+    near, _ = _near_uniform_al(mesh, 6, 9, 120_000, 5.0)
     moved = mesh.vertices * 1.03
     normals = vertex_normals(moved, mesh.faces)
     exact = near.band(moved, normals, 4.0)
@@ -188,11 +189,7 @@ def test_band_shell_keeps_every_bin_window_and_side_of_the_exact_distances():
 
 def test_taken_ions_get_what_they_get_among_all():
     mesh = _blob()
-    rng = np.random.default_rng(7)
-    positions = rng.uniform(-8, 8, size=(60_000, 3)).astype(np.float32)
-    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),))])
-    ions = IonTable(positions, np.full(len(positions), 27.0, np.float32))
-    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    near, rng = _near_uniform_al(mesh, 7, 8, 60_000, 3.0)
     keep = np.flatnonzero(rng.random(len(near.rows)) < 0.3)
     part = near.take(keep)
     for scale in (1.01, 1.1, 1.12):  # below and above the moves that find the nearest vertices again
