@@ -177,9 +177,7 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
     """What ``apt-filters run`` reports of each object of ``mesh`` (default options): object id (or ``POOLED``,
     the pieces together) -> (the solute's Krakauer-Seidman excess in detected atoms per nm² or NaN, the iso
     species' fraction in the inside plateau window), as the run's proxigram step computes them
-    (:func:`apt_filters.pipeline.run`), and where that window starts (nm: the fitted inner edge, or nearer for an
-    object thinner than it, :func:`~apt_filters.analysis.width.inside_windows`); and the plateau windows (inner,
-    outer nm) it fitted."""
+    (:func:`apt_filters.pipeline.run`); and the plateau windows (inner, outer nm) it fitted."""
     config = PipelineConfig()
     p = config.proxigram
     solutes = [solute] if solute else []
@@ -196,10 +194,8 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
         profile = prox if obj == POOLED else replace(prox, object_ids=prox.object_ids[k:k + 1], counts=prox.counts[k:k + 1],
                                                      unranged=prox.unranged[k:k + 1], areas=prox.areas[k:k + 1],
                                                      shell_volumes=prox.shell_volumes[k:k + 1])
-        window = window_composition(profile, windows.inner, windows.outer)["inside"]
-        inside = window["fraction"].get(species)
-        start = min([c["from_nm"] for c in window["clipped"]], default=windows.inner)
-        out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside, start)
+        inside = window_composition(profile, windows.inner, windows.outer)["inside"]["fraction"].get(species)
+        out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside)
     return out, (windows.inner, windows.outer)
 
 
@@ -238,20 +234,18 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
             inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
             found, windows = run_chemistry(inner, ions, sp.ranges, species, seg)
-            (per_area, inside, start), true_area = found.get(POOLED, found.get(0)), err.true_area
+            (per_area, inside), true_area = found.get(POOLED, found.get(0)), err.true_area
         else:
-            (per_area, inside, start), true_area = chemistry[m], tf["area_nm2"]
-        # the inside plateau the object's own ions hold in the run's window (from nearer than the fitted inner edge
-        # where the run's object is thinner than it: inside_windows), counted in its true frame
+            (per_area, inside), true_area = chemistry[m], tf["area_nm2"]
+        # the inside plateau the object's own ions hold in the run's window, counted in its true frame
         d, atoms = tr["distance"], tr["atoms"]
-        window = tr["region"] & (d <= -start) & (d >= -windows[1])
+        window = tr["region"] & (d <= -windows[0]) & (d >= -windows[1])
         n_in = float(atoms[window].sum())
         c_in = float(atoms[window, tr["k_iso"]].sum()) / max(n_in, 1.0)
         if seg:  # per area, scaled to the true area
             held, measured = ct.excess_ions[tr["k_seg"]], per_area * true_area
             row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
-        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0)),
-                "plateau_from": start if start < windows[0] else None}
+        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0))}
         rows.append(row)
     return rows, sum(1 for j in range(len(parts)) if j not in used)
 
@@ -269,8 +263,7 @@ def fmt(r: dict) -> str:
     if "excess_rel" in r:
         cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
     if r["plateau_sigma"] > 0:
-        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ"
-                     + (f", window from {r['plateau_from']:.2f} nm)" if r.get("plateau_from") else ")"))
+        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ)")
     else:  # the run's window lies deeper than the object: no count to compare with (not within)
         cells.append(f"in {100 * r['plateau_in']:+.2f} at.% (none of the object's ions in the run's window)")
     return ", ".join(cells)

@@ -4,19 +4,17 @@ Every expected value is exact (counts placed by hand), so each check can fail.""
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from apt_filters.analysis.proxigram import Proxigram
-from apt_filters.analysis.width import inside_windows
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.meshlab.exports import POINTS_RENDERING, SIDE_VIEW, read_ply, write_ply, write_project
 from apt_filters.pipeline.inputs import match_species
-from apt_filters.pipeline.report import number, warnings_in_words, with_error
+from apt_filters.pipeline.report import number, with_error
 from apt_filters.pipeline.scene import layer_quotas, scene_species, vertex_composition, write_scene
 from apt_filters.pipeline.summary import surface_summary, window_composition
 from tests.meshlab_shapes import sphere
@@ -36,10 +34,6 @@ def test_numbers_have_sensible_precision_and_no_reprs():
     assert number(12345) == "12,345"
     assert number(float("nan")) == "—" and number(None) == "—"
     assert number(True) == "yes"
-
-
-FIELDS = ("object_ids", "counts", "unranged", "areas", "shell_volumes")
-"""Proxigram fields with one row per object."""
 
 
 def _proxigram(counts: np.ndarray, object_ids=(0, 1, 2), areas=(10.0, 20.0, 30.0)) -> Proxigram:
@@ -62,31 +56,6 @@ def test_window_composition_counts_atoms_in_the_plateau_windows():
     assert comp["outside"]["fraction"]["A"] == pytest.approx(95 / 105)
     c = 60 / 130
     assert comp["inside"]["error"]["B"] == pytest.approx(math.sqrt(c * (1 - c) / 260))
-
-
-def test_an_object_thinner_than_the_windows_is_counted_in_its_deeper_half_and_said_so():
-    counts = np.zeros((2, 6, 2), np.int64)
-    counts[:, :3] = [100, 0]  # outside both: A only
-    counts[0, 3:] = [40, 30]  # a thick object: A 70, B 60 atoms in every inside bin
-    counts[1, 3] = [10, 20]  # a thin one: atoms in its first inside bin (centre 0.5 nm) only, A 30, B 40
-    prox = _proxigram(counts, (0, 1), (10.0, 20.0))
-    # the inside window of the run starts at 1 nm: none of the thin object's atoms is that deep, so its
-    # window starts halfway to its deepest bin (0.25 nm) and holds exactly that bin
-    thin = window_composition(replace(prox, **{f: getattr(prox, f)[1:] for f in FIELDS}), inner=1.0, outer=3.0)
-    assert thin["inside"]["atoms"] == 70 and thin["inside"]["fraction"]["B"] == pytest.approx(40 / 70)
-    assert thin["inside"]["clipped"] == [{"object_id": 1, "from_nm": 0.25}]
-    # the thick object keeps its window (centres 1.5 and 2.5 nm); pooled, each object counts in its own
-    both = window_composition(prox, inner=1.0, outer=3.0)
-    assert both["inside"]["atoms"] == 2 * 130 + 70
-    assert both["inside"]["fraction"]["B"] == pytest.approx((2 * 60 + 40) / (2 * 130 + 70))
-    assert both["inside"]["clipped"] == [{"object_id": 1, "from_nm": 0.25}]
-    assert both["outside"]["atoms"] == 2 * 2 * 100
-    assert inside_windows(proxigram=prox, inner=1.0) == pytest.approx([1.0, 0.25])
-    # the report says the thin object's plateau may not be reached
-    objects = [{"object_id": i, "status": "closed", "volume": 1.0, "area": 10.0, "sphericity": 1.0} for i in (0, 1)]
-    summary = surface_summary(objects=objects, proxigram=prox, solutes=[], efficiency=0.5)
-    words = warnings_in_words({"surfaces": [{"label": "A 50 %", "mesh": {}, "summary": summary}]})
-    assert any("object 1 is counted from 0.25 nm" in w and "may not be reached" in w for w in words)
 
 
 def test_summary_keeps_interior_and_edge_objects_apart_and_pools_them_as_all_objects():

@@ -430,35 +430,6 @@ def plateau_windows(*, proxigram: Proxigram, species: str, solutes: list[str] = 
     return Windows(fitted, whole_bins(OUTER_FACTOR * fitted), source, step, peaks, note)
 
 
-def inside_windows(*, proxigram: Proxigram, inner: float) -> np.ndarray:
-    """Where each object's inside plateau window starts: ``inner``, or half its depth where none of its ions
-    lies ``inner`` deep.
-
-    An object thinner than ``2 inner`` (a rod or a plate thinner than the interface the pooled width was fitted
-    on) holds none of its own ions in the run's inside window: that window would be empty, or hold only ions
-    a bumpy surface put there, and read nothing of the object. Its deeper half is the part of it least mixed
-    with its interface (the principle of :func:`apt_filters.refine.levels.inside_inner`); its plateau may not be
-    reached there, which the caller says. An object that holds an ion ``inner`` deep keeps ``inner``.
-
-    Parameters
-    ----------
-    proxigram : Proxigram
-        Per-object profiles (positive distances inside).
-    inner : float
-        The plateau windows' inner edge, nm.
-
-    Returns
-    -------
-    (k,) float
-        nm per object of ``proxigram``; a window holds the bins whose centre lies at or beyond it. Its depth is
-        the centre of its deepest bin holding an atom inside; an object with none inside gets 0.
-    """
-    s = proxigram.centers
-    held = proxigram.species_counts("element").sum(axis=2) > 0  # (k, b)
-    depth = np.where(held & (s > 0), s, 0.0).max(axis=1, initial=0.0)
-    return np.where(depth >= inner - 1e-9, inner, 0.5 * depth)
-
-
 def first_range(*, inner: float | None = None, outer: float | None = None) -> float:
     """Half range (nm) of the first proxigram :func:`fitted_proxigram` computes: the given ``outer``, else
     :data:`OUTER_FACTOR` × a given ``inner``, else :data:`FIRST_RANGE`."""
@@ -518,4 +489,4 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
 
 
 __all__ = ["FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "TAIL_SIGMAS", "Windows", "first_range",
-           "fit_profile", "fitted_proxigram", "inside_windows", "midpoint", "plateau_windows"]
+           "fit_profile", "fitted_proxigram", "midpoint", "plateau_windows"]

@@ -242,13 +242,6 @@ def warnings_in_words(report: dict) -> list[str]:
                     out.append(f"{where}: the {solute} excess ({with_error(e['gamma_atoms_nm2'], e['error'])} "
                                "atoms/nm²) is not distinguishable from zero at this counting noise.")
             comp = row["composition"] or {}
-            clipped = (comp.get("inside") or {}).get("clipped") or []
-            if clipped:
-                ids = ", ".join(str(c["object_id"]) for c in clipped)
-                starts = ", ".join(f"{c['from_nm']:.2g}" for c in clipped)
-                out.append(f"{where}: the inside composition of object{'s' * (len(clipped) > 1)} {ids} is counted "
-                           f"from {starts} nm (half the depth of its atoms): thinner than the plateau windows, the "
-                           "plateau may not be reached there.")
             for side, part in comp.items():
                 if part["atoms"] < FEW_ATOMS:
                     out.append(f"{where}: the composition {side} rests on {part['atoms']} atoms only.")

@@ -9,9 +9,8 @@ For each group: number of objects, summed volume (closed and proxy objects) and 
 sphericity with its spread, the composition inside and outside the interface and the
 interfacial excess of each solute. Composition is the pooled proxigram of the group's
 objects, counted in the same plateau windows as the excess (``inner`` to ``outer`` nm from the
-surface on each side, positive inside; an object with no atom ``inner`` deep inside is counted from half
-its depth, :func:`apt_filters.analysis.width.inside_windows`, and listed as clipped), with binomial
-standard errors sqrt(c (1 - c) / N) (Hellman et al., Microsc. Microanal. 9 (2003) 399). The excess is
+surface on each side, positive inside), with binomial standard errors sqrt(c (1 - c) / N)
+(Hellman et al., Microsc. Microanal. 9 (2003) 399). The excess is
 :func:`apt_filters.analysis.excess.interfacial_excess` of that pooled profile (the
 Krakauer–Seidman estimate, as the ground-truth comparison uses; atoms/nm², efficiency-corrected).
 """
@@ -25,7 +24,6 @@ import numpy as np
 
 from apt_filters.analysis.excess import interfacial_excess
 from apt_filters.analysis.proxigram import Proxigram
-from apt_filters.analysis.width import inside_windows
 
 GROUPS = (("interior", "interior objects (closed)"),
           ("edge", "objects at the specimen edge (open)"),
@@ -40,14 +38,10 @@ def _finite_or_none(x: float) -> float | None:
 def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict[str, dict]:
     """Element composition of a pooled profile inside and outside its surface.
 
-    Each object's inside window starts at ``inner``, or at half its depth where none of its atoms lies ``inner``
-    deep (:func:`apt_filters.analysis.width.inside_windows`): a thin object's inside composition is that of its
-    own deeper half, not of an empty window or of ions a bumpy surface put deeper than it.
-
     Parameters
     ----------
     proxigram : Proxigram
-        Per-object profiles (any number of objects; their windows' counts are summed).
+        Profiles of the objects pooled together (any number of objects; they are summed).
     inner, outer : float
         |distance| window in nm on each side of the surface.
 
@@ -55,15 +49,12 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
     -------
     dict
         ``{"inside"|"outside": {"atoms": int, "fraction": {el: c}, "error": {el: sd}}}``;
-        fractions None where the window holds no atom. ``inside`` also has ``clipped``: the objects whose
-        window starts nearer than ``inner``, as ``[{"object_id", "from_nm"}]`` (their plateau may not be reached).
+        fractions None where the window holds no atom.
     """
-    counts = proxigram.species_counts("element")  # (k, b, s)
+    counts = proxigram.species_counts("element").sum(axis=0)  # (b, s), objects summed
     s = proxigram.centers
-    starts = inside_windows(proxigram=proxigram, inner=inner)
     out = {}
-    for side, window in (("inside", (s >= starts[:, None]) & (s <= outer)),
-                         ("outside", np.broadcast_to((s <= -inner) & (s >= -outer), (len(counts), len(s))))):
+    for side, window in (("inside", (s >= inner) & (s <= outer)), ("outside", (s <= -inner) & (s >= -outer))):
         n = counts[window].sum(axis=0).astype(np.float64)
         total = float(n.sum())
         c = n / total if total > 0 else np.full(len(n), np.nan)
@@ -71,8 +62,6 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
         out[side] = {"atoms": int(total),
                      "fraction": {e: _finite_or_none(v) for e, v in zip(proxigram.elements, c)},
                      "error": {e: _finite_or_none(v) for e, v in zip(proxigram.elements, err)}}
-    out["inside"]["clipped"] = [{"object_id": int(o), "from_nm": float(f)}
-                                for o, f in zip(proxigram.object_ids, starts) if f < inner]
     return out
 
 
@@ -126,9 +115,8 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
                "composition": None, "excess": {}}
         if keep.any():
             fields = ("object_ids", "counts", "unranged", "areas", "shell_volumes")
-            profiles = replace(proxigram, **{f: getattr(proxigram, f)[keep] for f in fields})
-            pooled = profiles.pooled()
-            row["composition"] = window_composition(profiles, inner, outer)
+            pooled = replace(proxigram, **{f: getattr(proxigram, f)[keep] for f in fields}).pooled()
+            row["composition"] = window_composition(pooled, inner, outer)
             for solute in solutes:
                 found = interfacial_excess(pooled, solute, efficiency, inner, outer, skip_unmeasurable=True,
                                            fallback=(fallback or {}).get(solute))
