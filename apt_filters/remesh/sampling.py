@@ -194,11 +194,11 @@ class Samples:
         return flag
 
     def chunks(self, stride: int = 1):
-        """Yield ``(points, normals, weights)`` of every ``stride``-th sample, :attr:`chunk` at a time;
+        """Yield ``(ids, points, normals, weights)`` of every ``stride``-th sample, :attr:`chunk` at a time;
         weights are multiplied by ``stride`` so that they still sum to the area."""
         for start in range(0, self.n_samples, self.chunk * stride):
             ids = np.arange(start, min(start + self.chunk * stride, self.n_samples), stride)
-            yield self.points(ids), self.face_normal[self.parent(ids)], stride * self.weights(ids)
+            yield ids, self.points(ids), self.face_normal[self.parent(ids)], stride * self.weights(ids)
 
     def mesh(self) -> TriMesh:
         """The refinement as a mesh (all of it at once: for inspection and tests, not for the remesher)."""
