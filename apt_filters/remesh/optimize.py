@@ -17,7 +17,6 @@ import numpy as np
 from numba import njit
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.core.triangle import closest_on_triangle
 
 
 def _interior_edges(faces: np.ndarray) -> tuple[tuple, np.ndarray, int]:
@@ -428,13 +427,14 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     the output vertex of its Voronoi cell (``vertex_of[labels[i]]``: ``labels`` (n_samples,) the
     generator of each sample, ``vertex_of`` (generators,) its output vertex or -1; samples of a
     generator that left the mesh start at the nearest vertex) and steps to an edge-neighbour while
-    that comes closer (:func:`_walk_closest`). The cell's vertex is within a cell of the sample,
-    so the walk takes a step or two; a search in a grid over the output, built every round, was a
-    quarter of the remesh's time on the gyroid. Returns the new (v, 3) vertices.
+    that comes closer (:func:`apt_filters.remesh.walk.walk_closest`). The cell's vertex is within a
+    cell of the sample, so the walk takes a step or two; a search in a grid over the output, built
+    every round, was a quarter of the remesh's time on the gyroid. Returns the new (v, 3) vertices.
     """
     from scipy.spatial import cKDTree
 
     from apt_filters.core.mesh import vertex_normals
+    from apt_filters.remesh.walk import face_neighbours, vertex_rings, walk_closest
 
     faces = np.ascontiguousarray(faces, np.int64)
     neighbour = face_neighbours(faces, len(vertices))
@@ -452,7 +452,7 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
             if len(lost):  # a generator that left the mesh: the nearest vertex instead
                 tree = cKDTree(out) if tree is None else tree
                 start[lost] = tree.query(points[lost])[1]
-            face, bary, near = _walk_closest(out, faces, neighbour, ring_start, ring, start, points)
+            face, bary, near = walk_closest(out, faces, neighbour, ring_start, ring, start, points)
             normal = face_normal[face]
             residual = np.einsum("ij,ij->i", points - near, normal)
             keep = np.einsum("ij,ij->i", normal, normals) > 0.5
@@ -462,68 +462,6 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
         move = movable & (den > 0)
         out[move] += (num[move] / den[move])[:, None] * vertex_normals(out, faces)[move]
     return out
-
-
-def face_neighbours(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """(f, 3) int64 face across half-edge k (corner k to k + 1) of every face, -1 on a boundary."""
-    from apt_filters.core.mesh import Topology
-
-    top = Topology.of(faces, n_vertices)
-    pair = top.edge_pairs()[top.face_edge]  # (f, 3, 2)
-    own = np.arange(len(faces))[:, None]
-    return np.ascontiguousarray(np.where(pair[..., 0] == own, pair[..., 1], pair[..., 0]))
-
-
-def vertex_rings(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
-    """The faces round every vertex as CSR: (v + 1,) start and (3f,) face ids."""
-    order = np.argsort(faces.ravel(), kind="stable")
-    start = np.searchsorted(faces.ravel()[order], np.arange(n_vertices + 1))
-    return start, order // 3
-
-
-@njit(cache=True, nogil=True)
-def _walk_closest(vertices, faces, neighbour, ring_start, ring, start, points):
-    """Closest point of every point (n, 3) on the faces reached by walking from the ring of vertex
-    ``start[i]``: the closest face of the ring, then across edges while a neighbour is strictly
-    closer. Returns faces (n,), barycentric weights (n, 3) and the closest points (n, 3)."""
-    n = len(points)
-    face = np.empty(n, np.int64)
-    bary = np.empty((n, 3))
-    near = np.empty((n, 3))
-    for i in range(n):
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        best, bf, bu, bw = np.inf, -1, 0.0, 0.0
-        v = start[i]
-        for r in range(ring_start[v], ring_start[v + 1]):
-            f = ring[r]
-            d, u, w = _to_face(vertices, faces, f, px, py, pz)
-            if d < best:
-                best, bf, bu, bw = d, f, u, w
-        for _ in range(len(faces)):  # strictly closer each step: never a face twice
-            nf = -1
-            for k in range(3):
-                g = neighbour[bf, k]
-                if g >= 0:
-                    d, u, w = _to_face(vertices, faces, g, px, py, pz)
-                    if d < best:
-                        best, nf, bu, bw = d, g, u, w
-            if nf < 0:
-                break
-            bf = nf
-        face[i] = bf
-        bary[i, 0], bary[i, 1], bary[i, 2] = 1.0 - bu - bw, bu, bw
-        a, b, c = faces[bf, 0], faces[bf, 1], faces[bf, 2]
-        for k in range(3):
-            near[i, k] = vertices[a, k] + bu * (vertices[b, k] - vertices[a, k]) + bw * (vertices[c, k] - vertices[a, k])
-    return face, bary, near
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _to_face(vertices, faces, f, px, py, pz):
-    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-    d, u, w, _ = closest_on_triangle(px, py, pz, vertices[a, 0], vertices[a, 1], vertices[a, 2], vertices[b, 0],
-                                     vertices[b, 1], vertices[b, 2], vertices[c, 0], vertices[c, 1], vertices[c, 2])
-    return d, u, w
 
 
 def undo_crossings(before: np.ndarray, after: np.ndarray, faces: np.ndarray, rounds: int = 3) -> np.ndarray:

@@ -302,10 +302,12 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     sliver = curve_slivers(kind, owner)
 
+    hint = np.full(len(vertices), -1, np.int64)  # each vertex's face at its last projection, walked from
+
     def project(points, ids):
         out = points.copy()
         sel = kind[ids] == cvt.PATCH
-        out[sel] = surfaces.closest(points[sel], owner[ids][sel], edge)
+        out[sel], hint[ids[sel]] = surfaces.closest(points[sel], owner[ids][sel], edge, hint[ids[sel]])
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])
