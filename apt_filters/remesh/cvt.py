@@ -567,8 +567,7 @@ def connect_cells(samples: Samples, labels: np.ndarray, group: np.ndarray, gens:
 
     near = np.zeros(samples.n_vertices, bool)
     near[samples.corners(np.flatnonzero(cells[labels]))] = True
-    sub = np.concatenate([start + np.flatnonzero(near[samples.corners(slice(start, start + samples.chunk))].any(axis=1))
-                          for start in range(0, samples.n_samples, samples.chunk)])
+    sub = samples.touching(near)
     a, b = topology(samples.corners(sub), len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
     local = labels[sub]
     n = len(sub)

@@ -121,6 +121,24 @@ def _corners(lattice, ids):
     return out
 
 
+@njit(nogil=True, cache=True)
+def _touching(lattice, flag, out):
+    """Refined faces with a corner flagged in ``flag`` (refined vertices) written into ``out`` in order
+    (``out`` empty: only counted); returns their number."""
+    point, pattern = lattice[4], lattice[5]
+    per_face = len(pattern)
+    ids = np.empty(len(point), np.int64)
+    count = 0
+    for f in range(len(lattice[1])):
+        lattice_ids(lattice, f, ids)
+        for j in range(per_face):
+            if flag[ids[pattern[j, 0]]] or flag[ids[pattern[j, 1]]] or flag[ids[pattern[j, 2]]]:
+                if len(out):
+                    out[count] = f * per_face + j
+                count += 1
+    return count
+
+
 @dataclass
 class Samples:
     """Conforming lattice refinement of an input mesh, made face by face; its faces' centroids are the samples.
@@ -167,6 +185,14 @@ class Samples:
     def corners(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(k, 3) refined vertex ids of the refined faces ``ids`` (all by default)."""
         return _corners(self.lattice.args(), self._ids(ids))
+
+    def touching(self, flag: np.ndarray) -> np.ndarray:
+        """Sorted ids of the refined faces with a corner flagged in ``flag`` (refined vertices), found face
+        by face in one compiled pass (no temporaries of the refined size)."""
+        args = self.lattice.args()
+        out = np.empty(_touching(args, flag, np.empty(0, np.int64)), np.int64)
+        _touching(args, flag, out)
+        return out
 
     def points(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(k, 3) centroids of the refined faces ``ids`` (all by default)."""
