@@ -289,11 +289,7 @@ def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.nda
     np.minimum.at(lo, mesh.faces.ravel(), np.repeat(features.patch, 3))
     np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
     flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
-    group = np.empty(samples.n_samples, np.int32)
-    for start in range(0, samples.n_samples, samples.chunk):
-        ids = slice(start, min(start + samples.chunk, samples.n_samples))
-        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.corners(ids)].any(axis=1)
-    return group
+    return samples.groups(flag, features.patch, features.n_patches)
 
 
 def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:

@@ -122,19 +122,23 @@ def _corners(lattice, ids):
 
 
 @njit(nogil=True, cache=True)
-def _touching(lattice, flag, out):
-    """Refined faces with a corner flagged in ``flag`` (refined vertices) written into ``out`` in order
-    (``out`` empty: only counted); returns their number."""
+def _touching(lattice, flag, ids, group, patch, n_patches):
+    """Which refined faces have a corner flagged in ``flag`` (refined vertices): their ids written into
+    ``ids`` in order (if not empty), and ``group[i] = patch[f] + n_patches·touches`` for refined face
+    ``i`` of input face ``f`` (if ``group`` is not empty); returns their number."""
     point, pattern = lattice[4], lattice[5]
     per_face = len(pattern)
-    ids = np.empty(len(point), np.int64)
+    corner = np.empty(len(point), np.int64)
     count = 0
     for f in range(len(lattice[1])):
-        lattice_ids(lattice, f, ids)
+        lattice_ids(lattice, f, corner)
         for j in range(per_face):
-            if flag[ids[pattern[j, 0]]] or flag[ids[pattern[j, 1]]] or flag[ids[pattern[j, 2]]]:
-                if len(out):
-                    out[count] = f * per_face + j
+            touches = flag[corner[pattern[j, 0]]] or flag[corner[pattern[j, 1]]] or flag[corner[pattern[j, 2]]]
+            if len(group):
+                group[f * per_face + j] = patch[f] + n_patches * touches
+            if touches:
+                if len(ids):
+                    ids[count] = f * per_face + j
                 count += 1
     return count
 
@@ -189,10 +193,17 @@ class Samples:
     def touching(self, flag: np.ndarray) -> np.ndarray:
         """Sorted ids of the refined faces with a corner flagged in ``flag`` (refined vertices), found face
         by face in one compiled pass (no temporaries of the refined size)."""
-        args = self.lattice.args()
-        out = np.empty(_touching(args, flag, np.empty(0, np.int64)), np.int64)
-        _touching(args, flag, out)
+        args, none, no_group = self.lattice.args(), np.empty(0, np.int64), np.empty(0, np.int32)
+        out = np.empty(_touching(args, flag, none, no_group, none, 0), np.int64)
+        _touching(args, flag, out, no_group, none, 0)
         return out
+
+    def groups(self, flag: np.ndarray, patch: np.ndarray, n_patches: int) -> np.ndarray:
+        """(n_samples,) int32 ``patch`` (m,) of each refined face's input face, plus ``n_patches`` where a
+        corner of it is flagged in ``flag`` (refined vertices)."""
+        group = np.empty(self.n_samples, np.int32)
+        _touching(self.lattice.args(), flag, np.empty(0, np.int64), group, np.asarray(patch, np.int64), n_patches)
+        return group
 
     def points(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(k, 3) centroids of the refined faces ``ids`` (all by default)."""
