@@ -132,8 +132,8 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
                 part = ids[first:first + chunk]
                 exact[kind][part] = np.abs(surface[0].nearest(probes(kind, part)[0], near).distance.astype(np.float64))
 
-    def worst(d):
-        return np.maximum(np.maximum(d[0][faces].max(axis=1), d[1][face_edge].max(axis=1)), d[2])
+    def worst(d, ids=slice(None)):
+        return np.maximum(np.maximum(d[0][faces[ids]].max(axis=1), d[1][face_edge[ids]].max(axis=1)), d[2][ids])
 
     bound = worst(bounds)
     keep = np.flatnonzero(group >= 0)
@@ -141,7 +141,7 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     batch = 64
     while len(keep):  # search the worst faces, a doubling batch at a time, until no bound exceeds its group's
         search(keep[:batch])
-        np.maximum.at(out, group[keep[:batch]], worst(exact)[keep[:batch]])
+        np.maximum.at(out, group[keep[:batch]], worst(exact, keep[:batch]))
         keep = keep[batch:]
         keep = keep[bound[keep] > out[group[keep]]]
         batch *= 2
