@@ -5,8 +5,13 @@ the samples of a Voronoi cell near the cell's vertex, a relaxed vertex near the 
 step before. A walk from there (the closest face of a start ring, then across edges while a
 neighbour comes strictly closer) costs a few triangle tests per point, where a grid search
 (:class:`apt_filters.core.distance.SurfaceDistance`) needs the grid built and tens of cells visited.
-The walk ends in the closest face of the surface around the start: exact for points within the
-surface's radius of curvature of it, which is where the remesher asks.
+The walk is a local search: it stops where no edge-neighbour of its face is closer, which is not
+always the closest face (where the closest point of its face is a corner, a face round that corner
+but not across an edge can be closer: 4 % of points 0.05-0.2 nm off a marching-cubes sphere,
+walked from their nearest vertex). Its distance is thus an upper bound of the true one: exact
+enough for the centring's least-squares step and the relaxation's projections (both are followed
+by the exact check), and only a bound where exactness matters (:func:`apt_filters.remesh.verify.farthest`
+searches exactly where a bound could hide the farthest point).
 """
 
 from __future__ import annotations
