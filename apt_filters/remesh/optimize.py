@@ -430,7 +430,8 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     that comes closer (:func:`apt_filters.remesh.walk.walk_closest`, a local search: a few % of
     samples stop at a face near, not at, their closest). The cell's vertex is within a cell of the
     sample, so the walk takes a step or two; a search in a grid over the output, built every
-    round, was a quarter of the remesh's time on the gyroid, with the same quality figures. Returns the new (v, 3) vertices.
+    round, was a quarter of the remesh's time on the gyroid, with the same quality figures.
+    Returns the new (v, 3) vertices.
     """
     from scipy.spatial import cKDTree
 

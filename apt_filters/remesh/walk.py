@@ -74,7 +74,8 @@ def walk_closest(vertices, faces, neighbour, ring_start, ring, start, points):
         bary[i, 0], bary[i, 1], bary[i, 2] = 1.0 - bu - bw, bu, bw
         a, b, c = faces[bf, 0], faces[bf, 1], faces[bf, 2]
         for k in range(3):
-            near[i, k] = vertices[a, k] + bu * (vertices[b, k] - vertices[a, k]) + bw * (vertices[c, k] - vertices[a, k])
+            near[i, k] = (vertices[a, k] + bu * (vertices[b, k] - vertices[a, k])
+                          + bw * (vertices[c, k] - vertices[a, k]))
     return face, bary, near
 
 
