@@ -113,25 +113,46 @@ class PatchSurfaces:
 
     def __init__(self, mesh: TriMesh, patch: np.ndarray):
         from apt_filters.core.distance import SurfaceDistance
+        from apt_filters.remesh.walk import face_neighbours
 
         self.mesh, self.patch, self.whole = mesh, patch, SurfaceDistance(mesh)
         self._order = np.argsort(patch, kind="stable")
         self._bounds = np.searchsorted(patch[self._order], np.arange(int(patch.max(initial=-1)) + 2))
         self._own: dict = {}
+        self._faces = np.ascontiguousarray(mesh.faces, np.int64)
+        self._vertices = np.ascontiguousarray(mesh.vertices, np.float64)
+        neighbour = face_neighbours(self._faces, mesh.n_vertices)
+        neighbour[(neighbour >= 0) & (patch[neighbour] != patch[:, None])] = -1  # walks stay on their patch
+        self._neighbour = neighbour
+        self._one = np.arange(mesh.n_faces + 1)
 
-    def closest(self, points: np.ndarray, patches: np.ndarray, near: float | None = None) -> np.ndarray:
-        """(n, 3) closest point on patch ``patches[i]`` (n,) to each of ``points`` (n, 3) nm; ``near``
-        (nm): how far most points are expected to be (the search's first reach)."""
+    def closest(self, points: np.ndarray, patches: np.ndarray, near: float | None = None,
+                hint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) closest point on patch ``patches[i]`` (n,) to each of ``points`` (n, 3) nm, and (n,) its
+        face; ``near`` (nm): how far most points are expected to be (the search's first reach).
+        ``hint`` (n,): a face of that patch near each point (-1: none), from which the closest face is
+        found by walking (:func:`apt_filters.remesh.walk.walk_closest`) instead of searched for: for
+        points that moved a fraction of an edge since their face was found."""
+        from apt_filters.remesh.walk import walk_closest
+
         out = np.empty((len(points), 3))
+        face = np.full(len(points), -1, np.int64)
+        if hint is not None:
+            walk = np.flatnonzero(hint >= 0)
+            walk = walk[self.patch[hint[walk]] == patches[walk]]
+            face[walk], _, out[walk] = walk_closest(self._vertices, self._faces, self._neighbour, self._one, self._one,
+                                                    hint[walk], np.ascontiguousarray(points[walk], np.float64))
+        search = np.flatnonzero(face < 0)
         step = chunk_length(self.mesh.n_faces)  # the engines' temporaries, a chunk of points at a time
-        for start in range(0, len(points), step):
-            block = slice(start, start + step)
-            out[block], face, _ = self.whole.closest(points[block], near)
-            wrong = start + np.flatnonzero(self.patch[face] != patches[block])
+        for start in range(0, len(search), step):
+            block = search[start:start + step]
+            out[block], face[block], _ = self.whole.closest(points[block], near)
+            wrong = block[self.patch[face[block]] != patches[block]]
             for p in np.unique(patches[wrong]).tolist():
                 sel = wrong[patches[wrong] == p]
-                out[sel] = self._of(p).closest(points[sel], near)[0]
-        return out
+                out[sel], local, _ = self._of(p).closest(points[sel], near)
+                face[sel] = self._order[self._bounds[p] + local]
+        return out, face
 
     def _of(self, p: int):
         if p not in self._own:
@@ -268,11 +289,7 @@ def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.nda
     np.minimum.at(lo, mesh.faces.ravel(), np.repeat(features.patch, 3))
     np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
     flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
-    group = np.empty(samples.n_samples, np.int32)
-    for start in range(0, samples.n_samples, samples.chunk):
-        ids = slice(start, min(start + samples.chunk, samples.n_samples))
-        group[ids] = features.patch[samples.parent(ids)] + features.n_patches * flag[samples.corners(ids)].any(axis=1)
-    return group
+    return samples.groups(flag, features.patch, features.n_patches)
 
 
 def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
@@ -495,8 +512,10 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
     labels = _first_labels(samples, group, gens.positions, permitted)
 
+    hint = np.full(len(free), -1, np.int64)  # each free generator's face at the last projection, walked from
+
     def project():
-        gens.positions[free] = surfaces.closest(gens.positions[free], gens.owner[free], near)
+        gens.positions[free], hint[:] = surfaces.closest(gens.positions[free], gens.owner[free], near, hint)
 
     on_surface = True
     for it in range(max_iter + 1):
@@ -544,8 +563,7 @@ def connect_cells(samples: Samples, labels: np.ndarray, group: np.ndarray, gens:
 
     near = np.zeros(samples.n_vertices, bool)
     near[samples.corners(np.flatnonzero(cells[labels]))] = True
-    sub = np.concatenate([start + np.flatnonzero(near[samples.corners(slice(start, start + samples.chunk))].any(axis=1))
-                          for start in range(0, samples.n_samples, samples.chunk)])
+    sub = samples.touching(near)
     a, b = topology(samples.corners(sub), len(near)).face_pairs.T  # local ids: faces sub[a], sub[b] share an edge
     local = labels[sub]
     n = len(sub)

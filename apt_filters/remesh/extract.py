@@ -95,6 +95,7 @@ def _voronoi_fans(lattice, labels, n_vertices):
         else:
             seen[v, 0] = -1
     ptr = np.zeros(n_meet + 1, np.int64)
+    meets = np.zeros(len(labels) // per_face, np.bool_)  # input faces with a meeting vertex: the next pass's
     for f in range(len(labels) // per_face):
         lattice_ids(lattice, f, ids)
         for j in range(per_face):
@@ -102,11 +103,14 @@ def _voronoi_fans(lattice, labels, n_vertices):
                 r = seen[ids[pattern[j, k]], 0]
                 if r >= 0:
                     ptr[r + 1] += 1
+                    meets[f] = True
     for r in range(n_meet):
         ptr[r + 1] += ptr[r]
     around = np.empty(ptr[-1], np.int32)
     fill = ptr[:-1].copy()
     for f in range(len(labels) // per_face):  # faces in ascending order: each fan's list is sorted
+        if not meets[f]:
+            continue
         lattice_ids(lattice, f, ids)
         for j in range(per_face):
             for k in range(3):

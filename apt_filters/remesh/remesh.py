@@ -234,7 +234,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     kind, owner = gens.kind[used], gens.owner[used]
     extracted = gens.positions[used]
     vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces)
-    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, edge)
+    vertex_of = np.full(len(gens.positions), -1, np.int64)
+    vertex_of[used] = np.arange(len(used))
+    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, labels, vertex_of)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
     out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge, surfaces.whole)
@@ -300,10 +302,12 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
 
     sliver = curve_slivers(kind, owner)
 
+    hint = np.full(len(vertices), -1, np.int64)  # each vertex's face at its last projection, walked from
+
     def project(points, ids):
         out = points.copy()
         sel = kind[ids] == cvt.PATCH
-        out[sel] = surfaces.closest(points[sel], owner[ids][sel], edge)
+        out[sel], hint[ids[sel]] = surfaces.closest(points[sel], owner[ids][sel], edge, hint[ids[sel]])
         for c in unique(owner[ids][kind[ids] == cvt.CURVE]):
             sel = (owner[ids] == c) & (kind[ids] == cvt.CURVE)
             out[sel] = closest_on_polyline(mesh.vertices[features.curves[c]], points[sel])

@@ -121,6 +121,28 @@ def _corners(lattice, ids):
     return out
 
 
+@njit(nogil=True, cache=True)
+def _touching(lattice, flag, ids, group, patch, n_patches):
+    """Which refined faces have a corner flagged in ``flag`` (refined vertices): their ids written into
+    ``ids`` in order (if not empty), and ``group[i] = patch[f] + n_patches·touches`` for refined face
+    ``i`` of input face ``f`` (if ``group`` is not empty); returns their number."""
+    point, pattern = lattice[4], lattice[5]
+    per_face = len(pattern)
+    corner = np.empty(len(point), np.int64)
+    count = 0
+    for f in range(len(lattice[1])):
+        lattice_ids(lattice, f, corner)
+        for j in range(per_face):
+            touches = flag[corner[pattern[j, 0]]] or flag[corner[pattern[j, 1]]] or flag[corner[pattern[j, 2]]]
+            if len(group):
+                group[f * per_face + j] = patch[f] + n_patches * touches
+            if touches:
+                if len(ids):
+                    ids[count] = f * per_face + j
+                count += 1
+    return count
+
+
 @dataclass
 class Samples:
     """Conforming lattice refinement of an input mesh, made face by face; its faces' centroids are the samples.
@@ -168,6 +190,21 @@ class Samples:
         """(k, 3) refined vertex ids of the refined faces ``ids`` (all by default)."""
         return _corners(self.lattice.args(), self._ids(ids))
 
+    def touching(self, flag: np.ndarray) -> np.ndarray:
+        """Sorted ids of the refined faces with a corner flagged in ``flag`` (refined vertices), found face
+        by face in one compiled pass (no temporaries of the refined size)."""
+        args, none, no_group = self.lattice.args(), np.empty(0, np.int64), np.empty(0, np.int32)
+        out = np.empty(_touching(args, flag, none, no_group, none, 0), np.int64)
+        _touching(args, flag, out, no_group, none, 0)
+        return out
+
+    def groups(self, flag: np.ndarray, patch: np.ndarray, n_patches: int) -> np.ndarray:
+        """(n_samples,) int32 ``patch`` (m,) of each refined face's input face, plus ``n_patches`` where a
+        corner of it is flagged in ``flag`` (refined vertices)."""
+        group = np.empty(self.n_samples, np.int32)
+        _touching(self.lattice.args(), flag, np.empty(0, np.int64), group, np.asarray(patch, np.int64), n_patches)
+        return group
+
     def points(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(k, 3) centroids of the refined faces ``ids`` (all by default)."""
         ids = self._ids(ids)
@@ -194,11 +231,11 @@ class Samples:
         return flag
 
     def chunks(self, stride: int = 1):
-        """Yield ``(points, normals, weights)`` of every ``stride``-th sample, :attr:`chunk` at a time;
+        """Yield ``(ids, points, normals, weights)`` of every ``stride``-th sample, :attr:`chunk` at a time;
         weights are multiplied by ``stride`` so that they still sum to the area."""
         for start in range(0, self.n_samples, self.chunk * stride):
             ids = np.arange(start, min(start + self.chunk * stride, self.n_samples), stride)
-            yield self.points(ids), self.face_normal[self.parent(ids)], stride * self.weights(ids)
+            yield ids, self.points(ids), self.face_normal[self.parent(ids)], stride * self.weights(ids)
 
     def mesh(self) -> TriMesh:
         """The refinement as a mesh (all of it at once: for inspection and tests, not for the remesher)."""

@@ -8,8 +8,9 @@ distance and area change within tolerances. A component that fails is given back
 ever changes the surface beyond the tolerances.
 
 Distances are measured from every vertex, edge midpoint and face centroid of one mesh to the
-other (exact point-to-triangle distances, :mod:`apt_filters.core.distance`): on triangles no larger
-than the edge length, this misses a farther point by at most a quarter of an edge's sagitta.
+other (exact point-to-triangle distances: walked bounds, then :mod:`apt_filters.core.distance`
+where a face may hold the farthest point, :func:`farthest`): on triangles no larger than the edge
+length, this misses a farther point by at most a quarter of an edge's sagitta.
 Peak memory: the distance engine's grid of each mesh, one distance per vertex, edge and face of the
 measured mesh (8 bytes each), and the probes a chunk at a time (:func:`~apt_filters.remesh.sampling.chunk_length`).
 """
@@ -78,29 +79,72 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     distance (nm) of their vertices, edge midpoints and centroids from ``other`` (exact; searched within
     ``near`` nm first). Each vertex and edge midpoint is measured once (not once per face around it:
     7 probes per face became about 3), ``chunk`` points at a time; a face takes the largest of its
-    own. ``surface``: ``other``'s :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given."""
+    own. ``surface``: ``other``'s :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given.
+
+    Every probe is first measured to the face of ``other`` reached by walking from the nearest vertex
+    of ``other`` (:func:`apt_filters.remesh.walk.walk_closest`): an upper bound of its distance, and
+    nearly always the distance itself. Faces are then searched exactly, worst bound first, in doubling
+    batches, until no face left has a bound above its group's farthest exact distance so far: those
+    cannot hold a farther point, so the result is exact. (The exact search for every probe was a
+    tenth of the remesh.)"""
+    from scipy.spatial import cKDTree
+
     from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh.walk import face_neighbours, vertex_rings, walk_closest
 
     out = np.zeros(k)
     if other.n_faces == 0 or mesh.n_faces == 0:
         return out
-    surface = SurfaceDistance(other) if surface is None else surface
+    v, faces, top = mesh.vertices, mesh.faces, mesh.topology
+    ends, face_edge = top.edge_vertices, top.face_edge
+    o_vertices = np.ascontiguousarray(other.vertices, np.float64)
+    o_faces = np.ascontiguousarray(other.faces, np.int64)
+    neighbour = face_neighbours(o_faces, len(o_vertices))
+    ring_start, ring = vertex_rings(o_faces, len(o_vertices))
+    used = np.unique(o_faces)
+    start = used[cKDTree(o_vertices[used]).query(v)[1]]  # a vertex of other near each vertex of mesh
 
-    def distance(n, points):
+    def probes(kind, ids):
+        if kind == 0:
+            return np.ascontiguousarray(v[ids], np.float64), start[ids]
+        if kind == 1:
+            return 0.5 * (v[ends[ids, 0]] + v[ends[ids, 1]]), start[ends[ids, 0]]
+        return v[faces[ids]].mean(axis=1), start[faces[ids, 0]]
+
+    def walked(kind, n):
         d = np.empty(n)
-        for start in range(0, n, chunk):
-            ids = np.arange(start, min(start + chunk, n))
-            d[ids] = np.abs(surface.nearest(points(ids), near).distance.astype(np.float64))
+        for first in range(0, n, chunk):
+            ids = np.arange(first, min(first + chunk, n))
+            points, s = probes(kind, ids)
+            d[ids] = np.linalg.norm(points - walk_closest(o_vertices, o_faces, neighbour, ring_start, ring, s,
+                                                          points)[2], axis=1)
         return d
 
-    v, faces, top = mesh.vertices, mesh.faces, mesh.topology
-    ends = top.edge_vertices
-    at_vertex = distance(len(v), lambda ids: v[ids])
-    at_edge = distance(len(ends), lambda ids: 0.5 * (v[ends[ids, 0]] + v[ends[ids, 1]]))
-    at_centroid = distance(len(faces), lambda ids: v[faces[ids]].mean(axis=1))
-    worst = np.maximum(np.maximum(at_vertex[faces].max(axis=1), at_edge[top.face_edge].max(axis=1)), at_centroid)
-    keep = group >= 0
-    np.maximum.at(out, group[keep], worst[keep])
+    bounds = [walked(0, len(v)), walked(1, len(ends)), walked(2, len(faces))]
+    exact = [b.copy() for b in bounds]
+    surface = [surface]
+
+    def search(face_ids):
+        if surface[0] is None:
+            surface[0] = SurfaceDistance(other)
+        for kind, ids in ((0, np.unique(faces[face_ids])), (1, np.unique(face_edge[face_ids])), (2, face_ids)):
+            for first in range(0, len(ids), chunk):
+                part = ids[first:first + chunk]
+                exact[kind][part] = np.abs(surface[0].nearest(probes(kind, part)[0], near).distance.astype(np.float64))
+
+    def worst(d, ids=slice(None)):
+        return np.maximum(np.maximum(d[0][faces[ids]].max(axis=1), d[1][face_edge[ids]].max(axis=1)), d[2][ids])
+
+    bound = worst(bounds)
+    keep = np.flatnonzero(group >= 0)
+    keep = keep[np.argsort(-bound[keep], kind="stable")]  # by the bounds, worst first
+    batch = 64
+    while len(keep):  # search the worst faces, a doubling batch at a time, until no bound exceeds its group's
+        search(keep[:batch])
+        np.maximum.at(out, group[keep[:batch]], worst(exact, keep[:batch]))
+        keep = keep[batch:]
+        keep = keep[bound[keep] > out[group[keep]]]
+        batch *= 2
     return out
 
 
