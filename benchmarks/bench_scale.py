@@ -29,6 +29,11 @@ the summary rows and sections of sizes not measured again are kept) after every 
    this section alone),
    wall and CPU time, and each step's wall and CPU time and peak RSS (from its report); then the
    same run with a budget nothing fits, which must be refused up front (exit 2, one line).
+   ``--baseline DIR``: the same run with the code of another commit too (``DIR`` holds its source,
+   e.g. ``git archive main | tar -x -C DIR``), first, each after an untimed run on a 200,000-ion file
+   (numba's caches warm); its times beside this tree's, and whether every output file is the same
+   byte for byte (``report.json`` without its steps' times and peaks, ``report.html`` left out: both
+   hold the times).
 
 Pure numpy / numba / scipy except the optional skimage peer and ``--run`` (pymeshlab, open3d).
 """
@@ -269,24 +274,74 @@ def _timed(fn) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def run_table(pos: Path, n: int, work: Path, budget: float | None) -> tuple[list[str], list[tuple]]:
-    """``apt-filters run``'s table (each step's time and peak RSS) and its summary row."""
+def _run(pos: Path, out: Path, budget: float | None, root: Path = ROOT) -> tuple[float, float, dict]:
+    """``apt-filters run`` of the code in ``root`` on ``pos`` into ``out``: wall and CPU seconds (the process and its
+    children, every thread) and its report."""
     cmd = [sys.executable, "-m", "apt_filters", "run", str(pos), "-r", str(pos.with_suffix(".rrng")),
-           "-o", str(work / "run"), "--species", "Cu", "--iso", "0.2", "-q", "--force"]
+           "-o", str(out), "--species", "Cu", "--iso", "0.2", "-q", "--force"]
     cmd += ["--memory-budget", str(budget)] if budget else []
     t, before = time.perf_counter(), os.times()
-    subprocess.run(cmd, cwd=ROOT, check=True)
+    subprocess.run(cmd, cwd=root, check=True, env={**os.environ, "PYTHONPATH": str(root)})
     wall, after = time.perf_counter() - t, os.times()
     cpu = after.children_user + after.children_system - before.children_user - before.children_system
-    report = json.loads((work / "run" / "report.json").read_text())
+    return wall, cpu, json.loads((out / "report.json").read_text())
+
+
+def _same_outputs(a: Path, b: Path) -> list[str]:
+    """Files of two run folders that differ (or exist in one only), comparing every file byte for byte but
+    ``report.json`` without its steps (times, peaks) and ``report.html`` (which shows them)."""
+    names = {p.relative_to(a) for p in a.rglob("*") if p.is_file()} | {p.relative_to(b) for p in b.rglob("*")
+                                                                       if p.is_file()}
+    differ = []
+    for name in sorted(names - {Path("report.html")}):
+        x, y = a / name, b / name
+        if not (x.is_file() and y.is_file()):
+            differ.append(str(name))
+        elif name == Path("report.json"):
+            if ({k: v for k, v in json.loads(x.read_text()).items() if k != "steps"}
+                    != {k: v for k, v in json.loads(y.read_text()).items() if k != "steps"}):
+                differ.append(str(name))
+        elif x.read_bytes() != y.read_bytes():
+            differ.append(str(name))
+    return differ
+
+
+def run_table(pos: Path, n: int, work: Path, budget: float | None,
+              baseline: Path | None = None) -> tuple[list[str], list[tuple]]:
+    """``apt-filters run``'s table (each step's time and peak RSS) and its summary row; with ``baseline``, the run
+    of that source tree too (first), its times beside these and the files whose outputs differ."""
+    times = {}
+    if baseline is not None:
+        small = work / "warm.pos"
+        generate(small, 200_000, 1)
+        for root in (baseline, ROOT):
+            _run(small, work / "warm", budget, root)  # compiles what numba has not cached: untimed
+        times["baseline"] = _run(pos, work / "baseline", budget, baseline.resolve())
+    wall, cpu, report = times["this"] = _run(pos, work / "run", budget)
     peak = max(s["peak_mib"] for s in report["steps"])
     rows = [f"## `apt-filters run`, {n:,} ions", "",
             f"`apt-filters run` (Cu 20 at.%{f', memory budget {budget:g} GB' if budget else ''}), {n:,} ions: "
             f"{wall:.1f} s wall, {cpu:.1f} s CPU (the process and its children, every thread), "
-            f"peak RSS {peak:,.0f} MiB.", "",
-            "| step | wall (s) | CPU (s) | peak (MiB) | bytes per ion at the peak |", "|---|---:|---:|---:|---:|"]
-    rows += [f"| {s['step']} | {s['seconds']:.1f} | {s.get('cpu_seconds', float('nan')):.1f} | {s['peak_mib']:,.0f} | "
-             f"{s['peak_mib'] * 2**20 / n:.0f} |" for s in report["steps"]]
+            f"peak RSS {peak:,.0f} MiB.", ""]
+    if baseline is None:
+        rows += ["| step | wall (s) | CPU (s) | peak (MiB) | bytes per ion at the peak |", "|---|---:|---:|---:|---:|"]
+        rows += [f"| {s['step']} | {s['seconds']:.1f} | {s.get('cpu_seconds', float('nan')):.1f} | "
+                 f"{s['peak_mib']:,.0f} | {s['peak_mib'] * 2**20 / n:.0f} |" for s in report["steps"]]
+    else:
+        b_wall, b_cpu, b_report = times["baseline"]
+        differ = _same_outputs(work / "baseline", work / "run")
+        rows += [f"Baseline (`{baseline}`), same file, run just before: {b_wall:.1f} s wall, {b_cpu:.1f} s CPU, "
+                 f"peak RSS {max(s['peak_mib'] for s in b_report['steps']):,.0f} MiB. Outputs: "
+                 + ("every file the same byte for byte (report.json without its times)" if not differ
+                    else "differ in " + ", ".join(differ)) + ".", "",
+                 "| step | wall (s) | CPU (s) | baseline CPU (s) | peak (MiB) | baseline peak (MiB) |",
+                 "|---|---:|---:|---:|---:|---:|"]
+        base = {s["step"]: s for s in b_report["steps"]}
+        for s in report["steps"]:
+            b = base.get(s["step"], {})
+            rows.append(f"| {s['step']} | {s['seconds']:.1f} | {s.get('cpu_seconds', float('nan')):.1f} | "
+                        f"{b.get('cpu_seconds', float('nan')):.1f} | {s['peak_mib']:,.0f} | "
+                        f"{b.get('peak_mib', float('nan')):,.0f} |")
     print("\n".join(rows), flush=True)
     refusal = refused(pos, work)
     rows += ["", f"Refusal: the same run with a {REFUSED_BUDGET:g} GB budget (not even the fields fit) {refusal}."]
@@ -331,6 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run-only", action="store_true",
                         help="time `apt-filters run` on the main file and nothing else (implies --run and --no-mc)")
     parser.add_argument("--memory-budget", type=float, help="GB, for --run (default: the run's own)")
+    parser.add_argument("--baseline", type=Path, help="with --run: the source tree of another commit, run too")
     parser.add_argument("--work", help="folder for the generated files (default: a temporary one, removed)")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -368,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
             if not args.run_only:
                 section(streaming_table(pos, n, counts_n))
             if args.run and n == int(args.ions):
-                section(run_table(pos, n, work, args.memory_budget))
+                section(run_table(pos, n, work, args.memory_budget, args.baseline))
             pos.unlink()
     return 0
 
