@@ -736,14 +736,15 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
                          h: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`rounded_scores` ``(b,)`` of the planes moved out by ``shift`` (m,) nm with edges rounded by
-    ``rounding`` nm and the blur's ``share``, and its forward differences ``(b, m + 2)`` by ``h`` in each shift, in
-    the radius and in the share, the same numbers as evaluating :func:`rounded_scores` m + 3 times, re-evaluating
-    only what each nudge changes (the share is nudged down where it is within ``h`` of 1)."""
+    ``rounding`` nm, the blur's ``share`` and the profile's ``width``, and its forward differences ``(b, m + 3)``
+    by ``h`` in each shift, in the radius, the share and the width, the same numbers as evaluating
+    :func:`rounded_scores` m + 4 times, re-evaluating only what each nudge changes (the share is nudged down where
+    it is within ``h`` of 1)."""
     m = signed.shape[1]
     order = np.sort(signed - shift, axis=1)
     edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
     base = edge * others
-    jac = np.empty((len(signed), m + 2))
+    jac = np.empty((len(signed), m + 3))
     for k in range(m):
         nudged = shift.copy()
         nudged[k] += h
@@ -758,6 +759,7 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
     dh = h if share + h <= 1.0 else -h
     jac[:, m + 1] = (_edge_scores(order, rounding, width, share + dh) * others - base) / dh
+    jac[:, m + 2] = (_edge_scores(order, rounding, width + h, share) * _other_steps(order, width + h) - base) / h
     return base, jac
 
 
@@ -789,28 +791,29 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     root_w = np.sqrt(weight)
     deepest = float(np.max(-signed.max(axis=1), initial=0.0))  # the inner polyhedron must hold a point
 
-    def fit(shift: np.ndarray, rounding: float, share: float, free: np.ndarray):
+    def fit(shift: np.ndarray, rounding: float, share: float, width: float, free: np.ndarray):
         h = 1e-3
         for _ in range(iterations):
             base, jac = _forward_differences(signed, shift, rounding, share, width, h)
-            delta = np.zeros(m + 2)
+            delta = np.zeros(m + 3)
             delta[free] = np.clip(np.linalg.lstsq(jac[:, free] * root_w[:, None], (u - base) * root_w,
                                                   rcond=None)[0], -max_step, max_step)
             shift = shift + delta[:m]
             rounding = min(max(rounding + delta[m], 0.0), deepest)
             share = min(max(share + delta[m + 1], 0.0), 1.0)
+            width = max(width + delta[m + 2], 0.05 * width)
             if np.abs(delta).max() < tolerance:
                 break
-        return shift, rounding, share, jac[:, free]
+        return shift, rounding, share, width, jac[:, free]
 
-    sharp = np.r_[np.ones(m, dtype=bool), False, True]
-    shift, _, share, _ = fit(np.zeros(m), 0.0, 0.5, sharp)
+    sharp = np.r_[np.ones(m, dtype=bool), False, True, True]
+    shift, _, share, width, _ = fit(np.zeros(m), 0.0, 0.5, width, sharp)
     order = np.sort(signed - shift, axis=1)
     others = _other_steps(order, width)
     alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, width, share) * others) ** 2)),
                             bounds=(0.0, deepest), method="bounded", options={"xatol": 1e-3})
-    rounded = np.r_[np.ones(m, dtype=bool), True, False]
-    moved, rounding, _, jac = fit(shift, float(alone.x), share, rounded)
+    rounded = np.r_[np.ones(m, dtype=bool), True, False, False]
+    moved, rounding, _, _, jac = fit(shift, float(alone.x), share, width, rounded)
     # the radius's standard error from the Gauss-Newton normal matrix, scaled by the residuals' variance
     scaled = jac * root_w[:, None]
     residual = (u - rounded_scores(signed - moved, rounding, width, share)) * root_w
