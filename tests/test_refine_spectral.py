@@ -373,6 +373,7 @@ def test_rounding_fit_differences_are_those_of_full_evaluations():
         assert np.array_equal(jac[:, 7], (rounded_scores(signed - shift, rounding + h, width, share) - base) / h)
         dh = h if share < 1 else -h
         assert np.array_equal(jac[:, 8], (rounded_scores(signed - shift, rounding, width, share + dh) - base) / dh)
+        assert np.array_equal(jac[:, 9], (rounded_scores(signed - shift, rounding, width + h, share) - base) / h)
         assert np.abs(jac).max() > 0.1  # the differences are not all zero
 
 
