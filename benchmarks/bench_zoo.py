@@ -20,11 +20,13 @@ the proxigram over the range its fitted width asks for, :func:`~apt_filters.anal
 per object the segregant's Krakauer-Seidman excess, :func:`~apt_filters.analysis.excess.interfacial_excess`, and
 the iso species' inside plateau, the window composition of the report's summary) against what the object's
 own ions hold in its true frame (:func:`~apt_filters.refine.evaluate.counted_truth`) with that count's Poisson
-and binomial sigma. Surfaces that end at the specimen
-edge (open, curved and bicontinuous interfaces, objects cut by the edge) are compared inside the box
-shrunk by ``MARGIN`` nm (:func:`~apt_filters.truth.surface_error_within`): area (for an interface, its area
-per volume of that region), distances and, for a cut object, volume; an interface's pieces are all the
-components near it. Their chemistry is measured on the faces and ions inside that region (the ions beyond
+and binomial sigma. The truth's inside window is the one the run's rule
+(:func:`~apt_filters.analysis.width.inside_windows`) gives the true object from its ions' true depths, not the
+run's window: a thin object's deeper half, the same as the run's where the run has its depth right. Surfaces
+that end at the specimen edge (open, curved and bicontinuous interfaces, objects cut by the edge) are compared
+inside the box shrunk by ``MARGIN`` nm (:func:`~apt_filters.truth.surface_error_within`): area (for an
+interface, its area per volume of that region), distances and, for a cut object, volume; an interface's pieces
+are all the components near it. Their chemistry is measured on the faces and ions inside that region (the ions beyond
 the clipped surface's rim left out, as the run leaves out those beyond the specimen edge) and compared with
 the count of its ions. Per specimen: objects not found and spurious objects (components that match no true
 object). The summary checks the issue's targets per family.
@@ -39,7 +41,7 @@ from dataclasses import replace
 import numpy as np
 
 from apt_filters.analysis.excess import POOLED, interfacial_excess
-from apt_filters.analysis.width import fitted_proxigram
+from apt_filters.analysis.width import fitted_proxigram, inside_windows
 from apt_filters.contour import marching_cubes
 from apt_filters.contour.metrics import sample_mesh
 from apt_filters.core.mesh import TriMesh, split_components
@@ -176,8 +178,10 @@ def _edge_error(sp, i: int, part: TriMesh, seed: int):
 def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: str | None) -> dict:
     """What ``apt-filters run`` reports of each object of ``mesh`` (default options): object id (or ``POOLED``,
     the pieces together) -> (the solute's Krakauer-Seidman excess in detected atoms per nm² or NaN, the iso
-    species' fraction in the inside plateau window), as the run's proxigram step computes them
-    (:func:`apt_filters.pipeline.run`); and the plateau windows (inner, outer nm) it fitted."""
+    species' fraction in the inside plateau window, where that window starts in nm: the fitted inner edge, or
+    nearer for an object thinner than twice it, :func:`~apt_filters.analysis.width.inside_windows`), as the run's
+    proxigram step computes them (:func:`apt_filters.pipeline.run`); and the plateau windows (inner, outer nm) it
+    fitted."""
     config = PipelineConfig()
     p = config.proxigram
     solutes = [solute] if solute else []
@@ -194,8 +198,10 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
         profile = prox if obj == POOLED else replace(prox, object_ids=prox.object_ids[k:k + 1], counts=prox.counts[k:k + 1],
                                                      unranged=prox.unranged[k:k + 1], areas=prox.areas[k:k + 1],
                                                      shell_volumes=prox.shell_volumes[k:k + 1])
-        inside = window_composition(profile, windows.inner, windows.outer)["inside"]["fraction"].get(species)
-        out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside)
+        window = window_composition(profile, windows.inner, windows.outer)["inside"]
+        inside = window["fraction"].get(species)
+        start = min([c["from_nm"] for c in window["nearer"]], default=windows.inner)
+        out[int(obj)] = (gamma.get(int(obj), np.nan), np.nan if inside is None else inside, start)
     return out, (windows.inner, windows.outer)
 
 
@@ -234,18 +240,23 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
             inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
             found, windows = run_chemistry(inner, ions, sp.ranges, species, seg)
-            (per_area, inside), true_area = found.get(POOLED, found.get(0)), err.true_area
+            (per_area, inside, start), true_area = found.get(POOLED, found.get(0)), err.true_area
         else:
-            (per_area, inside), true_area = chemistry[m], tf["area_nm2"]
-        # the inside plateau the object's own ions hold in the run's window, counted in its true frame
+            (per_area, inside, start), true_area = chemistry[m], tf["area_nm2"]
+        # the inside plateau the object's own ions hold, counted in its true frame in the window the run's rule
+        # gives the true object (its own depth from its ions' true distances: not the run's window, so a run
+        # that misjudges an object's depth or surface is caught, not followed)
         d, atoms = tr["distance"], tr["atoms"]
-        window = tr["region"] & (d <= -windows[0]) & (d >= -windows[1])
+        own = tr["region"] & (d < 0) & (d >= -windows[1])
+        [true_start] = inside_windows(depth=-d[own], atoms=atoms[own].sum(axis=1), inner=windows[0])
+        window = tr["region"] & (d <= -true_start) & (d >= -windows[1])
         n_in = float(atoms[window].sum())
         c_in = float(atoms[window, tr["k_iso"]].sum()) / max(n_in, 1.0)
         if seg:  # per area, scaled to the true area
             held, measured = ct.excess_ions[tr["k_seg"]], per_area * true_area
             row |= {"excess": measured - held, "excess_rel": measured / held - 1, "excess_sigma": tr["excess_sigma"]}
-        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0))}
+        row |= {"plateau_in": inside - c_in, "plateau_sigma": np.sqrt(c_in * (1 - c_in) / max(n_in, 1.0)),
+                "plateau_from": (start, true_start) if min(start, true_start) < windows[0] else None}
         rows.append(row)
     return rows, sum(1 for j in range(len(parts)) if j not in used)
 
@@ -263,7 +274,9 @@ def fmt(r: dict) -> str:
     if "excess_rel" in r:
         cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
     if r["plateau_sigma"] > 0:
-        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ)")
+        cells.append(f"in {100 * r['plateau_in']:+.2f} at.% ({r['plateau_in'] / r['plateau_sigma']:+.1f}σ"
+                     + (", window from {:.2f} nm, true {:.2f}".format(*r["plateau_from"]) if r.get("plateau_from")
+                        else "") + ")")
     else:  # the run's window lies deeper than the object: no count to compare with (not within)
         cells.append(f"in {100 * r['plateau_in']:+.2f} at.% (none of the object's ions in the run's window)")
     return ", ".join(cells)

@@ -61,6 +61,18 @@ def test_the_plateau_windows_come_from_the_fitted_width_and_are_reported(small_r
     assert "10–90 % width" in (out / "report.html").read_text()
 
 
+def test_each_objects_inside_composition_is_reported_with_its_window(small_run):
+    out, report, _ = small_run
+    surface = report["surfaces"][0]
+    inner, outer = surface["interface"]["inner_nm"], surface["interface"]["outer_nm"]
+    plateaus = surface["plateaus"]
+    assert sorted(p["object_id"] for p in plateaus) == sorted(o["object_id"] for o in surface["objects"])
+    for p in plateaus:
+        assert p["to_nm"] == outer and (p["from_nm"] < inner) == p["nearer"] and 0 < p["from_nm"] <= inner
+        assert p["atoms"] > 0 and p["fraction"]["Al"] is not None
+    assert "Inside composition per object" in (out / "report.html").read_text()
+
+
 def test_report_numbers_against_the_truth(small_run):
     _, report, truth = small_run
     assert report["ions"]["count"] == truth["ions"]["total"]

@@ -14,9 +14,9 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.meshlab.exports import POINTS_RENDERING, SIDE_VIEW, read_ply, write_ply, write_project
 from apt_filters.pipeline.inputs import match_species
-from apt_filters.pipeline.report import number, with_error
+from apt_filters.pipeline.report import number, warnings_in_words, with_error
 from apt_filters.pipeline.scene import layer_quotas, scene_species, vertex_composition, write_scene
-from apt_filters.pipeline.summary import surface_summary, window_composition
+from apt_filters.pipeline.summary import object_plateaus, surface_summary, window_composition
 from tests.meshlab_shapes import sphere
 
 
@@ -56,6 +56,35 @@ def test_window_composition_counts_atoms_in_the_plateau_windows():
     assert comp["outside"]["fraction"]["A"] == pytest.approx(95 / 105)
     c = 60 / 130
     assert comp["inside"]["error"]["B"] == pytest.approx(math.sqrt(c * (1 - c) / 260))
+
+
+def test_an_object_thinner_than_the_windows_is_counted_in_its_deeper_half_and_said_so():
+    counts = np.zeros((2, 6, 2), np.int64)
+    counts[:, :3] = [100, 0]  # outside both: A only
+    counts[0, 3:] = [40, 30]  # a thick object: A 70, B 60 atoms in every inside bin (centres 0.5, 1.5, 2.5 nm)
+    counts[1, 3] = [10, 20]  # a thin one: A 30, B 40 atoms in its first inside bin (centre 0.5 nm) ...
+    counts[1, 5] = [1, 0]  # ... and one A a bump put 2.5 nm deep: 1 of its 71 atoms, not its depth
+    prox = _proxigram(counts, (0, 1), (10.0, 20.0))
+    # the thick object's depth (90 % of its inside atoms within it) is 2.5 nm, twice the inner edge (1 nm) and
+    # more: it keeps its window (1.5 and 2.5 nm); the thin one's is 0.5 nm: its window starts at 0.25 nm and
+    # holds all its inside atoms
+    [thick, thin] = object_plateaus(prox, inner=1.0, outer=3.0)
+    assert (thick["from_nm"], thick["nearer"], thick["atoms"]) == (1.0, False, 2 * 130)
+    assert (thin["from_nm"], thin["nearer"], thin["to_nm"], thin["atoms"]) == (0.25, True, 3.0, 71)
+    assert thin["fraction"]["B"] == pytest.approx(40 / 71)
+    assert thin["error"]["B"] == pytest.approx(math.sqrt(40 / 71 * 31 / 71 / 71))
+    # pooled, each object counts in its own window
+    both = window_composition(prox, inner=1.0, outer=3.0)
+    assert both["inside"]["atoms"] == 2 * 130 + 71
+    assert both["inside"]["fraction"]["B"] == pytest.approx((2 * 60 + 40) / (2 * 130 + 71))
+    assert both["inside"]["nearer"] == [{"object_id": 1, "from_nm": 0.25}]
+    assert both["outside"]["atoms"] == 2 * 2 * 100
+    # the report says whose plateau may not be reached
+    objects = [{"object_id": i, "status": "closed", "volume": 1.0, "area": 10.0, "sphericity": 1.0} for i in (0, 1)]
+    summary = surface_summary(objects=objects, proxigram=prox, solutes=[], efficiency=0.5)
+    words = warnings_in_words({"surfaces": [{"label": "A 50 %", "mesh": {}, "summary": summary,
+                                             "plateaus": [thick, thin]}]})
+    assert any("object 1 is counted from 0.25 nm" in w and "may not be reached" in w for w in words), words
 
 
 def test_summary_keeps_interior_and_edge_objects_apart_and_pools_them_as_all_objects():

@@ -204,3 +204,41 @@ def test_a_rich_segregation_shell_is_counted_whole_with_the_fitted_windows():
     [excess] = interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer)
     exact = int(boron.sum())
     assert abs(excess.cumulative.count - exact) <= 0.5 * np.sqrt(exact), (excess.cumulative.count, exact, windows.inner)
+
+
+def test_a_plate_thinner_than_its_windows_reports_the_plateau_its_own_ions_hold():
+    """A plate 2 nm thick whose step (sigma 0.5 nm) asks for windows from ~1.3 nm: none of its ions lies that
+    deep. Its inside composition is counted from half its own depth and comes out within two binomial sigmas
+    of what its ions hold there, counted against the exact plate in the window the same rule gives the exact
+    plate (its ions' true depths); the plateau the model puts there is within the same error."""
+    from apt_filters.analysis.width import inside_windows
+    from apt_filters.pipeline.summary import object_plateaus, window_composition
+    from tests.proxigram_specimens import box_distance, cube
+
+    rng = np.random.default_rng(12)
+    half, density = (10.0, 10.0, 1.0), 40.0
+    lo, hi = np.array([-12.0, -12.0, -5.0]), np.array([12.0, 12.0, 5.0])
+    n = rng.poisson(density * np.prod(hi - lo))
+    p = rng.uniform(lo, hi, (n, 3))
+    d = box_distance(p, half)  # positive inside
+
+    def model(x):
+        return 0.05 + 0.4 * ndtr(x / 0.5)
+
+    al = rng.random(n) < model(d)
+    ions = IonTable(p.astype(np.float32), np.where(al, 27.0, 56.0).astype(np.float32))
+    prox, windows = fitted_proxigram(ions=ions, ranges=RANGES, mesh=cube(half, 5), species="Al")
+    assert windows.inner > half[2], "the plate is thinner than its windows"
+    measured = window_composition(prox, windows.inner, windows.outer)["inside"]["fraction"]["Al"]
+    assert measured is not None, "the window holds none of the plate's atoms"
+    [plate] = object_plateaus(prox, windows.inner, windows.outer)
+    assert plate["nearer"] and 0.3 < plate["from_nm"] < 0.5 * half[2], plate["from_nm"]
+    assert plate["fraction"]["Al"] == pytest.approx(measured)
+    # the truth: the plate's own ions in the window its exact depths give
+    own = (d > 0) & (d <= windows.outer)
+    [start] = inside_windows(depth=d[own], atoms=np.ones(own.sum()), inner=windows.inner)
+    window = (d >= start) & (d <= windows.outer)
+    held, atoms = al[window].mean(), window.sum()
+    sigma = np.sqrt(held * (1 - held) / atoms)
+    assert atoms > 2000 and abs(measured - held) < 2 * sigma, (measured, held, sigma)
+    assert abs(model(d[window]).mean() - held) < 3 * sigma

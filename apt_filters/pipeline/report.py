@@ -198,7 +198,8 @@ def warnings_in_words(report: dict) -> list[str]:
 
     Range-file errors of the audit first (every figure with the mislabelled species is wrong),
     then warnings of the run, objects left out (specks, objects without ions, objects too thin
-    for an excess), and excess or composition figures too uncertain to use.
+    for an excess), objects whose inside composition is counted nearer than the plateau windows, and
+    excess or composition figures too uncertain to use.
     """
     out = []
     audit = report.get("audit") or []
@@ -232,6 +233,13 @@ def warnings_in_words(report: dict) -> list[str]:
         if thin:
             out.append(f"{label}: no excess for object{'s' * (len(thin) > 1)} {', '.join(map(str, thin))}: "
                        "too thin, or cut by the edge exclusion, to hold ions in a plateau window.")
+        nearer = [p for p in s.get("plateaus") or [] if p["nearer"]]
+        if nearer:
+            ids = ", ".join(str(p["object_id"]) for p in nearer)
+            starts = ", ".join(f"{p['from_nm']:.2g}" for p in nearer)
+            out.append(f"{label}: the inside composition of object{'s' * (len(nearer) > 1)} {ids} is counted from "
+                       f"{starts} nm (half {'their' if len(nearer) > 1 else 'its'} depth, nearer than the plateau "
+                       "windows): thinner than the interface needs, the plateau may not be reached there.")
         for row in s.get("summary", []):
             where = f"{label}, {row['label']}"
             for solute, e in row["excess"].items():
@@ -322,6 +330,18 @@ def _objects(surface: dict) -> str:
     return _table(header, rows)
 
 
+def _plateaus(surface: dict) -> str:
+    """Each object's inside composition and the window it was counted in."""
+    plateaus = surface.get("plateaus") or []
+    elements = list(dict.fromkeys(e for p in plateaus for e in p["fraction"]))
+    rows = [[p["object_id"],
+             f"{number(p['from_nm'])}–{number(p['to_nm'])}" + (" (nearer: half its depth)" if p["nearer"] else ""),
+             p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100) if p["atoms"] else None,
+                                  "no atom in the window") for e in elements]
+            for p in plateaus]
+    return _table(["object", "window (nm)", "atoms"] + [f"{e} (at.%)" for e in elements], rows)
+
+
 def _excess_per_object(surface: dict) -> str:
     rows = []
     for e in surface["excess"]:
@@ -364,6 +384,8 @@ def _details(report: dict, folder: Path) -> str:
     for s in report["surfaces"]:
         parts.append(f"<h3>Objects of the {html.escape(surface_title(s))} ({html.escape(s['label'])})</h3>")
         parts.append(_objects(s))
+        parts.append(f"<h3>Inside composition per object at {html.escape(s['label'])}</h3>")
+        parts.append(_plateaus(s))
         parts.append(f"<h3>Interfacial excess per object at {html.escape(s['label'])}</h3>")
         parts.append(_excess_per_object(s))
     parts.append("<h3>Composition of the specimen (ranged ions, atoms)</h3>")

@@ -36,7 +36,7 @@ from apt_filters.pipeline.inputs import check_inputs, config_ranges
 from apt_filters.pipeline.picture import render_surfaces
 from apt_filters.pipeline.staging import staged_folder
 from apt_filters.pipeline.steps import StepLog
-from apt_filters.pipeline.summary import surface_summary
+from apt_filters.pipeline.summary import object_plateaus, surface_summary
 from apt_filters.pipeline.surface import SurfaceRecord, analysis_ions, finished_surface, surface_label
 
 __all__ = ["MINORITY", "run_pipeline", "surface_label"]
@@ -81,6 +81,9 @@ class SurfaceResult:
     """The plateau windows and interface fits (:class:`~apt_filters.analysis.width.Windows`)."""
     stats: dict = field(default_factory=dict)
     summary: list[dict] = field(default_factory=list)
+    plateaus: list[dict] = field(default_factory=list)
+    """Each object's inside composition and the window it was counted in
+    (:func:`~apt_filters.pipeline.summary.object_plateaus`)."""
     maps: list[dict] = field(default_factory=list)
     near: object = None
     """The ions the analyses read (:func:`~apt_filters.pipeline.surface.analysis_ions`)."""
@@ -93,7 +96,7 @@ class SurfaceResult:
         return {"label": self.label, "species": self.surface.species, "iso": self.surface.iso,
                 "mesh": self.stats | self.record.as_dict(self.mesh), "summary": self.summary,
                 "interface": self.windows.as_dict() if self.windows is not None else None,
-                "objects": self.objects, "excess": self.excess, "maps": self.maps}
+                "objects": self.objects, "plateaus": self.plateaus, "excess": self.excess, "maps": self.maps}
 
 
 ION_BYTES = 16
@@ -262,6 +265,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
         res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
                                       efficiency=config.analysis.efficiency, inner=windows.inner,
                                       outer=windows.outer, fallback={s: windows.levels(s) for s in solutes})
+        res.plateaus = object_plateaus(prox, windows.inner, windows.outer)
         # with no solute there is no excess to miss: no object is "too thin" for one
         measured = {e["object_id"] for e in res.excess}
         res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured) if solutes else []

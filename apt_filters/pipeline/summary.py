@@ -9,8 +9,10 @@ For each group: number of objects, summed volume (closed and proxy objects) and 
 sphericity with its spread, the composition inside and outside the interface and the
 interfacial excess of each solute. Composition is the pooled proxigram of the group's
 objects, counted in the same plateau windows as the excess (``inner`` to ``outer`` nm from the
-surface on each side, positive inside), with binomial standard errors sqrt(c (1 - c) / N)
-(Hellman et al., Microsc. Microanal. 9 (2003) 399). The excess is
+surface on each side, positive inside; inside, each object from half its own depth where that is
+nearer, :func:`apt_filters.analysis.width.inside_windows`), with binomial standard errors
+sqrt(c (1 - c) / N) (Hellman et al., Microsc. Microanal. 9 (2003) 399). :func:`object_plateaus` gives the
+same inside composition per object with the window it was counted in. The excess is
 :func:`apt_filters.analysis.excess.interfacial_excess` of that pooled profile (the
 Krakauer–Seidman estimate, as the ground-truth comparison uses; atoms/nm², efficiency-corrected).
 """
@@ -24,6 +26,7 @@ import numpy as np
 
 from apt_filters.analysis.excess import interfacial_excess
 from apt_filters.analysis.proxigram import Proxigram
+from apt_filters.analysis.width import inside_windows
 
 GROUPS = (("interior", "interior objects (closed)"),
           ("edge", "objects at the specimen edge (open)"),
@@ -35,13 +38,37 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
 
+def _fractions(n: np.ndarray, elements: list[str]) -> dict:
+    """``{"atoms", "fraction", "error"}`` of atom counts ``n`` (one per element), binomial errors; fractions
+    None where there is no atom."""
+    n = np.asarray(n, dtype=np.float64)
+    total = float(n.sum())
+    c = n / total if total > 0 else np.full(len(n), np.nan)
+    err = np.sqrt(c * (1 - c) / total) if total > 0 else c
+    return {"atoms": int(total), "fraction": {e: _finite_or_none(v) for e, v in zip(elements, c)},
+            "error": {e: _finite_or_none(v) for e, v in zip(elements, err)}}
+
+
+def _inside_starts(proxigram: Proxigram, inner: float, outer: float) -> np.ndarray:
+    """(k,) nm: where each object's inside window starts (:func:`~apt_filters.analysis.width.inside_windows`
+    of its atoms within ``outer``)."""
+    s = proxigram.centers
+    atoms = proxigram.species_counts("element").sum(axis=2) * (s <= outer)
+    return inside_windows(depth=s, atoms=atoms, inner=inner)
+
+
 def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict[str, dict]:
-    """Element composition of a pooled profile inside and outside its surface.
+    """Element composition of a group of objects inside and outside their surface, pooled.
+
+    Outside, every object's window is ``inner`` to ``outer``; inside, each object's starts at ``inner`` or at
+    half its own depth where that is nearer (:func:`~apt_filters.analysis.width.inside_windows`): a thin
+    object's inside composition is that of its own deeper half, not of an empty window or of the few ions a
+    bump of its surface put deeper than it reaches.
 
     Parameters
     ----------
     proxigram : Proxigram
-        Profiles of the objects pooled together (any number of objects; they are summed).
+        Per-object profiles (any number of objects; their windows' counts are summed).
     inner, outer : float
         |distance| window in nm on each side of the surface.
 
@@ -49,20 +76,37 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
     -------
     dict
         ``{"inside"|"outside": {"atoms": int, "fraction": {el: c}, "error": {el: sd}}}``;
-        fractions None where the window holds no atom.
+        fractions None where the window holds no atom. ``inside`` also has ``nearer``: the objects whose
+        window starts nearer than ``inner``, as ``[{"object_id", "from_nm"}]`` (their plateau may not be
+        reached there).
     """
-    counts = proxigram.species_counts("element").sum(axis=0)  # (b, s), objects summed
+    counts = proxigram.species_counts("element")  # (k, b, s)
     s = proxigram.centers
-    out = {}
-    for side, window in (("inside", (s >= inner) & (s <= outer)), ("outside", (s <= -inner) & (s >= -outer))):
-        n = counts[window].sum(axis=0).astype(np.float64)
-        total = float(n.sum())
-        c = n / total if total > 0 else np.full(len(n), np.nan)
-        err = np.sqrt(c * (1 - c) / total) if total > 0 else c
-        out[side] = {"atoms": int(total),
-                     "fraction": {e: _finite_or_none(v) for e, v in zip(proxigram.elements, c)},
-                     "error": {e: _finite_or_none(v) for e, v in zip(proxigram.elements, err)}}
+    starts = _inside_starts(proxigram, inner, outer)
+    inside = (s >= starts[:, None]) & (s <= outer)
+    out = {"inside": _fractions(counts[inside].sum(axis=0), proxigram.elements),
+           "outside": _fractions(counts[:, (s <= -inner) & (s >= -outer)].sum(axis=(0, 1)), proxigram.elements)}
+    out["inside"]["nearer"] = [{"object_id": int(o), "from_nm": float(f)}
+                               for o, f in zip(proxigram.object_ids, starts) if f < inner]
     return out
+
+
+def object_plateaus(proxigram: Proxigram, inner: float, outer: float) -> list[dict]:
+    """Each object's inside composition and the window it is counted in (as :func:`window_composition`).
+
+    Returns
+    -------
+    list of dict
+        Per object of ``proxigram``: ``object_id``, ``from_nm`` and ``to_nm`` (its window), ``nearer`` (whether
+        it starts nearer than ``inner``: the object is thinner than twice the windows' inner edge, its plateau
+        may not be reached), ``atoms``, ``fraction`` and ``error`` per element (None without atoms).
+    """
+    counts = proxigram.species_counts("element")
+    s = proxigram.centers
+    starts = _inside_starts(proxigram, inner, outer)
+    return [{"object_id": int(o), "from_nm": float(f), "to_nm": float(outer), "nearer": bool(f < inner),
+             **_fractions(c[(s >= f) & (s <= outer)].sum(axis=0), proxigram.elements)}
+            for o, f, c in zip(proxigram.object_ids, starts, counts)]
 
 
 def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[str], efficiency: float,
@@ -115,8 +159,9 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
                "composition": None, "excess": {}}
         if keep.any():
             fields = ("object_ids", "counts", "unranged", "areas", "shell_volumes")
-            pooled = replace(proxigram, **{f: getattr(proxigram, f)[keep] for f in fields}).pooled()
-            row["composition"] = window_composition(pooled, inner, outer)
+            profiles = replace(proxigram, **{f: getattr(proxigram, f)[keep] for f in fields})
+            pooled = profiles.pooled()
+            row["composition"] = window_composition(profiles, inner, outer)
             for solute in solutes:
                 found = interfacial_excess(pooled, solute, efficiency, inner, outer, skip_unmeasurable=True,
                                            fallback=(fallback or {}).get(solute))
