@@ -212,6 +212,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                             "lobes": dataclasses.asdict(lobes),
                              "thin": thin.as_dict(),
                              **_refine_record(thin.specks, refined)}
             s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, mean displacement "
