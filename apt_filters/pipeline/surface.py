@@ -215,8 +215,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                              "lobes": dataclasses.asdict(lobes),
                              "thin": thin.as_dict(),
                              **_refine_record(thin.specks, refined)}
-            s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, mean displacement "
-                         f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+            s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, "
+                         f"mean displacement {refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
         record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")
         mesh.face_scalars["object_id"] = np.zeros(0, dtype=np.int64)
