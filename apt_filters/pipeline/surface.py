@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -160,8 +161,10 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
         The surface (refined only for a concentration surface with ``[refine] enabled``) and what each
         step did.
     """
+    from apt_filters.contour import dual_contouring, marching_cubes
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.refine.specks import trim_lobes
     from apt_filters.refine.segregants import segregant_ions
     from apt_filters.refine.thin import add_thin_objects
     from apt_filters.remesh import remesh
@@ -191,6 +194,13 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
                                          alpha=r.speck_alpha, near=near)
+            # noise lobes joined to an object at low contrast: each part of a component tested like a speck
+            contour = dual_contouring if c.method == "dc" else marching_cubes
+            mesh, lobes = trim_lobes(mesh, specks, values=field_values(fields, surface.species, surface.iso,
+                                                                       surface_basis),
+                                     fields=fields, mask=mask, ions=ions, ranges=ranges, species=surface.species,
+                                     iso=surface.iso, basis=surface_basis, alpha=r.speck_alpha,
+                                     contour=functools.partial(contour, close=c.close_at_edge))
             near = None  # its memory back before the refinement
             # objects thinner than the delocalization, drawn one octave finer where this scale thins them
             mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
@@ -202,10 +212,11 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             mesh, record.refined = refined.mesh, refined
             record.refine = {"basis": surface_basis.describe(),
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                             "lobes": dataclasses.asdict(lobes),
                              "thin": thin.as_dict(),
                              **_refine_record(thin.specks, refined)}
-            s.summary = (f"{label}: {specks.count} specks removed, {thin.describe()}, mean displacement "
-                         f"{refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+            s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, "
+                         f"mean displacement {refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
         record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")
         mesh.face_scalars["object_id"] = np.zeros(0, dtype=np.int64)

@@ -154,16 +154,20 @@ def holm(p: np.ndarray) -> np.ndarray:
 
 
 def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-           reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None) -> np.ndarray:
+           reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None,
+           labels: np.ndarray | None = None) -> np.ndarray:
     """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
     on the side above the iso-value (signed distance in [-reach, 0)) against those on the side below, from
     ``gap`` to ``gap + reach`` nm (pooled binomial variance; 0 where a side is empty).
+
+    ``labels``, optional: (f,) int, a part of the surface per face (default its components); each atom counts for
+    the part of its nearest face.
 
     ``near``, optional: the ions of ``ions`` near this very ``mesh`` selected already
     (:func:`~apt_filters.core.nearby.select_near` to at least ``reach + gap`` nm, with exact distances and faces
     within ``reach + gap``, e.g. :func:`~apt_filters.refine.segregants.segregant_ions`); default: selected here.
     The counts are whole atoms, so the z is the same to the bit either way."""
-    labels = mesh.face_components()
+    labels = mesh.face_components() if labels is None else np.asarray(labels)
     n_comp = int(labels.max()) + 1 if len(labels) else 0
     if near is None:
         near = select_near(ions.positions, mesh, reach + gap)
@@ -291,6 +295,15 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
         specks.volumes.append(part.signed_volume() if closed else float("nan"))
         specks.areas.append(part.area())
     keep_face = ~np.isin(labels, small)
+    out = _faces_of(mesh, keep_face)
+    original = np.zeros(out.face_scalars["component"].max() + 1 if out.n_faces else 0, dtype=np.int64)
+    original[out.face_scalars["component"]] = labels[keep_face]  # the input component of each output one
+    specks.kept = (out, p[original], standard[original])
+    return out, specks
+
+
+def _faces_of(mesh: TriMesh, keep_face: np.ndarray) -> TriMesh:
+    """The faces ``keep_face`` of ``mesh``, unused vertices dropped, with their scalars and their components."""
     faces = mesh.faces[keep_face]
     used = np.zeros(mesh.n_vertices, dtype=bool)
     used[faces.ravel()] = True
@@ -299,7 +312,175 @@ def remove_specks(mesh: TriMesh, *, fields, mask: np.ndarray, ions: IonTable, ra
                   {k: v[used] for k, v in mesh.vertex_scalars.items()},
                   {k: v[keep_face] for k, v in mesh.face_scalars.items() if k != "component"})
     out.face_scalars["component"] = out.face_components()
-    original = np.zeros(out.face_scalars["component"].max() + 1 if out.n_faces else 0, dtype=np.int64)
-    original[out.face_scalars["component"]] = labels[keep_face]  # the input component of each output one
-    specks.kept = (out, p[original], standard[original])
-    return out, specks
+    return out
+
+
+@dataclass
+class Lobes:
+    """What :func:`trim_lobes` did.
+
+    Attributes
+    ----------
+    level : float
+        The parts' level: the iso-value plus the field's counting noise (fraction).
+    tested : int
+        Parts tested: those of the components that rise above ``level`` in more than one place.
+    removed : int
+        Parts removed as noise.
+    volume : float
+        nm³ of voxels removed with them.
+    """
+
+    level: float = float("nan")
+    tested: int = 0
+    removed: int = 0
+    volume: float = 0.0
+
+    def describe(self) -> str:
+        return (f"{self.removed} of {self.tested} parts trimmed as noise ({self.volume:.0f} nm³)" if self.tested
+                else "no part to trim")
+
+
+def trim_lobes(mesh: TriMesh, specks: Specks, *, values: np.ndarray, fields, mask: np.ndarray, ions: IonTable,
+               ranges: RangeTable, species: str, iso: float, basis: ConcentrationBasis | None = None,
+               alpha: float = ALPHA, reach: float = REACH, contour=marching_cubes,
+               near: NearSurface | None = None) -> tuple[TriMesh, Lobes]:
+    """``mesh`` without the parts of its components that the ions do not show to be real: the speck test of
+    :func:`remove_specks` applied to each part of a component instead of the whole.
+
+    At low contrast, counting noise in the matrix crosses the iso-value beside an object and joins it: a lobe
+    of the object's surface with no contrast of its own. The parts: where a component of the field above the
+    iso-value rises above ``level``, the iso-value plus the field's counting noise (its standard deviation in the
+    phase below the iso-value), in more than one place, each such place is a part's seed and every voxel of the
+    component goes to the seed it reaches by the highest path (watershed by image foresting, Falcão et al.
+    2004); two maxima that the field does not separate by more than its noise are one part. The statistic is
+    :func:`side_z` on the faces of each part (an ion counts for the part of its nearest face), standardised by
+    the noise components' null of the speck test (``specks.null``) and adjusted by Holm over every part tested.
+    In each component the most significant part stays (whether the component is real is the speck test's
+    question); any other part whose adjusted p-value exceeds ``alpha`` is removed: its voxels are reflected
+    about the iso-value (``2 iso - c``, so the cut lies where the two parts' fields are equally far above it)
+    and the component is contoured again.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        The iso-surface after :func:`remove_specks` (normals out of the region above iso).
+    specks : Specks
+        Its speck test (the null of one noise component).
+    values : (nx, ny, nz) float
+        The field ``mesh`` was contoured from (fraction; NaN where no atoms).
+    fields : voxel.Fields
+        Its voxelization (grid and kernel).
+    mask : (nx, ny, nz) bool
+        Inside the specimen, as for ``mesh``.
+    ions, ranges : IonTable, RangeTable
+    species : str
+    iso : float
+    basis : ConcentrationBasis, optional
+        As for :func:`remove_specks`.
+    alpha : float
+        Family-wise error rate of the parts' test.
+    reach : float, nm
+        Ions tested each side of a part's surface.
+    contour : callable
+        How ``mesh`` was contoured: ``contour(values, iso, spacing=, origin=, mask=)``.
+    near : NearSurface, optional
+        The ions near ``mesh`` selected already, as for :func:`side_z`.
+
+    Returns
+    -------
+    TriMesh, Lobes
+        The surface (``mesh`` itself where nothing is removed) and what was done.
+
+    References
+    ----------
+    Falcão, A. X., Stolfi, J., Lotufo, R. A. (2004). The image foresting transform: theory, algorithms, and
+    applications. IEEE Trans. Pattern Anal. Mach. Intell. 26, 19-29.
+    """
+    from scipy import ndimage as ndi
+    from scipy.stats import norm
+
+    basis = fields.basis if basis is None else basis
+    finite = mask & np.isfinite(values)
+    noise = float(values[finite & (values < iso)].std()) if (finite & (values < iso)).any() else 0.0
+    report = Lobes(level=iso + noise)
+    if mesh.n_faces == 0 or not noise > 0:
+        return mesh, report
+    full = ndi.generate_binary_structure(3, 3)
+    above = finite & (values >= iso)
+    comp, _ = ndi.label(above, full)
+    seeds, n_seeds = ndi.label(above & (values >= report.level), full)
+    seed_comp = np.zeros(n_seeds + 1, dtype=np.int64)
+    seed_comp[seeds[seeds > 0]] = comp[seeds > 0]
+    per_comp = np.bincount(seed_comp[1:], minlength=comp.max() + 1)
+    if not (per_comp > 1).any():
+        return mesh, report
+    # each voxel of a component to the seed it reaches by the highest path
+    top = float(values[above].max())
+    cost = np.full(values.shape, np.iinfo(np.uint16).max, dtype=np.uint16)
+    cost[above] = np.rint((top - values[above]) / max(top - iso, 1e-12) * 60000).astype(np.uint16)
+    part = ndi.watershed_ift(cost, seeds.astype(np.int32), structure=full)  # across the background only at its cost
+    part[~above | (per_comp[comp] < 2)] = 0  # the background's marker, and components of one part: not tested
+    # each face to the part of the voxel nearest its centroid that belongs to a part, in its own component
+    _, near_comp = ndi.distance_transform_edt(comp == 0, return_indices=True)
+    face_comp = comp[_nearest_voxel(mesh, near_comp, fields.grid)]
+    face_part = np.where(per_comp[face_comp] > 1,
+                         part[_nearest_voxel(mesh, ndi.distance_transform_edt(part == 0, return_indices=True)[1],
+                                             fields.grid)], 0)
+    tested = np.zeros(n_seeds + 1, dtype=bool)
+    tested[np.unique(face_part)] = True
+    tested[0] = False
+    tested &= per_comp[seed_comp] > 1
+    report.tested = int(tested.sum())
+    if report.tested < 2:
+        return mesh, report
+    z = side_z(mesh, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach, gap=kernel_sigma(fields),
+               labels=face_part, near=near)
+    centre, spread, _ = specks.null
+    z = np.concatenate([z, np.zeros(n_seeds + 1 - len(z))])
+    p = np.ones(n_seeds + 1)
+    p[tested] = holm(norm.sf((z[tested] - centre) / spread))
+    best = np.full(comp.max() + 1, np.inf)
+    np.minimum.at(best, seed_comp[tested], p[tested])
+    removed = tested & (p > alpha) & (p > best[seed_comp])
+    report.removed = int(removed.sum())
+    if not report.removed:
+        return mesh, report
+    cut = removed[part]
+    report.volume = float(cut.sum()) * fields.grid.voxel ** 3
+    trimmed = values.copy()
+    trimmed[cut] = 2 * iso - values[cut]
+    again = contour(trimmed, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
+    # the trimmed components contoured again; every other component as it was
+    changed = np.zeros(comp.max() + 1, dtype=bool)
+    changed[seed_comp[removed]] = True
+
+    kept = _faces_of(mesh, ~changed[face_comp])
+    # of the trimmed components contoured again, the pieces that overlap the surface that passed the speck test
+    # (a speck joined to a component by a voxel's corner is not brought back)
+    passed = np.zeros(values.shape, dtype=bool)
+    passed[_nearest_voxel(mesh, near_comp, fields.grid)] = changed[face_comp]
+    again = _faces_of(again, changed[comp[_nearest_voxel(again, near_comp, fields.grid)]])
+    pieces = again.face_components()
+    overlap = np.bincount(pieces, weights=passed[_nearest_voxel(again, near_comp, fields.grid)],
+                          minlength=pieces.max() + 1 if len(pieces) else 0)
+    again = _faces_of(again, overlap[pieces] > 0)
+    # and of those, the pieces that pass the speck test themselves (the cut leaves slivers of the removed parts)
+    z = (side_z(again, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach,
+                gap=kernel_sigma(fields)) - centre) / spread
+    new = _faces_of(again, (holm(norm.sf(z)) <= alpha)[again.face_components()])
+    joined = TriMesh(np.vstack([kept.vertices, new.vertices]), np.vstack([kept.faces, new.faces + kept.n_vertices]),
+                     {k: np.concatenate([v, new.vertex_scalars[k]]) for k, v in kept.vertex_scalars.items()
+                      if k in new.vertex_scalars},
+                     {k: np.concatenate([v, new.face_scalars[k]]) for k, v in kept.face_scalars.items()
+                      if k in new.face_scalars and k != "component"})
+    joined.face_scalars["component"] = joined.face_components()
+    return joined, report
+
+
+def _nearest_voxel(mesh: TriMesh, nearest: np.ndarray, grid) -> tuple[np.ndarray, ...]:
+    """Index of each face's voxel: the labelled voxel nearest the voxel of its centroid (``nearest``: the indices
+    of :func:`scipy.ndimage.distance_transform_edt` of the unlabelled voxels)."""
+    cell = np.clip(np.rint((mesh.vertices[mesh.faces].mean(axis=1) - grid.origin) / grid.voxel).astype(np.int64),
+                   0, np.array(nearest.shape[1:]) - 1)
+    return tuple(nearest[:, cell[:, 0], cell[:, 1], cell[:, 2]])

@@ -1,0 +1,60 @@
+"""Noise lobes joined to a low-contrast object (issue 25): each part of a component tested like a speck.
+
+Truth: a synthetic specimen whose only object is a sphere; every part of the surface farther than the interface
+from it is noise by construction.
+"""
+
+import numpy as np
+import pytest
+
+from apt_filters.contour import marching_cubes
+from apt_filters.core.mesh import split_components
+from apt_filters.refine import remove_specks
+from apt_filters.refine.specks import trim_lobes
+from apt_filters.synth import Sphere, generate
+from apt_filters.synth.geometry import Box
+from apt_filters.synth.specimen import Feature, SpecimenSpec
+from apt_filters.voxel import inside_mask, voxelize
+
+MATRIX = {"Ni": 0.75, "Al": 0.10, "Cr": 0.15}
+CENTRE, RADIUS = (0.0, 0.0, -10.0), 3.5
+
+
+def _trimmed(contrast: float, seed: int):
+    """A 3.5 nm-radius sphere ``contrast`` richer in Al than the matrix (efficiency 0.4), contoured midway; the
+    surface after the speck test, after :func:`trim_lobes`, and what it did."""
+    inside = {"Ni": 0.75, "Al": 0.10 + contrast, "Cr": 0.15 - contrast}
+    spec = SpecimenSpec(Box((20.0, 20.0, 20.0)), MATRIX, (Feature(Sphere(CENTRE, RADIUS), inside, 0.3, (), "s"),),
+                        efficiency=0.4, name="lobes")
+    sp = generate(spec, seed=seed)
+    fields = voxelize(sp.ions, sp.ranges)
+    mask = inside_mask(fields).dense()
+    values = fields.concentration("Al").dense()
+    iso = 0.10 + contrast / 2
+    mesh = marching_cubes(values, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
+    kept, specks = remove_specks(mesh, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=iso)
+    out, lobes = trim_lobes(kept, specks, values=values, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges,
+                            species="Al", iso=iso)
+    return kept, out, lobes
+
+
+def _beyond(mesh) -> np.ndarray:
+    """nm each vertex lies outside the true sphere."""
+    return np.linalg.norm(mesh.vertices - CENTRE, axis=1) - RADIUS
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_a_noise_lobe_joined_to_a_5_point_sphere_is_trimmed(seed):
+    before, after, lobes = _trimmed(0.05, seed)
+    # the first contour after the speck test: one component, reaching well beyond the sphere (a lobe)
+    assert len(split_components(before)) == 1 and _beyond(before).max() > 3.5
+    assert lobes.removed >= 1 and lobes.tested > lobes.removed and lobes.volume > 0
+    parts = split_components(after)
+    assert len(parts) == 1
+    assert _beyond(after).max() < 2.6  # the lobe gone: what remains is the object and the delocalization's reach
+    assert before.signed_volume() > parts[0].signed_volume() > 0.95 * before.signed_volume()  # only the lobe went
+
+
+def test_a_high_contrast_sphere_is_left_alone():
+    before, after, lobes = _trimmed(0.15, 1)
+    assert lobes.removed == 0 and after is before
