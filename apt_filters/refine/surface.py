@@ -736,6 +736,7 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
     keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
                                        half_width, distance)
     vertex = band.vertex[keep]
+    comp = components[vertex]
     out = []
     for c in sorted({f.component for f in found}):
         mine = [f for f in found if f.component == c]
@@ -743,7 +744,9 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
             out += mine
             continue
         normals = np.array([f.normal for f in mine])
-        sel = (components[vertex] == c) & ((placed.normals[vertex] @ normals.T).max(axis=1) > np.cos(np.radians(cap)))
+        # the object's ions first: the normals' test on them alone, not on every ion of the band
+        sel = np.flatnonzero(comp == c)
+        sel = sel[(placed.normals[vertex[sel]] @ normals.T).max(axis=1) > np.cos(np.radians(cap))]
         out += fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
     return out
