@@ -14,8 +14,10 @@ is the figure to compare; the wall time is printed beside it.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
+import pickle
 import resource
 import subprocess
 import sys
@@ -25,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+ENVIRONMENT = dict(os.environ)
+"""The environment each child gets (before importing ``apt_filters`` here changed any of it)."""
 
 
 def prepare(work: Path, ions: int | None, name: str = "many") -> None:
@@ -67,14 +71,20 @@ def child(work: Path) -> dict:
     result = refine.refine_surface(mesh, table, ranges, "Al", basis)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     out = result.mesh
-    return {"cpu_s": usage.ru_utime + usage.ru_stime - cpu, "wall_s": time.perf_counter() - wall,
+    # what must not change with the code's speed: the refined vertices, widths, offset errors and levels
+    digest = hashlib.sha1()
+    for part in (out.vertices, out.faces, np.asarray(result.widths), np.asarray(result.offset_errors)):
+        digest.update(np.ascontiguousarray(part).tobytes())
+    digest.update(pickle.dumps(result.levels))
+    return {"outputs": digest.hexdigest()[:16], "cpu_s": usage.ru_utime + usage.ru_stime - cpu,
+            "wall_s": time.perf_counter() - wall,
             "ions": len(table), "faces": int(out.n_faces), "objects": len(result.levels),
             "area_nm2": float(out.area()),
             "mean_displacement_nm": float(result.displacement["mean"])}
 
 
 def timed_child(work: Path, code: Path) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(code)}
+    env = {**ENVIRONMENT, "PYTHONPATH": str(code)}
     # this file run by path with the other code first on the path (the baseline need not have this benchmark)
     done = subprocess.run([sys.executable, __file__, "--child", "--work", str(work)], cwd=code, env=env,
                           capture_output=True, text=True)
@@ -105,17 +115,21 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"## Refinement of the `{args.preset}` specimen ({'own size' if not args.ions else f'{args.ions:.0e} ions'})",
              "", "Default settings, Al at 15 at.% with B out of the basis; each row a fresh process; CPU = user + "
              "system of all threads during `refine_surface`.", "",
-             "| code | ions | objects | faces | CPU (s) | wall (s) | mean displacement (nm) |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "| code | ions | objects | faces | CPU (s) | wall (s) | mean displacement (nm) | outputs (SHA-1) |",
+             "|---|---:|---:|---:|---:|---:|---:|---|"]
     print("\n".join(lines), flush=True)
     results = []
     for name, code in runs:
         r = timed_child(work, code)
         results.append(r)
         lines.append(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | "
-                     f"{r['wall_s']:.1f} | {r['mean_displacement_nm']:+.4f} |")
+                     f"{r['wall_s']:.1f} | {r['mean_displacement_nm']:+.4f} | `{r['outputs']}` |")
         print(lines[-1], flush=True)
     lines += ["", "Load average (1, 5, 15 min) after: {:.1f} {:.1f} {:.1f}.".format(*os.getloadavg())]
+    if len(results) > 1:
+        same = len({r["outputs"] for r in results}) == 1
+        lines += ["", f"Outputs (refined vertices and faces, widths, offset errors, levels): "
+                      f"{'identical bit for bit' if same else 'DIFFERENT'} across the rows."]
     if not args.child:
         from benchmarks.results import ratio, write_results
 

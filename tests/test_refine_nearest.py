@@ -211,3 +211,33 @@ def test_pairs_csr_is_scipys_canonical_matrix():
     m = csr_matrix((np.ones(2 * len(ij)), (np.r_[ij[:, 0], ij[:, 1]], np.r_[ij[:, 1], ij[:, 0]])), shape=(3000, 3000))
     indptr, indices = _symmetric_csr(ij.astype(np.int64), 3000)
     assert np.array_equal(indptr, m.indptr) and np.array_equal(indices, m.indices)
+
+
+def test_subset_on_the_assigned_mesh_skips_the_walk_with_the_walks_result():
+    """Oracle: the walk itself (``settled`` off) on the same vertices, after a selection, a completion that moves the
+    mesh (whose new ions walked on other vertices than the old ones) and a band that finds the vertices again."""
+    from dataclasses import replace
+
+    mesh = _blob()
+    near, rng = _near_uniform_al(mesh, 9, 8, 60_000, 3.0)
+    keep = rng.random(len(near.rows)) < 0.5
+
+    def both(ions, vertices, radius):
+        fast, slow = ions.subset(keep[:len(ions.rows)], vertices, radius), replace(ions, settled=False).subset(
+            keep[:len(ions.rows)], vertices, radius)
+        assert np.array_equal(fast.rows, slow.rows) and np.array_equal(fast.vertex, slow.vertex)
+        assert fast.settled and slow.settled
+        return fast
+
+    assert near.settled
+    both(near, mesh.vertices, 2.0)
+    moved = mesh.vertices + np.clip(mesh.vertices[:, [0]], 0, None) * np.array([[0.5, 0.0, 0.0]])
+    near.cover(moved, 2.5)
+    assert not near.settled  # the ions added walked on ``moved``, the others on the start
+    keep = np.concatenate([keep, rng.random(len(near.rows) - len(keep)) < 0.5])
+    both(near, near.assigned, 2.0)
+    near.band(moved, vertex_normals(moved, mesh.faces), 2.5)  # moved far: every ion walks again
+    assert near.settled
+    both(near, moved, 2.0)
+    sub = both(near, moved, 2.5)
+    both(sub, moved, 1.0)

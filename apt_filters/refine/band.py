@@ -197,6 +197,10 @@ class NearIons:
         0 or 1: only the even or odd rows of the table (the cross-fit's halves); -1: all.
     assigned : (n, 3) float64
         The vertices when ``vertex`` was last found.
+    settled : bool
+        Whether every ion's ``vertex`` is where a walk on ``assigned`` ended (not so for ions :meth:`cover` added
+        after the mesh moved): a walk from it on the same vertices would not move, so :meth:`subset` on
+        ``assigned`` itself keeps ``vertex`` without walking.
     """
 
     rows: np.ndarray
@@ -214,6 +218,7 @@ class NearIons:
     source: tuple
     parity: int = -1
     assigned: np.ndarray | None = None
+    settled: bool = False
 
     @classmethod
     def select(cls, ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray,
@@ -267,6 +272,8 @@ class NearIons:
         self.atoms = basis_atoms(self.everything, basis)
         # the ions already here keep their assignment until the next band finds the mesh moved
         self.vertex = np.concatenate([self.vertex, vertex])
+        # the new ions' walks ended on ``vertices``, the others' on ``assigned``
+        self.settled = self.assigned is None or (self.settled and _same(vertices, self.assigned))
         self.assigned = vertices.copy() if self.assigned is None else self.assigned
         self.covered[far] = corners[far]
         return self
@@ -277,14 +284,21 @@ class NearIons:
         ``vertices`` where these are (:meth:`cover` them first)."""
         radius = self.radius if radius is None else radius
         keep = np.flatnonzero(keep) if keep.dtype == bool else keep
-        vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT,
-                             self.second)
+        if self.settled and _same(vertices, self.assigned):
+            # every walk would stop where it starts (the walk's own distances, without the rings' search)
+            vertex = self.vertex[keep]
+            d2 = np.empty(len(keep))
+            _vertex_d2(np.ascontiguousarray(self.positions[keep], dtype=np.float64), vertex, np.ascontiguousarray(vertices),
+                       d2)
+        else:
+            vertex, d2 = descend(self.positions[keep], vertices, self.indptr, self.indices, self.vertex[keep], EXACT,
+                                 self.second)
         inside = d2 <= radius * radius
         keep, vertex = keep[inside], vertex[inside]
         return NearIons(self.rows[keep], self.positions[keep], IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
                         IonAtoms(self.everything.elements, self.everything.atoms[keep]), vertex, radius, self.faces,
                         vertices[self.faces], self.indptr, self.indices, self.second, self.fan, self.source,
-                        self.parity, vertices.copy())
+                        self.parity, vertices.copy(), True)
 
     def take(self, keep: np.ndarray) -> "NearIons":
         """The ions ``keep`` (indices) of these as they are: their nearest vertices and the mesh those were found on
@@ -331,7 +345,7 @@ class NearIons:
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
             self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
                                      self.second)
-            self.assigned = vertices.copy()
+            self.assigned, self.settled = vertices.copy(), True
         d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
@@ -517,6 +531,23 @@ def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, held: n
         n = _in_cells(part, start, low.astype(np.float64), float(reach), shape, occupied, held, int(parity), buffer)
         out.append(buffer[:n].copy())
     return np.concatenate(out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _vertex_d2(points, vertex, vertices, d2):
+    """Squared distance of each point to its vertex, summed as :func:`~apt_filters.refine.nearest.descend` sums it."""
+    for i in prange(points.shape[0]):
+        v = vertex[i]
+        d2[i] = (vertices[v, 0] - points[i, 0]) ** 2 + (vertices[v, 1] - points[i, 1]) ** 2 + (
+            vertices[v, 2] - points[i, 2]) ** 2
+
+
+def _same(vertices: np.ndarray, other: np.ndarray | None) -> bool:
+    """Whether two vertex arrays are the same bit for bit."""
+    if other is None or vertices.shape != other.shape or vertices.dtype != np.float64 or other.dtype != np.float64:
+        return False
+    return bool(np.array_equal(np.ascontiguousarray(vertices).view(np.uint64),
+                               np.ascontiguousarray(other).view(np.uint64)))
 
 
 def _largest_move(vertices: np.ndarray, before: np.ndarray) -> float:

@@ -563,11 +563,13 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
 
 
 def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str,
-           fixed: list[ObjectLevels] | None, p: RefineParams) -> _Placed:
+           fixed: list[ObjectLevels] | None, p: RefineParams, pairs_near: Pairs) -> _Placed:
     """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``.
 
     ``near``: the ions within ``reach + RESELECT`` of the start, completed from the ion table where the surface
-    moves farther than :data:`RESELECT` (:meth:`~apt_filters.refine.band.NearIons.cover`)."""
+    moves farther than :data:`RESELECT` (:meth:`~apt_filters.refine.band.NearIons.cover`); ``pairs_near``: the
+    profiles' pooling pairs of ``vertices`` (:meth:`~apt_filters.refine.band.Pairs.find` with ``p.pool_radius``;
+    one search serves every run from the same start)."""
     vertices = vertices.copy()
     n = len(vertices)
     topo = topology(faces, n)
@@ -576,7 +578,6 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     adj = adjacency(faces, n)
     plain = umbrella(adj)
     reach = _reach(p)
-    pairs_near = Pairs.find(vertices, components, p.pool_radius)
     # the ions beyond the profiles only count in a plateau window (none without measuring plateaus)
     shell = _shell(p, p.half_width, p.plateau_window[1] if fixed is None else np.inf)
     guarded, history, levels = 0, [], []
@@ -736,6 +737,7 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
     keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
                                        half_width, distance)
     vertex = band.vertex[keep]
+    comp = components[vertex]
     out = []
     for c in sorted({f.component for f in found}):
         mine = [f for f in found if f.component == c]
@@ -743,7 +745,9 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
             out += mine
             continue
         normals = np.array([f.normal for f in mine])
-        sel = (components[vertex] == c) & ((placed.normals[vertex] @ normals.T).max(axis=1) > np.cos(np.radians(cap)))
+        # the object's ions first: the normals' test on them alone, not on every ion of the band
+        sel = np.flatnonzero(comp == c)
+        sel = sel[(placed.normals[vertex[sel]] @ normals.T).max(axis=1) > np.cos(np.radians(cap))]
         out += fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
     return out
@@ -898,9 +902,10 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
 
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
     fits, held, fixed = [], [], None
+    pairs_start = Pairs.find(start, components, p.pool_radius)
     if p.cross_fit:
         clock = time.perf_counter()
-        fits = [_place(start, faces, near.half(k, start), species, None, p) for k in (0, 1)]
+        fits = [_place(start, faces, near.half(k, start), species, None, p, pairs_start) for k in (0, 1)]
         # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
@@ -910,7 +915,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
     clock = time.perf_counter()
-    placed = _place(start, faces, near, species, fixed, p)
+    placed = _place(start, faces, near, species, fixed, p, pairs_start)
     stages.append(StageReport.between("place", start, placed.vertices, clock, placed.iterations,
                                       f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
     scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
