@@ -664,6 +664,12 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
     (:func:`rounded_scores`; ``x``, ``gx`` Gauss-Legendre nodes of the arc)."""
     out = np.zeros(len(s1))
     root2b = math.sqrt(2.0) * blur
+    norm = math.sqrt(2.0 * math.pi) * blur
+    # the arc's nodes depend on the parallel polyhedron only: computed once, not once per point
+    sine, cosine = np.empty(len(x)), np.empty(len(x))
+    for j in range(len(x)):
+        theta = 0.25 * math.pi * (x[j] + 1.0)
+        sine[j], cosine[j] = math.sin(theta), math.cos(theta)
     for k in range(len(t)):
         shift = interface * t[k]
         radius = max(rounding + shift, 0.0)
@@ -672,12 +678,11 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
             value = 0.25 * math.erfc(a / root2b) * math.erfc((radius + b) / root2b)
             if radius > 0.0:
                 for j in range(len(x)):
-                    theta = 0.25 * math.pi * (x[j] + 1.0)
-                    along = -radius + radius * math.sin(theta)
-                    edge = -radius + radius * math.cos(theta)
-                    density = math.exp(-0.5 * ((along - b) / blur) ** 2) / (math.sqrt(2.0 * math.pi) * blur)
+                    along = -radius + radius * sine[j]
+                    edge = -radius + radius * cosine[j]
+                    density = math.exp(-0.5 * ((along - b) / blur) ** 2) / norm
                     value += density * 0.5 * math.erfc((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
-                        * math.cos(theta)
+                        * cosine[j]
             out[i] += g[k] * value
     return out
 
@@ -688,15 +693,32 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
     ``blur`` in the edge's plane (:func:`rounded_scores`; ``t``, ``g`` Gauss-Hermite nodes and weights)."""
     out = np.zeros(len(s1))
     root2a = math.sqrt(2.0) * interface
+    n = len(t)
+    a, b = np.empty(n), np.empty(n)
+    step_a, step_b = np.empty(n), np.empty(n)
     for i in range(len(s1)):
+        # off the quadrant where both moved distances are positive, D is one of them less the radius: its error
+        # function is computed once per node, not once per pair of nodes
+        for j in range(n):
+            a[j] = s1[i] + blur * t[j] + rounding
+            b[j] = s2[i] + blur * t[j] + rounding
+            step_a[j] = math.erfc((a[j] - rounding) / root2a)
+            step_b[j] = math.erfc((b[j] - rounding) / root2a)
         value = 0.0
-        for j in range(len(t)):
-            a = s1[i] + blur * t[j] + rounding
-            for k in range(len(t)):
-                b = s2[i] + blur * t[k] + rounding
-                outside = math.sqrt(max(a, 0.0) ** 2 + max(b, 0.0) ** 2)
-                distance = (outside if outside > 0.0 else max(a, b)) - rounding
-                value += g[j] * g[k] * 0.5 * math.erfc(distance / root2a)
+        for j in range(n):
+            for k in range(n):
+                if a[j] <= 0.0 and b[k] <= 0.0:
+                    step = step_a[j] if a[j] >= b[k] else step_b[k]
+                else:
+                    outside = math.sqrt(max(a[j], 0.0) ** 2 + max(b[k], 0.0) ** 2)
+                    if b[k] <= 0.0 and outside == a[j]:
+                        step = step_a[j]
+                    elif a[j] <= 0.0 and outside == b[k]:
+                        step = step_b[k]
+                    else:
+                        distance = (outside if outside > 0.0 else max(a[j], b[k])) - rounding
+                        step = math.erfc(distance / root2a)
+                value += g[j] * g[k] * 0.5 * step
         out[i] = value
     return out
 
@@ -738,18 +760,19 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 
 
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
-                         h: float) -> tuple[np.ndarray, np.ndarray]:
+                         h: float, free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`rounded_scores` ``(b,)`` of the planes moved out by ``shift`` (m,) nm with edges rounded by
-    ``rounding`` nm, the blur's ``share`` and the profile's ``width``, and its forward differences ``(b, m + 3)``
-    by ``h`` in each shift, in the radius, the share and the width, the same numbers as evaluating
-    :func:`rounded_scores` m + 4 times, re-evaluating only what each nudge changes (the share is nudged down where
-    it is within ``h`` of 1)."""
+    ``rounding`` nm, the blur's ``share`` and the profile's ``width``, and its forward differences by ``h`` in each
+    shift, in the radius, the share and the width (``(b, m + 3)``, or the columns where ``free`` (m + 3,) bool is
+    set), the same numbers as evaluating :func:`rounded_scores` m + 4 times, re-evaluating only what each nudge
+    changes (the share is nudged down where it is within ``h`` of 1)."""
     m = signed.shape[1]
+    free = np.ones(m + 3, dtype=bool) if free is None else free
     order = np.sort(signed - shift, axis=1)
     edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
     base = edge * others
     jac = np.empty((len(signed), m + 3))
-    for k in range(m):
+    for k in np.flatnonzero(free[:m]):
         nudged = shift.copy()
         nudged[k] += h
         moved = np.sort(signed - nudged, axis=1)
@@ -760,11 +783,14 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
         moved_edge[near] = _edge_scores(moved[near], rounding, width, share)
         jac[:, k] = (moved_edge * _other_steps(moved, width) - base) / h
     # neither the radius nor the share changes the other planes' steps
-    jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
-    dh = h if share + h <= 1.0 else -h
-    jac[:, m + 1] = (_edge_scores(order, rounding, width, share + dh) * others - base) / dh
-    jac[:, m + 2] = (_edge_scores(order, rounding, width + h, share) * _other_steps(order, width + h) - base) / h
-    return base, jac
+    if free[m]:
+        jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
+    if free[m + 1]:
+        dh = h if share + h <= 1.0 else -h
+        jac[:, m + 1] = (_edge_scores(order, rounding, width, share + dh) * others - base) / dh
+    if free[m + 2]:
+        jac[:, m + 2] = (_edge_scores(order, rounding, width + h, share) * _other_steps(order, width + h) - base) / h
+    return base, jac[:, free]
 
 
 def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, iterations: int = 10,
@@ -798,9 +824,9 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     def fit(shift: np.ndarray, rounding: float, share: float, width: float, free: np.ndarray):
         h = 1e-3
         for _ in range(iterations):
-            base, jac = _forward_differences(signed, shift, rounding, share, width, h)
+            base, jac = _forward_differences(signed, shift, rounding, share, width, h, free)
             delta = np.zeros(m + 3)
-            delta[free] = np.clip(np.linalg.lstsq(jac[:, free] * root_w[:, None], (u - base) * root_w,
+            delta[free] = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w,
                                                   rcond=None)[0], -max_step, max_step)
             shift = shift + delta[:m]
             rounding = min(max(rounding + delta[m], 0.0), deepest)
@@ -808,7 +834,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
             width = max(width + delta[m + 2], 0.05 * width)
             if np.abs(delta).max() < tolerance:
                 break
-        return shift, rounding, share, width, jac[:, free]
+        return shift, rounding, share, width, jac
 
     sharp = np.r_[np.ones(m, dtype=bool), False, True, True]
     shift, _, share, width, _ = fit(np.zeros(m), 0.0, 0.5, width, sharp)
