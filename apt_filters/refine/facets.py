@@ -759,6 +759,28 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
     return np.prod(0.5 * erfc(order[:, :-2] / (np.sqrt(2) * width)), axis=1)
 
 
+@njit(cache=True, nogil=True)
+def _product_of_others(distance, steps):
+    """(b,) :func:`_other_steps` from the planes' distances ``distance`` (b, m) and their steps ``steps`` (b, m):
+    the product of the steps of all but each point's two largest distances, taken in ascending order of distance
+    as ``np.prod`` takes them from the sorted distances (the same numbers)."""
+    b, m = distance.shape
+    out = np.empty(b)
+    rank = np.empty(m, dtype=np.int64)
+    for i in range(b):
+        for j in range(m):  # insertion sort of the planes by distance: m is small
+            k = j
+            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+                rank[k] = rank[k - 1]
+                k -= 1
+            rank[k] = j
+        value = 1.0
+        for j in range(m - 2):
+            value *= steps[i, rank[j]]
+        out[i] = value
+    return out
+
+
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
                          h: float, free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`rounded_scores` ``(b,)`` of the planes moved out by ``shift`` (m,) nm with edges rounded by
@@ -768,20 +790,24 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     changes (the share is nudged down where it is within ``h`` of 1)."""
     m = signed.shape[1]
     free = np.ones(m + 3, dtype=bool) if free is None else free
-    order = np.sort(signed - shift, axis=1)
+    distance = signed - shift
+    order = np.sort(distance, axis=1)
     edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
     base = edge * others
+    # each plane's step, the factors of _other_steps: a nudge changes one plane's
+    steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
     jac = np.empty((len(signed), m + 3))
     for k in np.flatnonzero(free[:m]):
-        nudged = shift.copy()
-        nudged[k] += h
-        moved = np.sort(signed - nudged, axis=1)
+        nudged = distance.copy()
+        nudged[:, k] = signed[:, k] - (shift[k] + h)
+        moved_steps = steps.copy()
+        moved_steps[:, k] = 0.5 * erfc(nudged[:, k] / (np.sqrt(2) * width))
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change
-        near = signed[:, k] - shift[k] >= order[:, -2]
+        near = distance[:, k] >= order[:, -2]
         moved_edge = edge.copy()
-        moved_edge[near] = _edge_scores(moved[near], rounding, width, share)
-        jac[:, k] = (moved_edge * _other_steps(moved, width) - base) / h
+        moved_edge[near] = _edge_scores(np.sort(nudged[near], axis=1), rounding, width, share)
+        jac[:, k] = (moved_edge * _product_of_others(nudged, moved_steps) - base) / h
     # neither the radius nor the share changes the other planes' steps
     if free[m]:
         jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
