@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from apt_filters.analysis.proxigram import Proxigram
+from apt_filters.analysis.width import ProfileFit
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
@@ -84,7 +85,29 @@ def test_an_object_thinner_than_the_windows_is_counted_in_its_deeper_half_and_sa
     summary = surface_summary(objects=objects, proxigram=prox, solutes=[], efficiency=0.5)
     words = warnings_in_words({"surfaces": [{"label": "A 50 %", "mesh": {}, "summary": summary,
                                              "plateaus": [thick, thin]}]})
-    assert any("object 1 is counted from 0.25 nm" in w and "may not be reached" in w for w in words), words
+    assert any("object 1 is counted from 0.25 nm" in w and "more than its counting error" in w for w in words), words
+
+
+def test_a_window_counted_nearer_is_short_of_its_plateau_only_where_the_fitted_step_can_bias_it_beyond_its_noise():
+    counts = np.zeros((1, 6, 2), np.int64)
+    counts[0, :3] = [100, 0]
+    counts[0, 3] = [10, 20]  # a thin object: B 40 of 70 + 1 atoms from 0.25 nm, error 0.059
+    counts[0, 5] = [1, 0]
+    prox = _proxigram(counts, (0,), (20.0,))
+
+    def step(sigma):  # B from 0 outside to 0.6 inside, steepest at the surface
+        return ProfileFit("B", 0.0, 0.01, 2.563 * sigma, 0.01, 0.0, sigma, sigma, 0.0, 0.6, 0.01, 0.01)
+
+    # a 0.3 nm blur: at 0.25 nm the step is Phi(0.83) = 80 % reached, up to 0.12 of B mixed in (> 0.059)
+    [wide] = object_plateaus(prox, inner=1.0, outer=3.0, step=step(0.3))
+    assert wide["reached"] == pytest.approx(0.7977, abs=1e-4) and wide["nearer"] and wide["short"]
+    # a 0.05 nm blur: reached to 1 - 3e-7, the window is the plateau within its noise
+    [sharp] = object_plateaus(prox, inner=1.0, outer=3.0, step=step(0.05))
+    assert sharp["reached"] > 0.999 and sharp["nearer"] and not sharp["short"]
+    words = warnings_in_words({"surfaces": [{"label": "B", "mesh": {}, "summary": [], "plateaus": [wide]}]})
+    assert any("80-80 % reached" in w for w in words), words
+    assert not [w for w in warnings_in_words({"surfaces": [{"label": "B", "mesh": {}, "summary": [],
+                                                            "plateaus": [sharp]}]}) if "counted from" in w]
 
 
 def test_summary_keeps_interior_and_edge_objects_apart_and_pools_them_as_all_objects():

@@ -128,6 +128,11 @@ class ProfileFit:
     chi2_dof: float = math.nan
     reach: float = math.nan
 
+    def reached(self, s: float) -> float:
+        """Share (0-1) of the step from the outside plateau to the inside one reached at ``s`` nm from the
+        surface (positive inside), by the fitted split-normal shape."""
+        return float(_split_cdf(s, self.mode, self.sigma_outside, self.sigma_inside))
+
     def as_dict(self) -> dict:
         return asdict(self)
 

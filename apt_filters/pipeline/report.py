@@ -233,13 +233,16 @@ def warnings_in_words(report: dict) -> list[str]:
         if thin:
             out.append(f"{label}: no excess for object{'s' * (len(thin) > 1)} {', '.join(map(str, thin))}: "
                        "too thin, or cut by the edge exclusion, to hold ions in a plateau window.")
-        nearer = [p for p in s.get("plateaus") or [] if p["nearer"]]
-        if nearer:
-            ids = ", ".join(str(p["object_id"]) for p in nearer)
-            starts = ", ".join(f"{p['from_nm']:.2g}" for p in nearer)
-            out.append(f"{label}: the inside composition of object{'s' * (len(nearer) > 1)} {ids} is counted from "
-                       f"{starts} nm (half {'their' if len(nearer) > 1 else 'its'} depth, nearer than the plateau "
-                       "windows): thinner than the interface needs, the plateau may not be reached there.")
+        short = [p for p in s.get("plateaus") or [] if p.get("short")]
+        if short:
+            ids = ", ".join(str(p["object_id"]) for p in short)
+            starts = ", ".join(f"{p['from_nm']:.2g}" for p in short)
+            reached = [p["reached"] for p in short if p["reached"] is not None]
+            how = (f", where the fitted interface step is {100 * min(reached):.0f}-{100 * max(reached):.0f} % "
+                   "reached" if reached else "")
+            out.append(f"{label}: the inside composition of object{'s' * (len(short) > 1)} {ids} is counted from "
+                       f"{starts} nm (half {'their' if len(short) > 1 else 'its'} depth, nearer than the plateau "
+                       f"windows){how}: the interface may bias it by more than its counting error.")
         for row in s.get("summary", []):
             where = f"{label}, {row['label']}"
             for solute, e in row["excess"].items():
@@ -335,11 +338,20 @@ def _plateaus(surface: dict) -> str:
     plateaus = surface.get("plateaus") or []
     elements = list(dict.fromkeys(e for p in plateaus for e in p["fraction"]))
     rows = [[p["object_id"],
-             f"{number(p['from_nm'])}–{number(p['to_nm'])}" + (" (nearer: half its depth)" if p["nearer"] else ""),
+             f"{number(p['from_nm'])}–{number(p['to_nm'])}" + _nearer(p),
              p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100) if p["atoms"] else None,
                                   "no atom in the window") for e in elements]
             for p in plateaus]
     return _table(["object", "window (nm)", "atoms"] + [f"{e} (at.%)" for e in elements], rows)
+
+
+def _nearer(plateau: dict) -> str:
+    """How an object's window counted nearer than the plateau windows reaches its plateau, in words."""
+    if not plateau["nearer"]:
+        return ""
+    reached = plateau.get("reached")
+    share = "" if reached is None else f"; step {100 * reached:.1f} % reached"
+    return f" (half its depth{share}{': short of the plateau' if plateau.get('short') else ''})"
 
 
 def _excess_per_object(surface: dict) -> str:

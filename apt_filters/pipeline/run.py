@@ -265,7 +265,7 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
         res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
                                       efficiency=config.analysis.efficiency, inner=windows.inner,
                                       outer=windows.outer, fallback={s: windows.levels(s) for s in solutes})
-        res.plateaus = object_plateaus(prox, windows.inner, windows.outer)
+        res.plateaus = object_plateaus(prox, windows.inner, windows.outer, windows.step)
         # with no solute there is no excess to miss: no object is "too thin" for one
         measured = {e["object_id"] for e in res.excess}
         res.stats["objects_without_excess"] = sorted(int(i) for i in set(prox.object_ids) - measured) if solutes else []

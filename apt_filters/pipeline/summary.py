@@ -26,7 +26,7 @@ import numpy as np
 
 from apt_filters.analysis.excess import interfacial_excess
 from apt_filters.analysis.proxigram import Proxigram
-from apt_filters.analysis.width import inside_windows
+from apt_filters.analysis.width import ProfileFit, inside_windows
 
 GROUPS = (("interior", "interior objects (closed)"),
           ("edge", "objects at the specimen edge (open)"),
@@ -91,22 +91,38 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
     return out
 
 
-def object_plateaus(proxigram: Proxigram, inner: float, outer: float) -> list[dict]:
+def object_plateaus(proxigram: Proxigram, inner: float, outer: float, step: ProfileFit | None = None) -> list[dict]:
     """Each object's inside composition and the window it is counted in (as :func:`window_composition`).
+
+    An object counted nearer than ``inner`` may hold some of its interface in its window. With the pooled
+    profile's fitted ``step`` (:class:`~apt_filters.analysis.width.ProfileFit`) that share is known: at the
+    window's start the step is ``reached`` of the way from the outside plateau to the inside one, so the window
+    can be off by at most (1 - reached) x the step's contrast. Where that exceeds the window's own counting
+    error of the step's species the object is ``short`` of its plateau; where not, counting nearer costs less
+    than the count's noise.
 
     Returns
     -------
     list of dict
         Per object of ``proxigram``: ``object_id``, ``from_nm`` and ``to_nm`` (its window), ``nearer`` (whether
-        it starts nearer than ``inner``: the object is thinner than twice the windows' inner edge, its plateau
-        may not be reached), ``atoms``, ``fraction`` and ``error`` per element (None without atoms).
+        it starts nearer than ``inner``: the object is thinner than twice the windows' inner edge),
+        ``reached`` (share of the fitted step reached at ``from_nm``; None without ``step``), ``short`` (nearer,
+        and the step's remaining share may bias the window beyond its counting error, or no ``step`` or atom to
+        tell), ``atoms``, ``fraction`` and ``error`` per element (None without atoms).
     """
     counts = proxigram.species_counts("element")
     s = proxigram.centers
     starts = _inside_starts(proxigram, inner, outer)
-    return [{"object_id": int(o), "from_nm": float(f), "to_nm": float(outer), "nearer": bool(f < inner),
-             **_fractions(c[(s >= f) & (s <= outer)].sum(axis=0), proxigram.elements)}
-            for o, f, c in zip(proxigram.object_ids, starts, counts)]
+    out = []
+    for o, f, c in zip(proxigram.object_ids, starts, counts):
+        row = {"object_id": int(o), "from_nm": float(f), "to_nm": float(outer), "nearer": bool(f < inner),
+               **_fractions(c[(s >= f) & (s <= outer)].sum(axis=0), proxigram.elements)}
+        row["reached"] = None if step is None else step.reached(float(f))
+        error = row["error"].get(step.species) if step is not None else None
+        row["short"] = row["nearer"] and (error is None
+                                          or (1 - row["reached"]) * abs(step.inside - step.outside) > error)
+        out.append(row)
+    return out
 
 
 def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[str], efficiency: float,
