@@ -423,7 +423,8 @@ def trim_lobes(mesh: TriMesh, specks: Specks, *, values: np.ndarray, fields, mas
     part[~above | (per_comp[comp] < 2)] = 0  # the background's marker, and components of one part: not tested
     # each face to the part of the voxel nearest its centroid that belongs to a part, in its own component
     _, near_comp = ndi.distance_transform_edt(comp == 0, return_indices=True)
-    face_comp = comp[_nearest_voxel(mesh, near_comp, fields.grid)]
+    face_voxel = _nearest_voxel(mesh, near_comp, fields.grid)
+    face_comp = comp[face_voxel]
     face_part = np.where(per_comp[face_comp] > 1,
                          part[_nearest_voxel(mesh, ndi.distance_transform_edt(part == 0, return_indices=True)[1],
                                              fields.grid)], 0)
@@ -459,7 +460,7 @@ def trim_lobes(mesh: TriMesh, specks: Specks, *, values: np.ndarray, fields, mas
     # of the trimmed components contoured again, the pieces that overlap the surface that passed the speck test
     # (a speck joined to a component by a voxel's corner is not brought back)
     passed = np.zeros(values.shape, dtype=bool)
-    passed[_nearest_voxel(mesh, near_comp, fields.grid)] = changed[face_comp]
+    passed[face_voxel] = changed[face_comp]
     again = _faces_of(again, changed[comp[_nearest_voxel(again, near_comp, fields.grid)]])
     pieces = again.face_components()
     overlap = np.bincount(pieces, weights=passed[_nearest_voxel(again, near_comp, fields.grid)],
