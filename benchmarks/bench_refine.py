@@ -40,7 +40,7 @@ import time
 import numpy as np
 
 from apt_filters.refine import RefineParams, refine_surface, remove_specks
-from apt_filters.refine.recontour import merge
+from apt_filters.core.mesh import merge
 from apt_filters.synth import generate, preset
 from apt_filters.truth.precipitates import (counted_errors, evaluate_precipitates, per_object_start,
                                             reference_surface, volume_floors)

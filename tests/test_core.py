@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from apt_filters.core import AptFiltersError, TriMesh, atomic_output, atomic_write_text
+from apt_filters.core.mesh import merge
 from apt_filters.io import Range, RangeTable, UNRANGED
 
 
@@ -109,6 +110,22 @@ def test_face_components_numbered_by_first_face():
     shuffled = TriMesh(both.vertices, both.faces[::-1])
     assert shuffled.face_components().tolist() == [0] * 12 + [1] * 12
 
+
+
+def test_merge_keeps_used_vertices_and_the_scalars_every_part_has():
+    a = unit_cube()
+    # a spare vertex that no face uses, and a scalar only the first part carries
+    a = TriMesh(np.vstack([a.vertices, [[9.0, 9.0, 9.0]]]), a.faces,
+                {"value": np.arange(9.0), "only_a": np.zeros(9)}, {"rank": np.arange(12)})
+    b = TriMesh(a.vertices[:8] + 10, a.faces[::-1], {"value": -np.arange(8.0)}, {"rank": np.arange(12) + 100})
+    out = merge([a, b])
+    assert out.n_vertices == 16 and out.n_faces == 24
+    assert np.array_equal(out.vertices, np.vstack([a.vertices[:8], b.vertices]))
+    assert list(out.vertex_scalars) == ["value"]
+    assert np.array_equal(out.vertex_scalars["value"], np.concatenate([np.arange(8.0), -np.arange(8.0)]))
+    assert np.array_equal(out.face_scalars["rank"], np.concatenate([np.arange(12), np.arange(12) + 100]))
+    assert out.face_scalars["component"].tolist() == [0] * 12 + [1] * 12
+    assert np.array_equal(out.vertices[out.faces[12:]], b.vertices[b.faces])
 
 def _box(half, center=(0.0, 0.0, 0.0)) -> TriMesh:
     m = unit_cube()

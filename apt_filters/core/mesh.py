@@ -332,3 +332,31 @@ def split_components(mesh: TriMesh) -> list[TriMesh]:
     unused ones kept)."""
     labels = mesh.face_components()
     return [TriMesh(mesh.vertices, mesh.faces[labels == c]) for c in range(int(labels.max()) + 1 if len(labels) else 0)]
+
+
+def merge(parts: list[TriMesh]) -> TriMesh:
+    """One mesh of several: each part's unused vertices dropped, the scalars every part carries kept (in the
+    first part's order), components relabelled (face scalar ``component``)."""
+    vertex_keys = [k for k in (parts[0].vertex_scalars if parts else ()) if all(k in p.vertex_scalars for p in parts)]
+    face_keys = [k for k in (parts[0].face_scalars if parts else ())
+                 if k != "component" and all(k in p.face_scalars for p in parts)]
+    vertices, faces, offset = [], [], 0
+    vertex_scalars = {k: [] for k in vertex_keys}
+    face_scalars = {k: [] for k in face_keys}
+    for p in parts:
+        used = np.unique(p.faces)
+        index = np.full(p.n_vertices, -1, dtype=np.int64)
+        index[used] = np.arange(len(used)) + offset
+        vertices.append(p.vertices[used])
+        faces.append(index[p.faces])
+        offset += len(used)
+        for k in vertex_keys:
+            vertex_scalars[k].append(p.vertex_scalars[k][used])
+        for k in face_keys:
+            face_scalars[k].append(p.face_scalars[k])
+    out = TriMesh(np.concatenate(vertices) if vertices else np.zeros((0, 3)),
+                  np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64),
+                  {k: np.concatenate(v) for k, v in vertex_scalars.items()},
+                  {k: np.concatenate(v) for k, v in face_scalars.items()})
+    out.face_scalars["component"] = out.face_components()
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from apt_filters.contour import marching_cubes
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, merge
 
 MARGIN = 3
 """Voxels added around each object's bounding box for its own contour."""
@@ -57,18 +57,3 @@ def recontour(values: np.ndarray, isos: np.ndarray, mesh: TriMesh, spacing: floa
         parts.append(TriMesh(new.vertices, new.faces[lab == int(np.argmax(areas))]))
     return merge(parts)
 
-
-def merge(parts: list[TriMesh]) -> TriMesh:
-    """One mesh of several (unused vertices dropped), components relabelled."""
-    vertices, faces, offset = [], [], 0
-    for p in parts:
-        used = np.unique(p.faces)
-        index = np.full(p.n_vertices, -1, dtype=np.int64)
-        index[used] = np.arange(len(used)) + offset
-        vertices.append(p.vertices[used])
-        faces.append(index[p.faces])
-        offset += len(used)
-    out = TriMesh(np.concatenate(vertices) if vertices else np.zeros((0, 3)),
-                  np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64))
-    out.face_scalars["component"] = out.face_components()
-    return out

@@ -62,7 +62,7 @@ import numpy as np
 
 from apt_filters.contour import marching_cubes
 from apt_filters.core.distance import SurfaceDistance
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, merge
 from apt_filters.core.nearby import CHUNK, NearSurface, select_near
 from apt_filters.io import IonTable, RangeTable
 from apt_filters.refine.composition import ion_atoms
@@ -470,13 +470,7 @@ def trim_lobes(mesh: TriMesh, specks: Specks, *, values: np.ndarray, fields, mas
     z = (side_z(again, ions=ions, ranges=ranges, species=species, basis=basis, reach=reach,
                 gap=kernel_sigma(fields)) - centre) / spread
     new = _faces_of(again, (holm(norm.sf(z)) <= alpha)[again.face_components()])
-    joined = TriMesh(np.vstack([kept.vertices, new.vertices]), np.vstack([kept.faces, new.faces + kept.n_vertices]),
-                     {k: np.concatenate([v, new.vertex_scalars[k]]) for k, v in kept.vertex_scalars.items()
-                      if k in new.vertex_scalars},
-                     {k: np.concatenate([v, new.face_scalars[k]]) for k, v in kept.face_scalars.items()
-                      if k in new.face_scalars and k != "component"})
-    joined.face_scalars["component"] = joined.face_components()
-    return joined, report
+    return merge([kept, new]), report
 
 
 def _nearest_voxel(mesh: TriMesh, nearest: np.ndarray, grid) -> tuple[np.ndarray, ...]:

@@ -41,9 +41,8 @@ import numpy as np
 
 from apt_filters.contour import marching_cubes
 from apt_filters.core.distance import SurfaceDistance
-from apt_filters.core.mesh import TriMesh, split_components
+from apt_filters.core.mesh import TriMesh, merge, split_components
 from apt_filters.io import IonTable, RangeTable
-from apt_filters.refine.recontour import merge
 from apt_filters.refine.specks import ALPHA, Specks, remove_specks
 from apt_filters.voxel import ConcentrationBasis, voxelize
 
