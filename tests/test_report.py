@@ -29,6 +29,13 @@ def test_values_are_rounded_to_their_error(value, error, text):
     assert with_error(value, error) == text
 
 
+
+def test_a_fraction_counted_at_zero_or_one_shows_the_rule_of_three_bound():
+    # 0 of 48 atoms: no binomial error, but 3/48 bounds the fraction at 95 %
+    assert with_error(0.0, 0.0, 100, atoms=48) == "0 (95 % bound < 6.25)"
+    assert with_error(1.0, 0.0, 100, atoms=300) == "100 (95 % bound > 99.0)"
+    assert with_error(0.5, 0.07, 100, atoms=48) == "50 ± 7"
+
 def test_numbers_have_sensible_precision_and_no_reprs():
     assert number(np.float64(1008.4)) == "1,008"
     assert number(0.8912) == "0.891"

@@ -81,10 +81,17 @@ def number(v, digits: int = 3) -> str:
     return f"{v:.{decimals}f}" if magnitude >= -4 else f"{v:.{digits - 1}e}"
 
 
-def with_error(v, err, scale: float = 1.0) -> str:
-    """``v ± err`` (both times ``scale``) rounded to the error's leading digit (two if it is a 1)."""
+def with_error(v, err, scale: float = 1.0, *, atoms: int | None = None) -> str:
+    """``v ± err`` (both times ``scale``) rounded to the error's leading digit (two if it is a 1).
+
+    A fraction counted as 0 or 1 of ``atoms`` has no binomial error; it shows the one-sided 95 % bound of the
+    rule of three (3 / ``atoms``; Hanley & Lippman-Hand 1983) instead of a zero error.
+    """
     if not _finite(v):
         return DASH
+    if atoms and not (_finite(err) and err > 0) and v in (0.0, 1.0):
+        bound = 3.0 / atoms * scale
+        return f"{number(v * scale)} (95 % bound {'<' if v == 0 else '>'} {number(v * scale + (bound if v == 0 else -bound))})"
     v = v * scale
     if not _finite(err) or err <= 0:
         return number(v)
@@ -339,7 +346,7 @@ def _plateaus(surface: dict) -> str:
     elements = list(dict.fromkeys(e for p in plateaus for e in p["fraction"]))
     rows = [[p["object_id"],
              f"{number(p['from_nm'])}–{number(p['to_nm'])}" + _nearer(p),
-             p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100) if p["atoms"] else None,
+             p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100, atoms=p["atoms"]) if p["atoms"] else None,
                                   "no atom in the window") for e in elements]
             for p in plateaus]
     return _table(["object", "window (nm)", "atoms"] + [f"{e} (at.%)" for e in elements], rows)
@@ -361,8 +368,8 @@ def _excess_per_object(surface: dict) -> str:
         rows.append([who, e["solute"], e["area"],
                      with_error(e["cumulative"]["gamma_atoms"], e["cumulative"]["gamma_atoms_error"]),
                      with_error(e["integration"]["gamma_atoms"], e["integration"]["gamma_atoms_error"]),
-                     with_error(e["matrix"]["value"], e["matrix"]["error"], 100),
-                     with_error(e["precipitate"]["value"], e["precipitate"]["error"], 100)])
+                     *(with_error(e[side]["value"], e[side]["error"], 100, atoms=e[side]["n_ions"])
+                       for side in ("matrix", "precipitate"))])
     return _table(["object", "solute", "area (nm²)", "Γ Krakauer–Seidman (atoms/nm²)",
                    "Γ proxigram integral (atoms/nm²)", "outside plateau (at.%)", "inside plateau (at.%)"], rows)
 
