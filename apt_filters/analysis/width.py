@@ -457,8 +457,10 @@ def inside_windows(*, depth: np.ndarray, atoms: np.ndarray, inner: float,
     phase, whose inside ions fill the range on that side wherever its ligaments are thick, and a fragment
     of one with few ions moves the pooled figure by as little as it holds. For a uniform slab of half-thickness
     ``h`` the window starts at ``0.45 h`` and holds 55 % of its atoms; a rod of radius ``R``: ``0.34 R``, 44 %;
-    a sphere: ``0.27 R``, 39 %. The plateau may not be reached there (the report says which objects' windows
-    start nearer than ``inner``); it is what the object's own ions hold at its centre.
+    a sphere: ``0.27 R``, 39 %. The plateau may not be reached there: the report gives the share of the fitted
+    step reached where each such window starts (:meth:`ProfileFit.reached`) and names the objects whose
+    unreached share may bias the window beyond its counting error; it is what the object's own ions hold at
+    its centre.
 
     Parameters
     ----------
