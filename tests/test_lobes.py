@@ -7,33 +7,23 @@ from it is noise by construction.
 import numpy as np
 import pytest
 
-from apt_filters.contour import marching_cubes
 from apt_filters.core.mesh import split_components
 from apt_filters.refine import remove_specks
 from apt_filters.refine.specks import trim_lobes
-from apt_filters.synth import Sphere, generate
-from apt_filters.synth.geometry import Box
-from apt_filters.synth.specimen import Feature, SpecimenSpec
-from apt_filters.voxel import inside_mask, voxelize
+from tests.speck_specimens import contoured_sphere
 
-MATRIX = {"Ni": 0.75, "Al": 0.10, "Cr": 0.15}
 CENTRE, RADIUS = (0.0, 0.0, -10.0), 3.5
 
 
 def _trimmed(contrast: float, seed: int):
     """A 3.5 nm-radius sphere ``contrast`` richer in Al than the matrix (efficiency 0.4), contoured midway; the
     surface after the speck test, after :func:`trim_lobes`, and what it did."""
-    inside = {"Ni": 0.75, "Al": 0.10 + contrast, "Cr": 0.15 - contrast}
-    spec = SpecimenSpec(Box((20.0, 20.0, 20.0)), MATRIX, (Feature(Sphere(CENTRE, RADIUS), inside, 0.3, (), "s"),),
-                        efficiency=0.4, name="lobes")
-    sp = generate(spec, seed=seed)
-    fields = voxelize(sp.ions, sp.ranges)
-    mask = inside_mask(fields).dense()
-    values = fields.concentration("Al").dense()
     iso = 0.10 + contrast / 2
-    mesh = marching_cubes(values, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
-    kept, specks = remove_specks(mesh, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=iso)
-    out, lobes = trim_lobes(kept, specks, values=values, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges,
+    c = contoured_sphere(centre=CENTRE, radius=RADIUS, contrast=contrast, width=0.3, box=20.0, efficiency=0.4,
+                         iso=iso, seed=seed)
+    ions, ranges = c.specimen.ions, c.specimen.ranges
+    kept, specks = remove_specks(c.mesh, fields=c.fields, mask=c.mask, ions=ions, ranges=ranges, species="Al", iso=iso)
+    out, lobes = trim_lobes(kept, specks, values=c.values, fields=c.fields, mask=c.mask, ions=ions, ranges=ranges,
                             species="Al", iso=iso)
     return kept, out, lobes
 

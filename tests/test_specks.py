@@ -6,32 +6,22 @@ Truth: synthetic specimens whose only object is known; every other component is 
 import numpy as np
 import pytest
 
-from apt_filters.contour import marching_cubes
 from apt_filters.core.mesh import split_components
 from apt_filters.refine import remove_specks
 from apt_filters.refine.specks import holm
-from apt_filters.synth import Sphere, generate
-from apt_filters.synth.geometry import Box
-from apt_filters.synth.specimen import Feature, SpecimenSpec
-from apt_filters.voxel import inside_mask, voxelize
+from tests.speck_specimens import contoured_sphere
 
-MATRIX = {"Ni": 0.75, "Al": 0.10, "Cr": 0.15}
 CENTRE = (2.0, -1.0, -9.5)
 
 
 def _specks(contrast: float, iso: float, seed: int, radius: float = 2.0):
     """A 2 nm-radius sphere (34 nm³) ``contrast`` richer in Al than the matrix, contoured at ``iso`` where noise
     draws blobs too; the components before the test and what the test did."""
-    inside = {"Ni": 0.75, "Al": 0.10 + contrast, "Cr": 0.15 - contrast}
-    spec = SpecimenSpec(Box((22.0, 22.0, 22.0)), MATRIX, (Feature(Sphere(CENTRE, radius), inside, 0.2, (), "s"),),
-                        efficiency=0.5, name="speck test")
-    sp = generate(spec, seed=seed)
-    fields = voxelize(sp.ions, sp.ranges)
-    mask = inside_mask(fields).dense()
-    mesh = marching_cubes(fields.concentration("Al").dense(), iso, spacing=fields.grid.voxel,
-                          origin=fields.grid.origin, mask=mask)
-    kept, specks = remove_specks(mesh, fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=iso)
-    return split_components(mesh), kept, specks
+    c = contoured_sphere(centre=CENTRE, radius=radius, contrast=contrast, width=0.2, box=22.0, efficiency=0.5,
+                         iso=iso, seed=seed)
+    kept, specks = remove_specks(c.mesh, fields=c.fields, mask=c.mask, ions=c.specimen.ions,
+                                 ranges=c.specimen.ranges, species="Al", iso=iso)
+    return split_components(c.mesh), kept, specks
 
 
 def _is_sphere(part) -> bool:
@@ -91,13 +81,9 @@ def test_the_segregant_searchs_selection_gives_the_same_z_to_the_bit(close):
     from apt_filters.refine.segregants import segregant_ions
     from apt_filters.refine.specks import kernel_sigma, side_z
 
-    inside = {"Ni": 0.75, "Al": 0.20, "Cr": 0.05}
-    spec = SpecimenSpec(Box((22.0, 22.0, 22.0)), MATRIX, (Feature(Sphere(CENTRE, 2.0), inside, 0.2, (), "s"),),
-                        efficiency=0.5, name="speck test")
-    sp = generate(spec, seed=3)
-    fields = voxelize(sp.ions, sp.ranges)
-    mesh = marching_cubes(fields.concentration("Al").dense(), 0.125, spacing=fields.grid.voxel,
-                          origin=fields.grid.origin, mask=inside_mask(fields).dense(), close=close)
+    c = contoured_sphere(centre=CENTRE, radius=2.0, contrast=0.10, width=0.2, box=22.0, efficiency=0.5, iso=0.125,
+                         seed=3, close=close)
+    sp, fields, mesh = c.specimen, c.fields, c.mesh
     assert len(split_components(mesh)) >= 3 and (len(mesh.boundary_edges()) == 0) == close
     gap = kernel_sigma(fields)
     own = side_z(mesh, ions=sp.ions, ranges=sp.ranges, species="Al", basis=fields.basis, gap=gap)
