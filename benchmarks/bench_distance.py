@@ -144,10 +144,13 @@ def main(argv: list[str] | None = None) -> int:
     print(text, flush=True)
     from benchmarks.results import ratio, write_results
 
-    ours = sum(s["cpu_s"] for s in first["steps"].values())
-    peer = sum(s["cpu_s"] for s in results[1][1]["steps"].values()) if len(results) > 1 else None
-    rows = [("distance", f"the four distance steps, {first['ions'] / 1e6:.1f}M ions, CPU", f"{ours:.1f} s",
-             f"{peer:.1f} s (baseline)" if peer else "-", ratio(ours, peer) if peer else "-")]
+    rows = []
+    for step in STEPS:
+        ours = first["steps"][step]
+        peer = results[1][1]["steps"][step] if len(results) > 1 else None
+        rows.append(("distance", f"{step}, {ours['points']:,} points ({first['ions'] / 1e6:.1f}M-ion specimen), CPU",
+                     f"{ours['cpu_s']:.2f} s", f"{peer['cpu_s']:.2f} s (baseline)" if peer else "-",
+                     ratio(ours["cpu_s"], peer["cpu_s"]) if peer else "-"))
     write_results("distance", "bench_distance: the distance engine's hot paths", rows, [text])
     return 0
 
