@@ -302,3 +302,24 @@ def test_serial_blas_runs_blas_on_one_thread_and_restores_it():
     inside = serial_blas(lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"])()
     assert inside and all(n == 1 for n in inside)
     assert [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"] == before
+
+
+def test_points_beyond_the_rings_get_the_nearest_of_every_triangle():
+    from apt_filters.core.distance import SurfaceDistance, _MAX_RING
+    from apt_filters.core.triangle import closest_on_triangle
+    from tests.proxigram_specimens import icosphere
+
+    # a 2 nm sphere of 1,280 faces (0.6 nm cells) and points 12-40 nm away: beyond the 16 cells the lists reach,
+    # so each is finished by the pass over every triangle that the run boxes and disk bounds prune
+    mesh = icosphere(2.0, 3)
+    engine = SurfaceDistance(mesh)
+    rng = np.random.default_rng(3)
+    direction = rng.normal(size=(150, 3))
+    points = direction / np.linalg.norm(direction, axis=1, keepdims=True) * rng.uniform(12, 40, (150, 1))
+    assert (np.linalg.norm(points, axis=1) - 2.0 > _MAX_RING * engine.grid.cell).all()
+    sd = engine.query(points)
+    corners = mesh.vertices[mesh.faces]
+    for p, d, f in zip(points, sd.distance, sd.face):
+        every = np.array([closest_on_triangle(*p, *c.ravel())[0] for c in corners])
+        # the face found is a nearest one, bit for bit, and the distance is its
+        assert every[f] == every.min() and d == np.float32(np.sqrt(every.min()))

@@ -50,6 +50,10 @@ def _threads_for(n: int):
     finally:
         numba.set_num_threads(threads)
 
+_RUN = 64
+"""Consecutive triangles (in cell order) whose common box a search beyond the grid's rings tests
+first (:attr:`TriangleGrid.run_boxes`): a run no nearer than the best so far is passed over whole."""
+
 _MAX_RING = 16
 """Cells the grid search reaches around a point when no ``max_distance`` bounds it."""
 
@@ -185,7 +189,9 @@ class SurfaceDistance:
         ``max_distance`` (nm), points farther than that from the surface get a NaN distance and
         face -1, and the search never looks farther: a point whose cell has no triangle within
         range costs a few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells
-        away from every triangle is finished by brute force (exact, but slow on large meshes).
+        away from every triangle is finished by trying every triangle in turn (exact; runs of 64
+        triangles and single triangles no nearer than the best so far are passed over by their box
+        and disk bounds, but still slow on large meshes).
         With ``closest``, the barycentric weights of each closest point are kept too
         (``weights``, 24 more bytes per point).
         """
@@ -212,7 +218,7 @@ class SurfaceDistance:
         with _threads_for(n):
             out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
                                                 g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
-                                                g.tris, g.boxes, offsets, bound, first, covered,
+                                                g.tris, g.boxes, g.run_boxes, offsets, bound, first, covered,
                                                 reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
                                                 out.feature, out.on_boundary, out.weights,
                                                 numba.get_num_threads()).sum())
@@ -446,11 +452,44 @@ def _blocks(keys, order, size):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _beyond_disk(px, py, pz, tri, t, best, root):
+    """Whether the disk of triangle ``t`` (in its plane, about its centroid, radius to the farthest
+    corner: columns 9-15 of ``tri``) proves p no nearer to it than ``best`` (squared nm; ``root``
+    its square root)."""
+    qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
+    q2 = qx * qx + qy * qy + qz * qz
+    rad = tri[t, 12]
+    reach = root + rad
+    if q2 >= reach * reach:
+        return True
+    h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
+    h2 = h * h
+    if h2 >= best:
+        return True
+    lateral2 = q2 - h2
+    if lateral2 > rad * rad:
+        lateral = np.sqrt(lateral2) - rad
+        if h2 + lateral * lateral >= best:
+            return True
+    return False
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _box_gap2(px, py, pz, box, k):
+    """Squared distance from p to the box ``box[k]`` (lower and upper corner)."""
+    gx = max(box[k, 0] - px, 0.0, px - box[k, 3])
+    gy = max(box[k, 1] - py, 0.0, py - box[k, 4])
+    gz = max(box[k, 2] - pz, 0.0, pz - box[k, 5])
+    return gx * gx + gy * gy + gz * gz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, mark):
     """Closest of row ``r``'s triangles to p if nearer than ``best`` (squared nm).
 
     A triangle lies in every row its box meets (2.5 rows on average): ``seen[t] == mark`` says
-    it was tried for this point already (mailboxing), and is set for those tried now.
+    it was tried for this point already (mailboxing), and is set for those tried now. Lower
+    bounds from the triangle's disk (:func:`_beyond_disk`) reject most triangles.
     """
     root = np.sqrt(best)
     for s in range(start[r], start[r + 1]):
@@ -458,23 +497,8 @@ def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, 
         if seen[t] == mark:
             continue
         seen[t] = mark
-        # Lower bounds from the triangle's disk (in its plane, about its centroid, radius to the
-        # farthest corner): most triangles are rejected here.
-        qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
-        q2 = qx * qx + qy * qy + qz * qz
-        rad = tri[t, 12]
-        reach = root + rad
-        if q2 >= reach * reach:
+        if _beyond_disk(px, py, pz, tri, t, best, root):
             continue
-        h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
-        h2 = h * h
-        if h2 >= best:
-            continue
-        lateral2 = q2 - h2
-        if lateral2 > rad * rad:
-            lateral = np.sqrt(lateral2) - rad
-            if h2 + lateral * lateral >= best:
-                continue
         d, u, w = _closest_on_triangle(px, py, pz, tri, t)
         if d < best:
             best, best_t, bu, bw = d, t, u, w
@@ -482,11 +506,21 @@ def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, 
     return best, best_t, bu, bw
 
 
+def _run_boxes(triangles: np.ndarray) -> np.ndarray:
+    """(ceil(m / _RUN), 6) box (lower, upper corner) of each run of :data:`_RUN` consecutive triangles
+    (m, 16) (:attr:`TriangleGrid.triangles`), padded by 1e-7 nm against rounding."""
+    corners = triangles[:, :9].reshape(-1, 3, 3)
+    runs = -(-len(corners) // _RUN)
+    low, high = np.full((runs * _RUN, 3), np.inf), np.full((runs * _RUN, 3), -np.inf)
+    low[:len(corners)], high[:len(corners)] = corners.min(axis=1), corners.max(axis=1)
+    return np.hstack([low.reshape(runs, _RUN, 3).min(axis=1) - 1e-7, high.reshape(runs, _RUN, 3).max(axis=1) + 1e-7])
+
+
 @njit(cache=True, error_model="numpy", parallel=True)
 def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
-                     tris, boxes, offsets, offset_bound, first, covered, limit, vertices, faces, face_normals, face_edge,
-                     edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face, feature, rim,
-                     weights, n_workers):
+                     tris, boxes, run_boxes, offsets, offset_bound, first, covered, limit, vertices, faces,
+                     face_normals, face_edge, edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face,
+                     feature, rim, weights, n_workers):
     """Exact signed distances of points visited home by home (``order``; homes are blocks of
     m x m x m grid cells, ``keys`` from :func:`_cell_keys` over the homes ``low`` + [0, ``dims``)),
     written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm);
@@ -501,7 +535,9 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
     is no nearer than the best triangle so far, each row skipped when the point's own distance
     to its box is no nearer, its triangles pruned by disk bounds (:func:`_nearer_in_row`).
     ``covered``: squared distance within which the offsets reach every cell; a point whose
-    nearest triangle is farther (and within ``limit``) is finished by brute force.
+    nearest triangle is farther (and within ``limit``) is finished by trying every triangle in
+    turn, passing over the runs of :data:`_RUN` triangles whose box (``run_boxes``) and the
+    triangles whose disk is no nearer than the best so far.
 
     Returns (blocks,) int64: the points of each block whose home lists any row (the narrow
     band: the others cost a few nanoseconds each).
@@ -571,17 +607,23 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
                             finished = True
                             break
                         r = row_list[q]
-                        gx = max(boxes[r, 0] - px, 0.0, px - boxes[r, 3])
-                        gy = max(boxes[r, 1] - py, 0.0, py - boxes[r, 4])
-                        gz = max(boxes[r, 2] - pz, 0.0, pz - boxes[r, 5])
-                        if gx * gx + gy * gy + gz * gz < best:
+                        if _box_gap2(px, py, pz, boxes, r) < best:
                             best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw,
                                                                   tried, j)
                 if not finished and best > covered:
-                    for t in range(n_tri):
-                        d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-                        if d < best:
-                            best, best_t, bu, bw = d, t, u, w
+                    # every triangle in turn; those the runs' boxes and the disks prove no nearer than the best
+                    # so far are passed over (the same triangles measured, in the same order, as measuring all)
+                    root = np.sqrt(best)
+                    for c in range(run_boxes.shape[0]):
+                        if _box_gap2(px, py, pz, run_boxes, c) >= best:
+                            continue
+                        for t in range(c * _RUN, min((c + 1) * _RUN, n_tri)):
+                            if _beyond_disk(px, py, pz, tri, t, best, root):
+                                continue
+                            d, u, w = _closest_on_triangle(px, py, pz, tri, t)
+                            if d < best:
+                                best, best_t, bu, bw = d, t, u, w
+                                root = np.sqrt(best)
                 if best_t < 0:
                     distance[i], face[i], feature[i], rim[i] = np.nan, -1, FACE, False
                     continue
@@ -610,6 +652,10 @@ class TriangleGrid:
         Cells along x, y, z.
     slot, start, tris, boxes
         Triangle lists (rows of ``triangles``) of the non-empty cells (see ``_bucket_triangles``).
+    run_boxes : (ceil(m / _RUN), 6) float64
+        Lower and upper corner of the triangles of each run of :data:`_RUN` consecutive rows of
+        ``triangles`` (padded by 1e-7 nm against rounding): a search beyond the rings passes over
+        the runs that cannot hold a nearer triangle.
     triangles : (m, 16) float64
         Triangles in cell order: corners (9), then the disk holding the triangle: centroid (3),
         radius (nm, to the farthest corner), unit normal (3, zero if degenerate).
@@ -631,6 +677,7 @@ class TriangleGrid:
     start: np.ndarray
     tris: np.ndarray
     boxes: np.ndarray
+    run_boxes: np.ndarray
     triangles: np.ndarray
     face_id: np.ndarray
     _plans: dict = field(default_factory=dict, repr=False)
@@ -664,7 +711,7 @@ class TriangleGrid:
         # radius padded so that rounding never rejects the triangle holding the closest point
         triangles = np.column_stack([corners.reshape(-1, 9), centre, radius * (1 + 1e-9) + 1e-9, normal])
         slot, start, tris, boxes = _bucket_triangles(triangles, lo, cell, shape)
-        return cls(lo, cell, shape, slot, start, tris, boxes, triangles, face_id)
+        return cls(lo, cell, shape, slot, start, tris, boxes, _run_boxes(triangles), triangles, face_id)
 
     def offsets(self, reach: float, m: int = 1) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, float]:
         """Search plan from blocks of m x m x m cells for distances up to ``reach`` nm (cached).
