@@ -664,6 +664,12 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
     (:func:`rounded_scores`; ``x``, ``gx`` Gauss-Legendre nodes of the arc)."""
     out = np.zeros(len(s1))
     root2b = math.sqrt(2.0) * blur
+    norm = math.sqrt(2.0 * math.pi) * blur
+    # the arc's nodes depend on the parallel polyhedron only: computed once, not once per point
+    sine, cosine = np.empty(len(x)), np.empty(len(x))
+    for j in range(len(x)):
+        theta = 0.25 * math.pi * (x[j] + 1.0)
+        sine[j], cosine[j] = math.sin(theta), math.cos(theta)
     for k in range(len(t)):
         shift = interface * t[k]
         radius = max(rounding + shift, 0.0)
@@ -672,12 +678,11 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
             value = 0.25 * math.erfc(a / root2b) * math.erfc((radius + b) / root2b)
             if radius > 0.0:
                 for j in range(len(x)):
-                    theta = 0.25 * math.pi * (x[j] + 1.0)
-                    along = -radius + radius * math.sin(theta)
-                    edge = -radius + radius * math.cos(theta)
-                    density = math.exp(-0.5 * ((along - b) / blur) ** 2) / (math.sqrt(2.0 * math.pi) * blur)
+                    along = -radius + radius * sine[j]
+                    edge = -radius + radius * cosine[j]
+                    density = math.exp(-0.5 * ((along - b) / blur) ** 2) / norm
                     value += density * 0.5 * math.erfc((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
-                        * math.cos(theta)
+                        * cosine[j]
             out[i] += g[k] * value
     return out
 
@@ -688,15 +693,32 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
     ``blur`` in the edge's plane (:func:`rounded_scores`; ``t``, ``g`` Gauss-Hermite nodes and weights)."""
     out = np.zeros(len(s1))
     root2a = math.sqrt(2.0) * interface
+    n = len(t)
+    a, b = np.empty(n), np.empty(n)
+    step_a, step_b = np.empty(n), np.empty(n)
     for i in range(len(s1)):
+        # off the quadrant where both moved distances are positive, D is one of them less the radius: its error
+        # function is computed once per node, not once per pair of nodes
+        for j in range(n):
+            a[j] = s1[i] + blur * t[j] + rounding
+            b[j] = s2[i] + blur * t[j] + rounding
+            step_a[j] = math.erfc((a[j] - rounding) / root2a)
+            step_b[j] = math.erfc((b[j] - rounding) / root2a)
         value = 0.0
-        for j in range(len(t)):
-            a = s1[i] + blur * t[j] + rounding
-            for k in range(len(t)):
-                b = s2[i] + blur * t[k] + rounding
-                outside = math.sqrt(max(a, 0.0) ** 2 + max(b, 0.0) ** 2)
-                distance = (outside if outside > 0.0 else max(a, b)) - rounding
-                value += g[j] * g[k] * 0.5 * math.erfc(distance / root2a)
+        for j in range(n):
+            for k in range(n):
+                if a[j] <= 0.0 and b[k] <= 0.0:
+                    step = step_a[j] if a[j] >= b[k] else step_b[k]
+                else:
+                    outside = math.sqrt(max(a[j], 0.0) ** 2 + max(b[k], 0.0) ** 2)
+                    if b[k] <= 0.0 and outside == a[j]:
+                        step = step_a[j]
+                    elif a[j] <= 0.0 and outside == b[k]:
+                        step = step_b[k]
+                    else:
+                        distance = (outside if outside > 0.0 else max(a[j], b[k])) - rounding
+                        step = math.erfc(distance / root2a)
+                value += g[j] * g[k] * 0.5 * step
         out[i] = value
     return out
 
@@ -737,34 +759,64 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
     return np.prod(0.5 * erfc(order[:, :-2] / (np.sqrt(2) * width)), axis=1)
 
 
+@njit(cache=True, nogil=True)
+def _product_of_others(distance, steps):
+    """(b,) :func:`_other_steps` from the planes' distances ``distance`` (b, m) and their steps ``steps`` (b, m):
+    the product of the steps of all but each point's two largest distances, taken in ascending order of distance
+    as ``np.prod`` takes them from the sorted distances (the same numbers)."""
+    b, m = distance.shape
+    out = np.empty(b)
+    rank = np.empty(m, dtype=np.int64)
+    for i in range(b):
+        for j in range(m):  # insertion sort of the planes by distance: m is small
+            k = j
+            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+                rank[k] = rank[k - 1]
+                k -= 1
+            rank[k] = j
+        value = 1.0
+        for j in range(m - 2):
+            value *= steps[i, rank[j]]
+        out[i] = value
+    return out
+
+
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
-                         h: float) -> tuple[np.ndarray, np.ndarray]:
+                         h: float, free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`rounded_scores` ``(b,)`` of the planes moved out by ``shift`` (m,) nm with edges rounded by
-    ``rounding`` nm, the blur's ``share`` and the profile's ``width``, and its forward differences ``(b, m + 3)``
-    by ``h`` in each shift, in the radius, the share and the width, the same numbers as evaluating
-    :func:`rounded_scores` m + 4 times, re-evaluating only what each nudge changes (the share is nudged down where
-    it is within ``h`` of 1)."""
+    ``rounding`` nm, the blur's ``share`` and the profile's ``width``, and its forward differences by ``h`` in each
+    shift, in the radius, the share and the width (``(b, m + 3)``, or the columns where ``free`` (m + 3,) bool is
+    set), the same numbers as evaluating :func:`rounded_scores` m + 4 times, re-evaluating only what each nudge
+    changes (the share is nudged down where it is within ``h`` of 1)."""
     m = signed.shape[1]
-    order = np.sort(signed - shift, axis=1)
+    free = np.ones(m + 3, dtype=bool) if free is None else free
+    distance = signed - shift
+    order = np.sort(distance, axis=1)
     edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
     base = edge * others
+    # each plane's step, the factors of _other_steps: a nudge changes one plane's
+    steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
     jac = np.empty((len(signed), m + 3))
-    for k in range(m):
-        nudged = shift.copy()
-        nudged[k] += h
-        moved = np.sort(signed - nudged, axis=1)
+    for k in np.flatnonzero(free[:m]):
+        nudged = distance.copy()
+        nudged[:, k] = signed[:, k] - (shift[k] + h)
+        moved_steps = steps.copy()
+        moved_steps[:, k] = 0.5 * erfc(nudged[:, k] / (np.sqrt(2) * width))
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change
-        near = signed[:, k] - shift[k] >= order[:, -2]
+        near = distance[:, k] >= order[:, -2]
         moved_edge = edge.copy()
-        moved_edge[near] = _edge_scores(moved[near], rounding, width, share)
-        jac[:, k] = (moved_edge * _other_steps(moved, width) - base) / h
+        moved_edge[near] = _edge_scores(np.sort(nudged[near], axis=1), rounding, width, share)
+        jac[:, k] = (moved_edge * _product_of_others(nudged, moved_steps) - base) / h
     # neither the radius nor the share changes the other planes' steps
-    jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
-    dh = h if share + h <= 1.0 else -h
-    jac[:, m + 1] = (_edge_scores(order, rounding, width, share + dh) * others - base) / dh
-    jac[:, m + 2] = (_edge_scores(order, rounding, width + h, share) * _other_steps(order, width + h) - base) / h
-    return base, jac
+    if free[m]:
+        jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
+    if free[m + 1]:
+        dh = h if share + h <= 1.0 else -h
+        jac[:, m + 1] = (_edge_scores(order, rounding, width, share + dh) * others - base) / dh
+    if free[m + 2]:
+        jac[:, m + 2] = (_edge_scores(order, rounding, width + h, share) * _other_steps(order, width + h) - base) / h
+    return base, jac[:, free]
 
 
 def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, iterations: int = 10,
@@ -798,9 +850,9 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     def fit(shift: np.ndarray, rounding: float, share: float, width: float, free: np.ndarray):
         h = 1e-3
         for _ in range(iterations):
-            base, jac = _forward_differences(signed, shift, rounding, share, width, h)
+            base, jac = _forward_differences(signed, shift, rounding, share, width, h, free)
             delta = np.zeros(m + 3)
-            delta[free] = np.clip(np.linalg.lstsq(jac[:, free] * root_w[:, None], (u - base) * root_w,
+            delta[free] = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w,
                                                   rcond=None)[0], -max_step, max_step)
             shift = shift + delta[:m]
             rounding = min(max(rounding + delta[m], 0.0), deepest)
@@ -808,7 +860,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
             width = max(width + delta[m + 2], 0.05 * width)
             if np.abs(delta).max() < tolerance:
                 break
-        return shift, rounding, share, width, jac[:, free]
+        return shift, rounding, share, width, jac
 
     sharp = np.r_[np.ones(m, dtype=bool), False, True, True]
     shift, _, share, width, _ = fit(np.zeros(m), 0.0, 0.5, width, sharp)
