@@ -615,7 +615,8 @@ def rounded_scores(signed: np.ndarray, rounding: float, width: float, share: flo
     N(0, a^2)`` of the indicators of the polyhedra parallel at ``t`` (planes moved out by ``t``, edges rounded by
     ``max(rounding + t, 0)``), so where the blur is not much the narrower (``b >= 0.7 a``) the profile is their
     blurred indicators mixed by Gauss-Hermite quadrature over ``t`` (8 nodes); elsewhere ``Phi(-D / a)``
-    blurred in the edge's plane (5 x 5 Gauss-Hermite nodes; ``D`` exact for a right-angled edge). Each blurred indicator: each point's two nearest planes (the largest distances, ``s_1 >=
+    blurred in the edge's plane (5 x 5 Gauss-Hermite nodes; ``D`` exact for a right-angled edge). Each blurred
+    indicator: each point's two nearest planes (the largest distances, ``s_1 >=
     s_2``) make its edge, taken as a right-angled one; the edge's rounded quadrant, in the coordinates ``(s_1,
     s_2)`` about the sharp edge, holds ``x <= X(t)`` at ``s_2 = t``: ``X = 0`` for ``t <= -r``, ``X = -r + sqrt(r^2
     - (t + r)^2)`` on the arc, none for ``t > 0``. Blurred, ``Phi(-s_1 / b) Phi(-(r + s_2) / b)`` plus the arc's
@@ -650,7 +651,7 @@ def _edge_scores(order: np.ndarray, rounding: float, width: float, share: float 
     # far from the edge every parallel polyhedron's edge factor is 1 and the mixture is one step of sigma ``width``
     out = 0.5 * erfc(s1 / (np.sqrt(2) * width))
     near = np.flatnonzero(s2 + rounding > -5.0 * width)
-    if blur >= SWITCH * interface:  # the blurred indicators mixed over the parallel polyhedra: smooth on the blur's scale
+    if blur >= SWITCH * interface:  # the blurred indicators mixed over the parallel polyhedra: smooth on blur's scale
         out[near] = _parallel_mixture(s1[near], s2[near], rounding, interface, blur, *_hermite(INTERFACE_NODES),
                                       *_legendre(nodes))
     else:  # the interface's profile blurred in the edge's plane: smooth on the scale of the interface
