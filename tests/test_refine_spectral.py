@@ -22,7 +22,7 @@ from apt_filters.refine.facets import edge_and_corner_steps, facet_steps, find_f
 from apt_filters.refine.spectral import harmonics, low_pass, rim_held_low_pass
 from apt_filters.synth import Cuboid, Sphere
 
-from test_refine_corrections import _contour, _rounded_box
+from test_refine_corrections import _rounded_box
 
 
 def _sphere(r=3.0, centre=(1.0, -2.0, 0.5), spacing=0.35):
