@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     w, s = totals["whole"], totals["select"]
     summary = [("pipeline", f"analysis steps of a finished surface, {n / 1e6:.1f}M ions mapped, CPU "
                 "(peer: each step reading the whole table)", f"{s[1]:.1f} s", f"{w[1]:.1f} s", ratio(s[1], w[1])),
-               ("pipeline", f"same, peak RSS of the steps", f"{s[2] / 2**20:,.0f} MiB", f"{w[2] / 2**20:,.0f} MiB",
+               ("pipeline", "same, peak RSS of the steps", f"{s[2] / 2**20:,.0f} MiB", f"{w[2] / 2**20:,.0f} MiB",
                 ratio(s[2], w[2]))]
     write_results("select", "One ion selection per surface (`benchmarks/bench_select.py`)", summary, ["\n".join(lines)],
                   intro=__doc__.split("\n\n", 2)[2].split("\n\n")[0])

@@ -4,7 +4,6 @@ The cross-validation (``apt_filters.refine.crossval``) never sees the truth; her
 have chosen is compared with the true surface, and its choice must be (nearly) the best of them.
 """
 
-import numpy as np
 import pytest
 
 from apt_filters.core.mesh import split_components, topology

@@ -8,7 +8,7 @@ from scipy.ndimage import gaussian_filter
 from apt_filters.contour.cells import find_active_cells, prepare_field, strides
 from apt_filters.contour.tables import EDGE_AXIS, EDGE_START, case_table
 from apt_filters.core.errors import AptFiltersError, InputError
-from apt_filters.io import IonTable, iter_ion_chunks, map_ions, read_ions
+from apt_filters.io import iter_ion_chunks, map_ions, read_ions
 from apt_filters.io.writers import write_pos
 from apt_filters.pipeline.config import PipelineConfig
 from apt_filters.pipeline.run import load_ions
