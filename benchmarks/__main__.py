@@ -21,9 +21,9 @@ from apt_filters.core.atomic import atomic_write_text
 from benchmarks.results import summary_rows
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["cli", "io", "ranges", "fuzz_ranges", "synth", "audit", "voxel", "scale", "core", "distance", "contour", "meshlab",
-         "fuzz_replay", "remesh", "proxigram", "maps", "refine", "refine_scale", "zoo", "object_errors", "pipeline",
-         "select", "sweep"]
+ORDER = ["cli", "io", "ranges", "fuzz_ranges", "synth", "audit", "voxel", "scale", "core", "distance", "contour",
+         "meshlab", "fuzz_replay", "remesh", "proxigram", "maps", "refine", "refine_scale", "zoo", "object_errors",
+         "pipeline", "select", "sweep"]
 
 
 def machine() -> str:

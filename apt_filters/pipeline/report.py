@@ -90,8 +90,8 @@ def with_error(v, err, scale: float = 1.0, *, atoms: int | None = None) -> str:
     if not _finite(v):
         return DASH
     if atoms and not (_finite(err) and err > 0) and v in (0.0, 1.0):
-        bound = 3.0 / atoms * scale
-        return f"{number(v * scale)} (95 % bound {'<' if v == 0 else '>'} {number(v * scale + (bound if v == 0 else -bound))})"
+        bound = v * scale + (3.0 if v == 0 else -3.0) / atoms * scale
+        return f"{number(v * scale)} (95 % bound {'<' if v == 0 else '>'} {number(bound)})"
     v = v * scale
     if not _finite(err) or err <= 0:
         return number(v)
@@ -346,8 +346,8 @@ def _plateaus(surface: dict) -> str:
     elements = list(dict.fromkeys(e for p in plateaus for e in p["fraction"]))
     rows = [[p["object_id"],
              f"{number(p['from_nm'])}–{number(p['to_nm'])}" + _nearer(p),
-             p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100, atoms=p["atoms"]) if p["atoms"] else None,
-                                  "no atom in the window") for e in elements]
+             p["atoms"]] + [_cell(with_error(p["fraction"][e], p["error"][e], 100, atoms=p["atoms"])
+                                  if p["atoms"] else None, "no atom in the window") for e in elements]
             for p in plateaus]
     return _table(["object", "window (nm)", "atoms"] + [f"{e} (at.%)" for e in elements], rows)
 
