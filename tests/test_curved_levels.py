@@ -9,7 +9,7 @@ The surface the distances are measured to is the sphere 0.1 nm too large, as the
 import numpy as np
 import pytest
 
-from apt_filters.refine.levels import ball_profile, fit_ball, midpoint_shift, object_shapes, unmixed_sums
+from apt_filters.refine.levels import ball_profile, fit_ball, held_out_gain, object_shapes, unmixed_sums
 
 R, W, BLUR, SURFACE = 2.3, 0.95, 0.3, 2.4
 C_IN, C_OUT = 0.41, 0.027
@@ -68,20 +68,31 @@ def test_a_plane_is_the_planar_step_and_its_windows_are_kept():
     assert np.allclose(unmixed_sums(sums, np.array([[1.0, 0.0]])), sums)
 
 
-def test_the_midpoint_shift_is_the_unmixed_midpoint_less_the_windows_and_its_error_the_binomial_one():
-    sums = np.array([[[120.0, 280.0], [18.0, 582.0]]])  # iso atoms 30 % inside, 3 % outside
-    mixed = np.array([[0.8, 0.02]])
-    out = unmixed_sums(sums, mixed)
-    raw, level = sums[0, :, 0] / sums[0].sum(axis=1), out[0, :, 0] / out[0].sum(axis=1)
-    shift, sigma = midpoint_shift(sums[0], mixed[0], 0)
-    assert np.isclose(shift, level.mean() - raw.mean()), (shift, level, raw)
-    # sampled: the shift of binomial windows around these fractions scatters by sigma
-    rng = np.random.default_rng(0)
-    n = sums[0].sum(axis=1)
-    k = rng.binomial(n.astype(int), raw, (20_000, 2))
-    draws = [midpoint_shift(np.column_stack([ki, n - ki]), mixed[0], 0)[0] for ki in k]
-    assert abs(np.std(draws) / sigma - 1) < 0.03, (np.std(draws), sigma)
-    assert midpoint_shift(sums[0], np.array([1.0, 0.0]), 0)[0] == 0.0
+def _halves_and_windows(d):
+    """Each ion's half (alternate ions, as the cross-fit splits them) and plateau window (0 in, 1 out, -1 neither)."""
+    window = np.full(len(d), -1)
+    window[(d <= -WINDOW[0]) & (d >= -WINDOW[1])] = 0
+    window[(d >= WINDOW[0]) & (d <= WINDOW[1])] = 1
+    return np.arange(len(d)) % 2, window
+
+
+def test_held_out_ions_choose_the_ball_where_the_windows_do_not_reach_the_plateaus(ions):
+    d, iso = ions
+    half, window = _halves_and_windows(d)
+    gain = held_out_gain(d, iso, np.ones_like(iso), window, half, radius=SURFACE, dims=3.0, blur=BLUR)
+    assert gain > 0, gain
+
+
+def test_held_out_ions_keep_the_windows_where_the_ball_is_not_the_object():
+    """A slab 2 x 2.3 nm thick under the same interface, read as a sphere of its half-thickness: the ball's
+    profile (its interface's tails reaching deep into a small ball) is the wrong shape, the flat windows win."""
+    rng = np.random.default_rng(4)
+    true = rng.uniform(-6.5, 6.5, (400_000, 3))
+    iso = rng.random(len(true)) < C_OUT + (C_IN - C_OUT) * 0.5 * (1 - np.tanh((np.abs(true[:, 2]) - R) / 0.3))
+    d = np.abs(true[:, 2] + rng.normal(0.0, BLUR, len(true))) - R
+    half, window = _halves_and_windows(d)
+    gain = held_out_gain(d, iso.astype(np.float64), np.ones(len(d)), window, half, radius=R, dims=3.0, blur=BLUR)
+    assert gain < 0, gain
 
 
 def test_the_ball_of_a_sphere_and_of_a_rod():

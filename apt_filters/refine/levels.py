@@ -132,19 +132,21 @@ def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) 
     return np.where(depth > inner, inner, 0.5 * depth)
 
 
-def levels_from_sums(sums: np.ndarray, elements: list[str], species: str,
-                     prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
-    """Each object's plateaus from its window sums (:func:`plateau_sums`), shrunk toward the pooled ones."""
+def levels_from_sums(sums: np.ndarray, elements: list[str], species: str, prior: float = PLATEAU_PRIOR,
+                     pooled: np.ndarray | None = None) -> list[ObjectLevels]:
+    """Each object's plateaus from its window sums (:func:`plateau_sums`), shrunk toward the pooled ones
+    (``pooled``: (n_components, 2, k) the sums each object is shrunk toward; None: every object's summed)."""
     k = elements.index(species)
     out = []
-    pooled = [sums[:, side].sum(axis=0) for side in (0, 1)] if len(sums) else []
+    if pooled is None:
+        pooled = np.broadcast_to(sums.sum(axis=0), sums.shape)
     for c in range(len(sums)):
         inside, outside = sums[c, 0], sums[c, 1]
         n_in, n_out = inside.sum(), outside.sum()
         if prior > 0:
             # shrink toward the pooled levels: a small object's own plateau is mostly noise
-            inside = inside + prior * pooled[0] / max(pooled[0].sum(), 1e-300)
-            outside = outside + prior * pooled[1] / max(pooled[1].sum(), 1e-300)
+            inside = inside + prior * pooled[c, 0] / max(pooled[c, 0].sum(), 1e-300)
+            outside = outside + prior * pooled[c, 1] / max(pooled[c, 1].sum(), 1e-300)
         c_in = inside / inside.sum() if inside.sum() > 0 else np.full(len(inside), np.nan)
         c_out = outside / outside.sum() if outside.sum() > 0 else np.full(len(outside), np.nan)
         out.append(ObjectLevels(c, list(elements), c_in, c_out, float(n_in), float(n_out),
@@ -425,29 +427,57 @@ def unmixed_sums(sums: np.ndarray, mixed: np.ndarray) -> np.ndarray:
     return out
 
 
-def midpoint_shift(sums: np.ndarray, mixed: np.ndarray, element: int) -> tuple[float, float]:
-    """How far unmixing (:func:`unmixed_sums`) moves one object's midpoint of ``element``, and its counting error.
+def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, half: np.ndarray, *,
+                  radius: float, dims: float, blur: float, half_width: float = 3.0) -> float | None:
+    """Nats by which one object's blurred ball profile predicts its held-out window ions better than its windows do.
 
-    With window fractions ``w_in``, ``w_out`` and the inside phase's shares ``g_in``, ``g_out`` of them, the
-    unmixed levels differ from the windows' by ``(1 - g_in) (w_in - w_out) / (g_in - g_out)`` inside and
-    ``-g_out (w_in - w_out) / (g_in - g_out)`` outside, so the midpoint moves by
-    ``(w_in - w_out) (1 - g_in - g_out) / (2 (g_in - g_out))``; its binomial error is that factor times the
-    error of ``w_in - w_out``.
+    Two-fold cross-validation on the halves of the cross-fit: on each half the ball profile is fitted
+    (:func:`fit_ball`) and the two windows' own fractions are counted; the other half's window ions are scored
+    under each, the binomial log-likelihood of each ion's ``part`` atoms of its ``total``. The windows' model
+    says the plateaus are reached at the windows (the fraction flat across each); the ball's says how much of
+    each window the interface still holds. Positive: the ball's model predicts the ions it was not fitted to
+    better, so its unmixed windows (:func:`unmixed_sums`) are the object's plateaus.
 
     Parameters
     ----------
-    sums : (2, k) float64
-        Atoms per basis element in the object's inside (0) and outside (1) window.
-    mixed : (2,) float64
-        The inside phase's mean share in each window.
-    element : int
-        Which basis element's midpoint.
+    distance : (b,) float64, nm
+        Signed distances of the object's ions (negative inside), each to the other half's surface.
+    part, total : (b,) float64
+        Atoms of the measured species, and basis atoms, per ion.
+    window : (b,) int
+        Each ion's plateau window (:func:`window_labels`: 0 inside, 1 outside, -1 neither).
+    half : (b,) int
+        Each ion's half (0 or 1).
+    radius, dims : float
+        The object's ball (:func:`object_shapes`).
+    blur : float, nm
+        Isotropic sigma of the reconstruction blur.
+    half_width : float, nm
+        Reach of the profile fit each side.
 
     Returns
     -------
-    shift, sigma : float (fractions)
+    float, or None where a half has too few ions to fit or an empty window.
     """
-    n = sums.sum(axis=1)
-    w = sums[:, element] / np.maximum(n, 1e-300)
-    factor = (1 - mixed[0] - mixed[1]) / (2 * (mixed[0] - mixed[1]))
-    return float(factor * (w[0] - w[1])), float(abs(factor) * np.sqrt(np.sum(w * (1 - w) / np.maximum(n, 1e-300))))
+    gain = 0.0
+    for fold in (0, 1):
+        train, test = half == fold, (half != fold) & (window >= 0)
+        fit = fit_ball(distance[train], part[train], total[train], radius=radius, dims=dims, blur=blur,
+                       half_width=half_width)
+        n = [total[train & (window == side)].sum() for side in (0, 1)]
+        if fit is None or min(n) <= 0:
+            return None
+        flat = [part[train & (window == side)].sum() / n[side] for side in (0, 1)]
+        g = ball_profile(distance[test] - fit.offset, radius=max(radius + fit.offset, 0.0), dims=dims,
+                         width=fit.width, blur=blur)
+        ball = fit.outside + (fit.inside - fit.outside) * g
+        gain += (_log_likelihood(part[test], total[test], ball)
+                 - _log_likelihood(part[test], total[test], np.where(window[test] == 0, flat[0], flat[1])))
+    return float(gain)
+
+
+def _log_likelihood(part: np.ndarray, total: np.ndarray, fraction: np.ndarray) -> float:
+    """Binomial log-likelihood (nats, less its combinatorial term) of ``part`` of ``total`` atoms at ``fraction``;
+    the fraction kept within 1e-6 of 0 and 1 (a fitted level may reach past them)."""
+    f = np.clip(fraction, 1e-6, 1 - 1e-6)
+    return float(np.sum(part * np.log(f) + (total - part) * np.log1p(-f)))

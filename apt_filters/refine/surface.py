@@ -100,8 +100,8 @@ from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, face
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, fit_ball, levels_from_sums,
-                                      midpoint_shift, object_shapes, plateau_sums, plateaus, unmixed_sums,
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, fit_ball, held_out_gain,
+                                      levels_from_sums, object_shapes, plateau_sums, plateaus, unmixed_sums,
                                       window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
@@ -246,7 +246,7 @@ class RefineParams:
     subdivisions: int = 1
     relax_start: int = 10
     cross_fit: bool = True
-    curved_levels: bool = False
+    curved_levels: bool = True
     select_modes: bool = True
     blur: tuple[float, float] | str | None = "auto"
     facets: bool = True
@@ -701,15 +701,20 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
         bands.append(band)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
-    if p.curved_levels and closed.any():
-        sums = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
-    return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+    if not (p.curved_levels and closed.any()):
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+    unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    # an unmixed object is shrunk toward the unmixed objects' levels, the others toward every object's windows as
+    # before: the windows of small objects lie toward each other's interfaces, the unmixed levels do not
+    pooled = np.where(chosen[:, None, None], unmixed[chosen].sum(axis=0), sums.sum(axis=0))
+    return levels_from_sums(np.where(chosen[:, None, None], unmixed, sums), held[0].atoms.elements, species,
+                            p.plateau_prior, pooled)
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
-                   species: str, p: RefineParams, closed: np.ndarray) -> np.ndarray:
+                   species: str, p: RefineParams, closed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cross-fitted window sums of each closed object with its interface's share taken out
-    (:func:`~apt_filters.refine.levels.unmixed_sums`).
+    (:func:`~apt_filters.refine.levels.unmixed_sums`), and which objects the held-out ions choose them for.
 
     Per object: its ball (radius and dimension from the two half surfaces' volume, area and total mean curvature,
     :func:`~apt_filters.refine.levels.object_shapes`), the interface's offset and own width fitted to the iso
@@ -718,10 +723,16 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     ``sqrt(tr(Sigma) / 3)``), and each window's mean share of the inside phase under that model. The midpoint of
     the unmixed plateaus is the fitted interface's; the placement then puts the surface at the ions' crossing of
     it, and the blur stage moves it out by the blur's curvature bias as before (the model's blur only reads the
-    plateaus). An object keeps its windows unless the midpoint shift the unmixing makes
-    (:func:`~apt_filters.refine.levels.midpoint_shift`) exceeds twice its standard error (the windows' counts and
-    the fitted offset and width's covariance, propagated) and moves the surface toward the fitted profile's
-    midpoint crossing."""
+    plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
+    window ions better than that half's flat windows do, summed over both folds
+    (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold cross-validation as the mode selection.
+
+    Returns
+    -------
+    unmixed : (n_components, 2, k) float64
+        Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
+    chosen : (n_components,) bool
+    """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
     shapes = [object_shapes(f.vertices, faces, components, n_comp) for f in fits]
@@ -735,8 +746,8 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     sigma = float(np.sqrt((2 * blur[0] ** 2 + blur[1] ** 2) / 3)) if blur else 0.0
     k = held[0].atoms.elements.index(species)
-    comp, distance, part, total, window = [], [], [], [], []
-    for h, band in zip(held, bands):
+    comp, distance, part, total, window, half = [], [], [], [], [], []
+    for fold, (h, band) in enumerate(zip(held, bands)):
         a = h.atoms.atoms[band.index].astype(np.float64)
         c = components[band.vertex]
         comp.append(c)
@@ -744,7 +755,8 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         part.append(a[:, k])
         total.append(a.sum(axis=1))
         window.append(window_labels(band, c, n_comp, p.plateau_window))
-    comp, distance, part, total, window = map(np.concatenate, (comp, distance, part, total, window))
+        half.append(np.full(len(c), fold))
+    comp, distance, part, total, window, half = map(np.concatenate, (comp, distance, part, total, window, half))
     mixed = np.tile([1.0, 0.0], (n_comp, 1))
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
@@ -752,41 +764,17 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             continue
-        fit = fit_ball(distance[mine], part[mine], total[mine], radius=radius[c], dims=dims[c], blur=sigma,
-                       half_width=p.plateau_window[1])
-        if fit is None:
+        ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
+        gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
+        if gain is None or gain <= 0:
             continue
+        fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         sides = [mine[window[mine] == side] for side in (0, 1)]
-        if not all(total[ions].sum() > 0 for ions in sides):
-            continue
-
-        def shares(offset, width):
-            return np.array([np.average(ball_profile(distance[ions] - offset, radius=max(radius[c] + offset, 0.0),
-                                                     dims=dims[c], width=width, blur=sigma), weights=total[ions])
-                             for ions in sides])
-
-        theta = np.array([fit.offset, fit.width])
-        share = shares(*theta)
-        if share[0] - share[1] <= 0.1:  # windows that cannot tell the phases apart (unmixed_sums keeps them)
-            continue
-        # the shift is kept only where it exceeds twice its error, counting and the fitted profile's together:
-        # elsewhere the windows' own levels are as right as the model can tell, and have the smaller variance
-        shift, counting = midpoint_shift(sums[c], share, k)
-        step = np.maximum(0.1 * np.sqrt(np.diag(fit.cov)), 1e-3)
-        grad = np.array([(midpoint_shift(sums[c], shares(*(theta + h * e)), k)[0] - shift) / h
-                         for h, e in zip(step, np.eye(2))])
-        # and only where it moves the surface toward the fitted profile's midpoint crossing (the model's two
-        # readings of one object agree): a thin object the ball does not describe reads them apart
-        grid = np.linspace(-1.0, 1.0, 401)
-        crossing = grid[np.argmin(np.abs(ball_profile(grid - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
-                                                      dims=dims[c], width=fit.width, blur=sigma) - 0.5))]
-        n_c = sums[c].sum(axis=1)
-        contrast = sums[c, 0, k] / max(n_c[0], 1e-300) - sums[c, 1, k] / max(n_c[1], 1e-300)
-        agree = shift * contrast * crossing < 0
-        significant = abs(shift) > 2 * np.sqrt(counting ** 2 + grad @ fit.cov @ grad)
-        if significant and agree:
-            mixed[c] = share
-    return unmixed_sums(sums, mixed)
+        mixed[c] = [np.average(ball_profile(distance[ions] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
+                                            dims=dims[c], width=fit.width, blur=sigma), weights=total[ions])
+                    for ions in sides]
+    # windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
+    return unmixed_sums(sums, mixed), mixed[:, 0] - mixed[:, 1] > 0.1
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
