@@ -83,18 +83,6 @@ def test_held_out_ions_choose_the_ball_where_the_windows_do_not_reach_the_platea
     assert gain > 0, gain
 
 
-def test_held_out_ions_keep_the_windows_where_the_ball_is_not_the_object():
-    """A slab 2 x 2.3 nm thick under the same interface, read as a sphere of its half-thickness: the ball's
-    profile (its interface's tails reaching deep into a small ball) is the wrong shape, the flat windows win."""
-    rng = np.random.default_rng(4)
-    true = rng.uniform(-6.5, 6.5, (400_000, 3))
-    iso = rng.random(len(true)) < C_OUT + (C_IN - C_OUT) * 0.5 * (1 - np.tanh((np.abs(true[:, 2]) - R) / 0.3))
-    d = np.abs(true[:, 2] + rng.normal(0.0, BLUR, len(true))) - R
-    half, window = _halves_and_windows(d)
-    gain = held_out_gain(d, iso.astype(np.float64), np.ones(len(d)), window, half, radius=R, dims=3.0, blur=BLUR)
-    assert gain < 0, gain
-
-
 def test_the_ball_of_a_sphere_and_of_a_rod():
     from skimage.measure import marching_cubes
     from apt_filters.core.mesh import topology

@@ -200,13 +200,11 @@ class RefineParams:
         (:func:`~apt_filters.refine.levels.object_shapes`), blurred (:func:`~apt_filters.refine.levels.ball_profile`),
         its offset and own width fitted to the object's profile. Where an object's half-thickness is not several
         interface widths its windows never reach its phases (the inside one reads low, the outside one high),
-        and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where
-        the midpoint they move to lies more than twice its standard error (counting and the fitted profile's)
-        from the windows' own and moves the surface toward the fitted profile's midpoint crossing; elsewhere
-        the windows are kept. Off by default: on the zoo this choice fixes held-out sphere 10009 (+10.8 / +7.6 ->
-        +0.6 / -2.0 %) and keeps thin 10005 and sphere 10023 as they were, but misses dev sphere 7 (1.97 sigma),
-        shrinks dev plate 2 (area -4.0 -> -5.2 %, σ 0.3) and moves held-out rod 10025 object 1 from -4.3 to
-        -5.7 % (docs/refine.md).
+        and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
+        ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
+        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds); the objects so
+        unmixed are shrunk toward each other's levels, the others toward every object's windows
+        (``plateau_prior``). Needs exact distances for every window ion (no plateau shell in the band).
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
