@@ -428,15 +428,17 @@ def unmixed_sums(sums: np.ndarray, mixed: np.ndarray) -> np.ndarray:
 
 
 def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, half: np.ndarray, *,
-                  radius: float, dims: float, blur: float, half_width: float = 3.0) -> float | None:
-    """Nats by which one object's blurred ball profile predicts its held-out window ions better than its windows do.
+                  radius: float, dims: float, blur: float, half_width: float = 3.0) -> tuple[float, float] | None:
+    """Nats by which one object's blurred ball profile predicts its held-out window ions better than its windows do,
+    and that gain's standard error.
 
     Two-fold cross-validation on the halves of the cross-fit: on each half the ball profile is fitted
     (:func:`fit_ball`) and the two windows' own fractions are counted; the other half's window ions are scored
     under each, the binomial log-likelihood of each ion's ``part`` atoms of its ``total``. The windows' model
     says the plateaus are reached at the windows (the fraction flat across each); the ball's says how much of
     each window the interface still holds. Positive: the ball's model predicts the ions it was not fitted to
-    better, so its unmixed windows (:func:`unmixed_sums`) are the object's plateaus.
+    better. The standard error is that of a sum over the held-out ions of their log-likelihood differences, as
+    the mode selection's (:func:`~apt_filters.refine.crossval.smoothest_within_one_se`).
 
     Parameters
     ----------
@@ -457,9 +459,9 @@ def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, win
 
     Returns
     -------
-    float, or None where a half has too few ions to fit or an empty window.
+    gain, se : float, nats; or None where a half has too few ions to fit or an empty window.
     """
-    gain = 0.0
+    diff = []
     for fold in (0, 1):
         train, test = half == fold, (half != fold) & (window >= 0)
         fit = fit_ball(distance[train], part[train], total[train], radius=radius, dims=dims, blur=blur,
@@ -471,13 +473,15 @@ def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, win
         g = ball_profile(distance[test] - fit.offset, radius=max(radius + fit.offset, 0.0), dims=dims,
                          width=fit.width, blur=blur)
         ball = fit.outside + (fit.inside - fit.outside) * g
-        gain += (_log_likelihood(part[test], total[test], ball)
-                 - _log_likelihood(part[test], total[test], np.where(window[test] == 0, flat[0], flat[1])))
-    return float(gain)
+        diff.append(_log_likelihood(part[test], total[test], ball)
+                    - _log_likelihood(part[test], total[test], np.where(window[test] == 0, flat[0], flat[1])))
+    diff = np.concatenate(diff)
+    gain = float(diff.sum())
+    return gain, float(np.sqrt(max(np.sum(diff ** 2) - gain ** 2 / max(len(diff), 1), 0.0)))
 
 
-def _log_likelihood(part: np.ndarray, total: np.ndarray, fraction: np.ndarray) -> float:
-    """Binomial log-likelihood (nats, less its combinatorial term) of ``part`` of ``total`` atoms at ``fraction``;
-    the fraction kept within 1e-6 of 0 and 1 (a fitted level may reach past them)."""
+def _log_likelihood(part: np.ndarray, total: np.ndarray, fraction: np.ndarray) -> np.ndarray:
+    """Per ion: binomial log-likelihood (nats, less its combinatorial term) of ``part`` of ``total`` atoms at
+    ``fraction``; the fraction kept within 1e-6 of 0 and 1 (a fitted level may reach past them)."""
     f = np.clip(fraction, 1e-6, 1 - 1e-6)
-    return float(np.sum(part * np.log(f) + (total - part) * np.log1p(-f)))
+    return part * np.log(f) + (total - part) * np.log1p(-f)

@@ -93,7 +93,7 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
+from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelection, apply_modes, basis_size,
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
 from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
@@ -722,8 +722,10 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     the unmixed plateaus is the fitted interface's; the placement then puts the surface at the ions' crossing of
     it, and the blur stage moves it out by the blur's curvature bias as before (the model's blur only reads the
     plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
-    window ions better than that half's flat windows do, summed over both folds
-    (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold cross-validation as the mode selection.
+    window ions better than that half's flat windows do, summed over both folds, by more than
+    :data:`~apt_filters.refine.crossval.ONE_SE` standard errors of that gain
+    (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold cross-validation and one-SE rule as the
+    mode selection, the windows the simpler model.
 
     Returns
     -------
@@ -764,7 +766,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             continue
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
         gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
-        if gain is None or gain <= 0:
+        if gain is None or gain[0] <= ONE_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
             continue
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         sides = [mine[window[mine] == side] for side in (0, 1)]
