@@ -203,7 +203,7 @@ class RefineParams:
         and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
         ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds); the objects so
-        unmixed are shrunk toward each other's levels, the others toward every object's windows
+        unmixed are shrunk toward every object's levels as chosen, the others toward every object's windows
         (``plateau_prior``). Needs exact distances for every window ion (no plateau shell in the band).
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
@@ -702,11 +702,11 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     if not (p.curved_levels and closed.any()):
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
     unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
-    # an unmixed object is shrunk toward the unmixed objects' levels, the others toward every object's windows as
-    # before: the windows of small objects lie toward each other's interfaces, the unmixed levels do not
-    pooled = np.where(chosen[:, None, None], unmixed[chosen].sum(axis=0), sums.sum(axis=0))
-    return levels_from_sums(np.where(chosen[:, None, None], unmixed, sums), held[0].atoms.elements, species,
-                            p.plateau_prior, pooled)
+    best = np.where(chosen[:, None, None], unmixed, sums)
+    # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
+    # ions found biased, left out of its pool); the others toward every object's windows, as without the model
+    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
+    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
