@@ -1,11 +1,12 @@
-"""Small closed objects under wide interfaces: the defaults against ``RefineParams(curved_levels=True)``, per object.
+"""Small closed objects under wide interfaces: the defaults against ``RefineParams(curved_levels=False)``, per object.
 
     .venv/bin/python -m benchmarks.bench_curved_levels sphere:7 sphere:10009 rod:10011 ...
 
 On each zoo draw (:func:`benchmarks.bench_zoo.specimen`) the surface ``apt-filters run`` draws
 (:func:`~apt_filters.pipeline.surface.finished_surface`, every option at its default) is drawn twice on the same
-ions, once as it is and once with each closed object's plateau windows unmixed by its blurred ball where the
-data call for it (``curved_levels``, :func:`apt_filters.refine.surface._curved_levels`). Per true closed object: volume and area
+ions, once with every object's plateau windows as they are (``curved_levels=False``) and once as it is, each closed
+object's windows unmixed by its blurred ball where the held-out ions choose it
+(:func:`apt_filters.refine.surface._curved_levels`). Per true closed object: volume and area
 error with their counting sigma (:func:`~apt_filters.truth.counting_floor`), and whether both are within
 max(5 %, 2 sigma); the last line counts the objects within per split (dev seeds < 10000, held-out from 10000) and
 lists those that went from within to beyond.
@@ -22,7 +23,7 @@ from apt_filters.pipeline.surface import finished_surface, refine_params
 from apt_filters.truth import match_objects, surface_error
 from benchmarks.bench_zoo import run_fields, specimen, truths
 
-RUNS = ("defaults", "curved_levels")
+RUNS = ("windows", "defaults")
 
 
 def _within(e, floor) -> bool:
@@ -49,7 +50,7 @@ def main(argv=None) -> int:
         within = {i: [] for i in feats}
         for run in RUNS:
             mesh, _ = finished_surface(fields, mask, sp.ions, sp.ranges, SurfaceConfig(species, iso), config=config,
-                                       basis=basis, params=replace(params, curved_levels=run == "curved_levels"))
+                                       basis=basis, params=replace(params, curved_levels=run == "defaults"))
             parts = split_components(mesh) if mesh.n_faces else []
             for i, m in zip(feats, match_objects(parts, [sp.feature_sdf(j) for j in feats])):
                 tf, floor = sp.truth["features"][i], truth[i]["floor"]

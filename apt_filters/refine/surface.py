@@ -204,7 +204,7 @@ class RefineParams:
         ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds); the objects so
         unmixed are shrunk toward every object's levels as chosen, the others toward every object's windows
-        (``plateau_prior``). Needs exact distances for every window ion (no plateau shell in the band).
+        (``plateau_prior``). The model's ions are measured a second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
@@ -690,17 +690,17 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
-    sums, bands = 0.0, []
+    sums = 0.0
     for k in (0, 1):
         other = fits[1 - k]
-        # exact distances where the interface's share of every window ion is modelled
-        band = held[k].band(other.vertices, other.normals, reach, p.distance,
-                            None if p.curved_levels else _shell(p, 0.0, p.plateau_window[1]))
+        band = held[k].band(other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
-        bands.append(band)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not (p.curved_levels and closed.any()):
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
+    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
+    bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
     unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
