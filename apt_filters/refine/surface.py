@@ -741,7 +741,10 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     if isinstance(blur, str):
         levels = levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
         scores = object_scores(levels, held[0].atoms.elements, species, p.score, p.plateau_prior)
-        estimate = _estimate_blur(fits[0].near, fits[0].vertices, fits[0].normals, components, scores, p.half_width,
+        # on a copy of the first half's ions: a band reassigns the ions it is drawn from, and the later stages
+        # must find the halves' ions as the windows' model found them
+        near = fits[0].near.subset(np.arange(len(fits[0].near.rows)), fits[0].vertices)
+        estimate = _estimate_blur(near, fits[0].vertices, fits[0].normals, components, scores, p.half_width,
                                   p.distance)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     sigma = float(np.sqrt((2 * blur[0] ** 2 + blur[1] ** 2) / 3)) if blur else 0.0
