@@ -761,6 +761,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         half.append(np.full(len(c), fold))
     comp, distance, part, total, window, half = map(np.concatenate, (comp, distance, part, total, window, half))
     mixed = np.tile([1.0, 0.0], (n_comp, 1))
+    chosen = np.zeros(n_comp, dtype=bool)
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
     for c in np.flatnonzero(closed):
@@ -776,8 +777,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         mixed[c] = [np.average(ball_profile(distance[ions] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
                                             dims=dims[c], width=fit.width, blur=sigma), weights=total[ions])
                     for ions in sides]
-    # windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
-    return unmixed_sums(sums, mixed), mixed[:, 0] - mixed[:, 1] > 0.1
+        # windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
+        chosen[c] = mixed[c, 0] - mixed[c, 1] > 0.1
+    return unmixed_sums(sums, mixed), chosen
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
