@@ -99,11 +99,13 @@ def test_the_ball_of_a_sphere_and_of_a_rod():
         assert abs(r[0] - radius) <= 0.02 * radius, (r, k)
 
 
-def _read_levels(radius, width, seed):
-    """(inside Al, its atoms) of the one object's cross-fitted levels on generated ions of a sphere, with the
-    windows as they are and with the defaults."""
+def _read_levels(spheres, seed):
+    """{curved_levels: [(inside Al, its atoms) per object, in the order of ``spheres``]} of the cross-fitted
+    levels on generated ions of ``spheres`` ((x, radius, width) each, nm), with the windows as they are and with
+    the defaults."""
     from dataclasses import replace
 
+    from apt_filters.core.mesh import topology
     from apt_filters.pipeline.surface import contour_surface
     from apt_filters.refine import RefineParams, refine_surface
     from apt_filters.synth import Sphere, generate
@@ -112,24 +114,30 @@ def _read_levels(radius, width, seed):
     from apt_filters.voxel import inside_mask, voxelize
 
     matrix, inside = {"Ni": 0.75, "Al": C_OUT, "Cr": 1 - 0.75 - C_OUT}, {"Ni": 0.50, "Al": C_IN, "Cr": 0.09}
-    sphere = Feature(Sphere((0.2, -0.3, -8.0), radius), inside, width, (), "sphere")
-    spec = SpecimenSpec(Box((16.0, 16.0, 16.0)), matrix, (sphere,), efficiency=0.7, blur=(0.3, 0.1), name="sphere")
+    features = tuple(Feature(Sphere((x, -0.3, -8.0), radius), inside, width, (), f"sphere {i}")
+                     for i, (x, radius, width) in enumerate(spheres))
+    size = 16.0 + 14.0 * (len(spheres) - 1)
+    spec = SpecimenSpec(Box((size, 16.0, 16.0)), matrix, features, efficiency=0.7, blur=(0.3, 0.1), name="sphere")
     sp = generate(spec, seed=seed)
     fields = voxelize(sp.ions, sp.ranges)
     mesh = contour_surface(fields, inside_mask(fields).dense(), "Al", 0.5 * (C_IN + C_OUT))
+    components = topology(mesh.faces, mesh.n_vertices).vertex_components
+    # each sphere's component: the one whose vertices' mean x is nearest its centre
+    centres = [mesh.vertices[components == c, 0].mean() for c in range(len(spheres))]
+    order = [int(np.argmin([abs(c - x) for c in centres])) for x, _, _ in spheres]
     read = {}
     for curved in (False, True):
         params = replace(RefineParams(), curved_levels=curved, select_modes=False, facets=False)
         result = refine_surface(mesh, sp.ions, sp.ranges, "Al", params=params)
-        level, = result.levels
-        read[curved] = (level.inside[level.elements.index("Al")], level.n_inside)
+        read[curved] = [(result.levels[c].inside[result.levels[c].elements.index("Al")], result.levels[c].n_inside)
+                        for c in order]
     return read
 
 
 def test_the_windows_of_a_sphere_whose_plateaus_they_reach_are_kept():
     """A 4 nm sphere under a sharp interface (tanh width 0.25 nm): its windows hold its phases, the held-out
     ions do not choose the ball's profile over them, and the defaults keep the windows exactly."""
-    read = _read_levels(4.0, 0.25, seed=5)
+    read = _read_levels([(0.2, 4.0, 0.25)], seed=5)
     assert read[True] == read[False], read
 
 
@@ -137,9 +145,18 @@ def test_refine_surface_with_curved_levels_reads_the_plateaus_of_a_small_sphere(
     """End to end on generated ions (the sphere above, tanh interface in the distance to its surface, blurred
     0.3 / 0.1 nm): the cross-fitted inside plateau the placement uses, from windows that never reach the inside
     phase, reads Al low; unmixed it is nearer the truth, and within its counting error."""
-    read = _read_levels(R, W, seed=2)
-    (raw, n), (unmixed, _) = read[False], read[True]
+    read = _read_levels([(0.2, R, W)], seed=2)
+    (raw, n), (unmixed, _) = read[False][0], read[True][0]
     sigma = np.sqrt(C_IN * (1 - C_IN) / n)
     # the windows' low reading is 2.7 sigma of a denser sphere's count above; this one's count is smaller
     assert abs(unmixed - C_IN) < abs(raw - C_IN) and raw < C_IN, (raw, unmixed)
     assert abs(unmixed - C_IN) <= 2 * sigma / 0.85, (unmixed, sigma)  # the unmixing's gain on ~0.85 of the contrast
+
+
+def test_unmixing_one_object_leaves_the_levels_of_the_others():
+    """The small wide sphere above beside the 4 nm sharp one: the held-out ions unmix the small one's windows
+    only, and the large one's levels (its own windows, shrunk toward every object's windows) are exactly those
+    without the model."""
+    read = _read_levels([(-7.5, R, W), (6.5, 4.0, 0.25)], seed=2)
+    assert read[True][0] != read[False][0], read
+    assert read[True][1] == read[False][1], read
