@@ -93,7 +93,7 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelection, apply_modes, basis_size,
+from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
 from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
@@ -109,6 +109,13 @@ GUARD_HALVINGS = 6
 RESELECT = 1.5
 """nm a vertex may move before the ions near the surface are selected again."""
 FOLD_ANGLE = 120.0
+BALL_SE = 2.0
+"""Standard errors by which the held-out gain of an object's ball profile over its flat windows must exceed zero
+for ``curved_levels`` to unmix it: a one-sided two-sigma test (the windows, the simpler model, wrongly replaced
+~2 % of the time). An unmixed object's levels move by several points of volume, so a chance gain must not choose
+it: at one standard error (the mode selection's rule, :data:`~apt_filters.refine.crossval.ONE_SE`) objects whose
+windows were right were unmixed at gains of 1.4-1.9 standard errors and came out beyond their counting error
+(held-out ``thin`` 10005, ``rod`` 10025)."""
 REFINE_WINDOW = (1.0, 3.0)
 """nm from the surface between which the refinement measures each object's plateaus (``plateau_window``);
 the reported plateaus (:data:`apt_filters.refine.levels.PLATEAU_WINDOW`, 0.75-3 nm) keep the wider window."""
@@ -722,10 +729,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     the unmixed plateaus is the fitted interface's; the placement then puts the surface at the ions' crossing of
     it, and the blur stage moves it out by the blur's curvature bias as before (the model's blur only reads the
     plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
-    window ions better than that half's flat windows do, summed over both folds, by more than
-    :data:`~apt_filters.refine.crossval.ONE_SE` standard errors of that gain
-    (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold cross-validation and one-SE rule as the
-    mode selection, the windows the simpler model.
+    window ions better than that half's flat windows do, summed over both folds, by more than :data:`BALL_SE`
+    standard errors of that gain (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold
+    cross-validation as the mode selection, the windows the simpler model.
 
     Returns
     -------
@@ -770,7 +776,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             continue
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
         gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
-        if gain is None or gain[0] <= ONE_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
+        if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
             continue
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         sides = [mine[window[mine] == side] for side in (0, 1)]
