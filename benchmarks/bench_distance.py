@@ -28,7 +28,6 @@ import hashlib
 import json
 import os
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -97,15 +96,6 @@ def child(work: Path) -> dict:
     return out
 
 
-def timed_child(work: Path, code: Path) -> dict:
-    env = {**ENVIRONMENT, "PYTHONPATH": str(code)}
-    done = subprocess.run([sys.executable, __file__, "--child", "--work", str(work)], cwd=code, env=env,
-                          capture_output=True, text=True)
-    if done.returncode:
-        raise SystemExit(f"distance steps with {code} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ions", type=float, default=1e7, help="0: the preset's own size")
@@ -122,10 +112,11 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(child(work)))
         return 0
     from benchmarks.bench_refine_scale import prepare
+    from benchmarks.results import child_result
 
     prepare(work, int(args.ions) or None, args.preset)
     runs = [("this tree", ROOT)] + ([(f"baseline ({args.baseline})", args.baseline.resolve())] if args.baseline else [])
-    results = [(name, timed_child(work, code)) for name, code in runs]
+    results = [(name, child_result(__file__, work, code, ENVIRONMENT, "distance steps")) for name, code in runs]
     first = results[0][1]
     lines = [f"## Distance steps on the `{args.preset}` specimen ({first['ions']:,} ions, "
              f"{first['faces']:,}-face surface)", "",

@@ -19,7 +19,6 @@ import json
 import os
 import pickle
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -83,16 +82,6 @@ def child(work: Path) -> dict:
             "mean_displacement_nm": float(result.displacement["mean"])}
 
 
-def timed_child(work: Path, code: Path) -> dict:
-    env = {**ENVIRONMENT, "PYTHONPATH": str(code)}
-    # this file run by path with the other code first on the path (the baseline need not have this benchmark)
-    done = subprocess.run([sys.executable, __file__, "--child", "--work", str(work)], cwd=code, env=env,
-                          capture_output=True, text=True)
-    if done.returncode:
-        raise SystemExit(f"refinement with {code} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ions", type=float, default=1e7, help="0: the preset's own size")
@@ -108,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.child:
         print(json.dumps(child(work)))
         return 0
+    from benchmarks.results import child_result
+
     start = time.perf_counter()
     prepare(work, int(args.ions) or None, args.preset)
     print(f"specimen and contour ready in {time.perf_counter() - start:.0f} s ({work})", flush=True)
@@ -120,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines), flush=True)
     results = []
     for name, code in runs:
-        r = timed_child(work, code)
+        r = child_result(__file__, work, code, ENVIRONMENT, "refinement")
         results.append(r)
         lines.append(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | "
                      f"{r['wall_s']:.1f} | {r['mean_displacement_nm']:+.4f} | `{r['outputs']}` |")

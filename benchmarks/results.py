@@ -17,7 +17,10 @@ gathers the blocks into RESULTS.md. The history of what was tried lives in
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -40,6 +43,21 @@ def best_of(fn: Callable[[], object], repeat: int = 3) -> tuple[float, object]:
         out = fn()
         best = min(best, time.perf_counter() - t)
     return best, out
+
+
+def child_result(script: str, work: Path, code: Path, environment: dict[str, str], what: str) -> dict:
+    """Run ``script --child --work WORK`` in a fresh process with ``code`` first on the path: its last line's JSON.
+
+    ``script`` is the benchmark's own file, run by path, so a baseline checkout need not have it;
+    ``environment`` is the one the benchmark saw before importing ``apt_filters`` (whose import
+    changes it), so that every code runs under the same settings. A failed child ends the benchmark
+    with ``what`` and the child's last lines.
+    """
+    done = subprocess.run([sys.executable, script, "--child", "--work", str(work)], cwd=code,
+                          env={**environment, "PYTHONPATH": str(code)}, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"{what} with {code} failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def ratio(ours: float, peer: float) -> str:
