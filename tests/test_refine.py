@@ -8,22 +8,21 @@ import numpy as np
 import pytest
 from scipy.special import erfc
 
-from apt_filters.contour import marching_cubes
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.core.mesh import split_components
-from apt_filters.refine import RefineParams, object_excess, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, object_excess, refine_surface
 from apt_filters.refine.composition import contrast_weights, ion_atoms
 from apt_filters.refine.levels import object_levels, per_object_iso
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.truth import counted_truth, match_objects, surface_error
 from apt_filters.refine.surface import equal_area_offset, guarded_move, matched_offset, profile_width
 from apt_filters.synth import Sphere, generate, preset
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from apt_filters.voxel import ConcentrationBasis, voxelize
 
-NO_B = ConcentrationBasis(exclude=("B",))
+from tests.refine_starts import NO_B, speckless_start
 
 
 def _erf_profile(offset: float, width: float, half_width=1.5, bin_width=0.05):
@@ -120,15 +119,7 @@ def test_contrast_weights_score_higher_inside():
 def small_run():
     sp = generate(preset("small"), seed=3)
     fields = voxelize(sp.ions, sp.ranges)
-    mask = inside_mask(fields).dense()
-
-    def contour(basis):
-        c = fields.concentration("Al", basis).dense()
-        return remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin,
-                                            mask=mask), fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges,
-                             species="Al", iso=0.15, basis=basis)[0]
-
-    ap, ours = contour(ConcentrationBasis()), contour(NO_B)
+    ap, ours = (speckless_start(sp, basis=basis, fields=fields) for basis in (ConcentrationBasis(), NO_B))
     return sp, ap, ours, refine_surface(ours, sp.ions, sp.ranges, "Al", NO_B)
 
 

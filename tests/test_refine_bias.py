@@ -13,15 +13,15 @@ from apt_filters.core.mesh import vertex_normals, topology
 from apt_filters.contour import marching_cubes
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.refine import RefineParams, object_excess, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, object_excess, refine_surface
 from apt_filters.refine.band import NearIons
 from apt_filters.synth import Cuboid, Sphere, generate
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.presets import GAMMA, GAMMA_PRIME
 from apt_filters.synth.specimen import Feature, Segregation, SpecimenSpec
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from apt_filters.voxel import ConcentrationBasis
 
-NO_B = ConcentrationBasis(exclude=("B",))
+from tests.refine_starts import NO_B, speckless_start
 
 
 def test_mesh_distance_is_the_exact_signed_distance_to_a_cube_and_the_tangent_one_is_not():
@@ -177,12 +177,7 @@ def test_plateaus_the_refinement_uses_are_not_biased_by_the_surface_they_place()
                                           f"sphere {i}") for i, c in enumerate(centres)), efficiency=0.5,
                             name="spheres")
         sp = generate(spec, seed=seed)
-        fields = voxelize(sp.ions, sp.ranges)
-        mask = inside_mask(fields).dense()
-        start = remove_specks(marching_cubes(fields.concentration("Al", NO_B).dense(), 0.15, spacing=fields.grid.voxel,
-                                             origin=fields.grid.origin, mask=mask),
-                              fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=0.15,
-                              basis=NO_B)[0]
+        start = speckless_start(sp)
         species, names = sp.ions.extra["species"], sp.truth["species"]
         counted = (species >= 0) & (species != names.index("B"))
         positions = sp.ions.positions.astype(np.float64)

@@ -9,16 +9,15 @@ import numpy as np
 import pytest
 
 from apt_filters.contour import marching_cubes
-from apt_filters.refine import RefineParams, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, refine_surface
 from apt_filters.refine.blur import blur_shift, shape_operator
 from apt_filters.refine.facets import facet_steps, find_facets
 from apt_filters.synth import Cuboid, Sphere, generate
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.presets import GAMMA, GAMMA_PRIME
 from apt_filters.synth.specimen import Feature, SpecimenSpec
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 
-NO_B = ConcentrationBasis(exclude=("B",))
+from tests.refine_starts import NO_B, speckless_start
 
 
 def _contour(sdf, lo, hi, spacing):
@@ -65,13 +64,7 @@ def _sphere_specimen(seed, blur):
                                                                   "sphere"),),
                         density=170.0, efficiency=1.0, blur=blur, name="blurred sphere")
     sp = generate(spec, seed=seed)
-    fields = voxelize(sp.ions, sp.ranges)
-    c = fields.concentration("Al", NO_B).dense()
-    mask = inside_mask(fields).dense()
-    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask),
-                          fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=0.15,
-                          basis=NO_B)[0]
-    return sp, start
+    return sp, speckless_start(sp)
 
 
 def test_blur_correction_removes_the_curvature_bias_of_a_blurred_sphere():

@@ -7,29 +7,22 @@ have chosen is compared with the true surface, and its choice must be (nearly) t
 import pytest
 
 from apt_filters.core.mesh import split_components, topology
-from apt_filters.contour import marching_cubes
-from apt_filters.refine import RefineParams, refine_surface, remove_specks
+from apt_filters.refine import RefineParams, refine_surface
 from apt_filters.refine.composition import ion_atoms
 from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
 from apt_filters.refine.spectral import low_pass
 from apt_filters.synth import generate, preset
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from apt_filters.voxel import ConcentrationBasis
 
-NO_B = ConcentrationBasis(exclude=("B",))
+from tests.refine_starts import NO_B, speckless_start
 
 
 @pytest.fixture(scope="module", params=[1, 2])
 def small(request):
     """The ``small`` preset (a rotated 6 nm cube, a 3 nm sphere, a layer; gamma-prime statistics) and its start."""
     sp = generate(preset("small"), seed=request.param)
-    fields = voxelize(sp.ions, sp.ranges)
-    c = fields.concentration("Al", NO_B).dense()
-    mask = inside_mask(fields).dense()
-    start = remove_specks(marching_cubes(c, 0.15, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask),
-                          fields=fields, mask=mask, ions=sp.ions, ranges=sp.ranges, species="Al", iso=0.15,
-                          basis=NO_B)[0]
-    return sp, start
+    return sp, speckless_start(sp)
 
 
 def test_the_modes_held_out_ions_choose_are_the_closest_to_the_true_sphere(small):
