@@ -177,21 +177,25 @@ def _strips(patch: np.ndarray, faces: np.ndarray, n_vertices: int, boundary_vert
     return interior == 0
 
 
-def _lone_creases(edges: np.ndarray, n_vertices: int, feature: np.ndarray, inner: np.ndarray,
-                  window: np.ndarray) -> np.ndarray:
-    """(e,) bool: the ``inner`` edges in chains of them that touch no ``feature`` edge and whose
-    turn over the wider window (``window`` (e,) bool: :func:`side_cos` past the threshold) passes
-    on none of their edges. A crease continues along itself; a lone edge of a coarse curved
-    surface (a marching-cubes gyroid at 1 nm: 41° across one edge, 31° over two faces a side)
-    only bends, and the bend fades over the window."""
+def _inner_creases(edges: np.ndarray, n_vertices: int, feature: np.ndarray, inner: np.ndarray,
+                   window: np.ndarray, lengths: np.ndarray, reach: float) -> np.ndarray:
+    """(e,) bool: the ``inner`` edges (creases inside a patch) that make curves.
+
+    Chains of ``inner`` edges (joined at vertices) are kept where they are at least ``reach`` (nm,
+    the target edge) long in all, and where they touch a ``feature`` edge or turn by more than the
+    threshold over the wider window on one of their edges (``window`` (e,) bool: :func:`side_cos`).
+    The output's edges cannot follow a shorter crease; and a crease continues along itself, where a
+    lone edge of a coarse curved surface (a marching-cubes gyroid at 1 nm: 41° across one edge,
+    31° over two faces a side) only bends, and the bend fades over the window.
+    """
     graph = sparse.coo_matrix((np.ones(inner.sum()), (edges[inner, 0], edges[inner, 1])), shape=(n_vertices,) * 2)
     comp = connected_components(graph, directed=False)[1]
-    touches = np.zeros(comp.max() + 1, bool)
-    touches[comp[edges[feature].ravel()]] = True
-    persists = np.zeros(comp.max() + 1, bool)
-    persists[comp[edges[inner & window, 0]]] = True
+    length = np.bincount(comp[edges[inner, 0]], lengths[inner], minlength=comp.max() + 1)
+    joined = np.zeros(comp.max() + 1, bool)
+    joined[comp[edges[feature].ravel()]] = True
+    joined[comp[edges[inner & window, 0]]] = True
     chain = comp[edges[:, 0]]
-    return inner & ~touches[chain] & ~persists[chain]
+    return inner & joined[chain] & (length[chain] >= reach)
 
 
 def _walk_curves(edges: np.ndarray, n_vertices: int, corner: np.ndarray) -> list[np.ndarray]:
@@ -333,11 +337,13 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     boundary = counts == 1
     boundary_vertex = np.zeros(len(mesh.vertices), bool)
     boundary_vertex[edges[boundary].ravel()] = True
+    unstripped, a, b = patch, pair[:, 0], np.maximum(pair[:, 1], 0)
     for _ in range(STRIP_ROUNDS if bridge else 0):  # a merge can leave a new strip beside the old one
         strips = _strips(patch, faces, len(mesh.vertices), boundary_vertex)
         if not strips.any():
             break
         patch = _merge_small_patches(patch, mesh.face_areas(), manifold_pair, lengths, min_area, strips)
+    stripped = (unstripped[a] != unstripped[b]) & (patch[a] == patch[b])
     # creases a chord could miss by more than ``miss`` (the chamfer facets at a refined cuboid's
     # corners: creases of 65-118°, cut 0.27-0.31 edge deep once merged away) are never merged across
     twice_area = np.linalg.norm(mesh.face_normals(normalize=False), axis=1)
@@ -347,10 +353,11 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     patch = _merge_small_patches(patch, mesh.face_areas(), manifold_pair, lengths, min_area, keep=kept)
     feature = boundary | (manifold & (patch[pair[:, 0]] != patch[np.maximum(pair[:, 1], 0)]))
     # sharp creases inside a patch (where the patches on their two sides join through a gap, as
-    # at a refined cuboid's rounded corners) are kept as curves all the same, by the rule above
-    inner = kept & ~feature
+    # at a refined cuboid's rounded corners) are kept as curves all the same, by the rule above;
+    # not those of the strips merged away when bridging (one curve stands for a spread bend there)
+    inner = kept & ~feature & ~stripped
     window = side_cos(pair, half_edge, mesh.face_normals(normalize=False)) < np.cos(threshold)
-    feature |= inner & ~_lone_creases(edges, len(mesh.vertices), feature, inner, window)
+    feature |= _inner_creases(edges, len(mesh.vertices), feature, inner, window, lengths, np.sqrt(min_area))
     fedges = edges[feature]
     degree = np.bincount(fedges.ravel(), minlength=len(mesh.vertices))
     corner = (degree >= 3) | (degree == 1) | _rim_turns(mesh.vertices, edges[boundary], threshold,
