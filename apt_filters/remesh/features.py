@@ -3,9 +3,10 @@
 A feature edge is an edge whose dihedral angle exceeds a threshold, or a boundary edge.
 Faces joined across non-feature edges form *patches*; patches smaller than ``min_area`` are
 merged into a neighbour, which removes the spurious "features" around the noisy normals of
-marching-cubes slivers. The final feature edges are exactly the edges between two different
-patches plus the boundary edges, so every feature curve separates patches (dangling creases
-that fade out are not features). With ``bridge=True``, gaps in a crease are bridged before patches
+marching-cubes slivers. The feature edges are the edges between two different patches, the
+boundary edges, and the sharp creases inside a patch (:func:`_inner_creases`: where the patches
+on the two sides of a crease join through a gap, as at the rounded corners of a refined cuboid,
+the crease is kept as a curve that may end inside its patch). With ``bridge=True``, gaps in a crease are bridged before patches
 are formed: where a sharp bend is spread over two edges under the threshold (dual contouring with
 estimated Hermite normals), the crease has gaps through which the patches on its two sides join.
 A hysteresis closes them: *weak* edges, whose dihedral angle exceeds ``BRIDGE_FRACTION`` of the
@@ -118,15 +119,19 @@ def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray,
     return patch.ravel()
 
 
+def _neighbours(pair: np.ndarray, half_edge: np.ndarray, m: int) -> np.ndarray:
+    """(m, 3) the face across each edge of each face, -1 across a boundary edge."""
+    own = np.repeat(np.arange(m), 3)
+    return np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0]).reshape(m, 3)
+
+
 def window_cos(pair: np.ndarray, half_edge: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(e,) per edge, the bend over a window of two faces as a cosine: the smallest cosine between
     the normal of one of its faces and the normal of a face next to the other one (1 on boundary
     edges; ``pair`` as :meth:`apt_filters.core.mesh.Topology.edge_pairs` gives it, ``half_edge`` (3m,) the
     edge of each half-edge, :attr:`~apt_filters.core.mesh.Topology.face_edge` flattened)."""
-    m = len(normals)
-    own = np.repeat(np.arange(m), 3)
-    other = np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0])
-    nbr = np.where(other >= 0, other, own).reshape(m, 3)
+    nbr = _neighbours(pair, half_edge, len(normals))
+    nbr = np.where(nbr >= 0, nbr, np.arange(len(normals))[:, None])
     a, b = pair[:, 0], np.maximum(pair[:, 1], 0)
     ca = np.einsum("eij,ej->ei", normals[nbr[a]], normals[b]).min(axis=1)
     cb = np.einsum("eij,ej->ei", normals[nbr[b]], normals[a]).min(axis=1)
@@ -137,12 +142,8 @@ def side_cos(pair: np.ndarray, half_edge: np.ndarray, area_normals: np.ndarray) 
     """(e,) per edge, the turn across it over a window of two faces a side as a cosine: between the
     area-weighted mean normals of each of its faces with its other neighbours (1 on boundary edges;
     ``area_normals`` (m, 3) face normals scaled by twice the face area)."""
-    m = len(area_normals)
-    own = np.repeat(np.arange(m), 3)
-    other = np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0])
-    nbr = np.where(other >= 0, other, m).reshape(m, 3)
-    padded = np.vstack([area_normals, np.zeros((1, 3))])
-    ring = area_normals + padded[nbr].sum(axis=1)  # each face with its (up to) three neighbours
+    padded = np.vstack([area_normals, np.zeros((1, 3))])  # row -1: no neighbour
+    ring = area_normals + padded[_neighbours(pair, half_edge, len(area_normals))].sum(axis=1)  # with its neighbours
     a, b = pair[:, 0], np.maximum(pair[:, 1], 0)
     sa, sb = ring[a] - area_normals[b], ring[b] - area_normals[a]
     cos = np.einsum("ij,ij->i", sa, sb) / np.maximum(np.linalg.norm(sa, axis=1) * np.linalg.norm(sb, axis=1), 1e-300)
@@ -312,7 +313,9 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
         Small patches are never merged across a sharp crease that a chord could miss by more than
         this (nm): θ·min(h, √min_area)/2 for a turn θ between faces h high over the crease (the
         miss of a triangle with angles of 30-90°, :func:`apt_filters.remesh.remesh.crease_shrink`);
-        slivers' noisy normals, with h near 0, never pass. Infinite: every small patch merges.
+        slivers' noisy normals, with h near 0, never pass. Such creases inside a patch are kept as
+        curves (:func:`_inner_creases`). Infinite: every small patch merges, and only the borders
+        between patches are curves.
     """
     faces = mesh.faces
     top = mesh.topology
