@@ -279,16 +279,15 @@ def allowed(features: Features, gens: Generators) -> list[np.ndarray]:
 def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.ndarray:
     """(f,) int32 group of each sample for :func:`allowed`: its patch, plus ``n_patches`` where its
     refined face touches a feature curve or the open boundary (a refined vertex on an input vertex
-    or edge between two patches, or on the rim)."""
+    or edge between two patches, on a crease kept inside a patch, or on the rim)."""
     top = mesh.topology
-    pair = top.edge_pairs()
-    feature_edge = (top.edge_faces == 1) | ((pair[:, 1] >= 0) & (features.patch[pair[:, 0]]
-                                                                  != features.patch[np.maximum(pair[:, 1], 0)]))
     lo = np.full(mesh.n_vertices, np.iinfo(np.int64).max)
     hi = np.full(mesh.n_vertices, -1)
     np.minimum.at(lo, mesh.faces.ravel(), np.repeat(features.patch, 3))
     np.maximum.at(hi, mesh.faces.ravel(), np.repeat(features.patch, 3))
-    flag = samples.vertex_flags((lo != hi) | top.boundary_vertex, feature_edge)
+    on_curve = (lo != hi) | top.boundary_vertex
+    on_curve[top.edge_vertices[features.edge].ravel()] = True  # creases kept inside a patch too
+    flag = samples.vertex_flags(on_curve, features.edge)
     return samples.groups(flag, features.patch, features.n_patches)
 
 

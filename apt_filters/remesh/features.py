@@ -3,9 +3,10 @@
 A feature edge is an edge whose dihedral angle exceeds a threshold, or a boundary edge.
 Faces joined across non-feature edges form *patches*; patches smaller than ``min_area`` are
 merged into a neighbour, which removes the spurious "features" around the noisy normals of
-marching-cubes slivers. The final feature edges are exactly the edges between two different
-patches plus the boundary edges, so every feature curve separates patches (dangling creases
-that fade out are not features). With ``bridge=True``, gaps in a crease are bridged before patches
+marching-cubes slivers. The feature edges are the edges between two different patches, the
+boundary edges, and the sharp creases inside a patch (:func:`_inner_creases`: where the patches
+on the two sides of a crease join through a gap, as at the rounded corners of a refined cuboid,
+the crease is kept as a curve that may end inside its patch). With ``bridge=True``, gaps in a crease are bridged before patches
 are formed: where a sharp bend is spread over two edges under the threshold (dual contouring with
 estimated Hermite normals), the crease has gaps through which the patches on its two sides join.
 A hysteresis closes them: *weak* edges, whose dihedral angle exceeds ``BRIDGE_FRACTION`` of the
@@ -55,6 +56,9 @@ class Features:
         Patches around each corner.
     boundary_curve : (n_curves,) bool
         Which curves lie on the open boundary of the surface.
+    edge : (e,) bool
+        Which input edges (:attr:`apt_filters.core.mesh.Topology.edge_vertices`) lie on a feature
+        curve: the borders between patches, the open boundary and the creases kept inside a patch.
     """
 
     patch: np.ndarray
@@ -63,6 +67,7 @@ class Features:
     curve_patches: list
     corner_patches: list
     boundary_curve: np.ndarray
+    edge: np.ndarray
 
     @property
     def n_patches(self) -> int:
@@ -114,19 +119,35 @@ def _merge_small_patches(patch: np.ndarray, areas: np.ndarray, pair: np.ndarray,
     return patch.ravel()
 
 
+def _neighbours(pair: np.ndarray, half_edge: np.ndarray, m: int) -> np.ndarray:
+    """(m, 3) the face across each edge of each face, -1 across a boundary edge."""
+    own = np.repeat(np.arange(m), 3)
+    return np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0]).reshape(m, 3)
+
+
 def window_cos(pair: np.ndarray, half_edge: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(e,) per edge, the bend over a window of two faces as a cosine: the smallest cosine between
     the normal of one of its faces and the normal of a face next to the other one (1 on boundary
     edges; ``pair`` as :meth:`apt_filters.core.mesh.Topology.edge_pairs` gives it, ``half_edge`` (3m,) the
     edge of each half-edge, :attr:`~apt_filters.core.mesh.Topology.face_edge` flattened)."""
-    m = len(normals)
-    own = np.repeat(np.arange(m), 3)
-    other = np.where(pair[half_edge, 0] == own, pair[half_edge, 1], pair[half_edge, 0])
-    nbr = np.where(other >= 0, other, own).reshape(m, 3)
+    nbr = _neighbours(pair, half_edge, len(normals))
+    nbr = np.where(nbr >= 0, nbr, np.arange(len(normals))[:, None])
     a, b = pair[:, 0], np.maximum(pair[:, 1], 0)
     ca = np.einsum("eij,ej->ei", normals[nbr[a]], normals[b]).min(axis=1)
     cb = np.einsum("eij,ej->ei", normals[nbr[b]], normals[a]).min(axis=1)
     return np.where(pair[:, 1] >= 0, np.minimum(ca, cb), 1.0)
+
+
+def side_cos(pair: np.ndarray, half_edge: np.ndarray, area_normals: np.ndarray) -> np.ndarray:
+    """(e,) per edge, the turn across it over a window of two faces a side as a cosine: between the
+    area-weighted mean normals of each of its faces with its other neighbours (1 on boundary edges;
+    ``area_normals`` (m, 3) face normals scaled by twice the face area)."""
+    padded = np.vstack([area_normals, np.zeros((1, 3))])  # row -1: no neighbour
+    ring = area_normals + padded[_neighbours(pair, half_edge, len(area_normals))].sum(axis=1)  # with its neighbours
+    a, b = pair[:, 0], np.maximum(pair[:, 1], 0)
+    sa, sb = ring[a] - area_normals[b], ring[b] - area_normals[a]
+    cos = np.einsum("ij,ij->i", sa, sb) / np.maximum(np.linalg.norm(sa, axis=1) * np.linalg.norm(sb, axis=1), 1e-300)
+    return np.where(pair[:, 1] >= 0, cos, 1.0)
 
 
 def _incidence(edges: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -155,6 +176,38 @@ def _strips(patch: np.ndarray, faces: np.ndarray, n_vertices: int, boundary_vert
     border = (np.diff(per_vertex.indptr) > 1) | boundary_vertex  # duplicates summed: one entry per patch
     interior = np.bincount(np.repeat(patch, 3)[~border[faces.ravel()]], minlength=patch.max() + 1)
     return interior == 0
+
+
+def _inner_creases(edges: np.ndarray, n_vertices: int, feature: np.ndarray, inner: np.ndarray,
+                   window: np.ndarray, lengths: np.ndarray, reach: float) -> np.ndarray:
+    """(e,) bool: the ``inner`` edges (creases inside a patch) that make curves.
+
+    Chains of ``inner`` edges (joined at vertices) are kept where they are at least ``reach`` (nm,
+    the target edge) long in all, and where they touch a ``feature`` edge or turn by more than the
+    threshold over the wider window on one of their edges (``window`` (e,) bool: :func:`side_cos`).
+    The output's edges cannot follow a shorter crease; and a crease continues along itself, where a
+    lone edge of a coarse curved surface (a marching-cubes gyroid at 1 nm: 41° across one edge,
+    31° over two faces a side) only bends, and the bend fades over the window.
+    """
+    graph = sparse.coo_matrix((np.ones(inner.sum()), (edges[inner, 0], edges[inner, 1])), shape=(n_vertices,) * 2)
+    comp = connected_components(graph, directed=False)[1]
+    length = np.bincount(comp[edges[inner, 0]], lengths[inner], minlength=comp.max() + 1)
+    joined = np.zeros(comp.max() + 1, bool)
+    joined[comp[edges[feature].ravel()]] = True
+    joined[comp[edges[inner & window, 0]]] = True
+    chain = comp[edges[:, 0]]
+    return inner & joined[chain] & (length[chain] >= reach)
+
+
+def _median_edge(edges: np.ndarray, n_vertices: int, lengths: np.ndarray) -> np.ndarray:
+    """(e,) the median edge length (nm) of each edge's connected component."""
+    graph = sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_vertices,) * 2)
+    comp = connected_components(graph, directed=False)[1][edges[:, 0]]
+    order = np.lexsort((lengths, comp))
+    first = np.searchsorted(comp[order], np.arange(comp.max() + 1))
+    last = np.searchsorted(comp[order], np.arange(comp.max() + 1), side="right") - 1
+    median = 0.5 * (lengths[order][(first + last) // 2] + lengths[order][(first + last + 1) // 2])
+    return median[comp]
 
 
 def _walk_curves(edges: np.ndarray, n_vertices: int, corner: np.ndarray) -> list[np.ndarray]:
@@ -271,7 +324,9 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
         Small patches are never merged across a sharp crease that a chord could miss by more than
         this (nm): θ·min(h, √min_area)/2 for a turn θ between faces h high over the crease (the
         miss of a triangle with angles of 30-90°, :func:`apt_filters.remesh.remesh.crease_shrink`);
-        slivers' noisy normals, with h near 0, never pass. Infinite: every small patch merges.
+        slivers' noisy normals, with h near 0, never pass. Such creases inside a patch are kept as
+        curves (:func:`_inner_creases`). Infinite: every small patch merges, and only the borders
+        between patches are curves.
     """
     faces = mesh.faces
     top = mesh.topology
@@ -296,11 +351,13 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     boundary = counts == 1
     boundary_vertex = np.zeros(len(mesh.vertices), bool)
     boundary_vertex[edges[boundary].ravel()] = True
+    unstripped, a, b = patch, pair[:, 0], np.maximum(pair[:, 1], 0)
     for _ in range(STRIP_ROUNDS if bridge else 0):  # a merge can leave a new strip beside the old one
         strips = _strips(patch, faces, len(mesh.vertices), boundary_vertex)
         if not strips.any():
             break
         patch = _merge_small_patches(patch, mesh.face_areas(), manifold_pair, lengths, min_area, strips)
+    stripped = (unstripped[a] != unstripped[b]) & (patch[a] == patch[b])
     # creases a chord could miss by more than ``miss`` (the chamfer facets at a refined cuboid's
     # corners: creases of 65-118°, cut 0.27-0.31 edge deep once merged away) are never merged across
     twice_area = np.linalg.norm(mesh.face_normals(normalize=False), axis=1)
@@ -309,6 +366,17 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     kept = crease & (theta * np.minimum(height, np.sqrt(min_area)) > 2.0 * miss)
     patch = _merge_small_patches(patch, mesh.face_areas(), manifold_pair, lengths, min_area, keep=kept)
     feature = boundary | (manifold & (patch[pair[:, 0]] != patch[np.maximum(pair[:, 1], 0)]))
+    # sharp creases inside a patch (where the patches on their two sides join through a gap, as
+    # at a refined cuboid's rounded corners) are kept as curves all the same, by the rule above;
+    # not those of the strips merged away when bridging (one curve stands for a spread bend there),
+    # nor where the remesh refines the input (its median edge over √2 target edges, faces over twice
+    # the output's): curve generators a target edge apart fall between the input's vertices and
+    # cut the teeth of its coarse creases (a marching-cubes plate's rim at 1 nm, target 0.5: given
+    # back with one seed of four, against none)
+    inner = kept & ~feature & ~stripped
+    window = side_cos(pair, half_edge, mesh.face_normals(normalize=False)) < np.cos(threshold)
+    inner &= _median_edge(edges, len(mesh.vertices), lengths) <= np.sqrt(2.0 * min_area)
+    feature |= _inner_creases(edges, len(mesh.vertices), feature, inner, window, lengths, np.sqrt(min_area))
     fedges = edges[feature]
     degree = np.bincount(fedges.ravel(), minlength=len(mesh.vertices))
     corner = (degree >= 3) | (degree == 1) | _rim_turns(mesh.vertices, edges[boundary], threshold,
@@ -330,4 +398,4 @@ def detect(mesh: TriMesh, angle: float = 40.0, min_area: float = 0.0, bridge: bo
     vf = sparse.coo_matrix((np.ones(faces.size), (faces.ravel(), np.repeat(patch, 3))),
                            shape=(len(mesh.vertices), patch.max() + 1)).tocsr()
     corner_patches = [vf.indices[vf.indptr[v]:vf.indptr[v + 1]] for v in corners]
-    return Features(patch, corners, curves, curve_patches, corner_patches, np.array(is_boundary, bool))
+    return Features(patch, corners, curves, curve_patches, corner_patches, np.array(is_boundary, bool), feature)
