@@ -10,6 +10,7 @@ import pytest
 from apt_filters.analysis.maps import excess_maps
 from apt_filters.analysis.objects import ions_in_objects, object_table
 from apt_filters.analysis.proxigram import compute_proxigram
+from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.hull import SpecimenHull
 from apt_filters.pipeline.surface import analysis_ions, contour_surface
 from apt_filters.synth import generate, preset
@@ -28,13 +29,19 @@ def specimen():
 
 def test_the_selected_ions_give_the_whole_tables_figures(specimen):
     sp, mesh = specimen
-    near = analysis_ions(sp.ions, mesh, reach=3.0)
+    near, measured = analysis_ions(sp.ions, mesh, reach=3.0)
     assert 0.05 * len(sp.ions) < len(near) < 0.8 * len(sp.ions)
     hull = SpecimenHull.from_points(sp.ions.positions)
     whole, part = object_table(mesh, sp.ions, sp.ranges), object_table(mesh, near, sp.ranges, specimen=hull)
     assert whole.rows() == part.rows() and sum(o.n_ions > 0 for o in whole.objects) >= 2
     p_whole, p_part = (compute_proxigram(ions, sp.ranges, mesh, max_distance=3.0) for ions in (sp.ions, near))
     assert np.array_equal(p_whole.counts, p_part.counts) and np.array_equal(p_whole.unranged, p_part.unranged)
+    # the selection's own distances: the same counts, no search (and none over a wider range than measured)
+    p_reused = compute_proxigram(near, sp.ranges, mesh, max_distance=3.0, measured=measured)
+    assert np.array_equal(p_whole.counts, p_reused.counts) and np.array_equal(p_whole.unranged, p_reused.unranged)
+    assert p_reused.n_rim == p_whole.n_rim
+    with pytest.raises(AptFiltersError, match="measured distances cover"):
+        compute_proxigram(near, sp.ranges, mesh, max_distance=3.5, measured=measured)
     m_whole, m_part = (excess_maps(mesh=mesh, ions=ions, ranges=sp.ranges, solutes=["B"], max_distance=3.0)
                        for ions in (sp.ions, near))
     for key, values in m_whole.vertex_scalars().items():

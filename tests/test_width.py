@@ -135,7 +135,7 @@ def test_a_wide_interface_widens_the_proxigram_to_its_windows():
 
     def select(reach):
         asked.append(reach)
-        return ions
+        return ions, None
 
     near = ions.subset(np.flatnonzero(np.abs(ions.positions[:, 2]) < 3.05))
     again, same = fitted_proxigram(ions=near, ranges=RANGES, mesh=mesh, species="Al", covered=3.0, select=select)

@@ -25,6 +25,7 @@ from apt_filters.core.atomic import atomic_output, atomic_write_text
 from apt_filters.core.distance import PseudoNormals, SurfaceDistance
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
+from apt_filters.core.nearby import NearSurface
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 
@@ -262,7 +263,7 @@ def shell_volumes(edges: np.ndarray, area: np.ndarray, mean: np.ndarray, gauss: 
 
 def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, mesh: TriMesh, bin_width: float = 0.1,
                       max_distance: float = 3.0, keep_edge: bool = False, iso_value: float | None = None,
-                      chunk: int = 1 << 22) -> Proxigram:
+                      chunk: int = 1 << 22, measured: NearSurface | None = None) -> Proxigram:
     """Proxigram of ``ions`` across ``mesh``, per object.
 
     Parameters
@@ -285,6 +286,11 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         default 4 M; the ions themselves not counted) plus the search grid (about 40 MB for 230k
         triangles, :class:`~apt_filters.core.distance.TriangleGrid`), independent of the
         number of ions.
+    measured : NearSurface, optional
+        The signed distances of ``ions`` (an ``IonTable``) to ``mesh``, row for row, exact wherever within
+        ``max_distance`` (:func:`~apt_filters.core.nearby.select_near` with exact distances over a reach of
+        at least ``max_distance``, the selection ``ions`` came from): not measured again. Ties between
+        equidistant faces of one object may resolve to another face, which no count sees.
 
     Returns
     -------
@@ -297,6 +303,10 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
         raise AptFiltersError("the mesh has no triangles", None)
     n_bins = int(round(2 * max_distance / bin_width))
     edges = np.linspace(-max_distance, max_distance, n_bins + 1)
+    if measured is not None and (not isinstance(ions, IonTable) or len(measured.distance) != len(ions)
+                                 or measured.reach < max_distance):
+        raise AptFiltersError(f"the measured distances cover {len(measured.distance):,} ions to "
+                              f"{measured.reach:g} nm; the proxigram asks for these {len(ions):,} to {max_distance:g}")
     surface = SurfaceDistance(mesh, reach=max_distance)
     labels = face_objects(mesh)
     object_ids, face_slot = np.unique(labels, return_inverse=True)
@@ -306,20 +316,27 @@ def compute_proxigram(ions: IonTable | Iterable[IonTable], ranges: RangeTable, m
     n_ions = 0
     parts = ((ions.subset(slice(a, a + chunk)) for a in range(0, len(ions), chunk))
              if isinstance(ions, IonTable) else ions)
+    start = 0
     for part in parts:
-        points = np.asarray(part.positions, dtype=np.float32)
-        n_ions += len(points)
-        sd = surface.query(points, max_distance=max_distance)  # NaN beyond: not kept
-        n_candidates += sd.searched
-        inside = -sd.distance  # positive inside the region above the iso-value
+        n_ions += len(part)
+        if measured is None:
+            sd = surface.query(np.asarray(part.positions, dtype=np.float32), max_distance=max_distance)
+            distance, face, rim = sd.distance, sd.face, sd.on_boundary  # NaN beyond: not kept
+            n_candidates += sd.searched
+        else:
+            rows = slice(start, start + len(part))
+            distance, face, rim = measured.distance[rows], measured.face[rows], measured.on_boundary[rows]
+            n_candidates += int(np.count_nonzero(np.abs(distance) <= max_distance))
+        start += len(part)
+        inside = -distance  # positive inside the region above the iso-value
         keep = (inside >= -max_distance) & (inside < max_distance)
-        n_edge += int(np.count_nonzero(keep & sd.on_boundary))
+        n_edge += int(np.count_nonzero(keep & rim))
         if not keep_edge:
-            keep &= ~sd.on_boundary
+            keep &= ~rim
         kept = np.flatnonzero(keep)
         species = ranges.ion_index(np.asarray(part.mz)[kept]) + 1
         bins = np.minimum(((inside[kept] + max_distance) / bin_width).astype(np.int64), n_bins - 1)
-        slot = (face_slot[sd.face[kept]] * n_bins + bins) * (n_ion + 1) + species
+        slot = (face_slot[face[kept]] * n_bins + bins) * (n_ion + 1) + species
         counts += np.bincount(slot, minlength=len(counts))
     counts = counts.reshape(n_obj, n_bins, n_ion + 1)
     area, mean, gauss = curvature_integrals(mesh, surface.normals, face_slot, n_obj)

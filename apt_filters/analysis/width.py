@@ -501,7 +501,7 @@ def first_range(*, inner: float | None = None, outer: float | None = None) -> fl
 def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (), bin_width: float = 0.1,
                      inner: float | None = None, outer: float | None = None, keep_edge: bool = False,
                      iso_value: float | None = None, tail: float = TAIL, covered: float = math.inf,
-                     select=None) -> tuple[Proxigram, Windows]:
+                     select=None, measured=None) -> tuple[Proxigram, Windows]:
     """The proxigram over the range the interface's fitted width asks for, and its plateau windows.
 
     A first proxigram over ``outer`` (if given) or :data:`FIRST_RANGE` nm is fitted
@@ -519,8 +519,11 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
         ``ions`` hold every ion within this distance (nm) of ``mesh`` (a selection such as
         :func:`apt_filters.pipeline.surface.analysis_ions` makes; infinite: the whole table).
     select : callable, optional
-        ``select(reach) -> ions`` within ``reach`` nm, called when a wider proxigram than ``covered``
+        ``select(reach) -> (ions, measured)`` within ``reach`` nm, called when a wider proxigram than ``covered``
         is needed (the caller keeps what it returns for its later analyses).
+    measured : core.nearby.NearSurface, optional
+        The signed distances of ``ions`` to ``mesh``, exact within ``covered`` (``select``'s ``measured`` the
+        same; None: measured here), as :func:`~apt_filters.analysis.proxigram.compute_proxigram` takes them.
 
     Returns
     -------
@@ -533,9 +536,9 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
         if extent > covered:
             if select is None:
                 raise AptFiltersError(f"the ions cover {covered:g} nm of the surface; the proxigram needs {extent:g}")
-            ions, covered = select(extent), extent
+            (ions, measured), covered = select(extent), extent
         prox = compute_proxigram(ions, ranges, mesh, bin_width=bin_width, max_distance=extent, keep_edge=keep_edge,
-                                 iso_value=iso_value)
+                                 iso_value=iso_value, measured=measured)
         windows = plateau_windows(proxigram=prox, species=species, solutes=solutes, tail=tail, inner=inner,
                                   outer=outer)
         if windows.outer <= extent + 1e-9:

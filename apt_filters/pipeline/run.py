@@ -222,12 +222,13 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
     reach = first_range(inner=p.inner or None, outer=p.extent or None)
 
     def select(distance: float):
-        """The ions within ``distance`` of the surface or inside its objects (kept for every analysis)."""
-        res.near = analysis_ions(ions, mesh, reach=distance, cap_open=config.contour.close_at_edge)
-        return res.near
+        """The ions within ``distance`` of the surface or inside its objects (kept for every analysis), and
+        their signed distances to it."""
+        res.near, signed = analysis_ions(ions, mesh, reach=distance, cap_open=config.contour.close_at_edge)
+        return res.near, signed
 
     with log.step("select") as s:
-        near = select(reach)
+        near, signed = select(reach)
         s.summary = (f"{label}: {len(near):,} ions within {reach:g} nm or inside objects "
                      f"({len(near) / max(len(ions), 1):.1%}), one pass")
     with log.step("objects") as s:
@@ -251,7 +252,8 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
                                          solutes=solutes, bin_width=p.bin, inner=p.inner or None,
                                          outer=p.extent or None, keep_edge=not p.exclude_edge,
                                          iso_value=surface.iso if surface.species else None, covered=reach,
-                                         select=select)
+                                         select=select, measured=signed)
+        del signed  # the proxigram's alone: its memory back
         again = res.near is not near
         near = res.near
         prox.write_csv(stage / f"proxigram_{label}.csv")

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numba import njit, prange
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.core.threads import available_cores
@@ -116,14 +117,22 @@ def vertex_composition(*, vertices: np.ndarray, ions: IonTable, ranges: RangeTab
             dist, idx = dist.reshape(len(block), -1), idx.reshape(len(block), -1)
             ok = np.ones(len(block), dtype=bool) if whole else (dist[:, -1] <= reach) & (kk == k)
             # ions of each species per vertex, then atoms: (vertices, species) instead of (vertices, k, elements)
-            sp = kinds[idx[ok]]
-            counts = np.bincount((np.arange(len(sp))[:, None] * len(matrix) + sp).ravel(),
-                                 minlength=len(sp) * len(matrix)).reshape(len(sp), len(matrix)).astype(np.float64)
+            counts = _kind_counts(idx, kinds, len(matrix))[ok]
             out[block[ok]] = 100 * (counts @ matrix) / (counts @ atoms_per_ion)[:, None]
             done[start:start + len(block)] = ok
         todo = todo[~done]
         reach *= 2
     return {e: out[:, j] for j, e in enumerate(elements)}
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _kind_counts(idx, kinds, n_kinds):  # pragma: no cover - compiled
+    """(m, n_kinds) float64: how many of each row's ions ``idx`` (m, k) are of each kind (``kinds[idx]``)."""
+    counts = np.zeros((idx.shape[0], n_kinds), np.float64)
+    for i in prange(idx.shape[0]):
+        for j in range(idx.shape[1]):
+            counts[i, kinds[idx[i, j]]] += 1.0
+    return counts
 
 
 _CELLS_PER_REACH = 4

@@ -247,8 +247,9 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     return mesh, record
 
 
-def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool = True) -> IonTable:
-    """The ions the analyses of a finished surface read, selected in one streamed pass over ``ions``.
+def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool = True):
+    """The ions the analyses of a finished surface read, selected in one streamed pass over ``ions``, and their
+    signed distances to it.
 
     Those within ``reach`` nm of ``mesh`` (what the proxigram, the excess, the maps and the scene's
     local composition read) and those that may lie inside its closed or capped objects (what the
@@ -272,13 +273,16 @@ def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool
     -------
     IonTable
         Positions and m/z of the selected ions (16 bytes each; 64 while selecting).
+    core.nearby.NearSurface
+        The selection: each selected ion's exact signed distance, face and rim flag within ``reach``
+        (those kept only as inside an object beyond it: NaN or their exact distance), which the proxigram
+        reads instead of measuring them again (48 bytes per ion).
     """
     from apt_filters.analysis.objects import ions_in_objects
     from apt_filters.core.nearby import select_near
 
-    near = select_near(ions.positions, mesh, reach, also=ions_in_objects(mesh, cap_open), carry=(ions.mz,),
-                       distances=False)
-    return IonTable(near.positions.astype(np.float32), near.carried[0], source=ions.source)
+    near = select_near(ions.positions, mesh, reach, also=ions_in_objects(mesh, cap_open), carry=(ions.mz,))
+    return IonTable(near.positions.astype(np.float32), near.carried[0], source=ions.source), near
 
 
 def _finite(values) -> list:
