@@ -761,23 +761,30 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _product_of_others(distance, steps):
+def _product_of_others(distance, steps, plane=-1, column=np.empty(0), column_steps=np.empty(0)):
     """(b,) :func:`_other_steps` from the planes' distances ``distance`` (b, m) and their steps ``steps`` (b, m):
     the product of the steps of all but each point's two largest distances, taken in ascending order of distance
-    as ``np.prod`` takes them from the sorted distances (the same numbers)."""
+    as ``np.prod`` takes them from the sorted distances (the same numbers). With ``plane`` >= 0, that plane's
+    distances and steps are ``column`` and ``column_steps`` (b,) instead (a nudged plane, without copies of the
+    whole arrays)."""
     b, m = distance.shape
     out = np.empty(b)
     rank = np.empty(m, dtype=np.int64)
+    row, row_steps = np.empty(m), np.empty(m)
     for i in range(b):
+        for j in range(m):
+            row[j], row_steps[j] = distance[i, j], steps[i, j]
+        if plane >= 0:
+            row[plane], row_steps[plane] = column[i], column_steps[i]
         for j in range(m):  # insertion sort of the planes by distance: m is small
             k = j
-            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+            while k > 0 and row[rank[k - 1]] > row[j]:
                 rank[k] = rank[k - 1]
                 k -= 1
             rank[k] = j
         value = 1.0
         for j in range(m - 2):
-            value *= steps[i, rank[j]]
+            value *= row_steps[rank[j]]
         out[i] = value
     return out
 
@@ -793,22 +800,22 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     free = np.ones(m + 3, dtype=bool) if free is None else free
     distance = signed - shift
     order = np.sort(distance, axis=1)
-    edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
-    base = edge * others
     # each plane's step, the factors of _other_steps: a nudge changes one plane's
     steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
+    edge, others = _edge_scores(order, rounding, width, share), _product_of_others(distance, steps)
+    base = edge * others
     jac = np.empty((len(signed), m + 3))
     for k in np.flatnonzero(free[:m]):
-        nudged = distance.copy()
-        nudged[:, k] = signed[:, k] - (shift[k] + h)
-        moved_steps = steps.copy()
-        moved_steps[:, k] = 0.5 * erfc(nudged[:, k] / (np.sqrt(2) * width))
+        column = signed[:, k] - (shift[k] + h)
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change
         near = distance[:, k] >= order[:, -2]
+        nudged = distance[near]
+        nudged[:, k] = column[near]
         moved_edge = edge.copy()
-        moved_edge[near] = _edge_scores(np.sort(nudged[near], axis=1), rounding, width, share)
-        jac[:, k] = (moved_edge * _product_of_others(nudged, moved_steps) - base) / h
+        moved_edge[near] = _edge_scores(np.sort(nudged, axis=1), rounding, width, share)
+        jac[:, k] = (moved_edge * _product_of_others(distance, steps, k, column,
+                                                     0.5 * erfc(column / (np.sqrt(2) * width))) - base) / h
     # neither the radius nor the share changes the other planes' steps
     if free[m]:
         jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h

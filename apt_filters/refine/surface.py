@@ -87,7 +87,7 @@ from scipy.sparse import csr_matrix, diags
 
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normals
-from apt_filters.core.threads import serial_blas
+from apt_filters.core.threads import per_item, serial_blas
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
@@ -738,19 +738,20 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
                                        half_width, distance)
     vertex = band.vertex[keep]
     comp = components[vertex]
-    out = []
-    for c in sorted({f.component for f in found}):
+
+    def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
         if not closes(mine):
-            out += mine
-            continue
+            return mine
         normals = np.array([f.normal for f in mine])
         # the object's ions first: the normals' test on them alone, not on every ion of the band
         sel = np.flatnonzero(comp == c)
         sel = sel[(placed.normals[vertex[sel]] @ normals.T).max(axis=1) > np.cos(np.radians(cap))]
-        out += fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
+        return fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
-    return out
+
+    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives
+    return [f for part in per_item(fitted, sorted({f.component for f in found})) for f in part]
 
 
 def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
