@@ -8,7 +8,8 @@ does (gaussian 3 x 3 x 1.5 nm, 1 nm voxels, marching cubes, specks removed), and
 saved. :func:`~apt_filters.refine.refine_surface` with its defaults is then timed in a fresh child
 process, once with this tree's code and, with ``--baseline PATH`` (a checkout of another revision), once
 with that code, in the same run: on a shared machine the process CPU time (all threads, user + system)
-is the figure to compare; the wall time is printed beside it.
+is the figure to compare; the wall time and the child's peak resident memory (the ion table read whole
+included) are printed beside it.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ def child(work: Path) -> dict:
         digest.update(np.ascontiguousarray(part).tobytes())
     digest.update(pickle.dumps(result.levels))
     return {"outputs": digest.hexdigest()[:16], "cpu_s": usage.ru_utime + usage.ru_stime - cpu,
-            "wall_s": time.perf_counter() - wall,
+            "wall_s": time.perf_counter() - wall, "peak_mib": usage.ru_maxrss / 1024,
             "ions": len(table), "faces": int(out.n_faces), "objects": len(result.levels),
             "area_nm2": float(out.area()),
             "mean_displacement_nm": float(result.displacement["mean"])}
@@ -106,15 +107,15 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"## Refinement of the `{args.preset}` specimen ({'own size' if not args.ions else f'{args.ions:.0e} ions'})",
              "", "Default settings, Al at 15 at.% with B out of the basis; each row a fresh process; CPU = user + "
              "system of all threads during `refine_surface`.", "",
-             "| code | ions | objects | faces | CPU (s) | wall (s) | mean displacement (nm) | outputs (SHA-1) |",
-             "|---|---:|---:|---:|---:|---:|---:|---|"]
+             "| code | ions | objects | faces | CPU (s) | wall (s) | peak RSS (MiB) | mean displacement (nm) | outputs (SHA-1) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     print("\n".join(lines), flush=True)
     results = []
     for name, code in runs:
         r = child_result(__file__, work, code, ENVIRONMENT, "refinement")
         results.append(r)
         lines.append(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | "
-                     f"{r['wall_s']:.1f} | {r['mean_displacement_nm']:+.4f} | `{r['outputs']}` |")
+                     f"{r['wall_s']:.1f} | {r['peak_mib']:,.0f} | {r['mean_displacement_nm']:+.4f} | `{r['outputs']}` |")
         print(lines[-1], flush=True)
     lines += ["", "Load average (1, 5, 15 min) after: {:.1f} {:.1f} {:.1f}.".format(*os.getloadavg())]
     if len(results) > 1:

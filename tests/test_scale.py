@@ -145,3 +145,17 @@ def test_marching_cubes_does_not_depend_on_the_thread_count(monkeypatch):
         assert np.array_equal(other.vertices, meshes[0].vertices) and np.array_equal(other.faces, meshes[0].faces)
         assert np.array_equal(other.vertex_scalars["value"], meshes[0].vertex_scalars["value"])
         assert np.array_equal(other.face_scalars["component"], meshes[0].face_scalars["component"])
+
+
+def test_items_on_threads_come_back_in_order():
+    import time
+
+    from apt_filters.core.threads import per_item
+
+    # the later items finish first: each result still lands where its item was
+    def slow_square(i):
+        time.sleep(0.01 * (6 - i))
+        return i * i
+
+    assert per_item(slow_square, list(range(6))) == [i * i for i in range(6)]
+    assert per_item(slow_square, [3]) == [9] and per_item(slow_square, []) == []

@@ -30,6 +30,20 @@ def on_threads(fn, calls: list[tuple]) -> list:
     return list(executor.map(lambda args: fn(*args), calls))
 
 
+def per_item(fn, items: list) -> list:
+    """``[fn(item) for item in items]``, the items taken in turn by as many threads as this process has cores.
+
+    For independent pieces of work (a surface's objects) that run in GIL-free code (nogil numba kernels,
+    numpy's and LAPACK's loops): each result is what ``fn(item)`` alone gives, in the order of ``items``."""
+    workers = min(available_cores(), len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    executor = _EXECUTORS.get(-workers)
+    if executor is None:  # keyed apart from on_threads' pools: a pool busy with these items must not take them too
+        executor = _EXECUTORS[-workers] = ThreadPoolExecutor(workers, thread_name_prefix="apt-filters-items")
+    return list(executor.map(fn, items))
+
+
 def shares(n: int, parts: int) -> list[tuple[int, int]]:
     """``parts`` contiguous (start, stop) shares of ``range(n)``, as equal as can be."""
     bounds = np.linspace(0, n, parts + 1).astype(np.int64)

@@ -348,25 +348,31 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
         signed = vertices[idx] @ plane_n.T - np.array([f.offset for f in mine])
         cosine = normals[idx] @ plane_n.T
         use = near & (cosine > min_cos)
-        rounded = []  # convex rim vertices of a rounded object: placed on its fillets below
-        for i in np.flatnonzero(use.sum(axis=1) >= 2):
-            u = use[i]
-            mix, *_ = np.linalg.lstsq(plane_n[u].T, normals[idx[i]], rcond=None)
-            if mix.min() < -0.1 or np.linalg.norm(plane_n[u].T @ mix - normals[idx[i]]) > span_tol:
-                continue
-            s, k = signed[i, u], cosine[i, u]
-            if np.all(s <= 0):
-                if mine[0].rounding > 0:
-                    rounded.append(i)
-                    continue
-                t = np.min(-s / k)  # convex rim: first plane the outward ray meets
-            elif np.all(s >= 0):
-                t = np.max(-s / k)  # concave fillet: last plane the inward ray meets
-            else:
-                continue
-            step[idx[i]] = np.clip(t, -max_move, max_move)
-        if rounded:
-            rows = np.array(rounded)
+        rows = np.flatnonzero(use.sum(axis=1) >= 2)
+        # each vertex's normal as a mix of its planes' normals: one solve per set of planes, for all its vertices
+        # (the same numbers as one per vertex)
+        spanned = np.zeros(len(rows), dtype=bool)  # its normal a non-negative mix of its planes' (to span_tol)
+        patterns, which = np.unique(use[rows], axis=0, return_inverse=True)
+        for g, u in enumerate(patterns):
+            sel = np.flatnonzero(which.ravel() == g)
+            planes = plane_n[u].T
+            mixes = np.ascontiguousarray(np.linalg.lstsq(planes, normals[idx[rows[sel]]].T, rcond=None)[0].T)
+            spanned[sel] = [not (mix.min() < -0.1 or np.linalg.norm(planes @ mix - normals[idx[rows[j]]]) > span_tol)
+                            for j, mix in zip(sel, mixes)]
+        rows = rows[spanned]
+        u, s = use[rows], signed[rows]
+        with np.errstate(divide="ignore", invalid="ignore"):  # the planes a vertex does not use are masked
+            ray = -s / cosine[rows]
+        first, last = np.where(u, ray, np.inf).min(axis=1), np.where(u, ray, -np.inf).max(axis=1)
+        inside, outside = np.all(~u | (s <= 0), axis=1), np.all(~u | (s >= 0), axis=1)
+        # convex rim: first plane the outward ray meets (a rounded object's: onto its fillets, below); concave
+        # fillet: last plane the inward ray meets
+        convex, concave = inside & (mine[0].rounding <= 0), ~inside & outside
+        step[idx[rows[convex]]] = np.clip(first[convex], -max_move, max_move)
+        step[idx[rows[concave]]] = np.clip(last[concave], -max_move, max_move)
+        rounded = rows[inside] if mine[0].rounding > 0 else rows[:0]
+        if len(rounded):
+            rows = rounded
             step[idx[rows]] = _onto_fillet(np.where(use[rows], signed[rows], -np.inf), cosine[rows],
                                            mine[0].rounding, max_move)
     return step, normals
@@ -455,23 +461,45 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
                     continue
                 out = normals[i] + normals[j]
                 point = point + rounding * out / np.linalg.norm(out)
-                for t in np.arange(lo + spacing, hi - 0.5 * spacing, spacing):
-                    p = point + t * direction
-                    if trees[i].query(p)[0] <= reach and trees[j].query(p)[0] <= reach:
-                        targets.append(p)
-        for k, p in enumerate(targets):
-            near = idx[tree.query(p, k=min(8, len(idx)))[1]]
+                row = point + np.arange(lo + spacing, hi - 0.5 * spacing, spacing)[:, None] * direction
+                targets += list(row[(trees[i].query(row)[0] <= reach) & (trees[j].query(row)[0] <= reach)])
+        if not targets:
+            continue
+        targets = np.array(targets)
+        near = idx[tree.query(targets, k=min(8, len(idx)))[1].reshape(len(targets), -1)]
+        limit = np.where(np.arange(len(targets)) < n_corners, max_move, 0.5 * max_move)
+        _take_nearest(targets, near, limit, vertices, faces, order, start, taken, moves)
+    return moves
+
+
+@njit(cache=True, nogil=True)
+def _take_nearest(targets, near, limit, vertices, faces, order, start, taken, moves):
+    """For each of ``targets`` (t, 3) in turn, of its candidates ``near`` (t, k) the nearest vertex not yet
+    ``taken`` moves onto it (``moves``, ``taken`` updated) if it is within ``limit`` (t,) nm
+    (:func:`edge_and_corner_steps`)."""
+    for k in range(targets.shape[0]):
+        best, nearest = np.inf, -1
+        for c in range(near.shape[1]):
+            v = near[k, c]
+            if taken[v]:
+                continue
             # not a vertex whose triangle would then have all three corners on the line (zero area: the
             # pseudo-normals that sign ion distances need every face to have one)
-            near = [v for v in near
-                    if not taken[v] and not np.any(taken[faces[order[start[v]:start[v + 1]]]].sum(axis=1) == 2)]
-            if not near:
+            flat = False
+            for e in range(start[v], start[v + 1]):
+                f = order[e]
+                if int(taken[faces[f, 0]]) + int(taken[faces[f, 1]]) + int(taken[faces[f, 2]]) == 2:
+                    flat = True
+            if flat:
                 continue
-            nearest = near[int(np.argmin(np.linalg.norm(vertices[near] - p, axis=1)))]
-            if np.linalg.norm(p - vertices[nearest]) < (max_move if k < n_corners else 0.5 * max_move):
-                moves[nearest] = p - vertices[nearest]
-                taken[nearest] = True
-    return moves
+            d = math.sqrt((vertices[v, 0] - targets[k, 0]) ** 2 + (vertices[v, 1] - targets[k, 1]) ** 2
+                          + (vertices[v, 2] - targets[k, 2]) ** 2)
+            if d < best:
+                best, nearest = d, v
+        if nearest >= 0 and best < limit[k]:
+            for a in range(3):
+                moves[nearest, a] = targets[k, a] - vertices[nearest, a]
+            taken[nearest] = True
 
 
 def closes(facets: list[Facet], margin: float = 0.25) -> bool:
@@ -761,23 +789,30 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _product_of_others(distance, steps):
+def _product_of_others(distance, steps, plane=-1, column=np.empty(0), column_steps=np.empty(0)):
     """(b,) :func:`_other_steps` from the planes' distances ``distance`` (b, m) and their steps ``steps`` (b, m):
     the product of the steps of all but each point's two largest distances, taken in ascending order of distance
-    as ``np.prod`` takes them from the sorted distances (the same numbers)."""
+    as ``np.prod`` takes them from the sorted distances (the same numbers). With ``plane`` >= 0, that plane's
+    distances and steps are ``column`` and ``column_steps`` (b,) instead (a nudged plane, without copies of the
+    whole arrays)."""
     b, m = distance.shape
     out = np.empty(b)
     rank = np.empty(m, dtype=np.int64)
+    row, row_steps = np.empty(m), np.empty(m)
     for i in range(b):
+        for j in range(m):
+            row[j], row_steps[j] = distance[i, j], steps[i, j]
+        if plane >= 0:
+            row[plane], row_steps[plane] = column[i], column_steps[i]
         for j in range(m):  # insertion sort of the planes by distance: m is small
             k = j
-            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+            while k > 0 and row[rank[k - 1]] > row[j]:
                 rank[k] = rank[k - 1]
                 k -= 1
             rank[k] = j
         value = 1.0
         for j in range(m - 2):
-            value *= steps[i, rank[j]]
+            value *= row_steps[rank[j]]
         out[i] = value
     return out
 
@@ -793,22 +828,22 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     free = np.ones(m + 3, dtype=bool) if free is None else free
     distance = signed - shift
     order = np.sort(distance, axis=1)
-    edge, others = _edge_scores(order, rounding, width, share), _other_steps(order, width)
-    base = edge * others
     # each plane's step, the factors of _other_steps: a nudge changes one plane's
     steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
+    edge, others = _edge_scores(order, rounding, width, share), _product_of_others(distance, steps)
+    base = edge * others
     jac = np.empty((len(signed), m + 3))
     for k in np.flatnonzero(free[:m]):
-        nudged = distance.copy()
-        nudged[:, k] = signed[:, k] - (shift[k] + h)
-        moved_steps = steps.copy()
-        moved_steps[:, k] = 0.5 * erfc(nudged[:, k] / (np.sqrt(2) * width))
+        column = signed[:, k] - (shift[k] + h)
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change
         near = distance[:, k] >= order[:, -2]
+        nudged = distance[near]
+        nudged[:, k] = column[near]
         moved_edge = edge.copy()
-        moved_edge[near] = _edge_scores(np.sort(nudged[near], axis=1), rounding, width, share)
-        jac[:, k] = (moved_edge * _product_of_others(nudged, moved_steps) - base) / h
+        moved_edge[near] = _edge_scores(np.sort(nudged, axis=1), rounding, width, share)
+        jac[:, k] = (moved_edge * _product_of_others(distance, steps, k, column,
+                                                     0.5 * erfc(column / (np.sqrt(2) * width))) - base) / h
     # neither the radius nor the share changes the other planes' steps
     if free[m]:
         jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h

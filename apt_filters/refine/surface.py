@@ -87,7 +87,7 @@ from scipy.sparse import csr_matrix, diags
 
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normals
-from apt_filters.core.threads import serial_blas
+from apt_filters.core.threads import on_threads, per_item, serial_blas
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
@@ -738,19 +738,20 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
                                        half_width, distance)
     vertex = band.vertex[keep]
     comp = components[vertex]
-    out = []
-    for c in sorted({f.component for f in found}):
+
+    def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
         if not closes(mine):
-            out += mine
-            continue
+            return mine
         normals = np.array([f.normal for f in mine])
         # the object's ions first: the normals' test on them alone, not on every ion of the band
         sel = np.flatnonzero(comp == c)
         sel = sel[(placed.normals[vertex[sel]] @ normals.T).max(axis=1) > np.cos(np.radians(cap))]
-        out += fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
+        return fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
-    return out
+
+    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives
+    return [f for part in per_item(fitted, sorted({f.component for f in found})) for f in part]
 
 
 def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -905,7 +906,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     pairs_start = Pairs.find(start, components, p.pool_radius)
     if p.cross_fit:
         clock = time.perf_counter()
-        fits = [_place(start, faces, near.half(k, start), species, None, p, pairs_start) for k in (0, 1)]
+        # the halves are independent: one thread each (their compiled loops and numpy release the GIL)
+        fits = on_threads(lambda k: _place(start, faces, near.half(k, start), species, None, p, pairs_start),
+                          [(0,), (1,)])
         # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
@@ -930,8 +933,8 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     clock = time.perf_counter()
     if p.select_modes and objects:
         # candidates are finished with the blur given, or without one while it is still to be estimated
-        half_facets = [_placed_facets(fit, faces, components, scores, p.facets, p.half_width, p.distance)
-                       for fit in fits]
+        half_facets = on_threads(lambda fit: _placed_facets(fit, faces, components, scores, p.facets, p.half_width,
+                                                            p.distance), [(fit,) for fit in fits])
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
