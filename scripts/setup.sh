@@ -11,7 +11,8 @@ dev=0
 [ "${1:-}" = "--dev" ] && dev=1
 
 # System libraries: libusb-1.0 for open3d, libOpenGL/libGL for pymeshlab's meshing filters,
-# libgomp for open3d's OpenMP. Installed only where missing, and only when we may.
+# libgomp for open3d's OpenMP and numba's OpenMP threading layer (compiled kernels launched from several
+# threads at once). Installed only where missing, and only when we may.
 need=()
 ldconfig -p | grep -q 'libusb-1.0.so.0' || need+=(libusb-1.0-0)
 ldconfig -p | grep -q 'libOpenGL.so.0' || need+=(libopengl0)

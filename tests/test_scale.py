@@ -1,6 +1,10 @@
 """Scale: threaded chunk conversion, thread-independent voxelization, the active-cell crossing numbering,
 memory-mapped ion tables and the run's memory budget."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
@@ -159,3 +163,20 @@ def test_items_on_threads_come_back_in_order():
 
     assert per_item(slow_square, list(range(6))) == [i * i for i in range(6)]
     assert per_item(slow_square, [3]) == [9] and per_item(slow_square, []) == []
+
+
+def test_parallel_kernels_on_threads_survive_numba_workqueue_layer():
+    # numba's fallback threading layer (no libgomp, no tbb) aborts the process when two threads launch parallel
+    # kernels at once; per_item and on_threads must then run their items one after the other
+    script = """
+import numpy as np
+from apt_filters.core.threads import kernels_share_threads, on_threads, per_item
+from apt_filters.core.threads import _one_launch
+values = np.ones(200_000)
+print(sum(per_item(lambda _: _one_launch(values), list(range(8)))), sum(on_threads(_one_launch, [(values,)] * 4)),
+      kernels_share_threads())
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "NUMBA_THREADING_LAYER": "workqueue"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["1600000.0", "800000.0", "False"]

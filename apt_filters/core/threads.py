@@ -7,7 +7,9 @@ import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
+from numba import njit, prange
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
 
@@ -20,10 +22,30 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+@njit(parallel=True, cache=True)
+def _one_launch(values):
+    total = 0.0
+    for i in prange(len(values)):
+        total += values[i]
+    return total
+
+
+@functools.cache
+def kernels_share_threads() -> bool:
+    """Whether compiled parallel kernels may run from several Python threads at once.
+
+    numba's OpenMP and TBB threading layers allow it; the workqueue layer it falls back to where neither
+    library is installed (no ``libgomp1``, no ``tbb``) aborts the process on a second concurrent launch,
+    so there the callers below run their items one after the other (same results, one core's time).
+    """
+    _one_launch(np.zeros(2))  # the layer is chosen at the first parallel launch
+    return numba.threading_layer() != "workqueue"
+
+
 def on_threads(fn, calls: list[tuple]) -> list:
     """Results of ``fn(*args)`` for each args in ``calls``, one thread each (the caller's thread for a single call)."""
-    if len(calls) == 1:
-        return [fn(*calls[0])]
+    if len(calls) == 1 or not kernels_share_threads():
+        return [fn(*args) for args in calls]
     executor = _EXECUTORS.get(len(calls))
     if executor is None:
         executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="apt-filters")
@@ -36,7 +58,7 @@ def per_item(fn, items: list) -> list:
     For independent pieces of work (a surface's objects) that run in GIL-free code (nogil numba kernels,
     numpy's and LAPACK's loops): each result is what ``fn(item)`` alone gives, in the order of ``items``."""
     workers = min(available_cores(), len(items))
-    if workers <= 1:
+    if workers <= 1 or not kernels_share_threads():
         return [fn(item) for item in items]
     executor = _EXECUTORS.get(-workers)
     if executor is None:  # keyed apart from on_threads' pools: a pool busy with these items must not take them too
