@@ -223,10 +223,39 @@ def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
     return line, fig
 
 
+ZOO = (("cuboid", 0), ("plate", 0), ("rod", 0), ("sphere", 0), ("open", 0))
+"""Zoo draws (:mod:`apt_filters.synth.zoo`, dev split) whose pipeline surfaces are remeshed too."""
+
+
+def zoo_surface(family: str, seed: int, folder=None) -> tuple[TriMesh, float]:
+    """The surface `apt-filters run` hands its remesh step on zoo draw ``family`` ``seed`` (the iso-value a user
+    would give, every option at its default; contour, segregants, specks, refinement, clean chain) and the
+    step's edge (half a voxel); cached in ``folder``."""
+    import tempfile
+    from pathlib import Path
+
+    from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+    from apt_filters.pipeline.surface import finished_surface
+    from benchmarks.bench_zoo import run_fields, specimen
+
+    cache = Path(folder or tempfile.gettempdir()) / f"remesh_bench_zoo_{family}_{seed}.npz"
+    if not cache.exists():
+        sp, species, iso, _ = specimen(family, seed)
+        config = PipelineConfig()
+        config.remesh.method = "none"
+        fields, mask, basis = run_fields(sp, config)
+        mesh, _ = finished_surface(fields, mask, sp.ions, sp.ranges, SurfaceConfig(species, iso), config=config,
+                                   basis=basis)
+        np.savez(cache, vertices=mesh.vertices, faces=mesh.faces, edge=fields.grid.voxel / 2)
+    with np.load(cache) as f:
+        return TriMesh(f["vertices"], f["faces"]), float(f["edge"])
+
+
 def surfaces(quick: bool) -> list:
     """(kind, mesh, edge, sharp) of every benchmark surface."""
     gyroid = shapes.gyroid(half=8.0) if quick else shapes.gyroid()
     out = [("pipeline: small seed 3 (cube + sphere, refined)", shapes.pipeline_surface(), 0.5, True),
+           ("demo: default seed 0 (apt-filters demo)", shapes.pipeline_surface("default", 0), 0.5, True),
            ("thin plate 1.6", shapes.thin_plate(), 0.5, False),
            ("2 nm spheres x 8", shapes.small_spheres(), 0.5, False),
            ("tilted sheet (open)", shapes.tilted_sheet(), 0.5, False),
@@ -234,6 +263,9 @@ def surfaces(quick: bool) -> list:
            ("gyroid (bicontinuous)", gyroid, 0.5, False),
            ("gyroid, bumps 0.1", shapes.bumpy(shapes.gyroid(half=8.0), 0.1), 0.5, False),
            ("box-sphere-plate", shapes.box_minus_sphere_plate(0.5 if quick else 0.25), 0.04, True)]
+    for family, seed in ZOO:
+        mesh, edge = zoo_surface(family, seed)
+        out.append((f"zoo {family} {seed} (pipeline)", mesh, edge, family == "cuboid"))
     if not quick:
         out.append(("2M ions: gamma-prime, 2,000,000 ions (refined)",
                     shapes.pipeline_surface("gamma-prime", 3, ions=2_000_000), 0.5, True))
