@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python -m benchmarks.bench_remesh [--quick] [--only NAME ...] [--seeds N]``. Every method
 remeshes the same surface to the same target edge; each run is a spawned child process, so that its
-peak memory (VmHWM above the resident size before the call, Linux) and time (wall, and CPU of all its
+peak memory (VmHWM above the resident size before the call, Linux; per input and per output face) and time (wall, and CPU of all its
 threads: on a shared machine the one to compare) are its own. Surfaces
 (``tests/remesh_shapes.py``; lengths in nm = voxels):
 
@@ -16,7 +16,11 @@ threads: on a shared machine the one to compare) are its own. Surfaces
 - ``box-sphere-plate``: the issue's test mesh, a box minus a sphere with a thin plate, scaled to a
   unit box, at edge 0.04 (sharp edges: feature-edge F1 against the input's);
 - ``2M ions``: the pipeline's cleaned surface of the ``gamma-prime`` preset lengthened to 2 million
-  ions (two rotated cubes, two 3 nm spheres), edge 0.5: the whole remesh step of such a run.
+  ions (two rotated cubes, two 3 nm spheres), edge 0.5: the whole remesh step of such a run;
+- ``demo``: the surface ``apt-filters demo`` hands its remesh step (``default`` seed 0: two cubes,
+  three spheres, a rod), edge 0.5;
+- ``zoo``: the surfaces ``apt-filters run`` with its defaults hands its remesh step on the zoo's first
+  dev draws of the cuboid, plate, rod, sphere and open families (:func:`zoo_surface`), at half a voxel.
 
 Measures, against the input: two-sided Hausdorff distance (output -> input and input -> output, as
 fractions of the edge; from every vertex, edge midpoint and face centroid of one mesh to the
@@ -213,10 +217,12 @@ def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
         (before.components, before.boundary_loops, before.genus, 0)
     topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
     f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
-    fig = {"seconds": seconds, "cpu": cpu, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
+    fig = {"seconds": seconds, "cpu": cpu, "bytes": peak / mesh.n_faces, "out_bytes": peak / max(out.n_faces, 1),
+           "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
            "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0,
            "edge": mean_edge(out) / edge}
-    line = (f"|  | {name} | {seconds:.2f} | {cpu:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | {fig['edge']:.2f} | "
+    line = (f"|  | {name} | {seconds:.2f} | {cpu:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | "
+            f"{fig['out_bytes']:.0f} | {out.n_faces} | {fig['edge']:.2f} | "
             f"{one_way(out, mesh, edge) / edge:.3f} | {one_way(mesh, out, edge) / edge:.3f} | "
             f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
             f"{fig['under30']:.2f} | {note} |")
@@ -281,10 +287,10 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, default=1,
                         help="also count ours' components given back with seeds 0 .. N-1 (untimed)")
     args = parser.parse_args(argv)
-    lines = ["| surface | method | time s | CPU s | peak MiB | peak bytes / input face | faces | mean edge / target | Hausdorff out->in (edge) | "
-             "in->out (edge) | area % | components/loops/genus | feature F1 | min angle ° | % < 30° | "
-             "components kept |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+    lines = ["| surface | method | time s | CPU s | peak MiB | peak bytes / input face | peak bytes / output face | faces | "
+             "mean edge / target | Hausdorff out->in (edge) | in->out (edge) | area % | components/loops/genus | "
+             "feature F1 | min angle ° | % < 30° | components kept |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
     load = os.getloadavg()[0]
     print("\n".join(lines), flush=True)
     figures = []  # (kind, input faces, method, figures)
@@ -294,7 +300,7 @@ def main(argv=None) -> None:
         if args.only and not any(kind.startswith(o) for o in args.only):
             continue
         topo = quality.topology(mesh)
-        lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | | {mesh.n_faces} | {mean_edge(mesh) / edge:.2f} | | | | "
+        lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | | | {mesh.n_faces} | {mean_edge(mesh) / edge:.2f} | | | | "
                      f"{topo.components}/{topo.boundary_loops}/{topo.genus} | | | | |")
         print(lines[-1], flush=True)
         for name in METHODS:
@@ -343,9 +349,10 @@ def write(figures: list, lines: list, load: float, stage_lines: list) -> None:
         rows.append(("remesh", "mean output edge / target edge (ours shrink where the surface bends, to stay "
                                "within the Hausdorff tolerance)", f"{min(ours_e):.2f}-{max(ours_e):.2f}",
                      f"{min(peer_e):.2f}-{max(peer_e):.2f}", "-"))
-        ours_b, peer_b = [o["bytes"] for o, _ in pairs], [p["bytes"] for _, p in pairs]
-        rows.append(("remesh", "peak memory per input face (target 200 B)", f"{min(ours_b):,.0f}-{max(ours_b):,.0f} B",
-                     f"{min(peer_b):,.0f}-{max(peer_b):,.0f} B", "-"))
+        for key, what in (("bytes", "input face (target 200 B)"), ("out_bytes", "output face")):
+            ours_b, peer_b = [o[key] for o, _ in pairs], [p[key] for _, p in pairs]
+            rows.append(("remesh", f"peak memory per {what}", f"{min(ours_b):,.0f}-{max(ours_b):,.0f} B",
+                         f"{min(peer_b):,.0f}-{max(peer_b):,.0f} B", "-"))
         big = [k for k in kinds if k.startswith("2M ions") and (k, "pymeshlab isotropic") in by]
         if big:
             o, p = by[big[0], "ours (CVT)"], by[big[0], "pymeshlab isotropic"]
