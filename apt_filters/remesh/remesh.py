@@ -207,8 +207,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     verify : bool
         Check every input component against its remesh (:func:`apt_filters.remesh.verify.check_components`:
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
-        a quarter of the edge, area within 1 %) and give back the input's own faces of each
-        component that fails.
+        a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
+        finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
+        ``RETRIES`` times), and give back the input's own faces of each one that still fails.
 
     Returns
     -------
