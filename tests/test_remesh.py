@@ -10,7 +10,7 @@ from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import cvt, extract, optimize, quality, remesh, repair
-from apt_filters.remesh.remesh import _edge_curvature, curve_slivers
+from apt_filters.remesh.remesh import curve_slivers
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.remesh.sampling import refine
 from tests import remesh_shapes as shapes
@@ -325,47 +325,3 @@ def test_lattice_refinement_is_conforming_and_exact(max_edge):
     assert np.allclose(centre, mesh.vertices[mesh.faces].mean(axis=1))
     lengths = np.linalg.norm(fine.vertices[fine.faces] - fine.vertices[np.roll(fine.faces, 1, axis=1)], axis=2)
     assert np.quantile(lengths, 0.9) < max_edge
-
-
-def _vertex_curvature(mesh: TriMesh, edge: float) -> tuple[np.ndarray, np.ndarray]:
-    """Step 3's curvature per vertex (largest over its edges), and the plain reading (turn over
-    the edge clipped to [L/4, L])."""
-    from apt_filters.core.mesh import vertex_normals
-
-    normals = vertex_normals(mesh.vertices, mesh.faces)
-    edges = np.unique(np.sort(mesh.edges(), axis=1), axis=0)
-    length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
-    turn = np.linalg.norm(normals[edges[:, 0]] - normals[edges[:, 1]], axis=1)
-    out = []
-    for kappa in (_edge_curvature(mesh, edges=edges, length=length, turn=turn, edge=edge),
-                  turn / np.clip(length, 0.25 * edge, edge)):
-        k = np.zeros(mesh.n_vertices)
-        np.maximum.at(k, edges[:, 0], kappa)
-        np.maximum.at(k, edges[:, 1], kappa)
-        out.append(k)
-    return out[0], out[1]
-
-
-def test_curvature_is_not_read_finer_than_the_input_resolves():
-    """A marching-cubes sphere of radius 2 (κ = 0.5/nm) with edges of about 1 nm (median h): asked for
-    half their edge, step 3 reads no more curvature than at their own edge (the turn of vertex
-    normals across their sliver edges is their noise, not a bend); at or above their own edge it
-    reads exactly the turn over the edge clipped to [L/4, L]."""
-    mesh = shapes.small_spheres(count=1)
-    h = float(np.median(np.linalg.norm(np.diff(mesh.vertices[np.unique(np.sort(mesh.edges(), axis=1), axis=0)],
-                                               axis=1)[:, 0], axis=1)))
-    own, plain_own = _vertex_curvature(mesh, h)
-    half, plain_half = _vertex_curvature(mesh, h / 2)
-    np.testing.assert_array_equal(own, plain_own)
-    assert np.percentile(half, 90) <= np.percentile(own, 90) * 1.001
-    assert np.percentile(plain_half, 90) > 1.5 * np.percentile(own, 90)  # what short edges read
-
-
-def test_coarse_spheres_are_not_remeshed_finer_than_asked():
-    """The 2 nm spheres at half their own edge: within a quarter edge both ways, with at most 1.4x
-    the faces that equilateral triangles of the target edge need (1.33x; 1.69x when sliver edges'
-    noise read as curvature)."""
-    mesh = shapes.small_spheres(count=2)
-    result = remesh(mesh, edge_length=0.5)
-    assert result.kept_input == 0
-    assert result.mesh.n_faces <= 1.4 * mesh.area() / (np.sqrt(3) / 4 * 0.5**2)

@@ -71,8 +71,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     """(v,) density ρ per input vertex; edges scale as ρ^-1/4, shrinking by at most ``MAX_SHRINK``.
 
     Edges shrink by the larger of two factors, κ the curvature (1/nm) from the turn of vertex
-    normals along the input's edges inside a patch, read at the target's scale and above the
-    input's own noise (:func:`_edge_curvature`) (``patch`` (f,) per face; sharp features are
+    normals along the input's edges inside a patch (``patch`` (f,) per face; sharp features are
     kept by their curves, not by shorter edges): ``1 + adaptive·L·κ`` (finer where the surface bends, a user's
     choice) and ``sqrt(L·κ / (3·tolerance))``, the shrink at which a triangle with vertices on a
     surface of curvature κ stays within ``tolerance·L`` of it: an equilateral one's sagitta is
@@ -94,7 +93,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     edges = edges[lone[edges].all(axis=1)]
     length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
     turn = np.linalg.norm(normals[edges[:, 0]] - normals[edges[:, 1]], axis=1)
-    kappa = _edge_curvature(mesh, edges=edges, length=length, turn=turn, edge=edge)
+    kappa = turn / np.clip(length, 0.25 * edge, edge)  # short sliver edges would inflate κ
     k = np.zeros(len(mesh.vertices))
     np.maximum.at(k, edges[:, 0], kappa)
     np.maximum.at(k, edges[:, 1], kappa)
@@ -117,36 +116,6 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
         np.maximum.at(shrink, edges[:, 0], shrink[edges[:, 1]] / step)
         np.maximum.at(shrink, edges[:, 1], shrink[edges[:, 0]] / step)
     return shrink**4
-
-
-def _edge_curvature(mesh: TriMesh, *, edges: np.ndarray, length: np.ndarray, turn: np.ndarray,
-                    edge: float) -> np.ndarray:
-    """(e,) curvature (1/nm) across input ``edges`` (e, 2) of ``length`` (nm) whose vertex normals
-    differ by ``turn`` (chord of unit normals), read at the target ``edge``'s scale.
-
-    A vertex normal averages the faces around it, so on an irregular input it errs by a share of
-    κ·h, h the input's edge length (marching-cubes spheres of radius 2 nm at h = 0.94 nm: 0.19 rad
-    median, 0.31 at the 90th percentile), and normals across an edge much shorter than h differ
-    mostly by that error. Over each component, h is its median edge and τ its median turn, the
-    turn that its own resolution and noise give between neighbours. Where h <= L a turn is read
-    over its edge clipped to [L/4, L] (a refined cube's bends of radius 0.2-0.3 nm need that at
-    L = 0.5); where h > L over its edge clipped to [h/4, h], the same share of the input's
-    resolution, and only the part of the turn beyond τ is read at the target's [L/4, L], so a
-    bend sharper than the input's own (a 1.6 nm plate's rim) still shrinks edges while the noise
-    of a coarse sphere's short edges does not.
-    """
-    if len(edges) == 0:
-        return np.zeros(0)
-    comp = mesh.topology.vertex_components[edges[:, 0]]
-    order = np.argsort(comp, kind="stable")
-    pieces = np.split(order, np.flatnonzero(np.diff(comp[order])) + 1)
-    h, tau = np.zeros(len(comp)), np.zeros(len(comp))
-    for piece in pieces:
-        h[piece], tau[piece] = np.median(length[piece]), np.median(turn[piece])
-    scale = np.maximum(h, edge)
-    coarse = turn / np.clip(length, 0.25 * scale, scale)
-    beyond = np.where(h > edge, np.maximum(turn - tau, 0.0), turn) / np.clip(length, 0.25 * edge, edge)
-    return np.maximum(coarse, beyond)
 
 
 def crease_shrink(mesh: TriMesh, patch: np.ndarray, edge: float, tolerance: float) -> np.ndarray:
