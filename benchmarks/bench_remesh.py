@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python -m benchmarks.bench_remesh [--quick] [--only NAME ...] [--seeds N]``. Every method
 remeshes the same surface to the same target edge; each run is a spawned child process, so that its
-peak memory (VmHWM above the resident size before the call, Linux) and time (wall, and CPU of all its
+peak memory (VmHWM above the resident size before the call, Linux; per input and per output face) and time (wall, and CPU of all its
 threads: on a shared machine the one to compare) are its own. Surfaces
 (``tests/remesh_shapes.py``; lengths in nm = voxels):
 
@@ -16,7 +16,11 @@ threads: on a shared machine the one to compare) are its own. Surfaces
 - ``box-sphere-plate``: the issue's test mesh, a box minus a sphere with a thin plate, scaled to a
   unit box, at edge 0.04 (sharp edges: feature-edge F1 against the input's);
 - ``2M ions``: the pipeline's cleaned surface of the ``gamma-prime`` preset lengthened to 2 million
-  ions (two rotated cubes, two 3 nm spheres), edge 0.5: the whole remesh step of such a run.
+  ions (two rotated cubes, two 3 nm spheres), edge 0.5: the whole remesh step of such a run;
+- ``demo``: the surface ``apt-filters demo`` hands its remesh step (``default`` seed 0: two cubes,
+  three spheres, a rod), edge 0.5;
+- ``zoo``: the surfaces ``apt-filters run`` with its defaults hands its remesh step on the zoo's first
+  dev draws of the cuboid, plate, rod, sphere and open families (:func:`zoo_surface`), at half a voxel.
 
 Measures, against the input: two-sided Hausdorff distance (output -> input and input -> output, as
 fractions of the edge; from every vertex, edge midpoint and face centroid of one mesh to the
@@ -213,20 +217,51 @@ def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
         (before.components, before.boundary_loops, before.genus, 0)
     topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
     f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
-    fig = {"seconds": seconds, "cpu": cpu, "bytes": peak / mesh.n_faces, "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
+    fig = {"seconds": seconds, "cpu": cpu, "bytes": peak / mesh.n_faces, "out_bytes": peak / max(out.n_faces, 1),
+           "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
            "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0,
            "edge": mean_edge(out) / edge}
-    line = (f"|  | {name} | {seconds:.2f} | {cpu:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | {out.n_faces} | {fig['edge']:.2f} | "
+    line = (f"|  | {name} | {seconds:.2f} | {cpu:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | "
+            f"{fig['out_bytes']:.0f} | {out.n_faces} | {fig['edge']:.2f} | "
             f"{one_way(out, mesh, edge) / edge:.3f} | {one_way(mesh, out, edge) / edge:.3f} | "
             f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
             f"{fig['under30']:.2f} | {note} |")
     return line, fig
 
 
+ZOO = (("cuboid", 0), ("plate", 0), ("rod", 0), ("sphere", 0), ("open", 0))
+"""Zoo draws (:mod:`apt_filters.synth.zoo`, dev split) whose pipeline surfaces are remeshed too."""
+
+
+def zoo_surface(family: str, seed: int, folder=None) -> tuple[TriMesh, float]:
+    """The surface `apt-filters run` hands its remesh step on zoo draw ``family`` ``seed`` (the iso-value a user
+    would give, every option at its default; contour, segregants, specks, refinement, clean chain) and the
+    step's edge (half a voxel); cached in ``folder``."""
+    import tempfile
+    from pathlib import Path
+
+    from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
+    from apt_filters.pipeline.surface import finished_surface
+    from benchmarks.bench_zoo import run_fields, specimen
+
+    cache = Path(folder or tempfile.gettempdir()) / f"remesh_bench_zoo_{family}_{seed}.npz"
+    if not cache.exists():
+        sp, species, iso, _ = specimen(family, seed)
+        config = PipelineConfig()
+        config.remesh.method = "none"
+        fields, mask, basis = run_fields(sp, config)
+        mesh, _ = finished_surface(fields, mask, sp.ions, sp.ranges, SurfaceConfig(species, iso), config=config,
+                                   basis=basis)
+        np.savez(cache, vertices=mesh.vertices, faces=mesh.faces, edge=fields.grid.voxel / 2)
+    with np.load(cache) as f:
+        return TriMesh(f["vertices"], f["faces"]), float(f["edge"])
+
+
 def surfaces(quick: bool) -> list:
     """(kind, mesh, edge, sharp) of every benchmark surface."""
     gyroid = shapes.gyroid(half=8.0) if quick else shapes.gyroid()
     out = [("pipeline: small seed 3 (cube + sphere, refined)", shapes.pipeline_surface(), 0.5, True),
+           ("demo: default seed 0 (apt-filters demo)", shapes.pipeline_surface("default", 0), 0.5, True),
            ("thin plate 1.6", shapes.thin_plate(), 0.5, False),
            ("2 nm spheres x 8", shapes.small_spheres(), 0.5, False),
            ("tilted sheet (open)", shapes.tilted_sheet(), 0.5, False),
@@ -234,6 +269,9 @@ def surfaces(quick: bool) -> list:
            ("gyroid (bicontinuous)", gyroid, 0.5, False),
            ("gyroid, bumps 0.1", shapes.bumpy(shapes.gyroid(half=8.0), 0.1), 0.5, False),
            ("box-sphere-plate", shapes.box_minus_sphere_plate(0.5 if quick else 0.25), 0.04, True)]
+    for family, seed in ZOO:
+        mesh, edge = zoo_surface(family, seed)
+        out.append((f"zoo {family} {seed} (pipeline)", mesh, edge, family == "cuboid"))
     if not quick:
         out.append(("2M ions: gamma-prime, 2,000,000 ions (refined)",
                     shapes.pipeline_surface("gamma-prime", 3, ions=2_000_000), 0.5, True))
@@ -249,10 +287,10 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, default=1,
                         help="also count ours' components given back with seeds 0 .. N-1 (untimed)")
     args = parser.parse_args(argv)
-    lines = ["| surface | method | time s | CPU s | peak MiB | peak bytes / input face | faces | mean edge / target | Hausdorff out->in (edge) | "
-             "in->out (edge) | area % | components/loops/genus | feature F1 | min angle ° | % < 30° | "
-             "components kept |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+    lines = ["| surface | method | time s | CPU s | peak MiB | peak bytes / input face | peak bytes / output face | faces | "
+             "mean edge / target | Hausdorff out->in (edge) | in->out (edge) | area % | components/loops/genus | "
+             "feature F1 | min angle ° | % < 30° | components kept |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
     load = os.getloadavg()[0]
     print("\n".join(lines), flush=True)
     figures = []  # (kind, input faces, method, figures)
@@ -262,7 +300,7 @@ def main(argv=None) -> None:
         if args.only and not any(kind.startswith(o) for o in args.only):
             continue
         topo = quality.topology(mesh)
-        lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | | {mesh.n_faces} | {mean_edge(mesh) / edge:.2f} | | | | "
+        lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | | | {mesh.n_faces} | {mean_edge(mesh) / edge:.2f} | | | | "
                      f"{topo.components}/{topo.boundary_loops}/{topo.genus} | | | | |")
         print(lines[-1], flush=True)
         for name in METHODS:
@@ -311,9 +349,10 @@ def write(figures: list, lines: list, load: float, stage_lines: list) -> None:
         rows.append(("remesh", "mean output edge / target edge (ours shrink where the surface bends, to stay "
                                "within the Hausdorff tolerance)", f"{min(ours_e):.2f}-{max(ours_e):.2f}",
                      f"{min(peer_e):.2f}-{max(peer_e):.2f}", "-"))
-        ours_b, peer_b = [o["bytes"] for o, _ in pairs], [p["bytes"] for _, p in pairs]
-        rows.append(("remesh", "peak memory per input face (target 200 B)", f"{min(ours_b):,.0f}-{max(ours_b):,.0f} B",
-                     f"{min(peer_b):,.0f}-{max(peer_b):,.0f} B", "-"))
+        for key, what in (("bytes", "input face (target 200 B)"), ("out_bytes", "output face")):
+            ours_b, peer_b = [o[key] for o, _ in pairs], [p[key] for _, p in pairs]
+            rows.append(("remesh", f"peak memory per {what}", f"{min(ours_b):,.0f}-{max(ours_b):,.0f} B",
+                         f"{min(peer_b):,.0f}-{max(peer_b):,.0f} B", "-"))
         big = [k for k in kinds if k.startswith("2M ions") and (k, "pymeshlab isotropic") in by]
         if big:
             o, p = by[big[0], "ours (CVT)"], by[big[0], "pymeshlab isotropic"]

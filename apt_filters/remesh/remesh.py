@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,6 +26,8 @@ CONNECT_ROUNDS = 3
 # Edges shrink at most this many times below the target where the surface bends.
 MAX_SHRINK = 4.0
 GRADATION, GRADATION_PASSES = 1.3, 6
+# Components that fail the check are remeshed again, finer where the last try missed, at most this many times.
+RETRIES = 3
 
 
 @dataclass
@@ -65,7 +67,7 @@ def _edge_length(mesh: TriMesh, edge_length: float | None, n_vertices: int | Non
 
 
 def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: float,
-                      patch: np.ndarray) -> np.ndarray:
+                      patch: np.ndarray, boost: np.ndarray | None = None) -> np.ndarray:
     """(v,) density ρ per input vertex; edges scale as ρ^-1/4, shrinking by at most ``MAX_SHRINK``.
 
     Edges shrink by the larger of two factors, κ the curvature (1/nm) from the turn of vertex
@@ -78,6 +80,7 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     pipeline's refined cuboid (bends of radius 0.2-0.3 nm) left input points 0.20 nm from it
     (0.4 edge; 0.14 with the sagitta of equilateral triangles only). A third factor,
     :func:`crease_shrink`, covers the turns between input faces that vertex normals spread out.
+    ``boost`` (v,), optional: a further factor per vertex (:func:`miss_boost`, where a first remesh missed).
     """
     normals = vertex_normals(mesh.vertices, mesh.faces)
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
@@ -97,6 +100,13 @@ def curvature_density(mesh: TriMesh, edge: float, adaptive: float, tolerance: fl
     shrink = np.maximum(1.0 + adaptive * edge * k, np.sqrt(edge * k / (3.0 * tolerance)))
     # creases inside a patch: a turn θ between two faces that the input's edges do not resolve
     shrink = np.clip(np.maximum(shrink, crease_shrink(mesh, patch, edge, tolerance)), 1.0, MAX_SHRINK)
+    if boost is not None:  # past MAX_SHRINK too where a remesh missed, but no finer than the input's own edges
+        ends = mesh.topology.edge_vertices
+        span = np.linalg.norm(mesh.vertices[ends[:, 0]] - mesh.vertices[ends[:, 1]], axis=1)
+        shortest = np.full(mesh.n_vertices, np.inf)
+        np.minimum.at(shortest, ends[:, 0], span)
+        np.minimum.at(shortest, ends[:, 1], span)
+        shrink = np.maximum(shrink, np.minimum(shrink * boost, edge / shortest))
     # graded: the factor falls by at most GRADATION per target edge away from where it is needed, so
     # that Lloyd is not asked for a jump in size it can only meet with poor triangles
     edges = unique_rows(np.sort(mesh.edges(), axis=1))[0]
@@ -166,8 +176,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     verify : bool
         Check every input component against its remesh (:func:`apt_filters.remesh.verify.check_components`:
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
-        a quarter of the edge, area within 1 %) and give back the input's own faces of each
-        component that fails.
+        a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
+        finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
+        ``RETRIES`` times), and give back the input's own faces of each one that still fails.
 
     Returns
     -------
@@ -183,6 +194,66 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     """
     if mesh.n_faces == 0:
         raise AptFiltersError("mesh has no faces")
+    edge = _edge_length(mesh, edge_length, n_vertices)
+    options = dict(feature_angle=feature_angle, adaptive=adaptive, max_iter=max_iter, tol=tol,
+                   smooth_rounds=smooth_rounds, bridge_gaps=bridge_gaps)
+    result, out_component, surface = _cvt_remesh(mesh, edge, seed=seed, **options)
+    if not verify:
+        return result
+    clock = time.perf_counter()
+    component = mesh.face_components()
+    checks = check.check_components(mesh, result.mesh, component, out_component, edge=edge, source_surface=surface)
+    failed = np.array([not c.ok for c in checks])
+    out = result.mesh
+    if failed.any():
+        last_out_mask = (out_component < 0) | failed[np.maximum(out_component, 0)]
+        out = check.keep_input(mesh, out, component, out_component, failed)
+        out_component = check.kept_component(component, out_component, failed)
+        # the failed components again, on their own, finer where the last remesh missed and with another seed:
+        # a miss the density did not foresee (a kink of a feature curve, a spike of the refined surface) or a
+        # sampling that fell badly
+        boost, pins = np.ones(mesh.n_vertices), np.zeros(mesh.n_vertices, bool)
+        last, last_mask, last_surface, last_used = result.mesh, failed[component], surface, np.arange(mesh.n_vertices)
+        for attempt in range(1, RETRIES + 1):
+            more, corners = missed(mesh if attempt == 1 else part, last, mask=last_mask, out_mask=last_out_mask,
+                                   edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface)
+            boost[last_used] *= more
+            pins[last_used[corners]] = True
+            mask = failed[component]
+            part, used = _part(mesh, mask)
+            again, again_component, part_surface = _cvt_remesh(part, edge, seed=seed + attempt, boost=boost[used],
+                                                               pins=np.flatnonzero(pins[used]), **options)
+            original = np.empty(int(failed.sum()), np.int64)
+            part_component = part.face_components()
+            original[part_component] = component[mask]
+            passed = np.zeros(len(checks), bool)
+            for c in check.check_components(part, again.mesh, part_component, again_component, edge=edge,
+                                            source_surface=part_surface):
+                if c.ok:
+                    passed[original[c.component]] = True
+                    checks[original[c.component]] = replace(c, component=int(original[c.component]))
+            if passed.any():
+                taken = np.where(again_component >= 0, original[np.maximum(again_component, 0)], -1)
+                out = check.keep_input(again.mesh, out, taken, out_component, passed)
+                out_component = check.kept_component(taken, out_component, passed)
+                failed &= ~passed
+            if not failed.any():
+                break
+            last, last_surface, last_used = again.mesh, part_surface, used
+            last_mask = failed[original[part_component]]
+            last_out_mask = (again_component < 0) | failed[original[np.maximum(again_component, 0)]]
+    result.timings["verify"] = time.perf_counter() - clock
+    result.mesh, result.checks = out, checks
+    return result
+
+
+def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: float, max_iter: int, tol: float,
+                smooth_rounds: int, seed: int, bridge_gaps: bool,
+                boost: np.ndarray | None = None,
+                pins: np.ndarray | None = None) -> tuple[RemeshResult, np.ndarray, SurfaceDistance]:
+    """:func:`remesh` without the check: the result (no ``checks``), the input component each output face
+    stands for ((f_out,), -1 where its corners come from several) and the input's closest-point engine.
+    ``boost``: :func:`curvature_density`'s; ``pins``: input vertices made corners (:func:`pin_corners`)."""
     timings = {}
     clock = [time.perf_counter()]
 
@@ -191,12 +262,13 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         timings[phase] = timings.get(phase, 0.0) + now - clock[0]
         clock[0] = now
 
-    edge = _edge_length(mesh, edge_length, n_vertices)
     features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps,
                            miss=check.HAUSDORFF_FRACTION * edge)
+    if pins is not None:
+        features = pin_corners(mesh, features, pins)
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
-    rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch)
+    rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch, boost)
     density = rho_v[mesh.faces].mean(axis=1)  # per input face
     from scipy.spatial import cKDTree
 
@@ -241,21 +313,87 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     mark("optimise")
     out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge, surfaces.whole)
     mark("scalars")
-    checks = []
-    if verify:
-        source_component = mesh.face_components()
-        generator_component = _generator_components(mesh, features, gens, source_component)[used]
-        corner = generator_component[faces]
-        result_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
-        checks = check.check_components(mesh, out, source_component, result_component, edge=edge,
-                                        source_surface=surfaces.whole)
-        failed = np.array([not c.ok for c in checks])
-        if failed.any():
-            out = check.keep_input(mesh, out, source_component, result_component, failed)
-        mark("verify")
+    generator_component = _generator_components(mesh, features, gens, mesh.face_components())[used]
+    corner = generator_component[faces]
+    out_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
     on_curve = isin(features.corners, np.concatenate([c[[0, -1]] for c in features.curves] or [np.empty(0, np.int64)]))
-    return RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, int(on_curve.sum()),
-                        len(features.curves), timings, checks, int((~on_curve).sum()))
+    return (RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, int(on_curve.sum()),
+                         len(features.curves), timings, [], int((~on_curve).sum())), out_component, surfaces.whole)
+
+
+def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarray, edge: float,
+           tolerance: float, surface: SurfaceDistance) -> tuple[np.ndarray, np.ndarray]:
+    """Where a remesh ``out`` of ``mesh`` missed it by d > ``tolerance``·L / 2 (L = ``edge``, nm): (v,) the factor by
+    which edges shrink again at ``mesh``'s vertices within L of such a face, 2d / (``tolerance``·L), the shrink
+    that brings a miss in proportion to the edge (a chord across a kink) to half the tolerance (a sagitta, in
+    proportion to its square, falls further), 1 elsewhere; and the vertices of ``mesh`` to pin as corners: of
+    each such face of ``mesh``, the vertex farthest from ``out`` (a needle's tip, a kink of a feature curve,
+    which no finer sampling need hit).
+
+    Faces: those of ``mesh`` in ``mask`` (f,) measured to ``out`` and those of ``out`` in ``out_mask`` measured
+    to ``mesh`` (``surface``, its closest-point engine), each by the farthest of its vertices, edge midpoints
+    and centroid (:func:`~apt_filters.remesh.verify.farthest`, the check's own measure).
+    """
+    from scipy.spatial import cKDTree
+
+    from apt_filters.core.distance import mesh_distance
+
+    tol = tolerance * edge
+    points, miss, far_faces = [], [], []
+    for a, b, sel, engine in ((mesh, out, mask, None), (out, mesh, out_mask, surface)):
+        d = check.farthest(a, b, np.where(sel, np.arange(a.n_faces), -1), a.n_faces, tol, surface=engine)
+        far = d > 0.5 * tol  # where the factor below exceeds 1
+        points.append(a.vertices[a.faces[far]].mean(axis=1))
+        miss.append(d[far])
+        far_faces.append(a.faces[far])
+    points, miss = np.vstack(points), np.concatenate(miss)
+    boost = np.ones(mesh.n_vertices)
+    if len(miss):
+        ids = cKDTree(mesh.vertices).query_ball_point(points, edge)
+        counts = np.array([len(i) for i in ids])
+        np.maximum.at(boost, np.concatenate(ids).astype(np.int64), np.repeat(2.0 * miss / tol, counts))
+    corners = far_faces[0]
+    if len(corners):
+        corners = corners[np.arange(len(corners)), mesh_distance(out, mesh.vertices[corners].reshape(-1, 3))
+                          .reshape(-1, 3).argmax(axis=1)]
+    return boost, unique(corners)
+
+
+def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray) -> feat.Features:
+    """``features`` with ``vertices`` (input vertex ids) made corners: a feature curve through one is split there
+    (a closed loop through one only is split again at its middle, so that its pieces have two ends)."""
+    vertices = np.setdiff1d(vertices, features.corners)
+    if not len(vertices):
+        return features
+    extra, curves, curve_patches, boundary = [vertices], [], [], []
+    for c, patches, on_rim in zip(features.curves, features.curve_patches, features.boundary_curve):
+        cut = np.flatnonzero(isin(c, vertices))
+        if len(c) > 2 and c[0] == c[-1] and len(cut):  # a loop: start it at a pinned vertex
+            c = np.concatenate([c[cut[0]:-1], c[:cut[0] + 1]])
+            cut = np.flatnonzero(isin(c, vertices))
+            if len(unique(c[cut])) == 1:
+                extra.append(c[[len(c) // 2]])
+                cut = np.union1d(cut, [len(c) // 2])
+        ends = np.union1d(np.union1d(cut, [0]), [len(c) - 1])
+        for a, b in zip(ends[:-1], ends[1:]):
+            curves.append(c[a:b + 1])
+            curve_patches.append(patches)
+            boundary.append(on_rim)
+    new = unique(np.concatenate(extra))
+    around = [unique(features.patch[np.flatnonzero((mesh.faces == v).any(axis=1))]) for v in new]
+    return replace(features, corners=np.concatenate([features.corners, new]), curves=curves,
+                   curve_patches=curve_patches, corner_patches=list(features.corner_patches) + around,
+                   boundary_curve=np.array(boundary, bool))
+
+
+def _part(mesh: TriMesh, mask: np.ndarray) -> tuple[TriMesh, np.ndarray]:
+    """The faces ``mask`` (f,) of ``mesh`` as a mesh of their own, with their scalars, and (v',) the vertex of
+    ``mesh`` each of its vertices is."""
+    used, local = np.unique(mesh.faces[mask], return_inverse=True)
+    part = TriMesh(mesh.vertices[used], local.reshape(-1, 3),
+                   {k: np.asarray(v)[used] for k, v in mesh.vertex_scalars.items()},
+                   {k: np.asarray(v)[mask] for k, v in mesh.face_scalars.items()})
+    return part, used
 
 
 def _generator_components(mesh: TriMesh, features: feat.Features, gens: cvt.Generators,

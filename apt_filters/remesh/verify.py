@@ -248,13 +248,13 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
 def keep_input(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_component: np.ndarray,
                keep: np.ndarray) -> TriMesh:
     """``result`` with the components flagged in ``keep`` ((k,) bool over input components) replaced
-    by the input's own faces of them (with the input's vertex and face scalars).
+    by the input's own faces of them (with the input's vertex and face scalars); ``source_component`` -1: a
+    face of none (never taken).
 
     Output faces of a kept component, and those joined to several components (-1), are dropped.
     Scalars present on only one of the two meshes are left out.
     """
-    drop = (result_component < 0) | keep[np.maximum(result_component, 0)]
-    mine = keep[source_component]
+    drop, mine = _taken(source_component, result_component, keep)
     parts = []
     for mesh, faces in ((result, result.faces[~drop]), (source, source.faces[mine])):
         used, local = np.unique(faces, return_inverse=True)
@@ -270,3 +270,15 @@ def keep_input(source: TriMesh, result: TriMesh, source_component: np.ndarray, r
         out.face_scalars[name] = np.concatenate([np.asarray(m1.face_scalars[name])[~drop],
                                                  np.asarray(m2.face_scalars[name])[mine]])
     return out
+
+
+def kept_component(source_component: np.ndarray, result_component: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(f',) input component of every face of :func:`keep_input`'s mesh for the same arguments, in its order."""
+    drop, mine = _taken(source_component, result_component, keep)
+    return np.concatenate([result_component[~drop], source_component[mine]])
+
+
+def _taken(source_component: np.ndarray, result_component: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(f_out,) bool faces of ``result`` that :func:`keep_input` drops, (f_in,) bool faces of ``source`` it takes."""
+    drop = (result_component < 0) | keep[np.maximum(result_component, 0)]
+    return drop, (source_component >= 0) & keep[np.maximum(source_component, 0)]
