@@ -213,9 +213,10 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         # a miss the density did not foresee (a kink of a feature curve, a spike of the refined surface) or a
         # sampling that fell badly
         boost, pins = np.ones(mesh.n_vertices), np.zeros(mesh.n_vertices, bool)
-        last, last_mask, last_surface, last_used = result.mesh, failed[component], surface, np.arange(mesh.n_vertices)
+        part, last, last_mask, last_surface = mesh, result.mesh, failed[component], surface
+        last_used = np.arange(mesh.n_vertices)
         for attempt in range(1, RETRIES + 1):
-            more, corners = missed(mesh if attempt == 1 else part, last, mask=last_mask, out_mask=last_out_mask,
+            more, corners = missed(part, last, mask=last_mask, out_mask=last_out_mask,
                                    edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface)
             boost[last_used] *= more
             pins[last_used[corners]] = True
