@@ -427,6 +427,68 @@ def unmixed_sums(sums: np.ndarray, mixed: np.ndarray) -> np.ndarray:
     return out
 
 
+def unmixing_shift(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, fit: BallFit, *,
+                   radius: float, dims: float, blur: float) -> tuple[np.ndarray, float, float, float]:
+    """Each window's share of the inside phase under one object's fitted ball, and what unmixing the windows by them
+    does to the measured species' midpoint level: the shift, its variance, and what it gains in mean squared error.
+
+    The windows' midpoint ``W = (w_in + w_out) / 2`` (each window's fraction, :func:`window_labels`) is biased where
+    the windows still hold the interface; the unmixed one (:func:`unmixed_sums`)
+    ``B = ((1 - 2 g_out) w_in + (2 g_in - 1) w_out) / (2 (g_in - g_out))``, with ``g`` each window's mean share
+    under the fitted ball (:func:`ball_profile`), is not if the ball holds, but is noisier: its windows' counts are
+    amplified by ``1 / (g_in - g_out)`` and the shares carry the fit's (offset, width) covariance (delta method,
+    central differences). ``B`` has the smaller mean squared error where the windows' squared bias exceeds the
+    variance the unmixing adds, ``b^2 > var B - var W``; ``b^2`` is estimated without bias by
+    ``(B - W)^2 - var(B - W)`` (the count terms of ``B - W`` from the same windows' counts). The returned gain
+    ``(B - W)^2 - var(B - W) - var B + var W`` is that difference of mean squared errors: positive where the
+    unmixed level is expected nearer the truth. An interface the ions do not fix (a thin, low-contrast object
+    whose fitted offset and width trade off over nanometres) gives ``var B`` far beyond any shift.
+
+    Parameters
+    ----------
+    distance, part, total, window : (b,)
+        The object's ions (:func:`held_out_gain`).
+    fit : BallFit
+        Its ball fitted to them (:func:`fit_ball`).
+    radius, dims, blur : float
+        The ball (:func:`object_shapes`) and the isotropic blur sigma, nm.
+
+    Returns
+    -------
+    mixed : (2,) float64
+        The inside phase's mean share in the inside and outside windows.
+    shift : float
+        ``B - W``, fraction.
+    var : float
+        ``var B``, fraction².
+    gain : float
+        ``MSE(W) - MSE(B)`` as estimated, fraction².
+    """
+    sides = [window == side for side in (0, 1)]
+    n = np.array([total[s].sum() for s in sides])
+    w = np.array([part[s].sum() for s in sides]) / np.maximum(n, 1e-300)
+
+    def shares(offset: float, width: float) -> np.ndarray:
+        return np.array([np.average(ball_profile(distance[s] - offset, radius=max(radius + offset, 0.0), dims=dims,
+                                                 width=width, blur=blur), weights=total[s]) for s in sides])
+
+    def coefficients(g: np.ndarray) -> np.ndarray:  # B = coefficients . w
+        return np.array([1 - 2 * g[1], 2 * g[0] - 1]) / (2 * (g[0] - g[1]))
+
+    q = np.array([fit.offset, max(fit.width, 0.02)])
+    mixed = shares(*q)
+    b = coefficients(mixed)
+    step = np.array([1e-3, 1e-3])
+    grad = np.array([(coefficients(shares(*(q + h))) - coefficients(shares(*(q - h)))) @ w / (2 * h.sum())
+                     for h in np.diag(step)])
+    counts = w * (1 - w) / np.maximum(n, 1e-300)
+    var_b = float(grad @ fit.cov @ grad + np.sum(b ** 2 * counts))
+    var_w = float(np.sum(0.25 * counts))
+    var_shift = float(grad @ fit.cov @ grad + np.sum((b - 0.5) ** 2 * counts))
+    shift = float((b - 0.5) @ w)
+    return mixed, shift, var_b, shift ** 2 - var_shift - var_b + var_w
+
+
 def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, half: np.ndarray, *,
                   radius: float, dims: float, blur: float, half_width: float = 3.0) -> tuple[float, float] | None:
     """Nats by which one object's blurred ball profile predicts its held-out window ions better than its windows do,

@@ -100,8 +100,8 @@ from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, face
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, fit_ball, held_out_gain,
-                                      levels_from_sums, object_shapes, plateau_sums, plateaus, unmixed_sums,
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, fit_ball, held_out_gain, levels_from_sums,
+                                      object_shapes, plateau_sums, plateaus, unmixed_sums, unmixing_shift,
                                       window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
@@ -690,10 +690,11 @@ def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
 
 
 def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
-                         p: RefineParams, closed: np.ndarray) -> list[ObjectLevels]:
+                         p: RefineParams, closed: np.ndarray) -> tuple[list[ObjectLevels], np.ndarray]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
-    even ions' (see ``cross_fit`` of :class:`RefineParams`); ``held[k]``: the ions of half ``k`` assigned to the
-    other half's surface; ``closed``: the objects without a rim (``curved_levels`` unmixes theirs)."""
+    even ions' (see ``cross_fit`` of :class:`RefineParams`), and which objects' windows were unmixed
+    (``curved_levels``); ``held[k]``: the ions of half ``k`` assigned to the other half's surface; ``closed``: the
+    objects without a rim (``curved_levels`` unmixes theirs)."""
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
@@ -704,7 +705,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not (p.curved_levels and closed.any()):
-        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior), np.zeros(n_comp, bool)
     # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
     # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
     bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
@@ -713,7 +714,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
     # ions found biased, left out of its pool); the others toward every object's windows, as without the model
     pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
-    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
+    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled), chosen
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
@@ -779,12 +780,15 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
             continue
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
-        sides = [mine[window[mine] == side] for side in (0, 1)]
-        mixed[c] = [np.average(ball_profile(distance[ions] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
-                                            dims=dims[c], width=fit.width, blur=sigma), weights=total[ions])
-                    for ions in sides]
-        # windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
-        chosen[c] = mixed[c, 0] - mixed[c, 1] > 0.1
+        if fit is None:
+            continue
+        shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
+                                              radius=radius[c], dims=dims[c], blur=sigma)
+        # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not fix
+        # the interface unmixes by shares it does not know); windows that cannot tell the phases apart are left
+        # as they are (unmixed_sums keeps them)
+        if better > 0 and shares[0] - shares[1] > 0.1:
+            mixed[c], chosen[c] = shares, True
     return unmixed_sums(sums, mixed), chosen
 
 
@@ -1006,6 +1010,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
 
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
     fits, held, fixed = [], [], None
+    unmixed = np.zeros(int(components.max()) + 1 if n else 0, dtype=bool)
     pairs_start = Pairs.find(start, components, p.pool_radius)
     if p.cross_fit:
         clock = time.perf_counter()
@@ -1014,9 +1019,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
         held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
-        closed = np.ones(int(components.max()) + 1 if n else 0, dtype=bool)
+        closed = np.ones(len(unmixed), dtype=bool)
         closed[rimmed] = False
-        fixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
+        fixed, unmixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
         stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
@@ -1086,7 +1091,11 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     estimate, marks = _segregant(ions_near, basis, finished, along, components, scores, errors, p.half_width,
                                  p.distance, auto, p.marker)
     if auto:
-        estimate = estimate or _estimate_blur(ions_near, finished, along, components, scores, p.half_width,
+        # the step's width is read against each object's levels as reached in its windows: an unmixed object's
+        # levels are its phases beyond them, its profile not the step the reading models (and, pooled, its levels
+        # would move every other object's blur correction)
+        estimate = estimate or _estimate_blur(ions_near, finished, along, components,
+                                              replace(scores, usable=scores.usable & ~unmixed), p.half_width,
                                               p.distance)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
