@@ -209,9 +209,11 @@ class RefineParams:
         interface widths its windows never reach its phases (the inside one reads low, the outside one high),
         and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
         ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
-        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds); the objects so
-        unmixed are shrunk toward every object's levels as chosen, the others toward every object's windows
-        (``plateau_prior``). The model's ions are measured a second time, with exact distances.
+        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
+        the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
+        mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
+        chosen, the others toward every object's windows (``plateau_prior``), and are left out of the step's blur
+        reading. The model's ions are measured a second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
@@ -732,7 +734,10 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
     window ions better than that half's flat windows do, summed over both folds, by more than :data:`BALL_SE`
     standard errors of that gain (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold
-    cross-validation as the mode selection, the windows the simpler model.
+    cross-validation as the mode selection, the windows the simpler model; and only where the unmixed midpoint,
+    with the fit's covariance and its amplified counts, is expected nearer the truth than the windows'
+    (:func:`~apt_filters.refine.levels.unmixing_shift`): a fit that does not fix the interface (a thin object
+    at low contrast) unmixes by shares it does not know.
 
     Returns
     -------
