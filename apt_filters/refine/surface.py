@@ -212,8 +212,8 @@ class RefineParams:
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
         the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
         mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
-        chosen, the others toward every object's windows (``plateau_prior``), and are left out of the step's blur
-        reading. The model's ions are measured a second time, with exact distances.
+        chosen, the others toward every object's windows (``plateau_prior``). The model's ions are measured a
+        second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
@@ -692,11 +692,10 @@ def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
 
 
 def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
-                         p: RefineParams, closed: np.ndarray) -> tuple[list[ObjectLevels], np.ndarray]:
+                         p: RefineParams, closed: np.ndarray) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
-    even ions' (see ``cross_fit`` of :class:`RefineParams`), and which objects' windows were unmixed
-    (``curved_levels``); ``held[k]``: the ions of half ``k`` assigned to the other half's surface; ``closed``: the
-    objects without a rim (``curved_levels`` unmixes theirs)."""
+    even ions' (see ``cross_fit`` of :class:`RefineParams`); ``held[k]``: the ions of half ``k`` assigned to the
+    other half's surface; ``closed``: the objects without a rim (``curved_levels`` unmixes theirs)."""
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
@@ -707,7 +706,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not (p.curved_levels and closed.any()):
-        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior), np.zeros(n_comp, bool)
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
     # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
     # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
     bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
@@ -716,7 +715,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
     # ions found biased, left out of its pool); the others toward every object's windows, as without the model
     pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
-    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled), chosen
+    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
@@ -1015,7 +1014,6 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
 
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
     fits, held, fixed = [], [], None
-    unmixed = np.zeros(int(components.max()) + 1 if n else 0, dtype=bool)
     pairs_start = Pairs.find(start, components, p.pool_radius)
     if p.cross_fit:
         clock = time.perf_counter()
@@ -1024,9 +1022,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
         held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
-        closed = np.ones(len(unmixed), dtype=bool)
+        closed = np.ones(int(components.max()) + 1 if n else 0, dtype=bool)
         closed[rimmed] = False
-        fixed, unmixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
+        fixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
         stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
@@ -1096,11 +1094,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     estimate, marks = _segregant(ions_near, basis, finished, along, components, scores, errors, p.half_width,
                                  p.distance, auto, p.marker)
     if auto:
-        # the step's width is read against each object's levels as reached in its windows: an unmixed object's
-        # levels are its phases beyond them, its profile not the step the reading models (and, pooled, its levels
-        # would move every other object's blur correction)
-        estimate = estimate or _estimate_blur(ions_near, finished, along, components,
-                                              replace(scores, usable=scores.usable & ~unmixed), p.half_width,
+        estimate = estimate or _estimate_blur(ions_near, finished, along, components, scores, p.half_width,
                                               p.distance)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
