@@ -96,18 +96,24 @@ def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_componen
     An object with no ion ``window[0]`` deep (a rod or plate thinner than the delocalization, or a first contour
     that is a sliver of one) is measured from halfway to its deepest ion instead (:func:`inside_inner`).
     """
-    inner, outer = window
     comp = components[band.vertex]
     a = atoms.atoms[band.index].astype(np.float64)
-    window_of = np.full(len(comp), -1)  # 0: inside plateau window, 1: outside
-    starts = inside_inner(band, comp, n_components, inner)
-    window_of[(band.distance <= -starts[np.maximum(comp, 0)]) & (band.distance >= -outer)] = 0
-    window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
+    window_of = window_labels(band, comp, n_components, window)
     use = (window_of >= 0) & (comp >= 0)
     key = 2 * comp[use] + window_of[use]
     per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
                    axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
     return per.reshape(n_components, 2, a.shape[1])
+
+
+def window_labels(band: Band, comp: np.ndarray, n_components: int, window=PLATEAU_WINDOW) -> np.ndarray:
+    """(b,) each ion's plateau window: 0 inside, 1 outside, -1 neither (``comp``: each ion's object, -1 none)."""
+    inner, outer = window
+    window_of = np.full(len(comp), -1)
+    starts = inside_inner(band, comp, n_components, inner)
+    window_of[(band.distance <= -starts[np.maximum(comp, 0)]) & (band.distance >= -outer)] = 0
+    window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
+    return window_of
 
 
 def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) -> np.ndarray:
@@ -126,19 +132,21 @@ def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) 
     return np.where(depth > inner, inner, 0.5 * depth)
 
 
-def levels_from_sums(sums: np.ndarray, elements: list[str], species: str,
-                     prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
-    """Each object's plateaus from its window sums (:func:`plateau_sums`), shrunk toward the pooled ones."""
+def levels_from_sums(sums: np.ndarray, elements: list[str], species: str, prior: float = PLATEAU_PRIOR,
+                     pooled: np.ndarray | None = None) -> list[ObjectLevels]:
+    """Each object's plateaus from its window sums (:func:`plateau_sums`), shrunk toward the pooled ones
+    (``pooled``: (n_components, 2, k) the sums each object is shrunk toward; None: every object's summed)."""
     k = elements.index(species)
     out = []
-    pooled = [sums[:, side].sum(axis=0) for side in (0, 1)] if len(sums) else []
+    if pooled is None:
+        pooled = np.broadcast_to(sums.sum(axis=0), sums.shape)
     for c in range(len(sums)):
         inside, outside = sums[c, 0], sums[c, 1]
         n_in, n_out = inside.sum(), outside.sum()
         if prior > 0:
             # shrink toward the pooled levels: a small object's own plateau is mostly noise
-            inside = inside + prior * pooled[0] / max(pooled[0].sum(), 1e-300)
-            outside = outside + prior * pooled[1] / max(pooled[1].sum(), 1e-300)
+            inside = inside + prior * pooled[c, 0] / max(pooled[c, 0].sum(), 1e-300)
+            outside = outside + prior * pooled[c, 1] / max(pooled[c, 1].sum(), 1e-300)
         c_in = inside / inside.sum() if inside.sum() > 0 else np.full(len(inside), np.nan)
         c_out = outside / outside.sum() if outside.sum() > 0 else np.full(len(outside), np.nan)
         out.append(ObjectLevels(c, list(elements), c_in, c_out, float(n_in), float(n_out),
@@ -202,3 +210,340 @@ def per_object_iso(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     objects of different compositions are cut at the same relative height of their interfaces.
     """
     return np.array([lv.iso for lv in object_levels(mesh, ions, ranges, species, basis, window, prior)])
+
+
+_WIDTH_NODES = np.linspace(-6.0, 6.0, 241)
+"""Standard normal nodes over which :func:`ball_profile` averages the interface's own width (0.05 apart: with the
+blur floored at a tenth of the width, the average of the nodes' blurred steps is smooth in the offset and width)."""
+
+
+def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blur: float) -> np.ndarray:
+    """Expected inside fraction at signed distance ``d`` (nm, negative inside) from a ball's interface.
+
+    The ball (``dims`` 3: a sphere, 2: a cylinder's cross-section, 1: a slab of half-thickness ``radius``;
+    fractional values in between) has an error-function interface of Gaussian width ``width`` in the
+    distance to its surface, ``Phi((radius - r) / width)`` at distance ``r`` from its centre, and the ions'
+    positions are blurred by an isotropic Gaussian of sigma ``blur``. The blurred fraction is
+
+        g(r) = E_Z[ P(|x + blur N| < radius + width Z) ],  r = |x| = radius + d,
+
+    where ``P`` is the noncentral chi-square distribution function with ``dims`` degrees of freedom
+    (the blurred indicator of a ball), averaged over ``Z`` on :data:`_WIDTH_NODES`. As
+    ``radius / width`` and ``radius / blur`` grow it tends to the planar step
+    ``Phi(-d / sqrt(width^2 + blur^2))``; on a curved object the blur moves the midpoint inside by about
+    ``(dims - 1) blur^2 / (2 radius)`` near the interface but not deep inside, and the interface's tails
+    reach deeper than a plane's (more of a small ball's volume lies near its surface).
+
+    Parameters
+    ----------
+    d : (n,) float64, nm
+    radius, width, blur : float, nm
+    dims : float, [1, 3]
+
+    Returns
+    -------
+    (n,) float64 in [0, 1]
+    """
+    from scipy.special import chndtr, ndtr
+
+    d = np.asarray(d, dtype=np.float64)
+    if d.size <= 256:
+        r = np.maximum(radius + d, 0.0)
+    else:  # many ions: on a 0.01 nm grid (the profile varies over tenths of a nm), interpolated
+        r = np.arange(max(radius + d.min(), 0.0), max(radius + d.max(), 0.0) + 0.02, 0.01)
+    z = _WIDTH_NODES
+    h = np.exp(-0.5 * z ** 2)
+    h /= h.sum()
+    edge = np.maximum(radius + width * z, 0.0)  # (q,) the ball's radius at each node of its own width
+    s = max(blur, 0.1 * max(width, 1e-3), 1e-3)  # a vanishing blur: a tenth of the width, ~0.5 % of its variance
+    x, nc = np.broadcast_arrays((edge[None, :] / s) ** 2, (r[:, None] / s) ** 2)
+    cdf = np.zeros(x.shape)
+    # far from the centre in blur units (chndtr is slow there): the planar step shifted by the curvature,
+    # P(|x + blur N| < edge) ~ Phi((edge - r - (dims - 1) s^2 / 2r) / s) to O((s / r)^2)
+    far = nc > 900.0
+    some = (x > 0) & ~far  # a node whose ball has shrunk to nothing holds nothing
+    cdf[some] = chndtr(x[some], dims, nc[some])
+    r_far, edge_far = np.sqrt(nc[far]) * s, np.sqrt(x[far]) * s
+    cdf[far] = ndtr((edge_far - r_far - (dims - 1) * s ** 2 / (2 * r_far)) / s)
+    g = np.clip(cdf @ h, 0.0, 1.0)
+    return g if d.size <= 256 else np.interp(np.maximum(radius + d, 0.0), r, g)
+
+
+def object_shapes(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray,
+                  n_components: int) -> tuple[np.ndarray, np.ndarray]:
+    """(radius, dims) of the ball (:func:`ball_profile`) with each closed object's volume, area and total mean curvature.
+
+    A ball of radius ``R`` in ``D`` dimensions (``D - 1`` curved directions) has ``V / A = R / D`` and
+    ``kappa_1 + kappa_2 = (D - 1) / R`` everywhere, so ``M V / A^2 = (D - 1) / D`` with
+    ``M = integral (kappa_1 + kappa_2) dA``, measured on the mesh as ``sum |e| theta_e`` over its edges
+    (``theta_e`` the signed angle between the edge's face normals, positive where convex). A sphere gives
+    ``D = 3``, ``R = 3 V / A``; a long rod ``D = 2``, ``R`` its radius; a plate ``D -> 1``, ``R`` its
+    half-thickness; a cube of side ``a`` ``D = 2.1``, ``R = 0.35 a``. ``D`` is clipped to [1, 3].
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64, nm
+    faces : (m, 3) int
+    components : (n,) int
+        Each vertex's object.
+    n_components : int
+
+    Returns
+    -------
+    radius : (n_components,) float64, nm
+    dims : (n_components,) float64
+    """
+    p = vertices[faces]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    comp = components[faces[:, 0]]
+    volume = np.bincount(comp, weights=np.einsum("ij,ij->i", p[:, 0], cross) / 6, minlength=n_components)
+    area = np.bincount(comp, weights=0.5 * area2, minlength=n_components)
+    normal = cross / np.maximum(area2, 1e-300)[:, None]
+    topo = topology(faces, len(vertices))
+    pairs, shared = topo.face_pairs, topo.edge_vertices[topo.edge_faces == 2]  # both in edge order
+    f, g = pairs[:, 0], pairs[:, 1]
+    edge = vertices[shared[:, 1]] - vertices[shared[:, 0]]
+    length = np.linalg.norm(edge, axis=1)
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", normal[f], normal[g]), -1.0, 1.0))
+    angle[(area2[f] <= 0) | (area2[g] <= 0)] = 0.0  # a degenerate face has no normal to bend
+    # convex where the other face's centroid lies behind this face's plane
+    behind = np.einsum("ij,ij->i", p[g].mean(axis=1) - p[f].mean(axis=1), normal[f]) < 0
+    curvature = np.bincount(comp[f], weights=length * np.where(behind, angle, -angle), minlength=n_components)
+    ratio = np.divide(curvature * volume, area ** 2, out=np.zeros(n_components), where=area > 0)
+    dims = np.clip(1.0 / np.maximum(1.0 - ratio, 1e-9), 1.0, 3.0)
+    return dims * np.divide(volume, area, out=np.zeros(n_components), where=area > 0), dims
+
+
+@dataclass
+class BallFit:
+    """The interface of one object fitted with :func:`ball_profile` (:func:`fit_ball`).
+
+    Attributes
+    ----------
+    offset : float, nm
+        Where the fitted interface lies from the surface the distances were measured to (positive: outside).
+    width : float, nm
+        The interface's own Gaussian width (the blur given apart).
+    inside, outside : float
+        The fitted fraction's asymptotes deep inside and far outside.
+    cov : (2, 2) float64, nm²
+        Covariance of (offset, width) (Gauss-Newton, the levels profiled out; the residuals' variance the
+        binomial one or, if larger, their own).
+    """
+
+    offset: float
+    width: float
+    inside: float
+    outside: float
+    cov: np.ndarray
+
+    @property
+    def offset_se(self) -> float:
+        """nm: the offset's standard error."""
+        return float(np.sqrt(self.cov[0, 0]))
+
+
+def fit_ball(distance: np.ndarray, part: np.ndarray, total: np.ndarray, *, radius: float, dims: float, blur: float,
+             half_width: float = 3.0, bin_width: float = 0.1) -> BallFit | None:
+    """The interface's offset and own width, and the two levels, of one object's binned profile (least squares).
+
+    The fraction ``part / total`` of the ions at ``distance`` is modelled as
+    ``outside + (inside - outside) g(distance - offset)`` with ``g`` the blurred ball profile
+    (:func:`ball_profile`) of radius ``radius + offset``; each bin of ``bin_width`` nm within ``half_width`` weighs
+    its atoms, the two levels are solved for in closed form at each (offset, width) (variable projection).
+
+    Parameters
+    ----------
+    distance : (b,) float64, nm
+        Signed distances of the object's ions (negative inside).
+    part, total : (b,) float64
+        Atoms of the measured species, and basis atoms, per ion.
+    radius, dims : float
+        The object's ball (:func:`object_shapes`).
+    blur : float, nm
+        Isotropic sigma of the reconstruction blur.
+
+    Returns
+    -------
+    BallFit, or None where fewer than 10 bins hold atoms.
+    """
+    from scipy.optimize import least_squares
+
+    edges = np.arange(-half_width, half_width + 1e-9, bin_width)
+    idx = np.digitize(distance, edges) - 1
+    ok = (idx >= 0) & (idx < len(edges) - 1)
+    n = np.bincount(idx[ok], weights=total[ok], minlength=len(edges) - 1)
+    k = np.bincount(idx[ok], weights=part[ok], minlength=len(edges) - 1)
+    use = n > 0
+    if use.sum() < 10:
+        return None
+    centre, n, y = (0.5 * (edges[1:] + edges[:-1]))[use], n[use], k[use] / n[use]
+    root = np.sqrt(n)
+
+    def levels(q):
+        g = ball_profile(centre - q[0], radius=max(radius + q[0], 0.0), dims=dims, width=q[1], blur=blur)
+        design = np.column_stack([1 - g, g]) * root[:, None]
+        coef = np.linalg.lstsq(design, y * root, rcond=None)[0]
+        return coef, design @ coef - y * root
+
+    fit = least_squares(lambda q: levels(q)[1], [0.0, 0.5], bounds=([-1.0, 0.02], [1.0, 3.0]))
+    (outside, inside), _ = levels(fit.x)
+    # residuals in units of sqrt(atoms): their variance is the binomial c (1 - c), or the fit's own scatter if larger
+    scale = max(float(np.sum(fit.fun ** 2)) / max(len(y) - 4, 1), float(np.average(y * (1 - y), weights=n)))
+    cov = np.linalg.pinv(fit.jac.T @ fit.jac) * scale
+    return BallFit(float(fit.x[0]), float(fit.x[1]), float(inside), float(outside), cov)
+
+
+def unmixed_sums(sums: np.ndarray, mixed: np.ndarray) -> np.ndarray:
+    """(n_components, 2, k) plateau window sums (:func:`plateau_sums`) with the interface's share taken out.
+
+    A window whose ions hold, on the mean, a share ``mixed[c, s]`` of the inside phase (1 for an inside window deep
+    enough, 0 for an outside one) reads ``(1 - mixed) c_out + mixed c_in``; the two windows' compositions are
+    solved for ``c_in`` and ``c_out``. Each is returned as a sum over the window's atoms scaled by
+    ``(mixed_in - mixed_out)^2``, the share of their information the unmixing keeps (the variance of the solved
+    levels grows as its inverse square), so that the shrinkage toward the pooled levels
+    (:func:`levels_from_sums`) weighs them as much as they are worth. An object with ``mixed`` (1, 0) keeps its
+    sums.
+
+    Parameters
+    ----------
+    sums : (n_components, 2, k) float64
+        Atoms per basis element in each object's inside (0) and outside (1) window.
+    mixed : (n_components, 2) float64
+        The inside phase's mean share in each window (e.g. :func:`ball_profile` over its ions).
+    """
+    out = sums.astype(np.float64).copy()
+    for c in range(len(sums)):
+        (g_in, g_out), spread = mixed[c], mixed[c, 0] - mixed[c, 1]
+        n = sums[c].sum(axis=1)
+        if spread <= 0.1 or (n <= 0).any():  # windows that cannot tell the phases apart: left as they are
+            continue
+        w_in, w_out = sums[c, 0] / n[0], sums[c, 1] / n[1]
+        c_in = np.clip(((1 - g_out) * w_in - (1 - g_in) * w_out) / spread, 0.0, None)
+        c_out = np.clip((g_in * w_out - g_out * w_in) / spread, 0.0, None)
+        out[c, 0] = c_in / max(c_in.sum(), 1e-300) * n[0] * spread ** 2
+        out[c, 1] = c_out / max(c_out.sum(), 1e-300) * n[1] * spread ** 2
+    return out
+
+
+def unmixing_shift(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, fit: BallFit, *,
+                   radius: float, dims: float, blur: float) -> tuple[np.ndarray, float, float, float]:
+    """Each window's share of the inside phase under one object's fitted ball, and what unmixing the windows by them
+    does to the measured species' midpoint level: the shift, its variance, and what it gains in mean squared error.
+
+    The windows' midpoint ``W = (w_in + w_out) / 2`` (each window's fraction, :func:`window_labels`) is biased where
+    the windows still hold the interface; the unmixed one (:func:`unmixed_sums`)
+    ``B = ((1 - 2 g_out) w_in + (2 g_in - 1) w_out) / (2 (g_in - g_out))``, with ``g`` each window's mean share
+    under the fitted ball (:func:`ball_profile`), is not if the ball holds, but is noisier: its windows' counts are
+    amplified by ``1 / (g_in - g_out)`` and the shares carry the fit's (offset, width) covariance (delta method,
+    central differences). ``B`` has the smaller mean squared error where the windows' squared bias exceeds the
+    variance the unmixing adds, ``b^2 > var B - var W``; ``b^2`` is estimated without bias by
+    ``(B - W)^2 - var(B - W)`` (the count terms of ``B - W`` from the same windows' counts). The returned gain
+    ``(B - W)^2 - var(B - W) - var B + var W`` is that difference of mean squared errors: positive where the
+    unmixed level is expected nearer the truth. An interface the ions do not fix (a thin, low-contrast object
+    whose fitted offset and width trade off over nanometres) gives ``var B`` far beyond any shift.
+
+    Parameters
+    ----------
+    distance, part, total, window : (b,)
+        The object's ions (:func:`held_out_gain`).
+    fit : BallFit
+        Its ball fitted to them (:func:`fit_ball`).
+    radius, dims, blur : float
+        The ball (:func:`object_shapes`) and the isotropic blur sigma, nm.
+
+    Returns
+    -------
+    mixed : (2,) float64
+        The inside phase's mean share in the inside and outside windows.
+    shift : float
+        ``B - W``, fraction.
+    var : float
+        ``var B``, fraction².
+    gain : float
+        ``MSE(W) - MSE(B)`` as estimated, fraction².
+    """
+    sides = [window == side for side in (0, 1)]
+    n = np.array([total[s].sum() for s in sides])
+    w = np.array([part[s].sum() for s in sides]) / np.maximum(n, 1e-300)
+
+    def shares(offset: float, width: float) -> np.ndarray:
+        return np.array([np.average(ball_profile(distance[s] - offset, radius=max(radius + offset, 0.0), dims=dims,
+                                                 width=width, blur=blur), weights=total[s]) for s in sides])
+
+    def coefficients(g: np.ndarray) -> np.ndarray:  # B = coefficients . w
+        return np.array([1 - 2 * g[1], 2 * g[0] - 1]) / (2 * (g[0] - g[1]))
+
+    q = np.array([fit.offset, max(fit.width, 0.02)])
+    mixed = shares(*q)
+    b = coefficients(mixed)
+    step = np.array([1e-3, 1e-3])
+    grad = np.array([(coefficients(shares(*(q + h))) - coefficients(shares(*(q - h)))) @ w / (2 * h.sum())
+                     for h in np.diag(step)])
+    counts = w * (1 - w) / np.maximum(n, 1e-300)
+    var_b = float(grad @ fit.cov @ grad + np.sum(b ** 2 * counts))
+    var_w = float(np.sum(0.25 * counts))
+    var_shift = float(grad @ fit.cov @ grad + np.sum((b - 0.5) ** 2 * counts))
+    shift = float((b - 0.5) @ w)
+    return mixed, shift, var_b, shift ** 2 - var_shift - var_b + var_w
+
+
+def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, window: np.ndarray, half: np.ndarray, *,
+                  radius: float, dims: float, blur: float, half_width: float = 3.0) -> tuple[float, float] | None:
+    """Nats by which one object's blurred ball profile predicts its held-out window ions better than its windows do,
+    and that gain's standard error.
+
+    Two-fold cross-validation on the halves of the cross-fit: on each half the ball profile is fitted
+    (:func:`fit_ball`) and the two windows' own fractions are counted; the other half's window ions are scored
+    under each, the binomial log-likelihood of each ion's ``part`` atoms of its ``total``. The windows' model
+    says the plateaus are reached at the windows (the fraction flat across each); the ball's says how much of
+    each window the interface still holds. Positive: the ball's model predicts the ions it was not fitted to
+    better. The standard error is that of a sum over the held-out ions of their log-likelihood differences, as
+    the mode selection's (:func:`~apt_filters.refine.crossval.smoothest_within_one_se`).
+
+    Parameters
+    ----------
+    distance : (b,) float64, nm
+        Signed distances of the object's ions (negative inside), each to the other half's surface.
+    part, total : (b,) float64
+        Atoms of the measured species, and basis atoms, per ion.
+    window : (b,) int
+        Each ion's plateau window (:func:`window_labels`: 0 inside, 1 outside, -1 neither).
+    half : (b,) int
+        Each ion's half (0 or 1).
+    radius, dims : float
+        The object's ball (:func:`object_shapes`).
+    blur : float, nm
+        Isotropic sigma of the reconstruction blur.
+    half_width : float, nm
+        Reach of the profile fit each side.
+
+    Returns
+    -------
+    gain, se : float, nats; or None where a half has too few ions to fit or an empty window.
+    """
+    diff = []
+    for fold in (0, 1):
+        train, test = half == fold, (half != fold) & (window >= 0)
+        fit = fit_ball(distance[train], part[train], total[train], radius=radius, dims=dims, blur=blur,
+                       half_width=half_width)
+        n = [total[train & (window == side)].sum() for side in (0, 1)]
+        if fit is None or min(n) <= 0:
+            return None
+        flat = [part[train & (window == side)].sum() / n[side] for side in (0, 1)]
+        g = ball_profile(distance[test] - fit.offset, radius=max(radius + fit.offset, 0.0), dims=dims,
+                         width=fit.width, blur=blur)
+        ball = fit.outside + (fit.inside - fit.outside) * g
+        diff.append(_log_likelihood(part[test], total[test], ball)
+                    - _log_likelihood(part[test], total[test], np.where(window[test] == 0, flat[0], flat[1])))
+    diff = np.concatenate(diff)
+    gain = float(diff.sum())
+    return gain, float(np.sqrt(max(np.sum(diff ** 2) - gain ** 2 / max(len(diff), 1), 0.0)))
+
+
+def _log_likelihood(part: np.ndarray, total: np.ndarray, fraction: np.ndarray) -> np.ndarray:
+    """Per ion: binomial log-likelihood (nats, less its combinatorial term) of ``part`` of ``total`` atoms at
+    ``fraction``; the fraction kept within 1e-6 of 0 and 1 (a fitted level may reach past them)."""
+    f = np.clip(fraction, 1e-6, 1 - 1e-6)
+    return part * np.log(f) + (total - part) * np.log1p(-f)

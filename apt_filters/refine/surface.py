@@ -100,13 +100,22 @@ from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, face
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import PLATEAU_PRIOR, ObjectLevels, levels_from_sums, plateau_sums, plateaus
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, fit_ball, held_out_gain, levels_from_sums,
+                                      object_shapes, plateau_sums, plateaus, unmixed_sums, unmixing_shift,
+                                      window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
 RESELECT = 1.5
 """nm a vertex may move before the ions near the surface are selected again."""
 FOLD_ANGLE = 120.0
+BALL_SE = 2.0
+"""Standard errors by which the held-out gain of an object's ball profile over its flat windows must exceed zero
+for ``curved_levels`` to unmix it: a one-sided two-sigma test (the windows, the simpler model, wrongly replaced
+~2 % of the time). An unmixed object's levels move by several points of volume, so a chance gain must not choose
+it: at one standard error (the mode selection's rule, :data:`~apt_filters.refine.crossval.ONE_SE`) objects whose
+windows were right were unmixed at gains of 1.4-1.9 standard errors and came out beyond their counting error
+(held-out ``thin`` 10005, ``rod`` 10025)."""
 REFINE_WINDOW = (1.0, 3.0)
 """nm from the surface between which the refinement measures each object's plateaus (``plateau_window``);
 the reported plateaus (:data:`apt_filters.refine.levels.PLATEAU_WINDOW`, 0.75-3 nm) keep the wider window."""
@@ -192,6 +201,19 @@ class RefineParams:
         ions, even and odd rows, places a surface of its own; each half's windows are counted against the other
         half's surface). Against the same ions' surface the inside plateau reads high (gamma-prime seeds 1-5,
         20 objects: +0.35 +- 0.12 at.% Al, cross-fitted +0.03 +- 0.14). Costs two placements of half the ions.
+    curved_levels : bool
+        With ``cross_fit``: take out of each closed object's cross-fitted windows the share of its interface they
+        hold (:func:`_curved_levels`): the interface of a ball of the object's volume, area and curvature
+        (:func:`~apt_filters.refine.levels.object_shapes`), blurred (:func:`~apt_filters.refine.levels.ball_profile`),
+        its offset and own width fitted to the object's profile. Where an object's half-thickness is not several
+        interface widths its windows never reach its phases (the inside one reads low, the outside one high),
+        and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
+        ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
+        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
+        the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
+        mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
+        chosen, the others toward every object's windows (``plateau_prior``). The model's ions are measured a
+        second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
@@ -231,6 +253,7 @@ class RefineParams:
     subdivisions: int = 1
     relax_start: int = 10
     cross_fit: bool = True
+    curved_levels: bool = True
     select_modes: bool = True
     blur: tuple[float, float] | str | None = "auto"
     facets: bool = True
@@ -265,7 +288,7 @@ def _problem(p: RefineParams) -> str:
             return f"{name} must be a whole number, got {value!r}"
         if not lo <= value <= hi:
             return f"{name} must lie in [{lo:g}, {hi:g}], got {value!r}"
-    for name in ("cross_fit", "select_modes", "facets", "marker"):
+    for name in ("cross_fit", "curved_levels", "select_modes", "facets", "marker"):
         if not isinstance(getattr(p, name), bool):
             return f"{name} must be True or False, got {getattr(p, name)!r}"
     window = p.plateau_window
@@ -669,10 +692,10 @@ def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
 
 
 def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
-                         p: RefineParams) -> list[ObjectLevels]:
+                         p: RefineParams, closed: np.ndarray) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
     even ions' (see ``cross_fit`` of :class:`RefineParams`); ``held[k]``: the ions of half ``k`` assigned to the
-    other half's surface."""
+    other half's surface; ``closed``: the objects without a rim (``curved_levels`` unmixes theirs)."""
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
@@ -681,7 +704,96 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         other = fits[1 - k]
         band = held[k].band(other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
-    return levels_from_sums(np.asarray(sums).reshape(n_comp, 2, -1), held[0].atoms.elements, species, p.plateau_prior)
+    sums = np.asarray(sums).reshape(n_comp, 2, -1)
+    if not (p.curved_levels and closed.any()):
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
+    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
+    bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
+    unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    best = np.where(chosen[:, None, None], unmixed, sums)
+    # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
+    # ions found biased, left out of its pool); the others toward every object's windows, as without the model
+    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
+    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
+
+
+def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
+                   species: str, p: RefineParams, closed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cross-fitted window sums of each closed object with its interface's share taken out
+    (:func:`~apt_filters.refine.levels.unmixed_sums`), and which objects the held-out ions choose them for.
+
+    Per object: its ball (radius and dimension from the two half surfaces' volume, area and total mean curvature,
+    :func:`~apt_filters.refine.levels.object_shapes`), the interface's offset and own width fitted to the iso
+    species' profile of the held ions (:func:`~apt_filters.refine.levels.fit_ball`) under the reconstruction blur
+    (``blur`` given, or read off the first half's surface as the blur stage reads it, isotropic sigma
+    ``sqrt(tr(Sigma) / 3)``), and each window's mean share of the inside phase under that model. The midpoint of
+    the unmixed plateaus is the fitted interface's; the placement then puts the surface at the ions' crossing of
+    it, and the blur stage moves it out by the blur's curvature bias as before (the model's blur only reads the
+    plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
+    window ions better than that half's flat windows do, summed over both folds, by more than :data:`BALL_SE`
+    standard errors of that gain (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold
+    cross-validation as the mode selection, the windows the simpler model; and only where the unmixed midpoint,
+    with the fit's covariance and its amplified counts, is expected nearer the truth than the windows'
+    (:func:`~apt_filters.refine.levels.unmixing_shift`): a fit that does not fix the interface (a thin object
+    at low contrast) unmixes by shares it does not know.
+
+    Returns
+    -------
+    unmixed : (n_components, 2, k) float64
+        Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
+    chosen : (n_components,) bool
+    """
+    components = topology(faces, len(fits[0].vertices)).vertex_components
+    n_comp = len(sums)
+    shapes = [object_shapes(f.vertices, faces, components, n_comp) for f in fits]
+    radius, dims = 0.5 * (shapes[0][0] + shapes[1][0]), 0.5 * (shapes[0][1] + shapes[1][1])
+    blur = p.blur
+    if isinstance(blur, str):
+        levels = levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+        scores = object_scores(levels, held[0].atoms.elements, species, p.score, p.plateau_prior)
+        # on a copy of the first half's ions: a band reassigns the ions it is drawn from, and the later stages
+        # must find the halves' ions as the windows' model found them
+        near = fits[0].near.subset(np.arange(len(fits[0].near.rows)), fits[0].vertices)
+        estimate = _estimate_blur(near, fits[0].vertices, fits[0].normals, components, scores, p.half_width,
+                                  p.distance)
+        blur = (estimate.lateral, 0.0) if estimate is not None else None
+    sigma = float(np.sqrt((2 * blur[0] ** 2 + blur[1] ** 2) / 3)) if blur else 0.0
+    k = held[0].atoms.elements.index(species)
+    comp, distance, part, total, window, half = [], [], [], [], [], []
+    for fold, (h, band) in enumerate(zip(held, bands)):
+        a = h.atoms.atoms[band.index].astype(np.float64)
+        c = components[band.vertex]
+        comp.append(c)
+        distance.append(band.distance)
+        part.append(a[:, k])
+        total.append(a.sum(axis=1))
+        window.append(window_labels(band, c, n_comp, p.plateau_window))
+        half.append(np.full(len(c), fold))
+    comp, distance, part, total, window, half = map(np.concatenate, (comp, distance, part, total, window, half))
+    mixed = np.tile([1.0, 0.0], (n_comp, 1))
+    chosen = np.zeros(n_comp, dtype=bool)
+    order = np.argsort(comp, kind="stable")
+    starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
+    for c in np.flatnonzero(closed):
+        mine = order[starts[c]:starts[c + 1]]
+        if radius[c] <= 0 or not len(mine):
+            continue
+        ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
+        gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
+        if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
+            continue
+        fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
+        if fit is None:
+            continue
+        shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
+                                              radius=radius[c], dims=dims[c], blur=sigma)
+        # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not fix
+        # the interface unmixes by shares it does not know); windows that cannot tell the phases apart are left
+        # as they are (unmixed_sums keeps them)
+        if better > 0 and shares[0] - shares[1] > 0.1:
+            mixed[c], chosen[c] = shares, True
+    return unmixed_sums(sums, mixed), chosen
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -913,7 +1025,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # smoothness selection
         reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
         held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
-        fixed = _cross_fitted_levels(fits, faces, held, species, p)
+        closed = np.ones(int(components.max()) + 1 if n else 0, dtype=bool)
+        closed[rimmed] = False
+        fixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
         stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
