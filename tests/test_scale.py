@@ -170,10 +170,18 @@ def test_parallel_kernels_on_threads_survive_numba_workqueue_layer():
     # kernels at once; per_item and on_threads must then run their items one after the other
     script = """
 import numpy as np
+from numba import njit, prange
 from apt_filters.core.threads import kernels_share_threads, on_threads, per_item
-from apt_filters.core.threads import _one_launch
+
+@njit(parallel=True)
+def total(values):
+    out = 0.0
+    for i in prange(len(values)):
+        out += values[i]
+    return out
+
 values = np.ones(200_000)
-print(sum(per_item(lambda _: _one_launch(values), list(range(8)))), sum(on_threads(_one_launch, [(values,)] * 4)),
+print(sum(per_item(lambda _: total(values), list(range(8)))), sum(on_threads(total, [(values,)] * 4)),
       kernels_share_threads())
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,

@@ -4,12 +4,12 @@ so Python threads run them in parallel without copies of their inputs."""
 from __future__ import annotations
 
 import functools
+import importlib
 import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit, prange
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
 
@@ -22,24 +22,26 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-@njit(parallel=True, cache=True)
-def _one_launch(values):
-    total = 0.0
-    for i in prange(len(values)):
-        total += values[i]
-    return total
-
-
 @functools.cache
 def kernels_share_threads() -> bool:
     """Whether compiled parallel kernels may run from several Python threads at once.
 
     numba's OpenMP and TBB threading layers allow it; the workqueue layer it falls back to where neither
-    library is installed (no ``libgomp1``, no ``tbb``) aborts the process on a second concurrent launch,
-    so there the callers below run their items one after the other (same results, one core's time).
+    library loads (no ``libgomp1``, no ``tbb``) aborts the process on a second concurrent launch, so there
+    the callers below run their items one after the other (same results, one core's time). Told from the
+    setting and from which layer's library loads, as numba chooses, without launching a kernel (which
+    would start its thread pool in every process that only reads a file).
     """
-    _one_launch(np.zeros(2))  # the layer is chosen at the first parallel launch
-    return numba.threading_layer() != "workqueue"
+    layer = numba.config.THREADING_LAYER
+    if layer != "default":
+        return layer != "workqueue"
+    for pool in ("numba.np.ufunc.tbbpool", "numba.np.ufunc.omppool"):
+        try:
+            importlib.import_module(pool)
+            return True
+        except ImportError:  # that layer's library is not installed
+            continue
+    return False
 
 
 def on_threads(fn, calls: list[tuple]) -> list:
