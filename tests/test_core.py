@@ -323,3 +323,31 @@ def test_points_beyond_the_rings_get_the_nearest_of_every_triangle():
         every = np.array([closest_on_triangle(*p, *c.ravel())[0] for c in corners])
         # the face found is a nearest one, bit for bit, and the distance is its
         assert every[f] == every.min() and d == np.float32(np.sqrt(every.min()))
+
+
+def test_reach_grid_leaves_the_cells_within_the_inner_distance_unmeasured():
+    """A shell (3, 4] nm as the segregant search asks: coarse cells proved nearer than 3 nm are :data:`CORE` (their
+    fine centres not measured, every ion of them searched, as each is nearer than 3 nm); the selection keeps the
+    rows and exact distances the grid-free search gives."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.core.nearby import CORE, FAR, SEARCH, WITHIN, ReachGrid, select_near
+
+    half, reach, inner = np.array([2.0, 3.0, 4.0]), 4.0, 3.0
+    positions = np.random.default_rng(5).uniform(-9, 9, size=(80_000, 3)).astype(np.float32)
+    signed = _box_sdf(positions.astype(np.float64), half)
+    grid = ReachGrid.of(SurfaceDistance(_box(half), reach=reach), reach, inner=inner)
+    core = grid.state == CORE
+    assert core.sum() > 20
+    assert not np.any(np.repeat(np.repeat(np.repeat(core, 2, 0), 2, 1), 2, 2) & ~np.isnan(grid.fine))
+    kind, side = grid.classify(positions)
+    cell = np.floor((positions - grid.origin) / (2 * grid.cell)).astype(int)
+    in_core = core[tuple(np.clip(cell, 0, np.array(core.shape) - 1).T)] & np.all(cell >= 0, axis=1) & np.all(
+        cell < core.shape, axis=1)
+    assert in_core.sum() > 1_000 and np.all(kind[in_core] == SEARCH) and np.all(np.abs(signed[in_core]) < inner)
+    assert np.all(np.abs(signed[kind == FAR]) > reach) and np.all(side[kind == WITHIN] == np.sign(signed[kind == WITHIN]))
+    part = select_near(positions, _box(half), reach, chunk=9_001, distances=inner)
+    whole = select_near(positions, _box(half), reach, chunk=9_001)
+    assert np.array_equal(part.rows, whole.rows) and np.array_equal(part.rows, np.flatnonzero(np.abs(signed) <= reach))
+    exact = np.isfinite(part.distance)
+    assert np.all(exact[np.abs(whole.distance) <= inner])
+    np.testing.assert_array_equal(part.distance[exact], whole.distance[exact])

@@ -48,3 +48,20 @@ def test_a_noise_lobe_joined_to_a_5_point_sphere_is_trimmed(seed):
 def test_a_high_contrast_sphere_is_left_alone():
     before, after, lobes = _trimmed(0.15, 1)
     assert lobes.removed == 0 and after is before
+
+
+def test_the_segregant_searchs_ions_give_the_same_trim():
+    """The pipeline hands :func:`trim_lobes` the ions its segregant search selected near the same surface (exact
+    distances within 3 nm, the side only beyond): the trim is the same to the bit as from a selection of its own."""
+    from apt_filters.refine.segregants import segregant_ions
+
+    iso = 0.125
+    c = contoured_sphere(centre=CENTRE, radius=RADIUS, contrast=0.05, width=0.3, box=20.0, efficiency=0.4,
+                         iso=iso, seed=1)
+    ions, ranges = c.specimen.ions, c.specimen.ranges
+    kept, specks = remove_specks(c.mesh, fields=c.fields, mask=c.mask, ions=ions, ranges=ranges, species="Al", iso=iso)
+    common = dict(values=c.values, fields=c.fields, mask=c.mask, ions=ions, ranges=ranges, species="Al", iso=iso)
+    own, own_lobes = trim_lobes(kept, specks, **common)
+    given, given_lobes = trim_lobes(kept, specks, **common, near=segregant_ions(kept, ions))
+    assert own_lobes.tested >= 2 and own_lobes == given_lobes
+    assert np.array_equal(own.vertices, given.vertices) and np.array_equal(own.faces, given.faces)

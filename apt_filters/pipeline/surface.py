@@ -126,6 +126,12 @@ def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()
     return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
 
 
+def _same_mesh(a: TriMesh, b: TriMesh) -> bool:
+    """Whether two meshes have the same vertices and faces in the same order (ions selected near one, with their
+    closest faces, serve the other)."""
+    return np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+
+
 def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, surface: SurfaceConfig, *,
                      config: PipelineConfig | None = None, basis=None, clean_script: str | os.PathLike | None = None,
                      step: Callable[[str], ContextManager] = _quiet_step, params=None
@@ -191,6 +197,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     if config.refine.enabled and surface.species:
         with step("refine") as s:
             r = config.refine
+            first = mesh
             mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
                                          species=surface.species, iso=surface.iso, basis=surface_basis,
                                          alpha=r.speck_alpha, near=near)
@@ -200,7 +207,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                                                                        surface_basis),
                                      fields=fields, mask=mask, ions=ions, ranges=ranges, species=surface.species,
                                      iso=surface.iso, basis=surface_basis, alpha=r.speck_alpha,
-                                     contour=functools.partial(contour, close=c.close_at_edge))
+                                     contour=functools.partial(contour, close=c.close_at_edge),
+                                     near=near if near is not None and _same_mesh(mesh, first) else None)
             near = None  # its memory back before the refinement
             # objects thinner than the delocalization, drawn one octave finer where this scale thins them
             mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
