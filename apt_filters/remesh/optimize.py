@@ -7,7 +7,8 @@ removes most of those pairs, as in isotropic explicit remeshing. Both steps are 
 each flip pass applies an independent set of flips (no two share a face). A last pass
 (:func:`improve_angles`) moves only the vertices of triangles still under 30 degrees.
 
-Peak memory: a few arrays of 3 x the number of faces.
+Peak memory: a few arrays of 3 x the number of faces in the flips and the relaxation; the last pass holds
+the faces round every vertex (24 bytes per face) and one angle per face.
 """
 
 from __future__ import annotations
