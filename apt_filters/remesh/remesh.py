@@ -178,7 +178,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
         a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
         finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
-        ``RETRIES`` times), and give back the input's own faces of each one that still fails.
+        ``RETRIES`` times; not one off in area alone, which that does not mend), and give back the input's
+        own faces of each one that still fails.
 
     Returns
     -------
