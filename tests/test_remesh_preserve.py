@@ -121,6 +121,24 @@ def test_check_flags_a_lost_component_and_an_area_change(spheres):
     checks = verify.check_components(mesh, grown, comp, owner, edge=EDGE)
     assert [c.ok for c in checks] == [False, True, True]
     assert checks[0].reasons == [f"area {100 * checks[0].area_change:+.2f} %"]
+    assert not checks[0].mendable and checks[1].mendable  # area alone / a lost component
+
+
+def test_a_component_off_in_area_alone_is_given_back_without_another_try(monkeypatch):
+    """Every component off in area alone (a tolerance no remesh meets): each is given back as it was after the
+    first remesh, with no further try (a finer remesh where points were missed does not mend an area)."""
+    import importlib
+
+    module = importlib.import_module("apt_filters.remesh.remesh")
+    mesh = shapes.small_spheres(count=2)
+    calls, check = [], verify.check_components
+    remesh_once = module._cvt_remesh
+    monkeypatch.setattr(module, "_cvt_remesh", lambda *a, **k: calls.append(1) or remesh_once(*a, **k))
+    monkeypatch.setattr(verify, "check_components", lambda *a, **k: check(*a, **k, area_tolerance=1e-12))
+    result = remesh(mesh, edge_length=EDGE)
+    assert len(calls) == 1 and result.kept_input == 2
+    assert all(c.reasons == [f"area {100 * c.area_change:+.2f} %"] and not c.mendable for c in result.checks)
+    assert result.mesh.n_faces == mesh.n_faces and np.isclose(result.mesh.area(), mesh.area())
 
 
 _SCALAR_ORDER = """

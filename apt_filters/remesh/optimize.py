@@ -7,7 +7,8 @@ removes most of those pairs, as in isotropic explicit remeshing. Both steps are 
 each flip pass applies an independent set of flips (no two share a face). A last pass
 (:func:`improve_angles`) moves only the vertices of triangles still under 30 degrees.
 
-Peak memory: a few arrays of 3 x the number of faces.
+Peak memory: a few arrays of 3 x the number of faces in the flips and the relaxation; the last pass holds
+the faces round every vertex (24 bytes per face) and one angle per face.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh.walk import vertex_rings
 
 
 def _interior_edges(faces: np.ndarray) -> tuple[tuple, np.ndarray, int]:
@@ -197,11 +199,20 @@ def boundary_vertices(mesh: TriMesh) -> np.ndarray:
     return flag
 
 
-def _min_angles(p: np.ndarray) -> np.ndarray:
-    """(..., ) smallest interior angle (radians) of triangles p (..., 3, 3)."""
-    e = np.roll(p, -1, axis=-2) - p  # edge i: corner i -> corner i + 1
-    u, w = e, -np.roll(e, 1, axis=-2)  # the two edges leaving each corner
-    return np.arctan2(np.linalg.norm(np.cross(u, w), axis=-1), np.einsum("...i,...i->...", u, w)).min(axis=-1)
+@njit(cache=True)
+def _min_angles(vertices, faces):
+    """(f,) smallest interior angle (radians) of every triangle ``faces`` (f, 3) of ``vertices`` (v, 3), face by
+    face: no (f, 3, 3) temporaries (those were the largest memory of the whole remesh where the output is
+    finer than the input)."""
+    angle = np.empty(len(faces))
+    for f in range(len(faces)):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax, ay, az = vertices[a, 0], vertices[a, 1], vertices[a, 2]
+        bx, by, bz = vertices[b, 0], vertices[b, 1], vertices[b, 2]
+        cx, cy, cz = vertices[c, 0], vertices[c, 1], vertices[c, 2]
+        angle[f] = min(_angle_at(ax, ay, az, bx, by, bz, cx, cy, cz), _angle_at(bx, by, bz, cx, cy, cz, ax, ay, az),
+                       _angle_at(cx, cy, cz, ax, ay, az, bx, by, bz))
+    return angle
 
 
 def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
@@ -227,16 +238,14 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
     n = len(vertices)
-    order = np.argsort(faces.ravel(), kind="stable")
-    start = np.searchsorted(faces.ravel()[order], np.arange(n + 1))
-    ring_of = order // 3  # faces around vertex v: ring_of[start[v]:start[v + 1]]
+    start, ring_of = vertex_rings(faces, n)  # faces around vertex v: ring_of[start[v]:start[v + 1]]
     steps = np.array([0.05, 0.1, 0.2, 0.35, 0.6, -0.05, -0.1, -0.2])
     cos_turn = np.cos(np.radians(max_turn))
     clock = 0  # one tick per batch
     last_move = np.zeros(n, np.int64)  # tick of each vertex's last move
     last_try = np.full(n, -1, np.int64)  # tick at each vertex's last try
     for _ in range(rounds):
-        angle = _min_angles(out[faces])
+        angle = _min_angles(out, faces)
         bad = angle < np.radians(threshold)
         todo = _unique_ids(faces[bad], movable)
         worst = np.full(n, np.inf)
@@ -436,7 +445,7 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     from scipy.spatial import cKDTree
 
     from apt_filters.core.mesh import vertex_normals
-    from apt_filters.remesh.walk import face_neighbours, vertex_rings, walk_closest
+    from apt_filters.remesh.walk import face_neighbours, walk_closest
 
     faces = np.ascontiguousarray(faces, np.int64)
     neighbour = face_neighbours(faces, len(vertices))

@@ -178,7 +178,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
         a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
         finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
-        ``RETRIES`` times), and give back the input's own faces of each one that still fails.
+        ``RETRIES`` times; not one off in area alone, which that does not mend), and give back the input's
+        own faces of each one that still fails.
 
     Returns
     -------
@@ -204,27 +205,31 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     component = mesh.face_components()
     checks = check.check_components(mesh, result.mesh, component, out_component, edge=edge, source_surface=surface)
     failed = np.array([not c.ok for c in checks])
+    # remeshed again: the failed components but those off in area alone (triangles of the target edge that
+    # flatten bumps of their own size; a finer remesh where points were missed leaves that as it is)
+    retry = failed & np.array([c.mendable for c in checks], bool)
     out = result.mesh
     if failed.any():
-        last_out_mask = (out_component < 0) | failed[np.maximum(out_component, 0)]
+        last_out_mask = (out_component < 0) | retry[np.maximum(out_component, 0)]
         out = check.keep_input(mesh, out, component, out_component, failed)
         out_component = check.kept_component(component, out_component, failed)
+    if retry.any():
         # the failed components again, on their own, finer where the last remesh missed and with another seed:
         # a miss the density did not foresee (a kink of a feature curve, a spike of the refined surface) or a
         # sampling that fell badly
         boost, pins = np.ones(mesh.n_vertices), np.zeros(mesh.n_vertices, bool)
-        part, last, last_mask, last_surface = mesh, result.mesh, failed[component], surface
+        part, last, last_mask, last_surface = mesh, result.mesh, retry[component], surface
         last_used = np.arange(mesh.n_vertices)
         for attempt in range(1, RETRIES + 1):
             more, corners = missed(part, last, mask=last_mask, out_mask=last_out_mask,
                                    edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface)
             boost[last_used] *= more
             pins[last_used[corners]] = True
-            mask = failed[component]
+            mask = retry[component]
             part, used = _part(mesh, mask)
             again, again_component, part_surface = _cvt_remesh(part, edge, seed=seed + attempt, boost=boost[used],
                                                                pins=np.flatnonzero(pins[used]), **options)
-            original = np.empty(int(failed.sum()), np.int64)
+            original = np.empty(int(retry.sum()), np.int64)
             part_component = part.face_components()
             original[part_component] = component[mask]
             passed = np.zeros(len(checks), bool)
@@ -233,16 +238,19 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
                 if c.ok:
                     passed[original[c.component]] = True
                     checks[original[c.component]] = replace(c, component=int(original[c.component]))
+                elif not c.mendable:
+                    retry[original[c.component]] = False
             if passed.any():
                 taken = np.where(again_component >= 0, original[np.maximum(again_component, 0)], -1)
                 out = check.keep_input(again.mesh, out, taken, out_component, passed)
                 out_component = check.kept_component(taken, out_component, passed)
                 failed &= ~passed
-            if not failed.any():
+                retry &= ~passed
+            if not retry.any():
                 break
             last, last_surface, last_used = again.mesh, part_surface, used
-            last_mask = failed[original[part_component]]
-            last_out_mask = (again_component < 0) | failed[original[np.maximum(again_component, 0)]]
+            last_mask = retry[original[part_component]]
+            last_out_mask = (again_component < 0) | retry[original[np.maximum(again_component, 0)]]
     result.timings["verify"] = time.perf_counter() - clock
     result.mesh, result.checks = out, checks
     return result

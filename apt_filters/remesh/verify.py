@@ -48,6 +48,8 @@ class ComponentCheck:
     rim: float  # farthest open-rim point of either from the other's rim (0 when closed)
     area_change: float  # (output - input) / input
     reasons: list = field(default_factory=list)
+    # False where only the area is off: remeshing again finer where points were missed does not mend it
+    mendable: bool = True
 
     @property
     def ok(self) -> bool:
@@ -241,7 +243,8 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
             reasons.append(f"area {100 * change:+.2f} %")
         checks.append(ComponentCheck(c, int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
                                      int(loops_in[c]), int(loops_out[c]),
-                                     float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons))
+                                     float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons,
+                                     mendable=not (len(reasons) == 1 and abs(change) > area_tolerance)))
     return checks
 
 

@@ -33,10 +33,27 @@ def face_neighbours(faces: np.ndarray, n_vertices: int) -> np.ndarray:
 
 
 def vertex_rings(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
-    """The faces round every vertex as CSR: (v + 1,) start and (3f,) face ids."""
-    order = np.argsort(faces.ravel(), kind="stable")
-    start = np.searchsorted(faces.ravel()[order], np.arange(n_vertices + 1))
-    return start, order // 3
+    """The faces round every vertex as CSR: (v + 1,) start and (3f,) face ids, in increasing face id."""
+    return _vertex_rings(np.ascontiguousarray(faces, np.int64), n_vertices)
+
+
+@njit(cache=True, nogil=True)
+def _vertex_rings(faces, n_vertices):
+    """:func:`vertex_rings` by a counting sort: no (3f,) temporaries besides the result."""
+    start = np.zeros(n_vertices + 1, np.int64)
+    for f in range(len(faces)):
+        for k in range(3):
+            start[faces[f, k] + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    ring = np.empty(3 * len(faces), np.int64)
+    for f in range(len(faces)):
+        for k in range(3):
+            v = faces[f, k]
+            ring[fill[v]] = f
+            fill[v] += 1
+    return start, ring
 
 
 @njit(cache=True, nogil=True)
