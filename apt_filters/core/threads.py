@@ -6,9 +6,9 @@ from __future__ import annotations
 import functools
 import importlib
 import os
+import sys
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 
 _EXECUTORS: dict[int, ThreadPoolExecutor] = {}
@@ -22,17 +22,21 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-@functools.cache
 def kernels_share_threads() -> bool:
     """Whether compiled parallel kernels may run from several Python threads at once.
 
     numba's OpenMP and TBB threading layers allow it; the workqueue layer it falls back to where neither
     library loads (no ``libgomp1``, no ``tbb``) aborts the process on a second concurrent launch, so there
     the callers below run their items one after the other (same results, one core's time). Told from the
-    setting and from which layer's library loads, as numba chooses, without launching a kernel (which
-    would start its thread pool in every process that only reads a file).
+    setting and from which layer's library loads, as numba chooses, without launching a kernel; before
+    numba is loaded no compiled kernel can run, and reading a file need not load it.
     """
-    layer = numba.config.THREADING_LAYER
+    numba = sys.modules.get("numba")
+    return numba is None or _layer_shares_threads(numba.config.THREADING_LAYER)
+
+
+@functools.cache
+def _layer_shares_threads(layer: str) -> bool:
     if layer != "default":
         return layer != "workqueue"
     for pool in ("numba.np.ufunc.tbbpool", "numba.np.ufunc.omppool"):
