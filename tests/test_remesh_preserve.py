@@ -124,6 +124,21 @@ def test_check_flags_a_lost_component_and_an_area_change(spheres):
     assert not checks[0].mendable and checks[1].mendable  # area alone / a lost component
 
 
+def test_check_flags_faces_without_area(spheres):
+    # sphere 1 the same surface, but one face split at an edge's midpoint with the sliver between that edge
+    # and the midpoint kept: a face of no area has no normal, so the sign of distances near it is undefined
+    mesh, comp, out, owner = spheres
+    i = np.flatnonzero(owner == 1)[0]
+    a, b, c = out.faces[i]
+    m = out.n_vertices
+    vertices = np.vstack([out.vertices, (out.vertices[a] + out.vertices[b]) / 2])
+    faces = np.vstack([np.delete(out.faces, i, axis=0), [[a, m, c], [m, b, c], [a, b, m]]])
+    owners = np.concatenate([np.delete(owner, i), [1, 1, 1]])
+    checks = verify.check_components(mesh, TriMesh(vertices, faces), comp, owners, edge=EDGE)
+    assert [c.ok for c in checks] == [True, False, True], checks
+    assert checks[1].reasons == ["faces without area: 1"] and checks[1].mendable
+
+
 def test_a_component_off_in_area_alone_is_given_back_without_another_try(monkeypatch):
     """Every component off in area alone (a tolerance no remesh meets): each is given back as it was after the
     first remesh, with no further try (a finer remesh where points were missed does not mend an area)."""
