@@ -200,6 +200,37 @@ def test_leftover_temporary_files_of_dead_processes_are_tidied(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "c.txt"])
 
 
+POOL_RACE = """
+import os, signal, threading
+from apt_filters.core.atomic import raise_on_signal
+from apt_filters.core.threads import on_threads
+
+signal.signal(signal.SIGTERM, raise_on_signal)
+start = threading.Thread.start
+
+
+def start_then_signal(thread):
+    start(thread)
+    os.kill(os.getpid(), signal.SIGTERM)  # arrives before the pool has registered the thread it started
+
+
+threading.Thread.start = start_then_signal
+try:
+    on_threads(abs, [(1,), (2,)])
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+"""
+
+
+def test_a_signal_while_a_pool_starts_its_threads_does_not_hold_the_exit():
+    """Was: CI's SIGTERM right after the claim printed 'interrupted' and the process never ended: the signal
+    came while the reader's thread pool started a thread it had not yet registered, and the interpreter's
+    exit waited for that thread forever."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    done = subprocess.run([sys.executable, "-c", POOL_RACE], capture_output=True, text=True, env=env, timeout=60)
+    assert (done.returncode, done.stdout.strip()) == (0, "interrupted"), done.stderr
+
+
 @pytest.mark.parametrize("signum, after", [(signal.SIGTERM, "claim"), (signal.SIGINT, "read"),
                                            (signal.SIGHUP, "audit")])
 def test_an_interrupted_run_leaves_nothing(data, tmp_path, signum, after):

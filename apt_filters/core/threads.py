@@ -11,9 +11,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-_EXECUTORS: dict[int, ThreadPoolExecutor] = {}
-
-
 def available_cores() -> int:
     """CPU cores this process may run on (its affinity mask where the OS has one)."""
     try:
@@ -52,10 +49,7 @@ def on_threads(fn, calls: list[tuple]) -> list:
     """Results of ``fn(*args)`` for each args in ``calls``, one thread each (the caller's thread for a single call)."""
     if len(calls) == 1 or not kernels_share_threads():
         return [fn(*args) for args in calls]
-    executor = _EXECUTORS.get(len(calls))
-    if executor is None:
-        executor = _EXECUTORS[len(calls)] = ThreadPoolExecutor(len(calls), thread_name_prefix="apt-filters")
-    return list(executor.map(lambda args: fn(*args), calls))
+    return _mapped(lambda args: fn(*args), calls, len(calls))
 
 
 def per_item(fn, items: list) -> list:
@@ -66,10 +60,23 @@ def per_item(fn, items: list) -> list:
     workers = min(available_cores(), len(items))
     if workers <= 1 or not kernels_share_threads():
         return [fn(item) for item in items]
-    executor = _EXECUTORS.get(-workers)
-    if executor is None:  # keyed apart from on_threads' pools: a pool busy with these items must not take them too
-        executor = _EXECUTORS[-workers] = ThreadPoolExecutor(workers, thread_name_prefix="apt-filters-items")
-    return list(executor.map(fn, items))
+    return _mapped(fn, items, workers)
+
+
+def _mapped(fn, items: list, workers: int) -> list:
+    """``list(map(fn, items))`` on a pool of ``workers`` threads of its own, let go whatever happens.
+
+    A pool per call (its threads cost tens of microseconds; the calls are whole shares of a pass) keeps
+    nested calls apart and is shut down on every way out. An interrupt (Ctrl-C, SIGTERM) can arrive while
+    the pool starts a thread, before the pool has registered it; nothing at exit would then wake that
+    thread, and the interpreter would wait for it forever. The shutdown's wake-up reaches every thread
+    of the pool, registered or not; the items already running finish, the others are cancelled.
+    """
+    executor = ThreadPoolExecutor(workers, thread_name_prefix="apt-filters")
+    try:
+        return list(executor.map(fn, items))
+    finally:
+        executor.shutdown(wait=False, cancel_futures=True)
 
 
 def shares(n: int, parts: int) -> list[tuple[int, int]]:
