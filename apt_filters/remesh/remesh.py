@@ -293,8 +293,9 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     labels = result.labels
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
+    sliver = curve_slivers(gens.kind, gens.owner, curve_ends(features, mesh.n_vertices))
     on_boundary = _on_boundary(features, gens)
-    faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
+    faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
     mark("extraction")
     for _ in range(CONNECT_ROUNDS):
         bad = repair.defects(gens.positions, faces, on_boundary)
@@ -306,9 +307,10 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
         # hole), but never a generator of the open boundary
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
         labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
-        faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
+        faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
     mark("connect")
-    faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned), pinned)
+    faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned, sliver),
+                               pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     mark("repair")
@@ -370,14 +372,16 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
 
 def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray) -> feat.Features:
     """``features`` with ``vertices`` (input vertex ids) made corners: a feature curve through one is split there
-    (a closed loop through one only is split again at its middle, so that its pieces have two ends)."""
+    (a closed loop through one only is split again at its middle, so that its pieces have two ends). A curve
+    from a corner back to it is not a loop: turned to start at a pinned vertex, it would run through that
+    corner, and a generator placed on it could sit on the corner's own."""
     vertices = np.setdiff1d(vertices, features.corners)
     if not len(vertices):
         return features
     extra, curves, curve_patches, boundary = [vertices], [], [], []
     for c, patches, on_rim in zip(features.curves, features.curve_patches, features.boundary_curve):
         cut = np.flatnonzero(isin(c, vertices))
-        if len(c) > 2 and c[0] == c[-1] and len(cut):  # a loop: start it at a pinned vertex
+        if cvt.is_loop(c, features.corners) and len(cut):  # a loop: start it at a pinned vertex
             c = np.concatenate([c[cut[0]:-1], c[:cut[0] + 1]])
             cut = np.flatnonzero(isin(c, vertices))
             if len(unique(c[cut])) == 1:
@@ -447,7 +451,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     def fixed(a, b):
         return pinned[a] & pinned[b]
 
-    sliver = curve_slivers(kind, owner)
+    sliver = curve_slivers(kind, owner, curve_ends(features, mesh.n_vertices))
 
     hint = np.full(len(vertices), -1, np.int64)  # each vertex's face at its last projection, walked from
 
@@ -477,20 +481,37 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     return optimize.improve_angles(vertices, faces, movable, project), faces
 
 
-def curve_slivers(kind: np.ndarray, owner: np.ndarray):
+def curve_slivers(kind: np.ndarray, owner: np.ndarray, ends: np.ndarray):
     """``sliver(p, q, r)`` -> (k,) bool: faces of three vertices along one feature curve (three of its
-    generators, or a corner and two of them), which a flip must not make: sliding along a straight curve
-    puts them on one line. ``kind``, ``owner``: (v,) per vertex, as :class:`~apt_filters.remesh.cvt.Generators`."""
+    generators, a corner and two of them, or one of them and the curve's two end corners), which
+    extraction and flips must not make: on a straight stretch of the curve they have no area, and the
+    edge between two pinned vertices is never flipped away. ``kind``, ``owner``: (v,) per vertex, as
+    :class:`~apt_filters.remesh.cvt.Generators`; ``ends``: (n_curves, 2) the corner (its owner id) at each
+    end of every curve, -1 for a closed loop (:func:`curve_ends`)."""
     pinned = kind != cvt.PATCH
     line = np.where(kind == cvt.CURVE, owner, -1)
+    corner = np.where(kind == cvt.CORNER, owner, -1)
 
     def sliver(p, q, r):
         ids = np.stack([line[p], line[q], line[r]], axis=1)
         on = ids >= 0
-        same = np.where(on, ids, -1).max(axis=1) == np.where(on, ids, np.iinfo(ids.dtype).max).min(axis=1)
-        return pinned[p] & pinned[q] & pinned[r] & (on.sum(axis=1) >= 2) & same
+        curve = ids.max(axis=1)
+        same = (np.where(on, ids, curve[:, None]) == curve[:, None]).all(axis=1)
+        at = np.stack([corner[p], corner[q], corner[r]], axis=1)
+        end = np.vstack([ends, [[-2, -2]]])[curve]  # a row for none (curve -1)
+        at_ends = ((at < 0) | (at == end[:, :1]) | (at == end[:, 1:])).all(axis=1)
+        n_on = on.sum(axis=1)
+        return pinned[p] & pinned[q] & pinned[r] & same & ((n_on >= 2) | ((n_on == 1) & at_ends))
 
     return sliver
+
+
+def curve_ends(features: feat.Features, n_vertices: int) -> np.ndarray:
+    """(n_curves, 2) int64: the corner (index into ``features.corners``) at each end of every feature curve
+    of a mesh of ``n_vertices``; -1 at both for a closed loop without a corner."""
+    corner_of = np.full(n_vertices, -1, np.int64)
+    corner_of[features.corners] = np.arange(len(features.corners))
+    return corner_of[np.array([c[[0, -1]] for c in features.curves], np.int64).reshape(-1, 2)]
 
 
 def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:

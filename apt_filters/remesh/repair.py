@@ -68,8 +68,10 @@ def boundary_loops(faces: np.ndarray) -> list[list[int]]:
 MAX_FILL_ROUNDS = 4
 
 
-def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """Close every boundary loop most of whose vertices are not on a boundary curve (``on_boundary`` False).
+def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray,
+                sliver=None) -> np.ndarray:
+    """Close every boundary loop most of whose vertices are not on a boundary curve (``on_boundary`` False),
+    with no face that ``sliver`` forbids where it can (:func:`~apt_filters.remesh.extract.triangulate_polygon`).
 
     A loop mostly of boundary-curve generators is the input's open rim, even where a cell next
     to it took one of its places: filling it capped the rim of an open interface across a
@@ -79,7 +81,7 @@ def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     for loop in boundary_loops(faces):
         if len(loop) < 3 or 2 * on_boundary[loop].sum() >= len(loop):
             continue
-        new.extend(triangulate_polygon(loop[::-1], vertices, pinned))
+        new.extend(triangulate_polygon(loop[::-1], vertices, pinned, sliver))
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)]) if new else faces
 
 
@@ -174,14 +176,16 @@ def restore_rim(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)])
 
 
-def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """Duplicates, over-full edges, holes, then the open boundary's lost generators; returns the new faces."""
+def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray,
+           sliver=None) -> np.ndarray:
+    """Duplicates, over-full edges, holes (:func:`close_holes`, ``sliver`` its), then the open boundary's lost
+    generators; returns the new faces."""
     faces = drop_duplicates(faces)
     faces = trim_overfull_edges(vertices, faces)
     # A hole fill can add a third face to an edge (two holes sharing a vertex pair); trimming
     # it opens a smaller hole, so fill and trim until nothing changes.
     for _ in range(MAX_FILL_ROUNDS):
-        filled = trim_overfull_edges(vertices, drop_duplicates(close_holes(vertices, faces, on_boundary, pinned)))
+        filled = trim_overfull_edges(vertices, drop_duplicates(close_holes(vertices, faces, on_boundary, pinned, sliver)))
         if filled.shape == faces.shape and np.array_equal(filled, faces):
             break
         faces = filled
