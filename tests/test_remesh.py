@@ -268,7 +268,7 @@ def test_a_curve_from_a_corner_back_to_it_gets_no_generator_on_the_corner():
     samples = refine(mesh, 0.25)
     ones = np.ones(mesh.n_faces)
     # pinned opposite the corner, the loop's middle (where a loop with one pin is split again) is the corner
-    for found in (features, pin_corners(mesh, features, np.array([ring[7]]))):
+    for found in (features, pin_corners(mesh, features, np.array([ring[7]]), 0.1)):
         assert len(np.unique(found.corners)) == len(found.corners)
         for c in found.curves:  # corners only at the ends of curves
             assert not np.isin(c[1:-1], found.corners).any()

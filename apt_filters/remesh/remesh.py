@@ -274,7 +274,8 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps,
                            miss=check.HAUSDORFF_FRACTION * edge)
     if pins is not None:
-        features = pin_corners(mesh, features, pins)
+        # pins nearer each other than the tries pin for (a miss of half the tolerance) stand for one
+        features = pin_corners(mesh, features, pins, 0.5 * check.HAUSDORFF_FRACTION * edge)
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch, boost)
@@ -282,7 +283,11 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     from scipy.spatial import cKDTree
 
     tree = cKDTree(mesh.vertices)
-    vertex_density = lambda p: rho_v[tree.query(p)[1]]  # noqa: E731
+    # along feature curves, generators no closer than the samples (L / SAMPLES_PER_EDGE): a curve cell narrower
+    # than that holds no sample of its own, and its neighbours' labels meet three at a time at one sample vertex,
+    # whose dual joins three generators on a line, a face without area (the bumpy gyroid's tries, where a miss
+    # lifts the density past MAX_SHRINK: 44 such faces)
+    vertex_density = lambda p: np.minimum(rho_v[tree.query(p)[1]], SAMPLES_PER_EDGE**4)  # noqa: E731
     mark("sampling")
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
@@ -311,6 +316,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     mark("connect")
     faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned, sliver),
                                pinned)
+    faces = repair.drop_rim_caps(gens.positions, faces, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     mark("repair")
@@ -370,12 +376,26 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
     return boost, unique(corners)
 
 
-def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray) -> feat.Features:
+def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, spacing: float) -> feat.Features:
     """``features`` with ``vertices`` (input vertex ids) made corners: a feature curve through one is split there
     (a closed loop through one only is split again at its middle, so that its pieces have two ends). A curve
     from a corner back to it is not a loop: turned to start at a pinned vertex, it would run through that
-    corner, and a generator placed on it could sit on the corner's own."""
+    corner, and a generator placed on it could sit on the corner's own.
+
+    A vertex within ``spacing`` (nm) of a corner or of a vertex pinned before it (in id order) is left out: an
+    output vertex stands that near already, and two corners on one short input edge with its midpoint
+    between them (the bumpy gyroid's tries: 0.025 nm apart) made a face without area, which no flip mends."""
     vertices = np.setdiff1d(vertices, features.corners)
+    if len(vertices):
+        from scipy.spatial import cKDTree
+
+        if len(features.corners):
+            vertices = vertices[cKDTree(mesh.vertices[features.corners]).query(mesh.vertices[vertices])[0] > spacing]
+        keep = np.ones(len(vertices), bool)
+        for i, j in sorted(cKDTree(mesh.vertices[vertices]).query_pairs(spacing)):
+            if keep[i]:
+                keep[j] = False
+        vertices = vertices[keep]
     if not len(vertices):
         return features
     extra, curves, curve_patches, boundary = [vertices], [], [], []

@@ -176,6 +176,42 @@ def restore_rim(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)])
 
 
+def drop_rim_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_angle: float = 150.0,
+                  rounds: int = 4) -> np.ndarray:
+    """``faces`` without the caps on the open rim: faces of three ``pinned`` generators with an angle over
+    ``max_angle`` degrees at a vertex off the rim, the long edge across from it on the rim.
+
+    The rim's counterpart of :func:`~apt_filters.remesh.optimize.flip_caps`: where the cell of a rim
+    generator is squeezed between its two neighbours on a straight rim curve (a few samples wide), extraction
+    can join the three into a face of no area whose long edge is the rim, which no flip reaches. Without the
+    face the rim runs through the apex, as the curve does.
+    """
+    limit = np.radians(max_angle)
+    for _ in range(rounds):
+        top = topology(faces, len(vertices))
+        rim = top.boundary_half_edges
+        on_rim = np.zeros(len(vertices), bool)
+        on_rim[rim.ravel()] = True
+        cap = np.zeros(len(faces), bool)
+        for k in range(3):  # apex k, the edge (k+1, k+2) across from it
+            c, a, b = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
+            u, w = vertices[a] - vertices[c], vertices[b] - vertices[c]
+            angle = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+            cap |= pinned[a] & pinned[b] & pinned[c] & (angle > limit) & ~on_rim[c] & _has_rows(rim, np.stack([a, b], 1))
+        if not cap.any():
+            break
+        faces = faces[~cap]
+    return faces
+
+
+def _has_rows(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(k,) bool: which ``rows`` (k, 2) are rows of ``table`` (m, 2) (int ids)."""
+    if len(table) == 0:
+        return np.zeros(len(rows), bool)
+    n = int(max(table.max(), rows.max())) + 1
+    return np.isin(rows[:, 0] * n + rows[:, 1], table[:, 0] * n + table[:, 1])
+
+
 def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray,
            sliver=None) -> np.ndarray:
     """Duplicates, over-full edges, holes (:func:`close_holes`, ``sliver`` its), then the open boundary's lost
