@@ -283,11 +283,11 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     from scipy.spatial import cKDTree
 
     tree = cKDTree(mesh.vertices)
-    # along feature curves, generators no closer than the samples (L / SAMPLES_PER_EDGE): a curve cell narrower
-    # than that holds no sample of its own, and its neighbours' labels meet three at a time at one sample vertex,
-    # whose dual joins three generators on a line, a face without area (the bumpy gyroid's tries, where a miss
-    # lifts the density past MAX_SHRINK: 44 such faces)
-    vertex_density = lambda p: np.minimum(rho_v[tree.query(p)[1]], SAMPLES_PER_EDGE**4)  # noqa: E731
+    # along feature curves, generators no closer than the first try's finest (L / MAX_SHRINK), where a retry's
+    # boost lifts the density past it: the samples (L / SAMPLES_PER_EDGE apart) do not resolve a narrower curve
+    # cell, and its neighbours' labels meet it at one sample vertex, whose dual joins three generators on a line,
+    # a face without area (44 on a try of the bumpy gyroid)
+    vertex_density = lambda p: np.minimum(rho_v[tree.query(p)[1]], MAX_SHRINK**4)  # noqa: E731
     mark("sampling")
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
