@@ -230,6 +230,9 @@ def test_flips_make_no_sliver_along_a_curve():
     rule = curve_slivers(kind, owner, ends)
     tris = np.array([[0, 1, 2], [3, 0, 1], [3, 0, 4], [0, 1, 5], [0, 1, 4], [3, 0, 6], [3, 4, 7], [3, 0, 7]])
     assert rule(*tris.T).tolist() == [True, True, False, False, False, True, True, False]
+    # two pieces of one curve split at a pin (corner 1) go on straight through it: theirs with the pin too
+    pieces = curve_slivers(kind, owner, ends, line=np.array([0, 1, 2, 3, 4, 4]))
+    assert pieces(*np.array([[0, 3, 4]]).T).tolist() == [True] and rule(*np.array([[0, 3, 4]]).T).tolist() == [False]
 
 
 def test_four_cells_meeting_at_a_curve_make_no_sliver():
@@ -268,7 +271,7 @@ def test_a_curve_from_a_corner_back_to_it_gets_no_generator_on_the_corner():
     samples = refine(mesh, 0.25)
     ones = np.ones(mesh.n_faces)
     # pinned opposite the corner, the loop's middle (where a loop with one pin is split again) is the corner
-    for found in (features, pin_corners(mesh, features, np.array([ring[7]]), 0.1)):
+    for found in (features, pin_corners(mesh, features, np.array([ring[7]]), 0.1)[0]):
         assert len(np.unique(found.corners)) == len(found.corners)
         for c in found.curves:  # corners only at the ends of curves
             assert not np.isin(c[1:-1], found.corners).any()
