@@ -203,6 +203,32 @@ def test_rim_corners_of_a_bumpy_sheet_stay_on_the_rim():
     assert cKDTree(out.vertices).query(mesh.vertices[corners])[0].max() < 1e-9
 
 
+def test_rim_notch_through_a_patch_generator_is_filled():
+    # the rim runs a -> g -> b, g a patch generator whose cell reached the rim between two rim corners whose
+    # cells do not meet there (the bumpy tilted sheet's tries: the rim cut 0.21 nm into the input surface)
+    vertices = np.array([[0.0, 0, 0], [2, 0, 0], [4, 0, 0], [1, 1, 0], [3, 1, 0], [2, 2, 0], [2, 0.6, 0]])
+    on_boundary = np.array([True, True, True, False, False, False, False])
+    faces = np.array([[0, 6, 3], [6, 2, 4], [3, 6, 5], [6, 4, 5]])  # the rim a=0 -> g=6 -> b=2
+    out = repair.fill_rim_notches(faces, on_boundary)
+    assert len(out) == 5 and sorted(out[-1].tolist()) == [0, 2, 6]
+    mesh = TriMesh(vertices, out)
+    assert mesh.face_normals()[:, 2].min() > 0  # oriented as the faces beside it
+    rim = {tuple(sorted(e)) for e in mesh.boundary_edges().tolist()}
+    assert (0, 2) in rim and not any(6 in e for e in rim)
+    # a rim of boundary generators only: nothing to fill
+    assert np.array_equal(repair.fill_rim_notches(faces, np.ones(7, bool)), faces)
+
+
+def test_cap_on_the_rim_is_dropped_and_the_rim_runs_through_its_apex():
+    # three generators of a straight rim curve joined into a face of no area whose long edge is the rim
+    vertices = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.3, 0, 0], [0.15, 0.3, 0]])
+    faces = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3]])
+    pinned = np.array([True, True, True, False])
+    out = repair.drop_rim_caps(vertices, faces, pinned)
+    assert sorted(map(sorted, out.tolist())) == [[0, 1, 3], [1, 2, 3]]
+    assert (TriMesh(vertices, out).face_areas() > 1e-3).all()
+
+
 def test_restore_rim_puts_a_lost_rim_generator_back_between_its_neighbours():
     # a fan of two triangles over the rim a-b-c; generator g (on the rim, between a and b) is unused
     vertices = np.array([[0.0, 0, 0], [2, 0, 0], [4, 0, 0], [2, 2, 0], [1, -0.3, 0]])

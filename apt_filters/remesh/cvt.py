@@ -74,7 +74,9 @@ class _Curve:
 
     def initial(self, edge: float) -> np.ndarray:
         """Arc positions of the free generators, evenly spaced in the density's edge measure."""
-        n = max(int(round(self.size[-1] / edge)), 3 if self.closed else 1)
+        # a loop, or a curve from a corner back to it, needs two generators besides the corner to stay a ring
+        ring = self.closed or np.array_equal(self.points[0], self.points[-1])
+        n = max(int(round(self.size[-1] / edge)), 3 if ring else 1)
         u = np.linspace(0.0, self.size[-1], n + 1)
         t = np.interp(u, self.size, self.t)
         return t[:-1] if self.closed else t[1:-1]
@@ -225,7 +227,7 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
     curves = []
     border = np.zeros(features.n_patches)
     for i, c in enumerate(features.curves):
-        curve = _Curve(mesh.vertices[c], c[0] == c[-1] and len(c) > 2, vertex_density, edge / 8)
+        curve = _Curve(mesh.vertices[c], is_loop(c, features.corners), vertex_density, edge / 8)
         curves.append(curve)
         t = curve.initial(edge)
         pos.append(curve.at(t))
@@ -254,6 +256,13 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
         arc.append(np.full(len(pts), np.nan))
     gens = Generators(np.vstack(pos), np.concatenate(kind), np.concatenate(owner), np.concatenate(arc))
     return gens, curves
+
+
+def is_loop(curve: np.ndarray, corners: np.ndarray) -> bool:
+    """Whether a feature curve (input vertex ids) is a closed loop: back at its start, which is no corner. A
+    curve from a corner back to it is open, its two ends that corner: as a loop, its first generator sat on
+    the corner itself (two output vertices at one point, faces without area)."""
+    return bool(len(curve) > 2 and curve[0] == curve[-1] and not isin(curve[:1], corners)[0])
 
 
 def allowed(features: Features, gens: Generators) -> list[np.ndarray]:

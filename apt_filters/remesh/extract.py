@@ -20,28 +20,34 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.sampling import Samples, point_id, lattice_ids
 
 
-def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray) -> list:
+def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> list:
     """Triangulate a small convex-ish polygon of generator ids (counter-clockwise).
 
     Diagonals between two feature generators (``pinned``) are taken first, since the edge
     between consecutive generators on a feature curve must exist; otherwise the fan that
-    maximises the smallest angle is used.
+    maximises the smallest angle is used. Never a fan with a face that ``sliver(p, q, r)`` -> (k,) bool
+    forbids (:func:`apt_filters.remesh.remesh.curve_slivers`: three generators along one feature curve,
+    whose diagonal skips the middle one) where another fan has none.
     """
     k = len(poly)
     fans = [[(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
             for apex in range(k)]
-    angles = face_quality(TriMesh(positions, np.array(fans).reshape(-1, 3)))[0]
+    faces = np.array(fans).reshape(-1, 3)
+    angles = face_quality(TriMesh(positions, faces))[0]
     score = angles.min(axis=1).reshape(k, k - 2).min(axis=1)  # degrees
     for apex in range(k):
         score[apex] += sum(180.0 for j in range(2, k - 1) if pinned[poly[apex]] and pinned[poly[(apex + j) % k]])
+    if sliver is not None:
+        score[sliver(*faces.T).reshape(k, k - 2).any(axis=1)] = -np.inf
     return fans[int(np.argmax(score))]
 
 
-def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> np.ndarray:
     """:func:`triangulate_polygon` for many quadrilaterals (q, 4) at once: (2q, 3) faces.
 
-    Of the two diagonals, the one between two ``pinned`` generators wins, then the one whose
-    two triangles have the larger smallest angle (the diagonal 0-2 on ties).
+    Of the two diagonals, one that makes a ``sliver`` loses, then the one between two ``pinned``
+    generators wins, then the one whose two triangles have the larger smallest angle (the diagonal 0-2 on
+    ties).
     """
     first = np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1)  # diagonal 0-2
     second = np.stack([quads[:, [1, 2, 3]], quads[:, [1, 3, 0]]], axis=1)  # diagonal 1-3
@@ -49,6 +55,8 @@ def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarr
     angles = face_quality(TriMesh(positions, both))[0].min(axis=1).reshape(2, -1, 2).min(axis=2)
     angles[0] += 180.0 * (pinned[quads[:, 0]] & pinned[quads[:, 2]])
     angles[1] += 180.0 * (pinned[quads[:, 1]] & pinned[quads[:, 3]])
+    if sliver is not None:
+        angles[sliver(*both.T).reshape(2, -1, 2).any(axis=2)] = -np.inf
     return np.where((angles[1] > angles[0])[:, None, None], second, first).reshape(-1, 3)
 
 
@@ -174,8 +182,11 @@ def _voronoi_fans(lattice, labels, n_vertices):
 
 
 def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
-               pinned: np.ndarray) -> tuple[np.ndarray, int]:
+               pinned: np.ndarray, sliver=None) -> tuple[np.ndarray, int]:
     """Faces (k, 3) of the restricted Delaunay triangulation, and the number of skipped Voronoi vertices.
+
+    Where four or more cells meet, the polygon's triangulation avoids faces that ``sliver`` forbids
+    (:func:`triangulate_polygon`).
 
     A Voronoi vertex is skipped when a cell appears twice around it (a cell that is not a
     disk there); the repair step closes the resulting gap.
@@ -186,14 +197,14 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     out = [np.stack([cl[cstart[tri]], cl[cstart[tri] + 1], cl[cstart[tri] + 2]], 1)]
     quads = cl[cstart[counts == 4, None] + np.arange(4)]
     repeated = (quads[:, [0, 0, 0, 1, 1, 2]] == quads[:, [1, 2, 3, 2, 3, 3]]).any(axis=1)
-    out.append(triangulate_quads(quads[~repeated], positions, pinned))
+    out.append(triangulate_quads(quads[~repeated], positions, pinned, sliver))
     skipped = int(repeated.sum())
     for g in np.flatnonzero(counts > 4):
         poly = cl[cstart[g]:cstart[g] + counts[g]].tolist()
         if len(set(poly)) != len(poly):
             skipped += 1
             continue
-        out.append(np.array(triangulate_polygon(poly, positions, pinned)))
+        out.append(np.array(triangulate_polygon(poly, positions, pinned, sliver)))
     result = np.vstack(out) if out else np.empty((0, 3), np.int64)
     bad = (result[:, 0] == result[:, 1]) | (result[:, 1] == result[:, 2]) | (result[:, 0] == result[:, 2])
     skipped += int(bad.sum())

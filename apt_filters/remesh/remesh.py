@@ -273,8 +273,10 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
 
     features = feat.detect(mesh, feature_angle, min_area=edge**2, bridge=bridge_gaps,
                            miss=check.HAUSDORFF_FRACTION * edge)
+    line = np.arange(len(features.curves))
     if pins is not None:
-        features = pin_corners(mesh, features, pins)
+        # pins nearer each other than the tries pin for (a miss of half the tolerance) stand for one
+        features, line = pin_corners(mesh, features, pins, 0.5 * check.HAUSDORFF_FRACTION * edge)
     mark("features")
     samples = refine(mesh, edge / SAMPLES_PER_EDGE)
     rho_v = curvature_density(mesh, edge, adaptive, check.HAUSDORFF_FRACTION, features.patch, boost)
@@ -282,7 +284,11 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     from scipy.spatial import cKDTree
 
     tree = cKDTree(mesh.vertices)
-    vertex_density = lambda p: rho_v[tree.query(p)[1]]  # noqa: E731
+    # along feature curves, generators no closer than the first try's finest (L / MAX_SHRINK), where a retry's
+    # boost lifts the density past it: the samples (L / SAMPLES_PER_EDGE apart) do not resolve a narrower curve
+    # cell, and its neighbours' labels meet it at one sample vertex, whose dual joins three generators on a line,
+    # a face without area (44 on a try of the bumpy gyroid)
+    vertex_density = lambda p: np.minimum(rho_v[tree.query(p)[1]], MAX_SHRINK**4)  # noqa: E731
     mark("sampling")
     gens, curves = cvt.initialise(mesh, features, samples, edge, density, vertex_density, seed)
     group = cvt.sample_groups(mesh, samples, features)
@@ -293,8 +299,9 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     labels = result.labels
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
+    sliver = curve_slivers(gens.kind, gens.owner, curve_ends(features, mesh.n_vertices), line)
     on_boundary = _on_boundary(features, gens)
-    faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
+    faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
     mark("extraction")
     for _ in range(CONNECT_ROUNDS):
         bad = repair.defects(gens.positions, faces, on_boundary)
@@ -306,15 +313,17 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
         # hole), but never a generator of the open boundary
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
         labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
-        faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned)
+        faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
     mark("connect")
-    faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned), pinned)
+    faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned, sliver),
+                               pinned)
+    faces = repair.drop_rim_caps(gens.positions, faces, pinned)
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
     extracted = gens.positions[used]
-    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces)
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces, line)
     vertex_of = np.full(len(gens.positions), -1, np.int64)
     vertex_of[used] = np.arange(len(used))
     vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, labels, vertex_of)
@@ -368,16 +377,34 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
     return boost, unique(corners)
 
 
-def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray) -> feat.Features:
-    """``features`` with ``vertices`` (input vertex ids) made corners: a feature curve through one is split there
-    (a closed loop through one only is split again at its middle, so that its pieces have two ends)."""
+def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray,
+                spacing: float) -> tuple[feat.Features, np.ndarray]:
+    """``features`` with ``vertices`` (input vertex ids) made corners, and (n_curves,) the curve of ``features``
+    each of its curves is a piece of: a feature curve through one is split there
+    (a closed loop through one only is split again at its middle, so that its pieces have two ends). A curve
+    from a corner back to it is not a loop: turned to start at a pinned vertex, it would run through that
+    corner, and a generator placed on it could sit on the corner's own.
+
+    A vertex within ``spacing`` (nm) of a corner or of a vertex pinned before it (in id order) is left out: an
+    output vertex stands that near already, and two corners on one short input edge with its midpoint
+    between them (the bumpy gyroid's tries: 0.025 nm apart) made a face without area, which no flip mends."""
     vertices = np.setdiff1d(vertices, features.corners)
+    if len(vertices):
+        from scipy.spatial import cKDTree
+
+        if len(features.corners):
+            vertices = vertices[cKDTree(mesh.vertices[features.corners]).query(mesh.vertices[vertices])[0] > spacing]
+        keep = np.ones(len(vertices), bool)
+        for i, j in sorted(cKDTree(mesh.vertices[vertices]).query_pairs(spacing)):
+            if keep[i]:
+                keep[j] = False
+        vertices = vertices[keep]
     if not len(vertices):
-        return features
-    extra, curves, curve_patches, boundary = [vertices], [], [], []
-    for c, patches, on_rim in zip(features.curves, features.curve_patches, features.boundary_curve):
+        return features, np.arange(len(features.curves))
+    extra, curves, curve_patches, boundary, origin = [vertices], [], [], [], []
+    for i, (c, patches, on_rim) in enumerate(zip(features.curves, features.curve_patches, features.boundary_curve)):
         cut = np.flatnonzero(isin(c, vertices))
-        if len(c) > 2 and c[0] == c[-1] and len(cut):  # a loop: start it at a pinned vertex
+        if cvt.is_loop(c, features.corners) and len(cut):  # a loop: start it at a pinned vertex
             c = np.concatenate([c[cut[0]:-1], c[:cut[0] + 1]])
             cut = np.flatnonzero(isin(c, vertices))
             if len(unique(c[cut])) == 1:
@@ -386,13 +413,14 @@ def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray) ->
         ends = np.union1d(np.union1d(cut, [0]), [len(c) - 1])
         for a, b in zip(ends[:-1], ends[1:]):
             curves.append(c[a:b + 1])
+            origin.append(i)
             curve_patches.append(patches)
             boundary.append(on_rim)
     new = unique(np.concatenate(extra))
     around = [unique(features.patch[np.flatnonzero((mesh.faces == v).any(axis=1))]) for v in new]
     return replace(features, corners=np.concatenate([features.corners, new]), curves=curves,
                    curve_patches=curve_patches, corner_patches=list(features.corner_patches) + around,
-                   boundary_curve=np.array(boundary, bool))
+                   boundary_curve=np.array(boundary, bool)), np.array(origin, np.int64)
 
 
 def _part(mesh: TriMesh, mask: np.ndarray) -> tuple[TriMesh, np.ndarray]:
@@ -432,10 +460,10 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
               kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
-              surfaces: cvt.PatchSurfaces) -> tuple[np.ndarray, np.ndarray]:
+              surfaces: cvt.PatchSurfaces, line: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
     corners stay. Patch vertices are projected onto their patch (``surfaces``),
-    searched within ``edge`` (nm) first."""
+    searched within ``edge`` (nm) first. ``line``: :func:`curve_slivers`'."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
     pinned = kind != cvt.PATCH
@@ -447,7 +475,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     def fixed(a, b):
         return pinned[a] & pinned[b]
 
-    sliver = curve_slivers(kind, owner)
+    sliver = curve_slivers(kind, owner, curve_ends(features, mesh.n_vertices), line)
 
     hint = np.full(len(vertices), -1, np.int64)  # each vertex's face at its last projection, walked from
 
@@ -477,20 +505,43 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     return optimize.improve_angles(vertices, faces, movable, project), faces
 
 
-def curve_slivers(kind: np.ndarray, owner: np.ndarray):
+def curve_slivers(kind: np.ndarray, owner: np.ndarray, ends: np.ndarray, line: np.ndarray | None = None):
     """``sliver(p, q, r)`` -> (k,) bool: faces of three vertices along one feature curve (three of its
-    generators, or a corner and two of them), which a flip must not make: sliding along a straight curve
-    puts them on one line. ``kind``, ``owner``: (v,) per vertex, as :class:`~apt_filters.remesh.cvt.Generators`."""
+    generators, a corner and two of them, or one of them and the curve's two end corners), which
+    extraction and flips must not make: on a straight stretch of the curve they have no area, and the
+    edge between two pinned vertices is never flipped away. ``kind``, ``owner``: (v,) per vertex, as
+    :class:`~apt_filters.remesh.cvt.Generators`; ``ends``: (n_curves, 2) the corner (its owner id) at each
+    end of every curve, -1 for a closed loop (:func:`curve_ends`); ``line``: (n_curves,) the curve each one
+    continues (:func:`pin_corners`' pieces of one curve, which go on straight through the pin between
+    them: a piece's generator, the pin and the next piece's made a face without area), by default itself."""
+    line = np.arange(len(ends)) if line is None else line
     pinned = kind != cvt.PATCH
-    line = np.where(kind == cvt.CURVE, owner, -1)
+    on_line = np.where(kind == cvt.CURVE, line[np.minimum(owner, len(line) - 1)] if len(line) else -1, -1)
+    corner = np.where(kind == cvt.CORNER, owner, -1)
+    n_corners = int(max(owner.max(initial=0), ends.max(initial=0))) + 2
+    # (line, corner) for every end corner of every piece of the line
+    at_end = np.unique(np.concatenate([line * n_corners + ends[:, 0], line * n_corners + ends[:, 1]])) \
+        if len(ends) else np.empty(0, np.int64)
 
     def sliver(p, q, r):
-        ids = np.stack([line[p], line[q], line[r]], axis=1)
+        ids = np.stack([on_line[p], on_line[q], on_line[r]], axis=1)
         on = ids >= 0
-        same = np.where(on, ids, -1).max(axis=1) == np.where(on, ids, np.iinfo(ids.dtype).max).min(axis=1)
-        return pinned[p] & pinned[q] & pinned[r] & (on.sum(axis=1) >= 2) & same
+        curve = ids.max(axis=1)
+        same = (np.where(on, ids, curve[:, None]) == curve[:, None]).all(axis=1)
+        at = np.stack([corner[p], corner[q], corner[r]], axis=1)
+        at_ends = ((at < 0) | isin((curve[:, None] * n_corners + at).ravel(), at_end).reshape(at.shape)).all(axis=1)
+        n_on = on.sum(axis=1)
+        return pinned[p] & pinned[q] & pinned[r] & same & ((n_on >= 2) | ((n_on == 1) & at_ends))
 
     return sliver
+
+
+def curve_ends(features: feat.Features, n_vertices: int) -> np.ndarray:
+    """(n_curves, 2) int64: the corner (index into ``features.corners``) at each end of every feature curve
+    of a mesh of ``n_vertices``; -1 at both for a closed loop without a corner."""
+    corner_of = np.full(n_vertices, -1, np.int64)
+    corner_of[features.corners] = np.arange(len(features.corners))
+    return corner_of[np.array([c[[0, -1]] for c in features.curves], np.int64).reshape(-1, 2)]
 
 
 def closest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -68,8 +68,10 @@ def boundary_loops(faces: np.ndarray) -> list[list[int]]:
 MAX_FILL_ROUNDS = 4
 
 
-def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """Close every boundary loop most of whose vertices are not on a boundary curve (``on_boundary`` False).
+def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray,
+                sliver=None) -> np.ndarray:
+    """Close every boundary loop most of whose vertices are not on a boundary curve (``on_boundary`` False),
+    with no face that ``sliver`` forbids where it can (:func:`~apt_filters.remesh.extract.triangulate_polygon`).
 
     A loop mostly of boundary-curve generators is the input's open rim, even where a cell next
     to it took one of its places: filling it capped the rim of an open interface across a
@@ -79,7 +81,7 @@ def close_holes(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     for loop in boundary_loops(faces):
         if len(loop) < 3 or 2 * on_boundary[loop].sum() >= len(loop):
             continue
-        new.extend(triangulate_polygon(loop[::-1], vertices, pinned))
+        new.extend(triangulate_polygon(loop[::-1], vertices, pinned, sliver))
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)]) if new else faces
 
 
@@ -174,15 +176,89 @@ def restore_rim(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
     return np.vstack([faces, np.array(new, np.int64).reshape(-1, 3)])
 
 
-def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """Duplicates, over-full edges, holes, then the open boundary's lost generators; returns the new faces."""
+def fill_rim_notches(faces: np.ndarray, on_boundary: np.ndarray) -> np.ndarray:
+    """``faces`` with the triangle (g, a, b) added wherever the output's rim runs a -> g -> b from a generator of
+    the open boundary (``on_boundary`` (n,) bool) through one that is not and back to one that is, and no face
+    holds the edge (a, b) yet.
+
+    A patch cell can reach the rim between two rim generators whose cells do not meet there (two corners on
+    neighbouring input rim vertices, pinned by a retry, with no curve generator between them): the rim then
+    detours through the patch generator and cuts the input surface between it and the rim (the bumpy tilted
+    sheet's main sheet: 0.21 nm off the input's rim, tolerance 0.125). The triangle covers that piece and the rim
+    runs a -> b on the input's rim.
+    """
+    if len(faces) == 0:
+        return faces
+    rim = topology(faces, len(on_boundary)).boundary_half_edges
+    out_of = np.full(len(on_boundary), -1, np.int64)
+    into = np.full(len(on_boundary), -1, np.int64)
+    count = np.bincount(rim.ravel(), minlength=len(on_boundary))
+    out_of[rim[:, 0]] = rim[:, 1]
+    into[rim[:, 1]] = rim[:, 0]
+    g = np.flatnonzero((count == 2) & ~on_boundary & (out_of >= 0) & (into >= 0))
+    a, b = into[g], out_of[g]
+    keep = on_boundary[a] & on_boundary[b] & (a != b)
+    g, a, b = g[keep], a[keep], b[keep]
+    edges = np.sort(TriMesh(np.zeros((len(on_boundary), 3)), faces).edges(), axis=1)
+    absent = ~_has_rows(edges, np.sort(np.stack([a, b], 1), axis=1)) if len(g) else np.zeros(0, bool)
+    g, a, b = g[absent], a[absent], b[absent]
+    # two notches sharing a rim generator are filled one at a time (the first in id order)
+    first = np.zeros(len(g), bool)
+    seen = set()
+    for i in range(len(g)):
+        if a[i] not in seen and b[i] not in seen:
+            first[i] = True
+            seen.update((int(a[i]), int(b[i])))
+    return np.vstack([faces, np.stack([g, a, b], 1)[first]])
+
+
+def drop_rim_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_angle: float = 150.0,
+                  rounds: int = 4) -> np.ndarray:
+    """``faces`` without the caps on the open rim: faces of three ``pinned`` generators with an angle over
+    ``max_angle`` degrees at a vertex off the rim, the long edge across from it on the rim.
+
+    The rim's counterpart of :func:`~apt_filters.remesh.optimize.flip_caps`: where the cell of a rim
+    generator is squeezed between its two neighbours on a straight rim curve (a few samples wide), extraction
+    can join the three into a face of no area whose long edge is the rim, which no flip reaches. Without the
+    face the rim runs through the apex, as the curve does.
+    """
+    limit = np.radians(max_angle)
+    for _ in range(rounds):
+        top = topology(faces, len(vertices))
+        rim = top.boundary_half_edges
+        on_rim = np.zeros(len(vertices), bool)
+        on_rim[rim.ravel()] = True
+        cap = np.zeros(len(faces), bool)
+        for k in range(3):  # apex k, the edge (k+1, k+2) across from it
+            c, a, b = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
+            u, w = vertices[a] - vertices[c], vertices[b] - vertices[c]
+            angle = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+            cap |= pinned[a] & pinned[b] & pinned[c] & (angle > limit) & ~on_rim[c] & _has_rows(rim, np.stack([a, b], 1))
+        if not cap.any():
+            break
+        faces = faces[~cap]
+    return faces
+
+
+def _has_rows(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(k,) bool: which ``rows`` (k, 2) are rows of ``table`` (m, 2) (int ids)."""
+    if len(table) == 0:
+        return np.zeros(len(rows), bool)
+    n = int(max(table.max(), rows.max())) + 1
+    return np.isin(rows[:, 0] * n + rows[:, 1], table[:, 0] * n + table[:, 1])
+
+
+def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pinned: np.ndarray,
+           sliver=None) -> np.ndarray:
+    """Duplicates, over-full edges, holes (:func:`close_holes`, ``sliver`` its), then the open boundary's lost
+    generators; returns the new faces."""
     faces = drop_duplicates(faces)
     faces = trim_overfull_edges(vertices, faces)
     # A hole fill can add a third face to an edge (two holes sharing a vertex pair); trimming
     # it opens a smaller hole, so fill and trim until nothing changes.
     for _ in range(MAX_FILL_ROUNDS):
-        filled = trim_overfull_edges(vertices, drop_duplicates(close_holes(vertices, faces, on_boundary, pinned)))
+        filled = trim_overfull_edges(vertices, drop_duplicates(close_holes(vertices, faces, on_boundary, pinned, sliver)))
         if filled.shape == faces.shape and np.array_equal(filled, faces):
             break
         faces = filled
-    return orient_coherently(vertices, restore_rim(vertices, faces, on_boundary))
+    return orient_coherently(vertices, fill_rim_notches(restore_rim(vertices, faces, on_boundary), on_boundary))
