@@ -3,7 +3,10 @@
 Run: ``.venv/bin/python -m benchmarks.bench_remesh [--quick] [--only NAME ...] [--seeds N]``. Every method
 remeshes the same surface to the same target edge; each run is a spawned child process, so that its
 peak memory (VmHWM above the resident size before the call, Linux; per input and per output face) and time (wall, and CPU of all its
-threads: on a shared machine the one to compare) are its own. Surfaces
+threads: on a shared machine the one to compare) are its own. The child first runs the method once on the same surface (imports
+and the compiled code its paths reach loaded: code, not state, which a warm-up on a small sphere left to load inside the
+measurement, about 1 MiB per kernel) and hands the memory its allocator kept back to the system (``malloc_trim``), so
+the measured call finds none of that run's memory resident. Surfaces
 (``tests/remesh_shapes.py``; lengths in nm = voxels):
 
 - ``pipeline``: the pipeline's own cleaned surface of a synthetic specimen (``small`` seed 3: a
