@@ -154,6 +154,20 @@ def test_topology_of_a_cube_a_holed_cube_and_a_torus():
         top.components[0] = 5  # shared by every caller: read-only
 
 
+def test_topology_cache_lets_go_of_faces_nobody_else_holds():
+    import weakref
+
+    from apt_filters.core import mesh as core_mesh
+
+    faces = unit_cube().faces.copy()
+    top = core_mesh.topology(faces, 8)
+    assert core_mesh.topology(faces, 8) is top  # still held by the caller: cached
+    gone = weakref.ref(faces)
+    del faces, top  # the cache's Topology held the array, so its weak key never died
+    core_mesh.topology(unit_cube().faces, 8)
+    assert gone() is None
+
+
 def test_signed_distance_is_positive_along_the_normals_and_exact_on_a_box():
     half = np.array([1.0, 2.0, 3.0])
     rng = np.random.default_rng(0)

@@ -376,3 +376,25 @@ def test_lattice_refinement_is_conforming_and_exact(max_edge):
     assert np.allclose(centre, mesh.vertices[mesh.faces].mean(axis=1))
     lengths = np.linalg.norm(fine.vertices[fine.faces] - fine.vertices[np.roll(fine.faces, 1, axis=1)], axis=2)
     assert np.quantile(lengths, 0.9) < max_edge
+
+
+def test_interior_edges_and_absent_edges_match_their_definition():
+    # the compiled twin search against the definition: every edge of two faces once, a < b, f1 holding a->b,
+    # f2 b->a, c and d their third corners, in f1's half-edge order; an open sheet's rim edges are not interior
+    sheet = shapes.tilted_sheet()
+    faces = sheet.faces
+    (a, b, c, d, f1, f2), rings = optimize._interior_edges(faces, sheet.n_vertices)
+    half = {(int(p), int(q)): (f, k) for f, row in enumerate(faces) for k, (p, q) in
+            enumerate(zip(row, np.roll(row, -1)))}
+    expect = [(p, q, faces[f, (k + 2) % 3], faces[half[q, p][0], (half[q, p][1] + 2) % 3], f, half[q, p][0])
+              for (p, q), (f, k) in sorted(half.items(), key=lambda kv: 3 * kv[1][0] + kv[1][1])
+              if p < q and (q, p) in half]
+    assert np.array_equal(np.stack([a, b, c, d, f1, f2], 1), np.array(expect).reshape(-1, 6))
+    assert len(a) < 1.5 * len(faces)  # the rims' edges left out
+    pairs = np.array([[0, 1], [0, 2], [1, 2]])
+    edges = {tuple(sorted((int(row[i]), int(row[j])))) for row in faces for i, j in pairs}
+    rng = np.random.default_rng(0)
+    p, q = rng.integers(0, sheet.n_vertices, 400), rng.integers(0, sheet.n_vertices, 400)
+    p[:200], q[:200] = b[:200], a[:200]  # half of them existing edges, given either way round
+    assert optimize._absent(faces, rings, p, q).tolist() == [tuple(sorted((int(x), int(y)))) not in edges
+                                                             for x, y in zip(p, q)]

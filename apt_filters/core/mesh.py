@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import sys
 import weakref
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -287,6 +288,15 @@ _cache: list = []
 """(weak reference to a faces array, n_vertices, Topology) of the latest meshes, newest last."""
 
 
+def _held(entry: tuple) -> bool:
+    """Whether anything but the cache holds the faces array of a :data:`_cache` entry: its Topology holds
+    that array (or a view of it, where it was contiguous int64 already), so the weak key alone never lets
+    it go, and the cache's last meshes (each faces array with its edge tables, about 150 bytes per face)
+    would stay in memory after their step dropped them."""
+    faces, own = entry[0](), entry[2]._faces
+    return faces is not None and sys.getrefcount(faces) > 2 + (own is faces or own.base is faces)
+
+
 def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     """The :class:`Topology` of ``faces`` (m, 3) int over ``n_vertices`` vertices, built once per faces array.
 
@@ -294,6 +304,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     moves the vertices of a mesh keeps its topology. Treat a faces array as immutable; changing
     the connectivity means a new array.
     """
+    _cache[:] = [entry for entry in _cache if _held(entry)]
     for entry in reversed(_cache):
         if entry[0]() is faces and entry[1] == n_vertices:
             return entry[2]

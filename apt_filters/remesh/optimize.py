@@ -21,28 +21,47 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.walk import vertex_rings
 
 
-def _interior_edges(faces: np.ndarray) -> tuple[tuple, np.ndarray, int]:
+def _interior_edges(faces: np.ndarray, n_vertices: int) -> tuple[tuple, tuple]:
     """For each edge shared by two faces: a, b (edge), c, d (opposite corners), f1, f2 (faces).
 
-    Face f1 holds the directed edge a->b and f2 the edge b->a. Also returns the sorted keys
-    ``a * n + b`` of all half-edges and ``n``, to look up whether an edge exists.
+    Face f1 holds the directed edge a->b (a < b) and f2 the edge b->a, in the order of f1's half-edges
+    (face by face). Also returns the faces round every vertex (:func:`walk.vertex_rings`), to look up
+    whether an edge exists (:func:`_absent`). Compiled over the rings: no (3f,) keys, sort or search
+    (a sort of the half-edges' keys and its temporaries were about 250 bytes per face).
     """
-    m = len(faces)
-    a = faces.ravel()
-    b = np.roll(faces, -1, axis=1).ravel()
-    c = np.roll(faces, -2, axis=1).ravel()
-    face = np.repeat(np.arange(m), 3)
-    n = int(faces.max()) + 1
-    key = a * n + b
-    rev = b * n + a
-    order = np.argsort(key)
-    keys = key[order]
-    pos = np.searchsorted(keys, rev)
-    pos = np.minimum(pos, len(key) - 1)
-    twin = order[pos]
-    ok = (key[twin] == rev) & (a < b)
-    h1, h2 = np.flatnonzero(ok), twin[ok]
-    return (a[h1], b[h1], c[h1], c[h2], face[h1], face[h2]), keys, n
+    faces = np.ascontiguousarray(faces, np.int64)
+    rings = vertex_rings(faces, n_vertices)
+    return _twins(faces, *rings), rings
+
+
+@njit(cache=True, nogil=True)
+def _twins(faces, start, ring):
+    """:func:`_interior_edges`' edges: each half-edge a->b (a < b) of face f1 with the half-edge b->a of
+    the first face round a that holds one."""
+    count = 0
+    twin = np.full(3 * len(faces), -1, np.int64)
+    for f in range(len(faces)):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            if a < b:
+                for s in range(start[a], start[a + 1]):
+                    g = ring[s]
+                    for j in range(3):
+                        if twin[3 * f + k] < 0 and faces[g, j] == b and faces[g, (j + 1) % 3] == a:
+                            twin[3 * f + k] = 3 * g + j
+                    if twin[3 * f + k] >= 0:
+                        count += 1
+                        break
+    out = np.empty((6, count), np.int64)
+    i = 0
+    for h in range(3 * len(faces)):
+        t = twin[h]
+        if t >= 0:
+            f, k, g, j = h // 3, h % 3, t // 3, t % 3
+            out[0, i], out[1, i], out[2, i] = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+            out[3, i], out[4, i], out[5, i] = faces[g, (j + 2) % 3], f, g
+            i += 1
+    return out[0], out[1], out[2], out[3], out[4], out[5]
 
 
 def _face_normals(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -51,7 +70,7 @@ def _face_normals(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, keys: np.ndarray, n: int, idx: np.ndarray,
+def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, rings: tuple, idx: np.ndarray,
                fixed_edge, max_dihedral: float, sliver=None) -> np.ndarray:
     """The edges ``idx`` that may be flipped: flat enough, not fixed, the new faces not folded, c-d new.
 
@@ -68,15 +87,24 @@ def _flippable(vertices: np.ndarray, faces: np.ndarray, edge: tuple, keys: np.nd
         & flat & ~fixed_edge(a, b)
     if sliver is not None:
         ok &= ~sliver(c, a, d) & ~sliver(d, b, c)
-    return idx[ok & _absent(keys, n, c, d)]
+    return idx[ok & _absent(faces, rings, c, d)]
 
 
-def _absent(keys: np.ndarray, n: int, c: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(k,) bool: no edge c-d yet (``keys``, ``n`` from :func:`_interior_edges`); a flip must not duplicate one."""
-    ok = np.ones(len(c), bool)
-    for key in (c * n + d, d * n + c):  # an existing edge c-d has a half-edge one way or the other
-        pos = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-        ok &= keys[pos] != key
+def _absent(faces: np.ndarray, rings: tuple, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(k,) bool: no edge c-d yet (no face round c holds d; ``rings`` from :func:`_interior_edges`); a flip
+    must not duplicate one."""
+    return _no_edge(faces, rings[0], rings[1], np.ascontiguousarray(c, np.int64), np.ascontiguousarray(d, np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _no_edge(faces, start, ring, c, d):
+    ok = np.ones(len(c), np.bool_)
+    for i in range(len(c)):
+        for s in range(start[c[i]], start[c[i] + 1]):
+            g = ring[s]
+            if faces[g, 0] == d[i] or faces[g, 1] == d[i] or faces[g, 2] == d[i]:
+                ok[i] = False
+                break
     return ok
 
 
@@ -107,7 +135,7 @@ def flip_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, target: np.nd
     (v,) is the ideal valence of each vertex (6 inside, 4 on the boundary); ``sliver(p, q, r)`` -> bool
     array marks faces no flip may make.
     """
-    edge, keys, n = _interior_edges(faces)
+    edge, rings = _interior_edges(faces, len(vertices))
     a, b, c, d = edge[:4]
     val = np.bincount(faces.ravel(), minlength=len(vertices)).astype(float)  # faces = valence inside; +1 on the boundary
     before = np.abs(val[a] - target[a]) + np.abs(val[b] - target[b]) + np.abs(val[c] - target[c]) \
@@ -115,17 +143,17 @@ def flip_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, target: np.nd
     after = np.abs(val[a] - 1 - target[a]) + np.abs(val[b] - 1 - target[b]) + np.abs(val[c] + 1 - target[c]) \
         + np.abs(val[d] + 1 - target[d])
     idx = np.flatnonzero((after < before) & (val[a] > 3) & (val[b] > 3))
-    idx = _flippable(vertices, faces, edge, keys, n, idx, fixed_edge, max_dihedral, sliver)
+    idx = _flippable(vertices, faces, edge, rings, idx, fixed_edge, max_dihedral, sliver)
     return _apply_independent(faces, len(vertices), edge, idx, (before - after)[idx], seed)
 
 
 def delaunay_pass(vertices: np.ndarray, faces: np.ndarray, fixed_edge, max_dihedral: float = 20.0,
                   seed: int = 0, sliver=None) -> tuple[np.ndarray, int]:
     """Apply one independent set of Delaunay flips (the two angles opposite an edge sum to more than 180°)."""
-    edge, keys, n = _interior_edges(faces)
+    edge, rings = _interior_edges(faces, len(vertices))
     a, b, c, d = edge[:4]
     excess = _angle(vertices, c, a, b) + _angle(vertices, d, a, b) - np.pi
-    idx = _flippable(vertices, faces, edge, keys, n, np.flatnonzero(excess > 1e-6), fixed_edge, max_dihedral,
+    idx = _flippable(vertices, faces, edge, rings, np.flatnonzero(excess > 1e-6), fixed_edge, max_dihedral,
                      sliver)
     return _apply_independent(faces, len(vertices), edge, idx, excess[idx], seed)
 
@@ -149,7 +177,7 @@ def flip_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_a
     curve. Returns the new faces.
     """
     for r in range(rounds):
-        edge, keys, n = _interior_edges(faces)
+        edge, rings = _interior_edges(faces, len(vertices))
         a, b, c, d, f1, f2 = edge
         at_c, at_d = _angle(vertices, c, a, b), _angle(vertices, d, a, b)
         limit = np.radians(max_angle)
@@ -160,7 +188,7 @@ def flip_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_a
         ca, cb = (_face_normals(vertices, np.stack(t, 1)[cap]) for t in ((c, a, d), (d, b, c)))
         idx = np.flatnonzero(cap)
         ok = (np.einsum("ij,ij->i", ca, normal) > 0.5) & (np.einsum("ij,ij->i", cb, normal) > 0.5)
-        idx = idx[ok & (c[idx] != d[idx]) & _absent(keys, n, c[idx], d[idx])]
+        idx = idx[ok & (c[idx] != d[idx]) & _absent(faces, rings, c[idx], d[idx])]
         faces, flipped = _apply_independent(faces, len(vertices), edge, idx, np.maximum(at_c, at_d)[idx], seed=r)
         if flipped == 0:
             break
