@@ -162,10 +162,10 @@ def test_topology_cache_lets_go_of_faces_nobody_else_holds():
     faces = unit_cube().faces.copy()
     top = core_mesh.topology(faces, 8)
     assert core_mesh.topology(faces, 8) is top  # still held by the caller: cached
-    gone = weakref.ref(faces)
-    del faces, top  # the cache's Topology held the array, so its weak key never died
+    gone, tables = weakref.ref(faces), weakref.ref(top)
+    del faces, top  # was: the cache's Topology held the array, so its weak key never died
     core_mesh.topology(unit_cube().faces, 8)
-    assert gone() is None
+    assert gone() is None and tables() is None
 
 
 def test_signed_distance_is_positive_along_the_normals_and_exact_on_a_box():

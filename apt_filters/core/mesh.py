@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import sys
 import weakref
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -288,15 +287,6 @@ _cache: list = []
 """(weak reference to a faces array, n_vertices, Topology) of the latest meshes, newest last."""
 
 
-def _held(entry: tuple) -> bool:
-    """Whether anything but the cache holds the faces array of a :data:`_cache` entry: its Topology holds
-    that array (or a view of it, where it was contiguous int64 already), so the weak key alone never lets
-    it go, and the cache's last meshes (each faces array with its edge tables, about 150 bytes per face)
-    would stay in memory after their step dropped them."""
-    faces, own = entry[0](), entry[2]._faces
-    return faces is not None and sys.getrefcount(faces) > 2 + (own is faces or own.base is faces)
-
-
 def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     """The :class:`Topology` of ``faces`` (m, 3) int over ``n_vertices`` vertices, built once per faces array.
 
@@ -304,15 +294,17 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     moves the vertices of a mesh keeps its topology. Treat a faces array as immutable; changing
     the connectivity means a new array.
     """
-    _cache[:] = [entry for entry in _cache if _held(entry)]
+    _cache[:] = [entry for entry in _cache if entry[0]() is not None]
     for entry in reversed(_cache):
         if entry[0]() is faces and entry[1] == n_vertices:
             return entry[2]
-    top = Topology.of(faces, n_vertices)
     try:
         ref = weakref.ref(faces)
     except TypeError:  # not an ndarray (a list, say): nothing to key the cache on
-        return top
+        return Topology.of(faces, n_vertices)
+    # On a copy of its own (24 bytes per face beside ~150 of edge tables): holding the caller's array, or a
+    # view of it, would keep the weak key alive, and the last meshes' tables would outlive their steps.
+    top = Topology.of(np.array(faces, dtype=np.int64), n_vertices)
     _cache.append((ref, n_vertices, top))
     del _cache[:-_CACHE_SIZE]
     return top
