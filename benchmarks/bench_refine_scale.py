@@ -1,6 +1,7 @@
 """Refinement time on the end-to-end scale case: the ``many`` specimen (47 precipitates) at 10^7 ions.
 
-    python -m benchmarks.bench_refine_scale [--ions 1e7] [--preset many] [--baseline PATH] [--work DIR] [--quick]
+    python -m benchmarks.bench_refine_scale [--ions 1e7] [--preset many] [--baseline PATH] [--together] [--work DIR]
+                                            [--quick]
 
 The specimen of :mod:`benchmarks.bench_pipeline` (``apt-filters synth --preset many --ions N``) is
 generated once, voxelized and contoured as ``apt-filters run ... --species Al --iso 0.15 --exclude B``
@@ -9,7 +10,8 @@ saved. :func:`~apt_filters.refine.refine_surface` with its defaults is then time
 process, once with this tree's code and, with ``--baseline PATH`` (a checkout of another revision), once
 with that code, in the same run: on a shared machine the process CPU time (all threads, user + system)
 is the figure to compare; the wall time and the child's peak resident memory (the ion table read whole
-included) are printed beside it.
+included) are printed beside it. With ``--together`` the two processes run at the same time, so that both see
+the same load from the machine's other jobs (one after the other, the second often runs under another).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import pickle
 import resource
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="many", help="synth preset ('default': 7 objects, ~3.4M ions, to develop on)")
     parser.add_argument("--work", type=Path, help="folder for the specimen and mesh (kept; default /tmp/...)")
     parser.add_argument("--baseline", type=Path, help="checkout of the revision to compare against")
+    parser.add_argument("--together", action="store_true",
+                        help="run this tree and the baseline at the same time (the same load on a shared machine)")
     parser.add_argument("--quick", action="store_true", help="the default preset at its own size (~3.4M ions)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -110,14 +115,22 @@ def main(argv: list[str] | None = None) -> int:
              "| code | ions | objects | faces | CPU (s) | wall (s) | peak RSS (MiB) | mean displacement (nm) | outputs (SHA-1) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     print("\n".join(lines), flush=True)
+    def measure(code: Path) -> dict:
+        return child_result(__file__, work, code, ENVIRONMENT, "refinement")
+
+    together = None
+    if args.together:
+        with ThreadPoolExecutor(len(runs)) as pool:  # each row's child is its own process: the threads only wait
+            together = list(pool.map(measure, [code for _, code in runs]))
     results = []
-    for name, code in runs:
-        r = child_result(__file__, work, code, ENVIRONMENT, "refinement")
+    for i, (name, code) in enumerate(runs):
+        r = together[i] if together else measure(code)
         results.append(r)
         lines.append(f"| {name} | {r['ions']:,} | {r['objects']} | {r['faces']:,} | {r['cpu_s']:.1f} | "
                      f"{r['wall_s']:.1f} | {r['peak_mib']:,.0f} | {r['mean_displacement_nm']:+.4f} | `{r['outputs']}` |")
         print(lines[-1], flush=True)
-    lines += ["", "Load average (1, 5, 15 min) after: {:.1f} {:.1f} {:.1f}.".format(*os.getloadavg())]
+    lines += ["", "Load average (1, 5, 15 min) after: {:.1f} {:.1f} {:.1f}{}.".format(
+        *os.getloadavg(), "; the rows ran at the same time" if args.together else "")]
     if len(results) > 1:
         same = len({r["outputs"] for r in results}) == 1
         lines += ["", f"Outputs (refined vertices and faces, widths, offset errors, levels): "

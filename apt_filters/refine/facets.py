@@ -671,7 +671,14 @@ def _edge_scores(order: np.ndarray, rounding: float, width: float, share: float 
                  nodes: int = 8) -> np.ndarray:
     """(b,) the rounded edge's part of :func:`rounded_scores` from each point's two largest signed distances
     (``order`` (b, m) nm, sorted along each row)."""
-    s1, s2 = order[:, -1], order[:, -2] if order.shape[1] > 1 else np.full(len(order), -np.inf)
+    return _edge_part(order[:, -1], order[:, -2] if order.shape[1] > 1 else np.full(len(order), -np.inf), rounding,
+                      width, share, nodes)
+
+
+def _edge_part(s1: np.ndarray, s2: np.ndarray, rounding: float, width: float, share: float = 1.0,
+               nodes: int = 8) -> np.ndarray:
+    """:func:`_edge_scores` from each point's largest and second largest signed distances ``s1``, ``s2`` (b,) nm
+    (-inf for a single plane)."""
     interface = width * np.sqrt(max(1.0 - share, 0.0))
     if interface <= 0.0:
         return _blurred_edge(s1, s2, rounding, width, nodes)
@@ -789,32 +796,41 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _product_of_others(distance, steps, plane=-1, column=np.empty(0), column_steps=np.empty(0)):
+def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np.empty((0, 0)),
+                       column_steps=np.empty((0, 0))):
     """(b,) :func:`_other_steps` from the planes' distances ``distance`` (b, m) and their steps ``steps`` (b, m):
     the product of the steps of all but each point's two largest distances, taken in ascending order of distance
-    as ``np.prod`` takes them from the sorted distances (the same numbers). With ``plane`` >= 0, that plane's
-    distances and steps are ``column`` and ``column_steps`` (b,) instead (a nudged plane, without copies of the
-    whole arrays)."""
+    as ``np.prod`` takes them from the sorted distances (the same numbers). With ``planes`` (p,) int64, the same
+    for each plane ``planes[j]`` nudged, its distances and steps ``columns[:, j]`` and ``column_steps[:, j]``
+    (b, p) instead of its own (without copies of the whole arrays): (b, p) products, and (b, p, 2) the nudged
+    rows' largest and second largest distances (-inf for a single plane)."""
     b, m = distance.shape
-    out = np.empty(b)
+    p = planes.shape[0]
+    out = np.empty((b, max(p, 1)))
+    top = np.full((b, p, 2), -np.inf)
     rank = np.empty(m, dtype=np.int64)
     row, row_steps = np.empty(m), np.empty(m)
     for i in range(b):
-        for j in range(m):
-            row[j], row_steps[j] = distance[i, j], steps[i, j]
-        if plane >= 0:
-            row[plane], row_steps[plane] = column[i], column_steps[i]
-        for j in range(m):  # insertion sort of the planes by distance: m is small
-            k = j
-            while k > 0 and row[rank[k - 1]] > row[j]:
-                rank[k] = rank[k - 1]
-                k -= 1
-            rank[k] = j
-        value = 1.0
-        for j in range(m - 2):
-            value *= row_steps[rank[j]]
-        out[i] = value
-    return out
+        for n in range(max(p, 1)):
+            for j in range(m):
+                row[j], row_steps[j] = distance[i, j], steps[i, j]
+            if p > 0:
+                row[planes[n]], row_steps[planes[n]] = columns[i, n], column_steps[i, n]
+            for j in range(m):  # insertion sort of the planes by distance: m is small
+                k = j
+                while k > 0 and row[rank[k - 1]] > row[j]:
+                    rank[k] = rank[k - 1]
+                    k -= 1
+                rank[k] = j
+            value = 1.0
+            for j in range(m - 2):
+                value *= row_steps[rank[j]]
+            out[i, n] = value
+            if p > 0:
+                top[i, n, 0] = row[rank[m - 1]]
+                if m > 1:
+                    top[i, n, 1] = row[rank[m - 2]]
+    return out, top
 
 
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
@@ -830,20 +846,20 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     order = np.sort(distance, axis=1)
     # each plane's step, the factors of _other_steps: a nudge changes one plane's
     steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
-    edge, others = _edge_scores(order, rounding, width, share), _product_of_others(distance, steps)
+    edge, others = _edge_scores(order, rounding, width, share), _product_of_others(distance, steps)[0][:, 0]
     base = edge * others
     jac = np.empty((len(signed), m + 3))
-    for k in np.flatnonzero(free[:m]):
-        column = signed[:, k] - (shift[k] + h)
+    planes = np.flatnonzero(free[:m]).astype(np.int64)
+    # every nudged plane's distances and steps at once; each row's products and largest two distances in one pass
+    columns = signed[:, planes] - (shift[planes] + h)
+    products, top = _product_of_others(distance, steps, planes, columns, 0.5 * erfc(columns / (np.sqrt(2) * width)))
+    for n, k in enumerate(planes):
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change
         near = distance[:, k] >= order[:, -2]
-        nudged = distance[near]
-        nudged[:, k] = column[near]
         moved_edge = edge.copy()
-        moved_edge[near] = _edge_scores(np.sort(nudged, axis=1), rounding, width, share)
-        jac[:, k] = (moved_edge * _product_of_others(distance, steps, k, column,
-                                                     0.5 * erfc(column / (np.sqrt(2) * width))) - base) / h
+        moved_edge[near] = _edge_part(top[near, n, 0], top[near, n, 1], rounding, width, share)
+        jac[:, k] = (moved_edge * products[:, n] - base) / h
     # neither the radius nor the share changes the other planes' steps
     if free[m]:
         jac[:, m] = (_edge_scores(order, rounding + h, width, share) * others - base) / h
