@@ -842,10 +842,11 @@ def _segregant(near: NearIons, basis: ConcentrationBasis, vertices: np.ndarray, 
 
 
 def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores: ObjectScores, half_width: float,
-                   distance: str, cap: float = 45.0) -> list:
-    """The facets ``found`` on ``placed``, those of each object they close refitted to its ions
-    (:func:`~apt_filters.refine.facets.fit_to_ions`): the ions whose nearest vertex's normal lies within ``cap``
-    degrees of one of the object's facets (an edge's ions, ~45° from both faces, count; a corner's few do not)."""
+                   distance: str, chosen: dict, cap: float = 45.0) -> list:
+    """The facets ``found`` on ``placed`` of the objects ``chosen`` does not map to False, those of each object they
+    close refitted to its ions (:func:`~apt_filters.refine.facets.fit_to_ions`): the ions whose nearest vertex's
+    normal lies within ``cap`` degrees of one of the object's facets (an edge's ions, ~45° from both faces, count;
+    a corner's few do not)."""
     keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
                                        half_width, distance)
     vertex = band.vertex[keep]
@@ -862,8 +863,10 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         return fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
 
-    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives
-    return [f for part in per_item(fitted, sorted({f.component for f in found})) for f in part]
+    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives (those
+    # of the objects left out are never fitted: the fits are most of the refinement's time at 10^7 ions)
+    objects = sorted({f.component for f in found if chosen.get(f.component, True)})
+    return [f for part in per_item(fitted, objects) for f in part]
 
 
 def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -939,11 +942,12 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
 
 
 def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
-                   half_width: float, distance: str) -> list:
+                   half_width: float, distance: str, chosen: dict | None = None) -> list:
     """The facets of a surface as the iterations left it (none if switched off), fitted to its ions where they
-    close an object (:func:`_fitted_facets`)."""
+    close an object (:func:`_fitted_facets`); only those of the objects ``chosen`` (component -> bool, default
+    True: the held-out ions' choice, ``ModeSelection.facets``) does not map to False."""
     found = find_facets(placed.vertices, faces) if facets else []
-    return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
+    return _fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}) if found else []
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1084,9 +1088,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         stages.append(StageReport.between("lengths", before, vertices, clock, 0, "open objects low-passed at "
                                           + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
-    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance)
-    if selection is not None:  # facets only where held-out ions preferred them
-        found = [f for f in found if selection.facets.get(f.component, True)]
+    # facets only where held-out ions preferred them
+    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                           selection.facets if selection is not None else None)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
