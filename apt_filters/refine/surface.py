@@ -699,17 +699,20 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
-    sums = 0.0
+    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
+    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels.
+    # Both from one pass over each half's ions
+    curved = p.curved_levels and closed.any()
+    sums, bands = 0.0, []
     for k in (0, 1):
         other = fits[1 - k]
-        band = held[k].band(other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
+        args = (other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
+        band, exact = held[k].bands(*args) if curved else (held[k].band(*args), None)
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
+        bands.append(exact)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
-    if not (p.curved_levels and closed.any()):
+    if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
-    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
-    bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
     unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
