@@ -778,23 +778,30 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     chosen = np.zeros(n_comp, dtype=bool)
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
-    for c in np.flatnonzero(closed):
+
+    def shares_of(c: int) -> np.ndarray | None:
+        """Object ``c``'s window shares of the inside phase where the ball is chosen for it, else None."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
-            continue
+            return None
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
         gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
         if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
-            continue
+            return None
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
-            continue
+            return None
         shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
                                               radius=radius[c], dims=dims[c], blur=sigma)
         # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not fix
         # the interface unmixes by shares it does not know); windows that cannot tell the phases apart are left
         # as they are (unmixed_sums keeps them)
-        if better > 0 and shares[0] - shares[1] > 0.1:
+        return shares if better > 0 and shares[0] - shares[1] > 0.1 else None
+
+    # the objects are independent (their profiles' special functions release the GIL): every core busy
+    objects = np.flatnonzero(closed).tolist()
+    for c, shares in zip(objects, per_item(shares_of, objects)):
+        if shares is not None:
             mixed[c], chosen[c] = shares, True
     return unmixed_sums(sums, mixed), chosen
 
