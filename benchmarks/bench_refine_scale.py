@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         *os.getloadavg(), "; the rows ran at the same time" if args.together else "")]
     if len(results) > 1:
         same = len({r["outputs"] for r in results}) == 1
-        lines += ["", f"Outputs (refined vertices and faces, widths, offset errors, levels): "
+        lines += ["", f"Outputs (refined vertices and faces, widths, offset errors, levels, the rest of the report): "
                       f"{'identical bit for bit' if same else 'DIFFERENT'} across the rows."]
     if not args.child:
         from benchmarks.results import ratio, write_results
