@@ -185,6 +185,9 @@ def test_band_shell_keeps_every_bin_window_and_side_of_the_exact_distances():
     assert np.array_equal(np.sign(d), np.sign(s))
     assert np.all(np.abs(s[spared]) > lo) and np.all(np.abs(s[spared]) <= np.abs(d[spared]) + 1e-12)
     assert np.array_equal(np.abs(d) <= hi, np.abs(s) <= hi)  # the same place relative to hi
+    # both bands from one pass: each what its own pass gives
+    for one, alone in zip(near.bands(moved, normals, 4.0, shell=(lo, hi)), (shell, exact)):
+        assert all(np.array_equal(getattr(one, f), getattr(alone, f)) for f in ("index", "vertex", "distance"))
 
 
 def test_taken_ions_get_what_they_get_among_all():

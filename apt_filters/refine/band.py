@@ -342,21 +342,36 @@ class NearIons:
         same side, and the same place relative to ``lo`` and ``hi``. Most of the ions a plateau window counts are
         spared the closest-point search.
         """
+        return self._bands(vertices, normals, reach, distance, shell, False)[0]
+
+    def bands(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str = "mesh",
+              shell: tuple[float, float] | None = None) -> tuple[Band, Band]:
+        """``(band(..., shell), band(...))`` of :meth:`band` in one pass over the ions: the planes' bounds and the
+        closest-point search of each ion once (those the shell spares are searched for the second band alone)."""
+        return self._bands(vertices, normals, reach, distance, shell, True)
+
+    def _bands(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str,
+               shell: tuple[float, float] | None, exact: bool) -> tuple[Band, Band | None]:
+        """The band with ``shell``'s distances and, if ``exact``, the one with every ion's own (see :meth:`band`)."""
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
             self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
                                      self.second)
             self.assigned, self.settled = vertices.copy(), True
-        d2, signed = np.empty(len(self.vertex)), np.empty(len(self.vertex))
+        n = len(self.vertex)
+        d2, signed, spared = np.empty(n), np.empty(n), np.full(n if exact else 0, np.nan)
         if distance == "mesh":
             _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
                          face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach,
-                         *(shell if shell is not None else (np.inf, np.inf)), d2, signed)
+                         *(shell if shell is not None else (np.inf, np.inf)), d2, signed, spared)
         elif distance == "tangent":
             _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
             raise ValueError(f"distance must be 'mesh' or 'tangent', got {distance!r}")
         keep = np.flatnonzero(d2 <= reach * reach)
-        return Band(keep, self.vertex[keep], signed[keep])
+        if not exact:
+            return Band(keep, self.vertex[keep], signed[keep]), None
+        shelled = np.where(np.isnan(spared), signed, spared)
+        return Band(keep, self.vertex[keep], shelled[keep]), Band(keep, self.vertex[keep], signed[keep])
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -410,7 +425,8 @@ def _face_normal(vertices, q, a, b):
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, lo, hi, d2, signed):
+def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane, exact, limit, lo, hi, d2, signed,
+                 spared):
     """Signed distance of each point to the faces around its nearest vertex; the sign is that of the offset
     from the closest point along the pseudo-normal there (the face's normal inside a face, the sum of the
     unit normals of the fan faces sharing the point on an edge or corner). Points farther than ``exact``
@@ -418,7 +434,9 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane
     their vertex (left out of the band) get NaN. ``plane`` (k, 3): the unit normal of each fan face (zeros if
     degenerate), whose plane's distance bounds the face's from below. Points the planes prove beyond ``lo`` (on
     one side of every plane), and within ``hi`` of the vertex or beyond ``hi`` by the planes, get the nearest
-    plane's signed distance (``NearIons.band``'s ``shell``; ``lo`` = inf: none)."""
+    plane's signed distance (``NearIons.band``'s ``shell``; ``lo`` = inf: none). ``spared`` (n,) NaN on entry, or
+    (0,): where given, those points get the nearest plane's distance there and their own in ``signed``
+    (``NearIons.bands``)."""
     # relative margin of the shell's proofs, far above the rounding of the planes' and faces' distances
     tight = 1.0 + 1e-9
     n = points.shape[0]
@@ -452,8 +470,10 @@ def _fan_offsets(points, vertex, vertices, normals, fan_ptr, fan_a, fan_b, plane
                     sides |= 1 if h > 0.0 else (2 if h < 0.0 else 3)
                 if (sides == 1 or sides == 2) and lower > lo * tight and (d2[i] * tight <= hi * hi
                                                                           or lower > hi * tight):
-                    signed[i] = lower if sides == 1 else -lower
-                    continue
+                    if spared.shape[0] == 0:
+                        signed[i] = lower if sides == 1 else -lower
+                        continue
+                    spared[i] = lower if sides == 1 else -lower
             best, bx_, by_, bz_, best_k, inner = np.inf, q[0], q[1], q[2], -1, False
             for k in range(first, fan_ptr[v + 1]):
                 h = (px - q[0]) * plane[k, 0] + (py - q[1]) * plane[k, 1] + (pz - q[2]) * plane[k, 2]

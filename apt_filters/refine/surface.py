@@ -699,17 +699,20 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
     reach = p.plateau_window[1] + 1.0
-    sums = 0.0
+    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
+    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels.
+    # Both from one pass over each half's ions
+    curved = p.curved_levels and closed.any()
+    sums, bands = 0.0, []
     for k in (0, 1):
         other = fits[1 - k]
-        band = held[k].band(other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
+        args = (other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
+        band, exact = held[k].bands(*args) if curved else (held[k].band(*args), None)
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
+        bands.append(exact)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
-    if not (p.curved_levels and closed.any()):
+    if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
-    # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels
-    bands = [held[k].band(fits[1 - k].vertices, fits[1 - k].normals, reach, p.distance) for k in (0, 1)]
     unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
@@ -775,23 +778,30 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     chosen = np.zeros(n_comp, dtype=bool)
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
-    for c in np.flatnonzero(closed):
+
+    def shares_of(c: int) -> np.ndarray | None:
+        """Object ``c``'s window shares of the inside phase where the ball is chosen for it, else None."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
-            continue
+            return None
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
         gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
         if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
-            continue
+            return None
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
-            continue
+            return None
         shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
                                               radius=radius[c], dims=dims[c], blur=sigma)
         # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not fix
         # the interface unmixes by shares it does not know); windows that cannot tell the phases apart are left
         # as they are (unmixed_sums keeps them)
-        if better > 0 and shares[0] - shares[1] > 0.1:
+        return shares if better > 0 and shares[0] - shares[1] > 0.1 else None
+
+    # the objects are independent (their profiles' special functions release the GIL): every core busy
+    objects = np.flatnonzero(closed).tolist()
+    for c, shares in zip(objects, per_item(shares_of, objects)):
+        if shares is not None:
             mixed[c], chosen[c] = shares, True
     return unmixed_sums(sums, mixed), chosen
 
@@ -842,10 +852,11 @@ def _segregant(near: NearIons, basis: ConcentrationBasis, vertices: np.ndarray, 
 
 
 def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores: ObjectScores, half_width: float,
-                   distance: str, cap: float = 45.0) -> list:
-    """The facets ``found`` on ``placed``, those of each object they close refitted to its ions
-    (:func:`~apt_filters.refine.facets.fit_to_ions`): the ions whose nearest vertex's normal lies within ``cap``
-    degrees of one of the object's facets (an edge's ions, ~45° from both faces, count; a corner's few do not)."""
+                   distance: str, chosen: dict, cap: float = 45.0) -> list:
+    """The facets ``found`` on ``placed`` of the objects ``chosen`` does not map to False, those of each object they
+    close refitted to its ions (:func:`~apt_filters.refine.facets.fit_to_ions`): the ions whose nearest vertex's
+    normal lies within ``cap`` degrees of one of the object's facets (an edge's ions, ~45° from both faces, count;
+    a corner's few do not)."""
     keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
                                        half_width, distance)
     vertex = band.vertex[keep]
@@ -862,8 +873,10 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         return fit_to_ions(mine, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[c]))
 
-    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives
-    return [f for part in per_item(fitted, sorted({f.component for f in found})) for f in part]
+    # the objects' fits are independent: every core busy, each object's planes what its fit alone gives (those
+    # of the objects left out are never fitted: the fits are most of the refinement's time at 10^7 ions)
+    objects = sorted({f.component for f in found if chosen.get(f.component, True)})
+    return [f for part in per_item(fitted, objects) for f in part]
 
 
 def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -939,11 +952,12 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
 
 
 def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
-                   half_width: float, distance: str) -> list:
+                   half_width: float, distance: str, chosen: dict | None = None) -> list:
     """The facets of a surface as the iterations left it (none if switched off), fitted to its ions where they
-    close an object (:func:`_fitted_facets`)."""
+    close an object (:func:`_fitted_facets`); only those of the objects ``chosen`` (component -> bool, default
+    True: the held-out ions' choice, ``ModeSelection.facets``) does not map to False."""
     found = find_facets(placed.vertices, faces) if facets else []
-    return _fitted_facets(found, placed, components, scores, half_width, distance) if found else []
+    return _fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}) if found else []
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1084,9 +1098,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         stages.append(StageReport.between("lengths", before, vertices, clock, 0, "open objects low-passed at "
                                           + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
-    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance)
-    if selection is not None:  # facets only where held-out ions preferred them
-        found = [f for f in found if selection.facets.get(f.component, True)]
+    # facets only where held-out ions preferred them
+    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                           selection.facets if selection is not None else None)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
