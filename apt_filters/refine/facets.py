@@ -512,7 +512,7 @@ def judged(found: list[Facet], halves: list[list[Facet]], cap: float = 20.0) -> 
     (:func:`fit_to_ions`); where no half closed it, that model was never judged, and the facets that
     closed it are ones no half found (held-out plate 10024: four rim "facets" of 5-12 vertices on a disc's
     curved side closed it, and its rim moved out to the corners of their square, +11.8 % in volume where
-    the two faces the halves found give +0.5 %). A small cube one half closed keeps what the whole found.
+    the two faces the halves found give +0.2 %). A small cube one half closed keeps what the whole found.
     """
     cosine = np.cos(np.radians(cap))
     out = []
