@@ -11,6 +11,7 @@
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -315,6 +316,23 @@ def test_only_facets_that_close_an_object_are_fitted_jointly():
     none = np.zeros(1, dtype=np.int64)
     tetrahedron = [Facet(0, n, 1.0, none, none, 9.0, 0.0) for n in corners]
     assert closes(tetrahedron) and not closes(tetrahedron[:3])
+
+
+def test_closing_facets_no_half_found_are_left_to_the_halves_judgement():
+    # a disc whose halves found its two faces (not closing) and whose whole found them and four rim "facets" that
+    # close it: only the two faces are kept; where a half closed it (a small cube), the whole's are kept as found
+    from apt_filters.refine.facets import Facet, judged
+
+    none = np.zeros(1, dtype=np.int64)
+    axes = [np.array(v, dtype=float) for v in ((0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0))]
+    tilted = [(n + 0.1 * np.roll(n, 1)) / np.linalg.norm(n + 0.1 * np.roll(n, 1)) for n in axes]  # 6° off
+    whole = [Facet(0, n, 1.0, none, none, 9.0, 0.0) for n in axes]
+    faces = [Facet(0, n, 1.0, none, none, 9.0, 0.0) for n in tilted[:2]]
+    assert [f.normal.tolist() for f in judged(whole, [faces, []])] == [n.tolist() for n in axes[:2]]
+    closed = [Facet(0, n, 1.0, none, none, 9.0, 0.0) for n in tilted]
+    assert len(judged(whole, [[], closed])) == 6
+    other = [replace(f, component=1) for f in whole]  # another object's facets do not vouch for these
+    assert len(judged(other + whole[:2], [closed[:2], []])) == 2
 
 
 def test_rounded_edges_stay_rounded_as_their_ions_show():

@@ -96,13 +96,14 @@ from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
-from apt_filters.refine.facets import Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions
+from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions,
+                                      judged)
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, fit_ball, held_out_gain, levels_from_sums,
-                                      object_shapes, plateau_sums, plateaus, unmixed_sums, unmixing_shift,
-                                      window_labels)
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, crossing_share, fit_ball,
+                                      held_out_gain, levels_from_sums, object_shapes, plateau_sums, plateaus,
+                                      profile_better, profile_levels, unmixed_sums, unmixing_shift, window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -364,7 +365,8 @@ class RefineResult:
         vertex's total signed move along its normals (nm, positive outward).
     levels : list of ObjectLevels
         Each object's plateaus and midpoint iso-value (``plateau_window``, ``plateau_prior``): the
-        cross-fitted ones the surface was placed with (``cross_fit``), or else measured against
+        cross-fitted ones the surface was placed with (``cross_fit``; a thin object's inside level at the share
+        of its profile's that its placement crosses at, :func:`_curved_levels`), or else measured against
         the refined surface with the same ions (biased: see ``cross_fit``).
     displacement : dict
         ``mean``, ``rms``, ``max_abs`` of the total signed normal displacement (nm), and
@@ -713,12 +715,18 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    unmixed, chosen = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    unmixed, chosen, share = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
     # ions found biased, left out of its pool); the others toward every object's windows, as without the model
     pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
-    return levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
+    levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
+    # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
+    for c in np.flatnonzero(share != 1.0):
+        lv = levels[c]
+        lv.inside = lv.outside + share[c] * (lv.inside - lv.outside)
+        lv.iso = float(0.5 * (lv.inside + lv.outside)[held[0].atoms.elements.index(species)])
+    return levels
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
@@ -739,13 +747,21 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     cross-validation as the mode selection, the windows the simpler model; and only where the unmixed midpoint,
     with the fit's covariance and its amplified counts, is expected nearer the truth than the windows'
     (:func:`~apt_filters.refine.levels.unmixing_shift`): a fit that does not fix the interface (a thin object
-    at low contrast) unmixes by shares it does not know.
+    at low contrast) unmixes by shares it does not know. An object not unmixed takes its inside level from its
+    whole fitted profile (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the
+    truth than its shrunk window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
+    inside window holds a few atoms of its axis and whose level is then the pool's. Such an object's surface is
+    placed where its step, taken at the share of that level its blurred profile calls for, stops at its fitted
+    interface (:func:`~apt_filters.refine.levels.crossing_share`).
 
     Returns
     -------
     unmixed : (n_components, 2, k) float64
         Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
     chosen : (n_components,) bool
+    share : (n_components,) float64
+        The share of its inside level at which each object's placement takes its crossing
+        (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -763,47 +779,74 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     sigma = float(np.sqrt((2 * blur[0] ** 2 + blur[1] ** 2) / 3)) if blur else 0.0
     k = held[0].atoms.elements.index(species)
-    comp, distance, part, total, window, half = [], [], [], [], [], []
+    comp, distance, part, total, window, half, atoms = [], [], [], [], [], [], []
     for fold, (h, band) in enumerate(zip(held, bands)):
         a = h.atoms.atoms[band.index].astype(np.float64)
         c = components[band.vertex]
         comp.append(c)
+        atoms.append(a)
         distance.append(band.distance)
         part.append(a[:, k])
         total.append(a.sum(axis=1))
         window.append(window_labels(band, c, n_comp, p.plateau_window))
         half.append(np.full(len(c), fold))
     comp, distance, part, total, window, half = map(np.concatenate, (comp, distance, part, total, window, half))
+    atoms = np.concatenate(atoms)
     mixed = np.tile([1.0, 0.0], (n_comp, 1))
     chosen = np.zeros(n_comp, dtype=bool)
+    share = np.ones(n_comp)
+    profiled = {}
+    pool = sums[:, 0].sum(axis=0)  # what every object's inside level is shrunk toward (levels_from_sums)
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
-    def shares_of(c: int) -> np.ndarray | None:
-        """Object ``c``'s window shares of the inside phase where the ball is chosen for it, else None."""
+    def level_of(c: int) -> tuple | None:
+        """Object ``c``'s window shares of the inside phase where the ball is chosen for it (shares, None, 1), its
+        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else None."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             return None
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
         gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
-        if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
-            return None
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
             return None
-        shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
-                                              radius=radius[c], dims=dims[c], blur=sigma)
-        # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not fix
-        # the interface unmixes by shares it does not know); windows that cannot tell the phases apart are left
-        # as they are (unmixed_sums keeps them)
-        return shares if better > 0 and shares[0] - shares[1] > 0.1 else None
+        if gain is not None and gain[0] > BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
+            shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
+                                                  radius=radius[c], dims=dims[c], blur=sigma)
+            # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not
+            # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
+            # left as they are (unmixed_sums keeps them)
+            if better > 0 and shares[0] - shares[1] > 0.1:
+                return shares, None, 1.0
+        # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
+        deep = mine[window[mine] == 0]
+        g_in = (np.average(ball_profile(distance[deep] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
+                                        dims=dims[c], width=max(fit.width, 0.02), blur=sigma), weights=total[deep])
+                if total[deep].sum() > 0 else 1.0)
+        level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
+        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior):
+            return None
+        return None, level[0] * level[1], crossing_share(
+            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
+            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
+            bin_width=p.bin_width)
 
     # the objects are independent (their profiles' special functions release the GIL): every core busy
     objects = np.flatnonzero(closed).tolist()
-    for c, shares in zip(objects, per_item(shares_of, objects)):
+    for c, result in zip(objects, per_item(level_of, objects)):
+        if result is None:
+            continue
+        shares, inside, share[c] = result
+        chosen[c] = True
         if shares is not None:
-            mixed[c], chosen[c] = shares, True
-    return unmixed_sums(sums, mixed), chosen
+            mixed[c] = shares
+        else:
+            profiled[c] = inside
+    out = unmixed_sums(sums, mixed)
+    for c, inside in profiled.items():
+        out[c, 0] = inside
+    return out, chosen, share
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
@@ -952,11 +995,14 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
 
 
 def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
-                   half_width: float, distance: str, chosen: dict | None = None) -> list:
-    """The facets of a surface as the iterations left it (none if switched off), fitted to its ions where they
-    close an object (:func:`_fitted_facets`); only those of the objects ``chosen`` (component -> bool, default
-    True: the held-out ions' choice, ``ModeSelection.facets``) does not map to False."""
+                   half_width: float, distance: str, chosen: dict | None = None, halves: list | None = None) -> list:
+    """The facets of a surface as the iterations left it (none if switched off), as the halves' facets
+    (``halves``, where given) judged them (:func:`~apt_filters.refine.facets.judged`), fitted to its ions where
+    they close an object (:func:`_fitted_facets`); only those of the objects ``chosen`` (component -> bool,
+    default True: the held-out ions' choice, ``ModeSelection.facets``) does not map to False."""
     found = find_facets(placed.vertices, faces) if facets else []
+    if halves is not None:
+        found = judged(found, halves)
     return _fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}) if found else []
 
 
@@ -1055,7 +1101,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
-    selection = None
+    selection, half_facets = None, None
     vertices, guarded = placed.vertices, placed.guarded
     shape_errors = np.full((len(closed), 2), np.nan)
     clock = time.perf_counter()
@@ -1098,9 +1144,9 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         stages.append(StageReport.between("lengths", before, vertices, clock, 0, "open objects low-passed at "
                                           + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
-    # facets only where held-out ions preferred them
+    # facets only as the held-out ions judged them: those the halves found, where the ions preferred them
     found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
-                           selection.facets if selection is not None else None)
+                           selection.facets if selection is not None else None, half_facets)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
