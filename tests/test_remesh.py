@@ -181,6 +181,22 @@ def test_cell_bordered_by_two_cells_is_dissolved():
                                                      non_manifold_edges=0, non_manifold_vertices=0)
 
 
+def test_two_cells_flapped_on_an_edge_are_lone():
+    # a retry of the bumpy gyroid: two small cells (0.07 nm apart) side by side on the border of two others
+    # made a flap of two faces on the edge between those two; each of the pair has three neighbours but two
+    # faces, which no closed manifold holds, while extraction makes the flap again and the hole fill cannot
+    # close it (the remesh came out with one more boundary loop and was given back)
+    octahedron = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    vertices = np.vstack([np.eye(3), -np.eye(3), [[0.55, 0.55, 0.05], [0.6, 0.5, 0.05]]])[[0, 3, 1, 4, 2, 5, 6, 7]]
+    x, y, a, b = 6, 7, 0, 2  # the flap (y, x, a), (y, b, x) on the octahedron's edge a-b
+    faces = np.vstack([octahedron, [[y, x, a], [y, b, x]]])
+    no = np.zeros(len(vertices), bool)
+    bad = repair.defects(vertices, faces, no)
+    assert bad[[x, y]].all()
+    assert np.flatnonzero(bad & repair.lone_generators(faces, len(vertices))).tolist() == [x, y]
+    assert not repair.lone_generators(octahedron, 6).any()
+
+
 def test_cap_of_three_curve_generators_is_flipped_and_the_curve_kept():
     # extraction joined three consecutive generators of one straight feature curve into a triangle of zero
     # area (a remesh of a refined cube: 0.21 and 0.14 nm apart on a line); flips skip edges between pinned
@@ -203,6 +219,32 @@ def test_cap_of_three_curve_generators_is_flipped_and_the_curve_kept():
     free = pinned.copy()
     free[1] = False
     assert np.array_equal(optimize.flip_caps(vertices, faces, free), faces)
+
+
+def test_caps_in_a_row_are_all_flipped():
+    # a retry of the bumpy gyroid: six generators of one straight curve after the first joined to it in a fan of
+    # caps, each cap's long edge shared with the next cap; only the last one's neighbour is no cap, so they
+    # open one per round (4 rounds left 2 of these 6)
+    k = 7  # generators g0 .. g6 on the x axis; q_i below them, p above
+    line = np.stack([np.arange(k) * 0.1, np.zeros(k), np.zeros(k)], axis=1)
+    below = np.stack([np.arange(k - 1) * 0.1 + 0.05, np.full(k - 1, -0.1), np.zeros(k - 1)], axis=1)
+    vertices = np.vstack([line, below, [[0.3, 0.15, 0.0]]])
+    q, p = k + np.arange(k - 1), 2 * k - 1
+    faces = [[0, i, i + 1] for i in range(1, k - 1)]  # the caps, all of zero area
+    faces += [[i, q[i], i + 1] for i in range(k - 1)] + [[q[i], q[i + 1], i + 1] for i in range(k - 2)]
+    faces += [[0, k - 1, p]]
+    faces = np.array(faces)
+    pinned = np.arange(len(vertices)) < k
+    before = TriMesh(vertices, faces)
+    assert (before.face_areas() < 1e-12).sum() == k - 2
+
+    out = TriMesh(vertices, optimize.flip_caps(vertices, faces, pinned))
+    assert (out.face_areas() > 1e-6).all()
+    assert np.isclose(out.area(), before.area())
+    assert (out.face_normals()[:, 2] > 0.99).all()
+    edges = {tuple(sorted(e)) for e in out.edges().tolist()}
+    assert {(i, i + 1) for i in range(k - 1)} <= edges  # the curve runs g0-g1-...-g6
+    assert quality.topology(out) == quality.topology(before)
 
 
 def test_flips_make_no_sliver_along_a_curve():
