@@ -715,11 +715,16 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    unmixed, chosen, share = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    unmixed, chosen, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
-    # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
-    # ions found biased, left out of its pool); the others toward every object's windows, as without the model
-    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
+    # an object whose level the model reads is shrunk toward every object's levels as chosen (its own windows,
+    # which the held-out ions found biased, left out of its pool), its inside level toward the pool of the
+    # profiles' levels where there is one (objects' windows that do not reach their plateaus would pull it back);
+    # the others toward every object's windows, as without the model
+    model = best.sum(axis=0)
+    if shared.sum() > 0:
+        model[0] = shared
+    pooled = np.where(chosen[:, None, None], model, sums.sum(axis=0))
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
@@ -762,6 +767,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     share : (n_components,) float64
         The share of its inside level at which each object's placement takes its crossing
         (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
+    shared : (k,) float64
+        Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) times its worth in
+        atoms, summed: the pool a chosen object's inside level is shrunk toward.
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -801,8 +809,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
     def level_of(c: int) -> tuple | None:
-        """Object ``c``'s window shares of the inside phase where the ball is chosen for it (shares, None, 1), its
-        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else None."""
+        """Object ``c``'s fitted ball, its window shares of the inside phase where the ball is chosen for it (else
+        None), its inside window's share under the fit and its profile's level (:func:`profile_levels`); None where
+        it has no fit."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             return None
@@ -811,6 +820,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
             return None
+        level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
         if gain is not None and gain[0] > BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
             shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
                                                   radius=radius[c], dims=dims[c], blur=sigma)
@@ -818,35 +828,40 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
             # left as they are (unmixed_sums keeps them)
             if better > 0 and shares[0] - shares[1] > 0.1:
-                return shares, None, 1.0
-        # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
+                return fit, shares, 1.0, level
         deep = mine[window[mine] == 0]
         g_in = (np.average(ball_profile(distance[deep] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
                                         dims=dims[c], width=max(fit.width, 0.02), blur=sigma), weights=total[deep])
                 if total[deep].sum() > 0 else 1.0)
-        level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
-        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior):
-            return None
-        return None, level[0] * level[1], crossing_share(
-            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
-            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
-            bin_width=p.bin_width)
+        return fit, None, g_in, level
 
     # the objects are independent (their profiles' special functions release the GIL): every core busy
     objects = np.flatnonzero(closed).tolist()
-    for c, result in zip(objects, per_item(level_of, objects)):
+    found = dict(zip(objects, per_item(level_of, objects)))
+    # the pool of the model's levels: every closed object's profile level by its worth in atoms
+    shared = sum((r[3][0] * r[3][1] for r in found.values() if r is not None and r[3] is not None),
+                 np.zeros(len(held[0].atoms.elements)))
+    for c, result in found.items():
         if result is None:
             continue
-        shares, inside, share[c] = result
-        chosen[c] = True
+        fit, shares, g_in, level = result
         if shares is not None:
-            mixed[c] = shares
-        else:
-            profiled[c] = inside
+            chosen[c], mixed[c] = True, shares
+            continue
+        # an object not unmixed: its inside level from its whole profile, shrunk toward the pool of the profiles,
+        # where that is expected nearer the truth than its shrunk window's
+        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior, shared):
+            continue
+        mine = order[starts[c]:starts[c + 1]]
+        chosen[c], profiled[c] = True, level[0] * level[1]
+        share[c] = crossing_share(
+            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
+            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
+            bin_width=p.bin_width)
     out = unmixed_sums(sums, mixed)
     for c, inside in profiled.items():
         out[c, 0] = inside
-    return out, chosen, share
+    return out, chosen, share, shared
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
