@@ -561,7 +561,7 @@ window's (:func:`profile_better`; the one-standard-error rule of the mode select
 
 
 def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.ndarray, pool: np.ndarray, g_in: float,
-                   k: int, prior: float, shared: np.ndarray | None = None) -> bool:
+                   k: int, prior: float) -> bool:
     """Whether an object's profile level ``P`` (:func:`profile_levels`) is expected nearer its inside phase than the
     level ``S`` its inside window gives it: the window's atoms shrunk toward the pooled windows by ``prior`` atoms
     (:func:`levels_from_sums`).
@@ -597,15 +597,7 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     k : int
         Index of the measured species.
     prior : float
-        Atoms' worth of the pool in ``S`` (``plateau_prior``), and of ``shared`` in ``Q``.
-    shared : (k,) float64, optional
-        Every closed object's profile level times its worth, summed (this object's among them): the pool of the
-        model's levels. Given, the level compared with ``S`` is the one placed, ``P`` shrunk toward it by ``prior``
-        atoms, ``Q = (worth P + prior Pbar) / (worth + prior)``: one object's profile is worth a few hundred atoms
-        (a rod of radius 1.8 nm under a 0.75 nm tanh interface: 407, 2.3 at.%), but objects of one phase share its
-        level and the pool of their profiles is worth their sum. ``Q``'s error: its count's (as ``S``'s) and its
-        bias ``(1 - wq) (Pbar - P)`` (objects of other phases), estimated as the positive part of its square less
-        its variance ``(1 - wq)^2 P (1 - P) (1 / worth - 1 / N)``.
+        Atoms' worth of the pool in ``S`` (``plateau_prior``).
 
     Returns
     -------
@@ -615,26 +607,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     p_in, n_in, n_pool = inside[k], window.sum(), pool.sum()
     if n_pool <= 0:
         return False
-    var_p = p_in * (1 - p_in) / worth
-    # the level placed, Q, and what it is read off: P's (this object's) and the other objects' profiles (Po), as
-    # Q = a P + c Po; without a pool of profiles Q is P
-    q, var_q, a, c, var_o = p_in, var_p, 1.0, 0.0, 0.0
-    q_bias = var_q_bias = 0.0
-    if shared is not None and shared.sum() > worth and prior > 0:
-        n_shared = shared.sum()
-        wq = worth / (worth + prior)
-        q = wq * p_in + (1 - wq) * shared[k] / n_shared
-        var_q = q * (1 - q) * (worth + prior ** 2 / n_shared) / (worth + prior) ** 2
-        a, c = wq + (1 - wq) * worth / n_shared, (1 - wq) * (1 - worth / n_shared)
-        var_o = p_in * (1 - p_in) / (n_shared - worth)
-        q_bias = q - p_in  # (1 - wq) (Pbar - P): this object's phase apart from the pool's
-        var_q_bias = c ** 2 * (var_p + var_o)
     w = n_in / (n_in + prior)
     s = (window[k] + prior * pool[k] / n_pool) / (n_in + prior)
     var_s = s * (1 - s) * (n_in + prior ** 2 / n_pool) / (n_in + prior) ** 2
-    # S's bias against the level placed, the best reading of the inside phase the model gives
-    bias = w * (fit.outside + (q - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - q
-    var_bias = var_q * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
+    var_p = p_in * (1 - p_in) / worth
+    bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
+    var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
     misfit = var_misfit = 0.0
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
@@ -642,16 +620,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
         var_misfit = var_p + own * (1 - own) / n_in / g_in ** 2
     # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
     # noise that would choose at random between estimators of equal error)
-    gain = (max(bias ** 2 - var_bias, 0.0) + var_s - max(misfit ** 2 - var_misfit, 0.0)
-            - max(q_bias ** 2 - var_q_bias, 0.0) - var_q)
-    # the biases are read off P and Po (d bias / dQ = -(1 - w g_in), d misfit / dP = 1, d q_bias = c (dPo - dP)):
-    # their errors move the gain (through the positive parts that are not zero), and P lying off by chance would
-    # make it look better; the gain must exceed what their errors alone give it (delta method)
-    b_term = 2 * bias * (1 - w * g_in) * (bias ** 2 > var_bias)
-    q_term = 2 * q_bias * c * (q_bias ** 2 > var_q_bias)
-    slope_p = a * b_term + 2 * misfit * (misfit ** 2 > var_misfit) - q_term
-    slope_o = c * b_term + q_term
-    spread = np.sqrt(slope_p ** 2 * var_p + slope_o ** 2 * var_o)
+    gain = max(bias ** 2 - var_bias, 0.0) + var_s - max(misfit ** 2 - var_misfit, 0.0) - var_p
+    # both biases are read off P (d bias / dP = -(1 - w g_in), d misfit / dP = 1): P's own error moves the gain
+    # (through the positive parts that are not zero), and P lying off by chance would make it look better; the
+    # gain must exceed what P's error alone gives it
+    slope = (2 * bias * (1 - w * g_in) * (bias ** 2 > var_bias) + 2 * misfit * (misfit ** 2 > var_misfit))
+    spread = abs(slope) * np.sqrt(var_p)
     return gain > PROFILE_SE * spread
 
 

@@ -715,16 +715,16 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    unmixed, chosen, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     # an object whose level the model reads is shrunk toward every object's levels as chosen (its own windows,
-    # which the held-out ions found biased, left out of its pool), its inside level toward the pool of the
-    # profiles' levels where there is one (objects' windows that do not reach their plateaus would pull it back);
-    # the others toward every object's windows, as without the model
-    model = best.sum(axis=0)
+    # which the held-out ions found biased, left out of its pool); an unmixed one's inside level toward the pool of
+    # the profiles' levels where there is one: its unmixed counts are worth (g_in - g_out)^2 of its few window
+    # atoms, and the others' windows, which do not reach their plateaus either, would pull it back. The others
+    # toward every object's windows, as without the model
+    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
     if shared.sum() > 0:
-        model[0] = shared
-    pooled = np.where(chosen[:, None, None], model, sums.sum(axis=0))
+        pooled[balls, 0] = shared
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
@@ -764,12 +764,14 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     unmixed : (n_components, 2, k) float64
         Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
     chosen : (n_components,) bool
+    balls : (n_components,) bool
+        The objects unmixed (chosen for their ball; the others chosen take their profile's level).
     share : (n_components,) float64
         The share of its inside level at which each object's placement takes its crossing
         (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
     shared : (k,) float64
         Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) times its worth in
-        atoms, summed: the pool a chosen object's inside level is shrunk toward.
+        atoms, summed: the pool an unmixed object's inside level is shrunk toward.
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -802,6 +804,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     atoms = np.concatenate(atoms)
     mixed = np.tile([1.0, 0.0], (n_comp, 1))
     chosen = np.zeros(n_comp, dtype=bool)
+    balls = np.zeros(n_comp, dtype=bool)
     share = np.ones(n_comp)
     profiled = {}
     pool = sums[:, 0].sum(axis=0)  # what every object's inside level is shrunk toward (levels_from_sums)
@@ -809,9 +812,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
     def level_of(c: int) -> tuple | None:
-        """Object ``c``'s fitted ball, its window shares of the inside phase where the ball is chosen for it (else
-        None), its inside window's share under the fit and its profile's level (:func:`profile_levels`); None where
-        it has no fit."""
+        """Object ``c``'s window shares of the inside phase where the ball is chosen for it (shares, None, 1), its
+        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else (None, None,
+        1); last, its profile's level (:func:`profile_levels`; None where it has none). None where it has no fit."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             return None
@@ -828,40 +831,37 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
             # left as they are (unmixed_sums keeps them)
             if better > 0 and shares[0] - shares[1] > 0.1:
-                return fit, shares, 1.0, level
+                return shares, None, 1.0, level
+        # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
         g_in = (np.average(ball_profile(distance[deep] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
                                         dims=dims[c], width=max(fit.width, 0.02), blur=sigma), weights=total[deep])
                 if total[deep].sum() > 0 else 1.0)
-        return fit, None, g_in, level
+        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior):
+            return None, None, 1.0, level
+        return None, level[0] * level[1], crossing_share(
+            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
+            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
+            bin_width=p.bin_width), level
 
     # the objects are independent (their profiles' special functions release the GIL): every core busy
     objects = np.flatnonzero(closed).tolist()
-    found = dict(zip(objects, per_item(level_of, objects)))
     # the pool of the model's levels: every closed object's profile level by its worth in atoms
-    shared = sum((r[3][0] * r[3][1] for r in found.values() if r is not None and r[3] is not None),
-                 np.zeros(len(held[0].atoms.elements)))
-    for c, result in found.items():
+    shared = np.zeros(len(held[0].atoms.elements))
+    for c, result in zip(objects, per_item(level_of, objects)):
         if result is None:
             continue
-        fit, shares, g_in, level = result
+        shares, inside, share[c], level = result
+        if level is not None:
+            shared += level[0] * level[1]
         if shares is not None:
-            chosen[c], mixed[c] = True, shares
-            continue
-        # an object not unmixed: its inside level from its whole profile, shrunk toward the pool of the profiles,
-        # where that is expected nearer the truth than its shrunk window's
-        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior, shared):
-            continue
-        mine = order[starts[c]:starts[c + 1]]
-        chosen[c], profiled[c] = True, level[0] * level[1]
-        share[c] = crossing_share(
-            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
-            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
-            bin_width=p.bin_width)
+            chosen[c], balls[c], mixed[c] = True, True, shares
+        elif inside is not None:
+            chosen[c], profiled[c] = True, inside
     out = unmixed_sums(sums, mixed)
     for c, inside in profiled.items():
         out[c, 0] = inside
-    return out, chosen, share, shared
+    return out, chosen, balls, share, shared
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
