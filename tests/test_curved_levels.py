@@ -282,38 +282,45 @@ def test_the_share_stops_the_placements_step_at_a_thin_objects_interface(radius,
         assert placed(1.0) < -0.01, placed(1.0)  # a thin one's full level: over a hundredth of a nm inside
 
 
-def test_thin_rods_under_a_wide_interface_take_the_pooled_profile_level():
-    """Two rods of radius 1.5 and 1.8 nm under a tanh interface of width 0.75 nm (10-90 % 1.65 nm), blur 0.39 /
-    0.07 nm, 37 % efficiency (held-out rod 10011's kind), drawn by ``apt-filters run``'s defaults: their windows
-    never reach the inside phase and read it several points low. A chosen rod (unmixed, or its profile's level)
-    shrunk toward the objects' windows keeps their bias; shrunk toward the pool of the profiles' levels, each
-    rod's volume is the truth within max(5 %, 2 counting sigma)."""
-    from apt_filters.core.mesh import split_components
-    from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
-    from apt_filters.pipeline.surface import finished_surface, refine_params
-    from apt_filters.refine.composition import ion_atoms
-    from apt_filters.synth import Capsule, Feature, SpecimenSpec, generate
-    from apt_filters.synth.geometry import Box
-    from apt_filters.truth import counting_floor, match_objects, surface_error
-    from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+def _erf_sphere(radius, density, seed, width=0.8, surface_shift=0.1):
+    """Signed distances (to a sphere ``surface_shift`` nm larger) and iso atoms of ions drawn around a sphere of
+    ``radius`` nm whose composition follows an error-function interface of Gaussian ``width`` (the ball profile's
+    own) in the distance to its surface, positions blurred by ``BLUR``; ``density`` ions/nm³."""
+    from scipy.special import ndtr
 
-    c_in, c_out = 0.718, 0.048
-    matrix, inside = {"Ni": 0.75, "Al": c_out, "Cr": 1 - 0.75 - c_out}, {"Ni": 0.20, "Al": c_in, "Cr": 0.082}
-    features = tuple(Feature(Capsule((x, 0.0, -11.0), radius, length), inside, 0.75, (), f"rod {i}")
-                     for i, (x, radius, length) in enumerate([(-6.5, 1.52, 9.3), (6.5, 1.79, 9.6)]))
-    spec = SpecimenSpec(Box((30.0, 14.0, 22.0)), matrix, features, efficiency=0.37, blur=(0.39, 0.07), name="rods")
-    sp = generate(spec, seed=11)
-    config = PipelineConfig()
-    fields = voxelize(sp.ions, sp.ranges, kernel=config.voxel.kernel, delocalization=config.voxel.delocalization,
-                      voxel=config.voxel.size)
-    mesh, _ = finished_surface(fields, inside_mask(fields).dense(), sp.ions, sp.ranges,
-                               SurfaceConfig("Al", 0.5 * (c_in + c_out)), config=config, basis=ConcentrationBasis(),
-                               params=refine_params(config.refine))
-    parts = split_components(mesh)
-    sdfs = [sp.feature_sdf(i) for i in range(len(features))]
-    volumes = [sp.truth["features"][i]["volume_nm3"] for i in range(len(features))]
-    floors = counting_floor(sdfs, [f.shape.level_area for f in features], volumes, sp.ions.positions,
-                            ion_atoms(sp.ions, sp.ranges, ConcentrationBasis()).atoms)
-    errors = [surface_error(parts[m], sdfs[i], sp.meshes[i], volumes[i], sp.truth["features"][i]["area_nm2"], seed=11)
-              .volume_error for i, m in enumerate(match_objects(parts, sdfs))]
-    assert all(abs(e) <= max(0.05, 2 * f.volume) for e, f in zip(errors, floors)), (errors, floors)
+    rng = np.random.default_rng(seed)
+    half = radius + 4.0
+    true = rng.uniform(-half, half, (int(density * (2 * half) ** 3), 3))
+    r = np.linalg.norm(true, axis=1)
+    iso = rng.random(len(true)) < C_OUT + (C_IN - C_OUT) * ndtr(-(r - radius) / width)
+    surface = radius + surface_shift
+    return np.linalg.norm(true + rng.normal(0.0, BLUR, true.shape), axis=1) - surface, iso.astype(np.float64), surface
+
+
+def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_windows():
+    # a 2.3 nm sphere (345 window atoms) unmixed beside a 3 nm one whose windows are kept (2,300 atoms), both under
+    # a 0.8 nm wide interface: both inside windows read the phase low (35 and 39 at.%, truth 41). Shrunk toward
+    # every object's levels as chosen (the other's windows; plateau_prior 3000 atoms against the unmixed counts'
+    # few hundred) the unmixed sphere's level lies 2.6 sigma low; toward the pool of both spheres' profile levels it
+    # is the truth within 2 sigma (sigma: that pool's count)
+    from apt_filters.refine.levels import chosen_pools, levels_from_sums, profile_levels
+    sums, mixed, profiles = [], [], np.zeros(2)
+    for d, iso, surface in (_erf_sphere(2.3, 30.0, 0), _erf_sphere(3.0, 60.0, 100)):
+        sides = [(d <= -WINDOW[0]) & (d >= -WINDOW[1]), (d >= WINDOW[0]) & (d <= WINDOW[1])]
+        sums.append([[iso[s].sum(), (1 - iso[s]).sum()] for s in sides])
+        fit = fit_ball(d, iso, np.ones_like(iso), radius=surface, dims=3.0, blur=BLUR)
+        mixed.append([ball_profile(d[s] - fit.offset, radius=surface + fit.offset, dims=3.0, width=fit.width,
+                                   blur=BLUR).mean() for s in sides])
+        inside, worth = profile_levels(d, np.column_stack([iso, 1 - iso]), 0, fit, radius=surface, dims=3.0, blur=BLUR)
+        profiles += inside * worth
+    sums, mixed = np.array(sums), np.array(mixed)
+    best = sums.copy()
+    best[0] = unmixed_sums(sums[:1], mixed[:1])[0]
+    chosen = np.array([True, False])
+    sigma = np.sqrt(C_IN * (1 - C_IN) / profiles.sum())
+
+    def level(pool):
+        return levels_from_sums(best, ["Al", "other"], "Al", 3000.0, chosen_pools(sums, best, chosen, chosen, pool))[0]
+
+    assert C_IN - level(np.zeros(2)).inside[0] > 2 * sigma, (level(np.zeros(2)).inside, sigma)  # no profiles: as main
+    assert abs(level(profiles).inside[0] - C_IN) <= 2 * sigma, (level(profiles).inside, sigma)

@@ -101,9 +101,10 @@ from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, fac
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, crossing_share, fit_ball,
-                                      held_out_gain, levels_from_sums, object_shapes, plateau_sums, plateaus,
-                                      profile_better, profile_levels, unmixed_sums, unmixing_shift, window_labels)
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, chosen_pools, crossing_share,
+                                      fit_ball, held_out_gain, levels_from_sums, object_shapes, plateau_sums,
+                                      plateaus, profile_better, profile_levels, unmixed_sums, unmixing_shift,
+                                      window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -717,14 +718,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
     unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
-    # an object whose level the model reads is shrunk toward every object's levels as chosen (its own windows,
-    # which the held-out ions found biased, left out of its pool); an unmixed one's inside level toward the pool of
-    # the profiles' levels where there is one: its unmixed counts are worth (g_in - g_out)^2 of its few window
-    # atoms, and the others' windows, which do not reach their plateaus either, would pull it back. The others
-    # toward every object's windows, as without the model
-    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
-    if shared.sum() > 0:
-        pooled[balls, 0] = shared
+    pooled = chosen_pools(sums, best, chosen, balls, shared)
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
