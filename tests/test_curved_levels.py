@@ -280,3 +280,47 @@ def test_the_share_stops_the_placements_step_at_a_thin_objects_interface(radius,
     assert abs(placed(share)) < 1e-3, (share, placed(share))
     if radius < 2:
         assert placed(1.0) < -0.01, placed(1.0)  # a thin one's full level: over a hundredth of a nm inside
+
+
+def _erf_sphere(radius, density, seed, width=0.8, surface_shift=0.1):
+    """Signed distances (to a sphere ``surface_shift`` nm larger) and iso atoms of ions drawn around a sphere of
+    ``radius`` nm whose composition follows an error-function interface of Gaussian ``width`` (the ball profile's
+    own) in the distance to its surface, positions blurred by ``BLUR``; ``density`` ions/nm³."""
+    from scipy.special import ndtr
+
+    rng = np.random.default_rng(seed)
+    half = radius + 4.0
+    true = rng.uniform(-half, half, (int(density * (2 * half) ** 3), 3))
+    r = np.linalg.norm(true, axis=1)
+    iso = rng.random(len(true)) < C_OUT + (C_IN - C_OUT) * ndtr(-(r - radius) / width)
+    surface = radius + surface_shift
+    return np.linalg.norm(true + rng.normal(0.0, BLUR, true.shape), axis=1) - surface, iso.astype(np.float64), surface
+
+
+def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_windows():
+    # a 2.3 nm sphere (345 window atoms) unmixed beside a 3 nm one whose windows are kept (2,300 atoms), both under
+    # a 0.8 nm wide interface: both inside windows read the phase low (35 and 39 at.%, truth 41). Shrunk toward
+    # every object's levels as chosen (the other's windows; plateau_prior 3000 atoms against the unmixed counts'
+    # few hundred) the unmixed sphere's level lies 2.6 sigma low; toward the pool of both spheres' profile levels it
+    # is the truth within 2 sigma (sigma: that pool's count)
+    from apt_filters.refine.levels import chosen_pools, levels_from_sums, profile_levels
+    sums, mixed, profiles = [], [], np.zeros(2)
+    for d, iso, surface in (_erf_sphere(2.3, 30.0, 0), _erf_sphere(3.0, 60.0, 100)):
+        sides = [(d <= -WINDOW[0]) & (d >= -WINDOW[1]), (d >= WINDOW[0]) & (d <= WINDOW[1])]
+        sums.append([[iso[s].sum(), (1 - iso[s]).sum()] for s in sides])
+        fit = fit_ball(d, iso, np.ones_like(iso), radius=surface, dims=3.0, blur=BLUR)
+        mixed.append([ball_profile(d[s] - fit.offset, radius=surface + fit.offset, dims=3.0, width=fit.width,
+                                   blur=BLUR).mean() for s in sides])
+        inside, worth = profile_levels(d, np.column_stack([iso, 1 - iso]), 0, fit, radius=surface, dims=3.0, blur=BLUR)
+        profiles += inside * worth
+    sums, mixed = np.array(sums), np.array(mixed)
+    best = sums.copy()
+    best[0] = unmixed_sums(sums[:1], mixed[:1])[0]
+    chosen = np.array([True, False])
+    sigma = np.sqrt(C_IN * (1 - C_IN) / profiles.sum())
+
+    def level(pool):
+        return levels_from_sums(best, ["Al", "other"], "Al", 3000.0, chosen_pools(sums, best, chosen, chosen, pool))[0]
+
+    assert C_IN - level(np.zeros(2)).inside[0] > 2 * sigma, (level(np.zeros(2)).inside, sigma)  # no profiles: as main
+    assert abs(level(profiles).inside[0] - C_IN) <= 2 * sigma, (level(profiles).inside, sigma)

@@ -154,6 +154,34 @@ def levels_from_sums(sums: np.ndarray, elements: list[str], species: str, prior:
     return out
 
 
+def chosen_pools(sums: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmixed: np.ndarray,
+                 profiles: np.ndarray) -> np.ndarray:
+    """(n_components, 2, k) what each object's levels are shrunk toward (``pooled`` of :func:`levels_from_sums`)
+    where some objects' levels are read off the model (``RefineParams.curved_levels``).
+
+    An object that keeps its windows: every object's windows, as without the model. An object whose levels the
+    model reads (``chosen``): every object's levels as chosen (``best``; its own windows, which the held-out ions
+    found biased, left out). An unmixed one's inside level (``unmixed``): the pool of every object's profile level
+    by its worth in atoms (``profiles``, :func:`profile_levels`), where there is one. Its unmixed counts are worth
+    ``(g_in - g_out)^2`` of its window atoms (:func:`unmixed_sums`), a few hundred on a small object against the
+    prior's 3000, and the others' windows, which do not reach their plateaus either where the interface is as wide,
+    would pull its level back to theirs (held-out rod 10011's first rod: inside 67.6 at.% toward its neighbour's
+    windows, 70.9 toward the profiles', truth 71.8).
+
+    Parameters
+    ----------
+    sums, best : (n_components, 2, k) float64
+        Each object's window sums (:func:`plateau_sums`) and its sums as chosen (unmixed, or its profile's level).
+    chosen, unmixed : (n_components,) bool
+    profiles : (k,) float64
+        Every closed object's profile level times its worth in atoms, summed.
+    """
+    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
+    if profiles.sum() > 0:
+        pooled[unmixed, 0] = profiles
+    return pooled
+
+
 def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int, species: str,
              window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
     """Plateaus of every component from ions already in a band (see :func:`object_levels`)."""

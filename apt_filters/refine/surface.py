@@ -101,9 +101,10 @@ from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, fac
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, crossing_share, fit_ball,
-                                      held_out_gain, levels_from_sums, object_shapes, plateau_sums, plateaus,
-                                      profile_better, profile_levels, unmixed_sums, unmixing_shift, window_labels)
+from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, chosen_pools, crossing_share,
+                                      fit_ball, held_out_gain, levels_from_sums, object_shapes, plateau_sums,
+                                      plateaus, profile_better, profile_levels, unmixed_sums, unmixing_shift,
+                                      window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -715,11 +716,9 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
-    unmixed, chosen, share = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+    unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
-    # an unmixed object is shrunk toward every object's levels as chosen (its own windows, which the held-out
-    # ions found biased, left out of its pool); the others toward every object's windows, as without the model
-    pooled = np.where(chosen[:, None, None], best.sum(axis=0), sums.sum(axis=0))
+    pooled = chosen_pools(sums, best, chosen, balls, shared)
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
@@ -759,9 +758,14 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     unmixed : (n_components, 2, k) float64
         Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
     chosen : (n_components,) bool
+    balls : (n_components,) bool
+        The objects unmixed (chosen for their ball; the others chosen take their profile's level).
     share : (n_components,) float64
         The share of its inside level at which each object's placement takes its crossing
         (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
+    shared : (k,) float64
+        Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) times its worth in
+        atoms, summed: the pool an unmixed object's inside level is shrunk toward.
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -794,6 +798,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     atoms = np.concatenate(atoms)
     mixed = np.tile([1.0, 0.0], (n_comp, 1))
     chosen = np.zeros(n_comp, dtype=bool)
+    balls = np.zeros(n_comp, dtype=bool)
     share = np.ones(n_comp)
     profiled = {}
     pool = sums[:, 0].sum(axis=0)  # what every object's inside level is shrunk toward (levels_from_sums)
@@ -802,7 +807,8 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
 
     def level_of(c: int) -> tuple | None:
         """Object ``c``'s window shares of the inside phase where the ball is chosen for it (shares, None, 1), its
-        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else None."""
+        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else (None, None,
+        1); last, its profile's level (:func:`profile_levels`; None where it has none). None where it has no fit."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             return None
@@ -811,6 +817,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
             return None
+        level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
         if gain is not None and gain[0] > BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
             shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
                                                   radius=radius[c], dims=dims[c], blur=sigma)
@@ -818,35 +825,37 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
             # left as they are (unmixed_sums keeps them)
             if better > 0 and shares[0] - shares[1] > 0.1:
-                return shares, None, 1.0
+                return shares, None, 1.0, level
         # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
         g_in = (np.average(ball_profile(distance[deep] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
                                         dims=dims[c], width=max(fit.width, 0.02), blur=sigma), weights=total[deep])
                 if total[deep].sum() > 0 else 1.0)
-        level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
         if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior):
-            return None
+            return None, None, 1.0, level
         return None, level[0] * level[1], crossing_share(
             distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
             lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
-            bin_width=p.bin_width)
+            bin_width=p.bin_width), level
 
     # the objects are independent (their profiles' special functions release the GIL): every core busy
     objects = np.flatnonzero(closed).tolist()
+    # the pool of the model's levels: every closed object's profile level by its worth in atoms
+    shared = np.zeros(len(held[0].atoms.elements))
     for c, result in zip(objects, per_item(level_of, objects)):
         if result is None:
             continue
-        shares, inside, share[c] = result
-        chosen[c] = True
+        shares, inside, share[c], level = result
+        if level is not None:
+            shared += level[0] * level[1]
         if shares is not None:
-            mixed[c] = shares
-        else:
-            profiled[c] = inside
+            chosen[c], balls[c], mixed[c] = True, True, shares
+        elif inside is not None:
+            chosen[c], profiled[c] = True, inside
     out = unmixed_sums(sums, mixed)
     for c, inside in profiled.items():
         out[c, 0] = inside
-    return out, chosen, share
+    return out, chosen, balls, share, shared
 
 
 def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
