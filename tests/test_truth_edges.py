@@ -4,8 +4,8 @@ remesher's tests and benchmark judge feature edges by, on shapes whose edges are
 import numpy as np
 
 from apt_filters.core.mesh import TriMesh
-from apt_filters.synth.shapes import Cuboid, Sphere
-from apt_filters.truth.metrics import truth_edge_f1
+from apt_filters.synth.shapes import Capsule, Cuboid, Sphere
+from apt_filters.truth.metrics import is_sharp, truth_edge_f1
 from apt_filters.truth.shapes import rotation
 from tests import remesh_shapes as shapes
 
@@ -52,3 +52,14 @@ def test_box_sphere_plate_mesh_on_its_analytic_shape():
     shape = shapes.box_minus_sphere_plate_shape()
     assert np.abs(shape.sdf(mesh.vertices)).max() < 0.005  # the marching-cubes ball: 0.0024
     assert truth_edge_f1(mesh, [shape], 0.08)[0] >= 0.99  # 0.998
+
+
+def test_capsule_samples_lie_on_it_and_have_no_sharp_edge():
+    """A rod's samples (the demo's and the zoo's rods are capsules): on its surface, outward, as many as its
+    area holds; rounded everywhere, so it is left out of the edge F1."""
+    rod = Capsule([1.0, 8.0, -49.0], 1.5, 8.0, rotation=(1.0, 0.3, 0.2))
+    points, normals = rod.sample(50.0, np.random.default_rng(0))
+    assert np.abs(rod.sdf(points)).max() < 1e-9
+    assert np.abs(rod.sdf(points + 1e-3 * normals) - 1e-3).max() < 1e-9
+    assert abs(len(points) / (50.0 * rod.area()) - 1) < 0.03  # Poisson: 1 sd = 0.7 %
+    assert not is_sharp(rod, 0.5)
