@@ -63,3 +63,14 @@ def test_capsule_samples_lie_on_it_and_have_no_sharp_edge():
     assert np.abs(rod.sdf(points + 1e-3 * normals) - 1e-3).max() < 1e-9
     assert abs(len(points) / (50.0 * rod.area()) - 1) < 0.03  # Poisson: 1 sd = 0.7 %
     assert not is_sharp(rod, 0.5)
+
+
+def test_iso_shapes_are_the_objects_the_iso_surface_bounds():
+    """The demo specimen at Al 15 at.%: its cubes, spheres and rod (Al 20 inside, 10 or 4 outside), not the
+    Cr-rich plate (Al 4 inside, 10 outside) nor the layer (a half-space)."""
+    from apt_filters.synth import preset
+    from apt_filters.synth.generate import build_truth
+    from apt_filters.truth.specimen import iso_shapes
+
+    kinds = [s.kind for s in iso_shapes(build_truth(preset("default"), 0)[0], "Al", 0.15)]
+    assert kinds == ["cuboid", "sphere", "cuboid", "sphere", "capsule", "sphere"]
