@@ -28,7 +28,14 @@ the measured call finds none of that run's memory resident. Surfaces
 Measures, against the input: two-sided Hausdorff distance (output -> input and input -> output, as
 fractions of the edge; from every vertex, edge midpoint and face centroid of one mesh to the
 other), mean output edge length over the target, area change, topology (components, boundary loops, genus as pymeshlab counts them),
-feature-edge F1 (dihedral over 40°, samples every edge/10 matched within edge/10), smallest angle,
+feature-edge F1 against the input's creases (dihedral over 40°, samples every edge/10 matched within edge/10: it
+counts every crease of the input, a refined cube edge's two or three 40-60° bends as two or three), feature-edge F1
+against the true sharp edges where the surface's true shape is known (``truth F1``: the synthetic specimens'
+objects from their ``truth.json``, the box-sphere-plate's analytic solid; :func:`apt_filters.truth.metrics.truth_edge_f1`,
+at voxel h = 2 edges: edge points are samples 78.5° apart within 0.3 h, matched within 0.3 h = 0.6 edge, so
+a bend spread over a few narrow faces is one edge; mean ± standard error over 5 draws of the random samples;
+true objects without a sharp edge, spheres and capsules, are left out and the count of objects scored given;
+the input's own figure on its row), smallest angle,
 % of triangles under 30°; for ours also the components given back unchanged by the check (``--seeds N``: also
 counted, untimed, with seeds 0 .. N-1: components near the tolerance pass with one seed and fail
 with another). Prints a markdown table, then ours stage by stage (CPU time and numpy bytes held / at the peak per input face).
@@ -46,6 +53,7 @@ import numpy as np
 
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import quality, remesh, verify
+from apt_filters.truth.metrics import truth_edge_f1
 from benchmarks.results import ratio, write_results
 from tests import remesh_shapes as shapes
 
@@ -210,13 +218,35 @@ def feature_f1(mesh: TriMesh, out: TriMesh, edge: float) -> float:
     return quality.edge_f1(ours_, reference, spacing)
 
 
+TRUTH_SEEDS = 5
+"""Sampling seeds the truth F1 is averaged over: one draw of the random samples moves it by 0.004-0.015 (sd)."""
+
+
+def truth_f1(mesh: TriMesh, truth: list | None, edge: float) -> tuple[float | None, str]:
+    """:func:`~apt_filters.truth.metrics.truth_edge_f1` of ``mesh`` against the true objects ``truth`` at voxel
+    2 ``edge`` (the pipeline's edge is half a voxel), the mean over sampling seeds 0 .. ``TRUTH_SEEDS`` - 1, and
+    its table cell (mean ± standard error): blank where the truth is unknown, the count of sharp objects scored,
+    or that there is no (sharp) true object."""
+    if truth is None:
+        return None, ""
+    if not truth:  # an open interface: a half-space, no object
+        return None, "no true object"
+    runs = [truth_edge_f1(mesh, truth, 2 * edge, seed) for seed in range(TRUTH_SEEDS)]
+    scored = runs[0][1]
+    if not scored:
+        return None, f"no sharp edge ({len(truth)} objects)"
+    f1 = np.array([f for f, _ in runs])
+    return float(f1.mean()), (f"{f1.mean():.3f} ± {f1.std(ddof=1) / np.sqrt(len(f1)):.3f} "
+                              f"({len(scored)} of {len(truth)})")
+
+
 def mean_edge(mesh: TriMesh) -> float:
     """Mean length of ``mesh``'s edges, each counted once (nm)."""
     ends = np.unique(np.sort(mesh.edges(), axis=1), axis=0)
     return float(np.linalg.norm(mesh.vertices[ends[:, 0]] - mesh.vertices[ends[:, 1]], axis=1).mean())
 
 
-def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
+def row(name: str, mesh: TriMesh, edge: float, sharp: bool, truth: list | None) -> tuple[str, dict]:
     """One method on one surface: the table row and its figures."""
     from apt_filters.contour.metrics import face_quality
 
@@ -227,14 +257,15 @@ def row(name: str, mesh: TriMesh, edge: float, sharp: bool) -> tuple[str, dict]:
         (before.components, before.boundary_loops, before.genus, 0)
     topo = f"{after.components}/{after.boundary_loops}/{after.genus}" + ("" if same else " **changed**")
     f1 = f"{feature_f1(mesh, out, edge):.3f}" if sharp else ""
+    true_f1, true_cell = truth_f1(out, truth, edge)
     fig = {"seconds": seconds, "cpu": cpu, "bytes": peak / mesh.n_faces, "out_bytes": peak / max(out.n_faces, 1),
            "hausdorff": max(one_way(out, mesh, edge), one_way(mesh, out, edge)) / edge,
            "under30": 100 * np.mean(angles < 30.0), "kept": int(note.split("/")[0]) if note else 0,
-           "edge": mean_edge(out) / edge}
+           "edge": mean_edge(out) / edge, "truth_f1": true_f1}
     line = (f"|  | {name} | {seconds:.2f} | {cpu:.2f} | {peak / 2**20:.0f} | {peak / mesh.n_faces:.0f} | "
             f"{fig['out_bytes']:.0f} | {out.n_faces} | {fig['edge']:.2f} | "
             f"{one_way(out, mesh, edge) / edge:.3f} | {one_way(mesh, out, edge) / edge:.3f} | "
-            f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {angles.min():.1f} | "
+            f"{100 * (out.area() / mesh.area() - 1):+.2f} | {topo} | {f1} | {true_cell} | {angles.min():.1f} | "
             f"{fig['under30']:.2f} | {note} |")
     return line, fig
 
@@ -267,24 +298,42 @@ def zoo_surface(family: str, seed: int, folder=None) -> tuple[TriMesh, float]:
         return TriMesh(f["vertices"], f["faces"]), float(f["edge"])
 
 
+def zoo_truth(family: str, seed: int) -> list:
+    """The true objects of zoo draw ``family`` ``seed`` whose surfaces :func:`zoo_surface` contours
+    (:func:`~apt_filters.truth.specimen.iso_shapes` of its truth, built without drawing the ions)."""
+    from apt_filters.synth.generate import build_truth
+    from apt_filters.synth.zoo import zoo_specimen
+    from apt_filters.truth.specimen import iso_shapes
+    from benchmarks.bench_zoo import iso_surface
+
+    spec = zoo_specimen(family, seed)
+    truth = build_truth(spec, seed)[0]
+    return iso_shapes(truth, *iso_surface(spec, truth))
+
+
 def surfaces(quick: bool) -> list:
-    """(kind, mesh, edge, sharp) of every benchmark surface."""
+    """(kind, mesh, edge, sharp, truth) of every benchmark surface: ``sharp`` scores feature F1 against the input's
+    creases; ``truth``, the true objects (:mod:`apt_filters.synth.shapes`) where known, against theirs."""
     gyroid = shapes.gyroid(half=8.0) if quick else shapes.gyroid()
-    out = [("pipeline: small seed 3 (cube + sphere, refined)", shapes.pipeline_surface(), 0.5, True),
-           ("demo: default seed 0 (apt-filters demo)", shapes.pipeline_surface("default", 0), 0.5, True),
-           ("thin plate 1.6", shapes.thin_plate(), 0.5, False),
-           ("2 nm spheres x 8", shapes.small_spheres(), 0.5, False),
-           ("tilted sheet (open)", shapes.tilted_sheet(), 0.5, False),
-           ("tilted sheet, bumps 0.25", shapes.bumpy(shapes.tilted_sheet(), 0.25), 0.5, False),
-           ("gyroid (bicontinuous)", gyroid, 0.5, False),
-           ("gyroid, bumps 0.1", shapes.bumpy(shapes.gyroid(half=8.0), 0.1), 0.5, False),
-           ("box-sphere-plate", shapes.box_minus_sphere_plate(0.5 if quick else 0.25), 0.04, True)]
+    out = [("pipeline: small seed 3 (cube + sphere, refined)", shapes.pipeline_surface(), 0.5, True,
+            shapes.pipeline_truth()),
+           ("demo: default seed 0 (apt-filters demo)", shapes.pipeline_surface("default", 0), 0.5, True,
+            shapes.pipeline_truth("default", 0)),
+           ("thin plate 1.6", shapes.thin_plate(), 0.5, False, None),
+           ("2 nm spheres x 8", shapes.small_spheres(), 0.5, False, None),
+           ("tilted sheet (open)", shapes.tilted_sheet(), 0.5, False, None),
+           ("tilted sheet, bumps 0.25", shapes.bumpy(shapes.tilted_sheet(), 0.25), 0.5, False, None),
+           ("gyroid (bicontinuous)", gyroid, 0.5, False, None),
+           ("gyroid, bumps 0.1", shapes.bumpy(shapes.gyroid(half=8.0), 0.1), 0.5, False, None),
+           ("box-sphere-plate", shapes.box_minus_sphere_plate(0.5 if quick else 0.25), 0.04, True,
+            [shapes.box_minus_sphere_plate_shape()])]
     for family, seed in ZOO:
         mesh, edge = zoo_surface(family, seed)
-        out.append((f"zoo {family} {seed} (pipeline)", mesh, edge, family == "cuboid"))
+        out.append((f"zoo {family} {seed} (pipeline)", mesh, edge, family == "cuboid", zoo_truth(family, seed)))
     if not quick:
         out.append(("2M ions: gamma-prime, 2,000,000 ions (refined)",
-                    shapes.pipeline_surface("gamma-prime", 3, ions=2_000_000), 0.5, True))
+                    shapes.pipeline_surface("gamma-prime", 3, ions=2_000_000), 0.5, True,
+                    shapes.pipeline_truth("gamma-prime", 3, ions=2_000_000)))
     return out
 
 
@@ -299,23 +348,23 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     lines = ["| surface | method | time s | CPU s | peak MiB | peak bytes / input face | peak bytes / output face | faces | "
              "mean edge / target | Hausdorff out->in (edge) | in->out (edge) | area % | components/loops/genus | "
-             "feature F1 | min angle ° | % < 30° | components kept |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+             "feature F1 | truth F1 (objects scored) | min angle ° | % < 30° | components kept |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
     load = os.getloadavg()[0]
     print("\n".join(lines), flush=True)
     figures = []  # (kind, input faces, method, figures)
     labels = [label for _, _, label in STAGES]
     stage_lines = ["| surface | whole call | " + " | ".join(labels) + " |", "|---|" + "---:|" * (len(labels) + 1)]
-    for kind, mesh, edge, sharp in surfaces(args.quick):
+    for kind, mesh, edge, sharp, truth in surfaces(args.quick):
         if args.only and not any(kind.startswith(o) for o in args.only):
             continue
         topo = quality.topology(mesh)
         lines.append(f"| {kind}: {mesh.n_faces} faces, edge {edge} | input | | | | | | {mesh.n_faces} | {mean_edge(mesh) / edge:.2f} | | | | "
-                     f"{topo.components}/{topo.boundary_loops}/{topo.genus} | | | | |")
+                     f"{topo.components}/{topo.boundary_loops}/{topo.genus} | | {truth_f1(mesh, truth, edge)[1]} | | | |")
         print(lines[-1], flush=True)
         for name in METHODS:
             if name not in args.without:
-                line, fig = row(name, mesh, edge, sharp)
+                line, fig = row(name, mesh, edge, sharp, truth)
                 if name == "ours (CVT)" and args.seeds > 1:
                     fig["kept_seeds"] = given_back(mesh, edge, args.seeds)
                     line = line[:-2] + f"; seeds 0-{args.seeds - 1}: {','.join(map(str, fig['kept_seeds']))} |"
@@ -355,6 +404,13 @@ def write(figures: list, lines: list, load: float, stage_lines: list) -> None:
         if spread:
             rows.append(("remesh", f"components given back over {len(spread[0])} seeds, {len(spread)} surfaces "
                                    "(target 0)", f"{sum(map(sum, spread))}", "-", "-"))
+        scored = [(o["truth_f1"], p["truth_f1"]) for o, p in pairs if o["truth_f1"] is not None]
+        if scored:
+            rows.append(("remesh", f"feature F1 against the true sharp edges (truth F1, mean of {TRUTH_SEEDS} sample "
+                                   f"draws), {len(scored)} surfaces in table order (against the input's creases: in "
+                                   "the table); last column ours - peer",
+                         ", ".join(f"{o:.3f}" for o, _ in scored), ", ".join(f"{p:.3f}" for _, p in scored),
+                         f"{min(o - p for o, p in scored):+.3f} to {max(o - p for o, p in scored):+.3f}"))
         ours_e, peer_e = [o["edge"] for o, _ in pairs], [p["edge"] for _, p in pairs]
         rows.append(("remesh", "mean output edge / target edge (ours shrink where the surface bends, to stay "
                                "within the Hausdorff tolerance)", f"{min(ours_e):.2f}-{max(ours_e):.2f}",

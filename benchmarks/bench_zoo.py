@@ -69,6 +69,14 @@ def user_iso(spec, species: str) -> float:
     return 0.5 * (inside + spec.matrix.get(species, 0.0))
 
 
+def iso_surface(spec, truth: dict) -> tuple[str, float]:
+    """(species, iso-value) of a draw's surface: the species its first object gains most over the matrix, at
+    :func:`user_iso`; ``truth`` the draw's ``truth.json``."""
+    inside = truth["features"][0]["composition_inside"]
+    species = max(inside, key=lambda e: inside[e] - spec.matrix.get(e, 0.0))
+    return species, user_iso(spec, species)
+
+
 def run_fields(sp, config: PipelineConfig):
     """(fields, mask, basis) as `apt-filters run` builds them from ``config``: the input of its surface."""
     v = config.voxel
@@ -340,9 +348,7 @@ def specimen(family: str, seed: int):
     """(specimen, iso species, user's iso-value, a heading line describing the draw) of one zoo draw."""
     spec = zoo_specimen(family, seed)
     sp = generate(spec, seed)
-    species = sp.truth["features"][0]["composition_inside"]
-    species = max(species, key=lambda e: species[e] - spec.matrix.get(e, 0.0))
-    iso = user_iso(spec, species)
+    species, iso = iso_surface(spec, sp.truth)
     f0 = spec.features[0]
     seg = f0.segregation[0] if f0.segregation else None
     header = (f"## {family} seed {seed}: {len(sp.ions):,} ions, {species} {100 * spec.matrix[species]:.1f} -> "

@@ -164,7 +164,13 @@ def rotated_box(half=(9.0, 7.0, 5.0), spacing: float = 0.7, seed: int = 0) -> Tr
     return TriMesh(mesh.vertices @ rotation().T, mesh.faces)
 
 
-def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.7) -> TriMesh:
+# The box minus sphere (with a plate) in the box's own frame, before the rotation: cube half edge, ball radius
+# and centre (over the half edge); the plate's half sizes and centre.
+BOX_HALF, BALL_RADIUS, BALL_CENTRE = 8.0, 7.0, np.array([1.0, 1.0, 0.2])
+PLATE_HALF, PLATE_CENTRE = np.array([5.0, 0.3, 4.0]), np.array([-4.0, -4.0, 10.0])
+
+
+def box_minus_sphere(half: float = BOX_HALF, radius: float = BALL_RADIUS, spacing: float = 0.7) -> TriMesh:
     """Rotated cube with a sphere centred on one corner carved out (boolean: sharp curves, slivers)."""
     import pymeshlab
 
@@ -172,7 +178,7 @@ def box_minus_sphere(half: float = 8.0, radius: float = 7.0, spacing: float = 0.
     ball = sphere(radius)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(box.vertices, box.faces))
-    ms.add_mesh(pymeshlab.Mesh(ball.vertices + half * np.array([1.0, 1.0, 0.2]), ball.faces))
+    ms.add_mesh(pymeshlab.Mesh(ball.vertices + half * BALL_CENTRE, ball.faces))
     ms.generate_boolean_difference(first_mesh=0, second_mesh=1)
     m = ms.current_mesh()
     return TriMesh(m.vertex_matrix() @ rotation().T, m.face_matrix())
@@ -185,14 +191,26 @@ def box_minus_sphere_plate(spacing: float = 0.25, scale: float = 1 / 16) -> TriM
     import pymeshlab
 
     body = box_minus_sphere(spacing=spacing)
-    plate = _jittered_box(np.array([5.0, 0.3, 4.0]), spacing, 2)
+    plate = _jittered_box(PLATE_HALF, spacing, 2)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(body.vertices, body.faces))
-    ms.add_mesh(pymeshlab.Mesh(plate.vertices @ rotation().T + rotation() @ np.array([-4.0, -4.0, 10.0]),
-                               plate.faces))
+    ms.add_mesh(pymeshlab.Mesh(plate.vertices @ rotation().T + rotation() @ PLATE_CENTRE, plate.faces))
     ms.generate_boolean_union(first_mesh=0, second_mesh=1)
     m = ms.current_mesh()
     return TriMesh(m.vertex_matrix() * scale, m.face_matrix())
+
+
+def box_minus_sphere_plate_shape(scale: float = 1 / 16):
+    """The analytic solid :func:`box_minus_sphere_plate` triangulates (its sharp edges: the cube's, the rim where
+    the ball cuts it, the plate's and where the plate meets the cube; the ball there is a marching-cubes sphere,
+    within a few hundredths of a voxel of this one)."""
+    from apt_filters.synth.shapes import Cuboid, Sphere
+    from apt_filters.truth.shapes import Difference, Union
+
+    r = rotation()
+    return Union(Difference(Cuboid(np.zeros(3), 2 * BOX_HALF * scale, r),
+                            Sphere(r @ (BOX_HALF * BALL_CENTRE) * scale, BALL_RADIUS * scale)),
+                 Cuboid(r @ PLATE_CENTRE * scale, 2 * PLATE_HALF * scale, r))
 
 
 def pipeline_surface(preset: str = "small", seed: int = 3, folder=None, ions: int | None = None) -> TriMesh:
@@ -200,15 +218,12 @@ def pipeline_surface(preset: str = "small", seed: int = 3, folder=None, ions: in
     refinement against the ions, clean chain) of the Al 15 at.% iso-surface of a synthetic
     specimen (``small``: a 6 nm gamma-prime-like cube and a 3 nm sphere; ``ions``: the preset
     lengthened to about that many ions); cached in ``folder``."""
-    import tempfile
-    from pathlib import Path
-
     from apt_filters.meshlab.bridge import read_mesh
     from apt_filters.pipeline import config as cfg
     from apt_filters.pipeline.run import run_pipeline
     from apt_filters.synth import preset as make_preset, write_specimen
 
-    folder = Path(folder or tempfile.gettempdir()) / (f"remesh_bench_{preset}_{seed}" + ("" if ions is None else f"_{ions}"))
+    folder = _pipeline_folder(preset, seed, folder, ions)
     ply = folder / "out" / "meshes" / "Al15.ply"
     if not ply.exists():
         write_specimen(folder, make_preset(preset, ions), seed=seed, overwrite=True, keep_ions=False)
@@ -219,6 +234,25 @@ def pipeline_surface(preset: str = "small", seed: int = 3, folder=None, ions: in
         run_pipeline(config, folder / "out", quiet=True, force=True)
     mesh = read_mesh(ply)
     return TriMesh(mesh.vertices, mesh.faces)
+
+
+def _pipeline_folder(preset: str, seed: int, folder, ions: int | None):
+    import tempfile
+    from pathlib import Path
+
+    return Path(folder or tempfile.gettempdir()) / (f"remesh_bench_{preset}_{seed}" + ("" if ions is None else f"_{ions}"))
+
+
+def pipeline_truth(preset: str = "small", seed: int = 3, folder=None, ions: int | None = None) -> list:
+    """The true objects whose surfaces :func:`pipeline_surface` (same arguments; made first if not cached)
+    contours: :func:`apt_filters.truth.specimen.iso_shapes` of its specimen's ``truth.json`` at Al 15 at.%."""
+    import json
+
+    from apt_filters.truth.specimen import iso_shapes
+
+    pipeline_surface(preset, seed, folder, ions)
+    truth = json.loads((_pipeline_folder(preset, seed, folder, ions) / "truth.json").read_text())
+    return iso_shapes(truth, "Al", 0.15)
 
 
 def bumpy(mesh: TriMesh, amplitude: float, seed: int = 0) -> TriMesh:
@@ -284,12 +318,3 @@ def dual_contoured(name: str, exact_normals: bool = True) -> TriMesh:
     gradient = field_gradient(shape) if exact_normals else None
     return dual_contouring(values, 0.0, (1.0, 1.0, 1.0), (axis[0],) * 3, gradient=gradient)
 
-
-def truth_edge_f1(mesh: TriMesh, name: str, seed: int = 0) -> float:
-    """Edge F1 of ``mesh`` against the sharp edges of the analytic shape ``name`` (voxel 1 nm),
-    by the contouring benchmark's rule (:func:`apt_filters.truth.metrics.edge_metrics`)."""
-    from apt_filters.contour.metrics import sample_mesh
-    from apt_filters.truth.metrics import EDGE_DENSITY, edge_metrics
-
-    rng = np.random.default_rng(seed)
-    return edge_metrics(sample_mesh(mesh, EDGE_DENSITY, rng), dc_shape(name).sample(EDGE_DENSITY, rng), 1.0)["edge_f1"]

@@ -302,6 +302,18 @@ class Capsule(_Axial):
                        _arc(h, r, math.pi / 2, 0.0, spacing))
         return _revolve(rho, z, spacing)
 
+    def _local_sample(self, density, rng):
+        r, hh = self.radius, self.length / 2
+        m = _count(2 * np.pi * r * 2 * hh, density, rng)
+        phi = rng.uniform(0, 2 * np.pi, m)
+        side_n = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
+        side = r * side_n + np.outer(rng.uniform(-hh, hh, m), [0.0, 0.0, 1.0])
+        # the caps are a sphere's two halves, each moved to its end of the axis
+        cap_n = rng.normal(size=(_count(4 * np.pi * r**2, density, rng), 3))
+        cap_n /= np.linalg.norm(cap_n, axis=1, keepdims=True)
+        caps = r * cap_n + np.outer(np.where(cap_n[:, 2] < 0, -hh, hh), [0.0, 0.0, 1.0])
+        return np.concatenate([side, caps]), np.concatenate([side_n, cap_n])
+
 
 class Cylinder(_Axial):
     """Cylinder with flat caps along local z: a rod if long, a plate (disc) if ``length`` < ``radius``."""

@@ -15,7 +15,9 @@ voxels. Definitions (thresholds scale with the voxel size ``h``):
   mesh and truth; edge F1 = harmonic mean of precision (mesh edge points within
   ``EDGE_TAU`` = 0.3 h of a true edge point) and recall (the converse); always on
   ``EDGE_DENSITY`` = 40 samples per h² (the rule needs several neighbours within the radius). NDC's own values
-  (radius 0.004, threshold 0.005 on unit-size shapes) are 0.26 h and 0.32 h at 64³.
+  (radius 0.004, threshold 0.005 on unit-size shapes) are 0.26 h and 0.32 h at 64³. :func:`edge_against` scores
+  a mesh against one shape; :func:`truth_edge_f1` against the sharp-edged ones of several true objects (a
+  specimen's), each scored on the mesh component that matches it.
 - Triangle quality: :func:`apt_filters.contour.metrics.triangle_quality`.
 """
 
@@ -29,7 +31,9 @@ from scipy.spatial import cKDTree
 from apt_filters.contour.metrics import sample_mesh, self_intersection_count, triangle_quality
 from apt_filters.core.checks import folded_pairs, non_manifold_vertex_count
 from apt_filters.core.distance import mesh_distance
-from apt_filters.core.mesh import TriMesh
+from apt_filters.core.mesh import TriMesh, split_components
+from apt_filters.truth.shapes import Union
+from apt_filters.truth.surface import match_objects
 
 EDGE_DOT = 0.2
 EDGE_RADIUS = 0.3  # voxels
@@ -63,6 +67,42 @@ def edge_metrics(pred: tuple[np.ndarray, np.ndarray], true: tuple[np.ndarray, np
     f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
     return {"edge_chamfer": 0.5 * (d_pt.mean() + d_tp.mean()), "edge_precision": precision,
             "edge_recall": recall, "edge_f1": f1}
+
+
+def edge_against(mesh: TriMesh, shape, voxel: float, rng: np.random.Generator) -> dict:
+    """:func:`edge_metrics` of ``mesh`` against ``shape``'s surface, both sampled at ``EDGE_DENSITY`` per h²
+    (the mesh first, then the shape, from ``rng``)."""
+    density = EDGE_DENSITY / voxel**2
+    return edge_metrics(sample_mesh(mesh, density, rng), shape.sample(density, rng), voxel)
+
+
+def is_sharp(shape, voxel: float, seed: int = 0) -> bool:
+    """Whether ``shape`` has sharp edges at voxel ``voxel`` (nm): any of its samples an edge point by the rule of
+    :func:`edge_metrics` (a rounded edge whose normal turns by 78.5° over more than ``EDGE_RADIUS`` h has none)."""
+    points, normals = shape.sample(EDGE_DENSITY / voxel**2, np.random.default_rng(seed))
+    return bool(edge_points(points, normals, EDGE_RADIUS * voxel).any())
+
+
+def truth_edge_f1(mesh: TriMesh, shapes: list, voxel: float, seed: int = 0) -> tuple[float, list[int]]:
+    """Edge F1 of ``mesh`` against the sharp edges of the true objects ``shapes`` (:mod:`apt_filters.synth.shapes`
+    solids in the mesh's frame, nm) at voxel ``voxel`` (the rule of :func:`edge_metrics`: edge points 78.5° apart
+    within 0.3 h, matched within 0.3 h), and the indices of the objects scored.
+
+    Objects without a sharp edge (:func:`is_sharp`: spheres, capsules, rounded cuboids) are left out, not given
+    edges; so is the part of ``mesh`` matched to no sharp object (:func:`~apt_filters.truth.surface.match_objects`,
+    one component per object). One object is scored against the whole mesh. NaN where no object is sharp or
+    none is matched. Precision and recall are pooled over the objects scored (their union's samples)."""
+    sharp = [i for i, s in enumerate(shapes) if is_sharp(s, voxel, seed)]
+    if len(shapes) > 1:
+        parts = split_components(mesh)
+        found = match_objects(parts, [shapes[i].sdf for i in sharp])
+        sharp = [i for i, m in zip(sharp, found) if m is not None]
+        faces = [parts[m].faces for m in found if m is not None]
+        mesh = TriMesh(mesh.vertices, np.concatenate(faces) if faces else np.zeros((0, 3), np.int64))
+    if not sharp or mesh.n_faces == 0:
+        return float("nan"), sharp
+    truth = shapes[sharp[0]] if len(sharp) == 1 else Union(*(shapes[i] for i in sharp))
+    return edge_against(mesh, truth, voxel, np.random.default_rng(seed))["edge_f1"], sharp
 
 
 @dataclass
@@ -111,9 +151,7 @@ def evaluate(mesh: TriMesh, shape, voxel: float, density: float = 20.0, seed: in
     to_mesh = mesh_distance(mesh, tp)
     nearest = cKDTree(tp).query(mp)[1]
     edge_rng = np.random.default_rng(seed + 1)
-    edges = (edge_metrics(sample_mesh(mesh, EDGE_DENSITY / voxel**2, edge_rng),
-                          shape.sample(EDGE_DENSITY / voxel**2, edge_rng), voxel)
-             if edges else dict.fromkeys(["edge_chamfer", "edge_precision", "edge_recall", "edge_f1"], np.nan))
+    edges = (edge_against(mesh, shape, voxel, edge_rng) if edges else dict.fromkeys(["edge_chamfer", "edge_precision", "edge_recall", "edge_f1"], np.nan))
     quality = triangle_quality(mesh)
     return MeshReport(
         hausdorff=max(to_true.max(), to_mesh.max()) / voxel,

@@ -2,7 +2,7 @@
 
 The shapes are :mod:`apt_filters.synth.shapes` solids (the one shape library), placed in the box
 [-1, 1]³ (nm) off the grid planes and off-centre so that no face coincides with a sample plane and
-x, y, z are not interchangeable, plus one composite, :class:`Difference`. The field handed to
+x, y, z are not interchangeable, plus two composites, :class:`Difference` and :class:`Union`. The field handed to
 contouring is ``-sdf`` (inside above iso = 0).
 """
 
@@ -45,6 +45,34 @@ class Difference(Shape):
         bp, bn = self.b.sample(density, rng)
         inside = self.a.sdf(bp) < 0
         return np.concatenate([ap[keep], bp[inside]]), np.concatenate([an[keep], -bn[inside]])
+
+
+class Union(Shape):
+    """The union of ``parts``: each part's surface outside every other part (concave edges where two meet).
+
+    ``min`` of the parts' SDFs is exact outside the union but not inside where parts overlap, so ``exact_sdf``
+    is False.
+    """
+
+    kind = "union"
+    exact_sdf = False
+
+    def __init__(self, *parts: Shape):
+        self.parts = parts
+
+    def sdf(self, points):
+        return np.min([p.sdf(points) for p in self.parts], axis=0)
+
+    def sample(self, density, rng):
+        points, normals = [], []
+        for i, part in enumerate(self.parts):
+            p, n = part.sample(density, rng)
+            keep = np.ones(len(p), bool)
+            for other in self.parts[:i] + self.parts[i + 1:]:
+                keep &= other.sdf(p) > 0
+            points.append(p[keep])
+            normals.append(n[keep])
+        return np.concatenate(points), np.concatenate(normals)
 
 
 def field_gradient(shape: Shape):

@@ -44,6 +44,14 @@ def true_plateaus(feature: dict, elements: list[str]) -> tuple[np.ndarray, np.nd
     return inside, outside
 
 
+def iso_shapes(truth: dict, species: str, iso: float) -> list:
+    """The true objects (:mod:`apt_filters.synth.shapes`, nm) whose surfaces make a specimen's iso-surface of
+    ``species`` at ``iso`` (fraction): the bounded features of ``truth.json`` whose inside and outside fractions of
+    ``species`` lie on either side of ``iso`` (a Cr-rich plate has no Al 15 at.% surface)."""
+    return [shape_from_params(f["shape"]) for f in truth["features"] if f["bounded"]
+            and (f["composition_inside"].get(species, 0.0) - iso) * (f["composition_outside"].get(species, 0.0) - iso) < 0]
+
+
 def counted_truths(truth: dict, ions: IonTable, ranges: RangeTable) -> tuple[list[str], dict[int, CountedTruth]]:
     """The elements, and (feature index) -> what its ions hold (:func:`~apt_filters.truth.counted_truth`)
     for every bounded feature.
