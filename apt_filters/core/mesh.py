@@ -287,6 +287,12 @@ _cache: list = []
 """(weak reference to a faces array, n_vertices, Topology) of the latest meshes, newest last."""
 
 
+def _forget(ref: weakref.ref) -> None:
+    """Drop the cache's entry of a faces array that died: its tables go with it, not at the next lookup (a
+    remesh's last flips' tables were held through its centring, 630 bytes per input face of a thin plate)."""
+    _cache[:] = [entry for entry in _cache if entry[0] is not ref]
+
+
 def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     """The :class:`Topology` of ``faces`` (m, 3) int over ``n_vertices`` vertices, built once per faces array.
 
@@ -299,7 +305,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
         if entry[0]() is faces and entry[1] == n_vertices:
             return entry[2]
     try:
-        ref = weakref.ref(faces)
+        ref = weakref.ref(faces, _forget)
     except TypeError:  # not an ndarray (a list, say): nothing to key the cache on
         return Topology.of(faces, n_vertices)
     # On a copy of its own (24 bytes per face beside ~150 of edge tables): holding the caller's array, or a
