@@ -168,6 +168,45 @@ def test_topology_cache_lets_go_of_faces_nobody_else_holds():
     assert gone() is None and tables() is None
 
 
+def test_topology_cache_drops_the_tables_of_faces_as_they_die():
+    import weakref
+
+    from apt_filters.core import mesh as core_mesh
+
+    faces = unit_cube().faces.copy()
+    tables = weakref.ref(core_mesh.topology(faces, 8))
+    assert tables() is not None  # cached while the faces live
+    del faces
+    assert tables() is None  # was: held until the next lookup (a remesh's flips' tables through its centring)
+
+
+def _traced_peak(build) -> float:
+    """Bytes ``build()`` allocates at its peak (``tracemalloc``; run once before, so that nothing loads inside)."""
+    import tracemalloc
+
+    build()
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        build()
+        return tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+
+
+def test_building_the_distance_grid_and_the_edge_tables_takes_little_besides_what_they_keep():
+    from apt_filters.core.distance import TriangleGrid
+    from apt_filters.core.mesh import Topology
+    from tests.remesh_shapes import sphere
+
+    mesh = sphere(20.0)  # 15k faces
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.ascontiguousarray(mesh.faces, np.int64)
+    # the grid keeps 156 bytes per triangle; its build peaked at 436 (corner arrays and their sorted copies)
+    assert _traced_peak(lambda: TriangleGrid.build(vertices, faces)) < 330 * len(faces)
+    # the edge tables keep 60 bytes per face; their build peaked at 231 (a (3m, 2) half-edge stack, sorted)
+    assert _traced_peak(lambda: Topology.of(faces, len(vertices)).face_edge) < 210 * len(faces)
+
+
 def test_signed_distance_is_positive_along_the_normals_and_exact_on_a_box():
     half = np.array([1.0, 2.0, 3.0])
     rng = np.random.default_rng(0)

@@ -89,6 +89,34 @@ def test_check_passes_a_good_remesh(spheres):
     assert all(c.euler_in == c.euler_out == 2 and c.loops_in == c.loops_out == 0 for c in checks)
 
 
+def test_the_check_searches_a_finer_remesh_near_its_probes_only():
+    """A thin plate remeshed 7.5 times finer: the check's exact searches use an engine over the output's faces
+    near the probes that need one, with the distances of the engine over all of it; its traced peak (above what
+    it starts with) stays under 450 bytes per output face (the engine over all of it: 710)."""
+    import tracemalloc
+
+    from apt_filters.core.distance import SurfaceDistance
+
+    mesh = shapes.thin_plate()
+    out = remesh(mesh, edge_length=EDGE, verify=False).mesh
+    comp, owner = mesh.face_components(), np.zeros(out.n_faces, np.int64)
+    bumped = TriMesh(out.vertices + 0.6 * (np.linalg.norm(out.vertices - out.vertices[0], axis=1) < 2.0)[:, None]
+                     * out.vertex_normals(), out.faces)  # walks that stop short, probes far off: large bounds
+    for other in (out, bumped):
+        whole = verify.farthest(mesh, other, comp, 1, 0.25 * EDGE, surface=SurfaceDistance(other))
+        assert np.array_equal(verify.farthest(mesh, other, comp, 1, 0.25 * EDGE), whole)
+    verify.check_components(mesh, out, comp, owner, edge=EDGE)  # compiled code loaded first
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        checks = verify.check_components(mesh, out, comp, owner, edge=EDGE)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    assert checks[0].ok and out.n_faces > 7 * mesh.n_faces
+    assert peak < 450 * out.n_faces, peak / out.n_faces
+
+
 def test_check_flags_a_hole_and_a_shift_and_keeps_those_inputs(spheres):
     mesh, comp, out, owner = spheres
     drop = np.flatnonzero(owner == 0)[0]  # a hole in sphere 0

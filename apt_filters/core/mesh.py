@@ -157,10 +157,15 @@ class Topology:
     @functools.cached_property
     def _edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         faces = self._faces
-        half = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-        # one int64 key per vertex pair: np.unique on it is ~10x faster than on rows
+        # one int64 key per vertex pair, lower index first: np.unique on it is ~10x faster than on rows; made from
+        # (m, 3) arrays in place (a (3m, 2) stack of the half-edges and its sorted copy were 100 bytes per face)
         n = max(self._n_vertices, 1)
-        keys, inverse, counts = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True, return_counts=True)
+        following = np.roll(faces, -1, axis=1)
+        keys = np.minimum(faces, following)
+        keys *= n
+        keys += np.maximum(faces, following)
+        del following
+        keys, inverse, counts = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
         return _frozen(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), counts.astype(np.int64))
 
     @property
@@ -287,6 +292,12 @@ _cache: list = []
 """(weak reference to a faces array, n_vertices, Topology) of the latest meshes, newest last."""
 
 
+def _forget(ref: weakref.ref) -> None:
+    """Drop the cache's entry of a faces array that died: its tables go with it, not at the next lookup (a
+    remesh's last flips' tables were held through its centring, 630 bytes per input face of a thin plate)."""
+    _cache[:] = [entry for entry in _cache if entry[0] is not ref]
+
+
 def topology(faces: np.ndarray, n_vertices: int) -> Topology:
     """The :class:`Topology` of ``faces`` (m, 3) int over ``n_vertices`` vertices, built once per faces array.
 
@@ -299,7 +310,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
         if entry[0]() is faces and entry[1] == n_vertices:
             return entry[2]
     try:
-        ref = weakref.ref(faces)
+        ref = weakref.ref(faces, _forget)
     except TypeError:  # not an ndarray (a list, say): nothing to key the cache on
         return Topology.of(faces, n_vertices)
     # On a copy of its own (24 bytes per face beside ~150 of edge tables): holding the caller's array, or a

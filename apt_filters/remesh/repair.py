@@ -190,7 +190,8 @@ def fill_rim_notches(faces: np.ndarray, on_boundary: np.ndarray) -> np.ndarray:
     """
     if len(faces) == 0:
         return faces
-    rim = topology(faces, len(on_boundary)).boundary_half_edges
+    top = topology(faces, len(on_boundary))
+    rim = top.boundary_half_edges
     out_of = np.full(len(on_boundary), -1, np.int64)
     into = np.full(len(on_boundary), -1, np.int64)
     count = np.bincount(rim.ravel(), minlength=len(on_boundary))
@@ -200,8 +201,7 @@ def fill_rim_notches(faces: np.ndarray, on_boundary: np.ndarray) -> np.ndarray:
     a, b = into[g], out_of[g]
     keep = on_boundary[a] & on_boundary[b] & (a != b)
     g, a, b = g[keep], a[keep], b[keep]
-    edges = np.sort(TriMesh(np.zeros((len(on_boundary), 3)), faces).edges(), axis=1)
-    absent = ~_has_rows(edges, np.sort(np.stack([a, b], 1), axis=1)) if len(g) else np.zeros(0, bool)
+    absent = ~_has_rows(top.edge_vertices, np.sort(np.stack([a, b], 1), axis=1)) if len(g) else np.zeros(0, bool)
     g, a, b = g[absent], a[absent], b[absent]
     # two notches sharing a rim generator are filled one at a time (the first in id order)
     first = np.zeros(len(g), bool)
