@@ -826,33 +826,55 @@ def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np
     as ``np.prod`` takes them from the sorted distances (the same numbers). With ``planes`` (p,) int64, the same
     for each plane ``planes[j]`` nudged, its distances and steps ``columns[:, j]`` and ``column_steps[:, j]``
     (b, p) instead of its own (without copies of the whole arrays): (b, p) products, and (b, p, 2) the nudged
-    rows' largest and second largest distances (-inf for a single plane)."""
+    rows' largest and second largest distances (-inf for a single plane).
+
+    Each row is sorted once (stably: equal distances in the planes' order, as ``np.sort`` leaves them); a nudged
+    row's order is that order with the nudged plane taken out and put back where its new distance goes, so that
+    its product is taken over the same factors in the same order as a sort of the nudged row would give."""
     b, m = distance.shape
     p = planes.shape[0]
     out = np.empty((b, max(p, 1)))
     top = np.full((b, p, 2), -np.inf)
     rank = np.empty(m, dtype=np.int64)
-    row, row_steps = np.empty(m), np.empty(m)
+    moved = np.empty(m, dtype=np.int64)
     for i in range(b):
-        for n in range(max(p, 1)):
-            for j in range(m):
-                row[j], row_steps[j] = distance[i, j], steps[i, j]
-            if p > 0:
-                row[planes[n]], row_steps[planes[n]] = columns[i, n], column_steps[i, n]
-            for j in range(m):  # insertion sort of the planes by distance: m is small
-                k = j
-                while k > 0 and row[rank[k - 1]] > row[j]:
-                    rank[k] = rank[k - 1]
-                    k -= 1
-                rank[k] = j
+        for j in range(m):  # insertion sort of the planes by distance (stable): m is small
+            k = j
+            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+                rank[k] = rank[k - 1]
+                k -= 1
+            rank[k] = j
+        if p == 0:
             value = 1.0
             for j in range(m - 2):
-                value *= row_steps[rank[j]]
+                value *= steps[i, rank[j]]
+            out[i, 0] = value
+            continue
+        for n in range(p):
+            plane, nudged = planes[n], columns[i, n]
+            # the nudged plane's place among the others: after every plane it sorts after (smaller distance, or
+            # the same and a lower index), as the stable sort of the nudged row puts it
+            count = 0
+            for j in range(m):
+                other = rank[j]
+                if other != plane:
+                    moved[count] = other
+                    count += 1
+            at = 0
+            while at < m - 1 and (distance[i, moved[at]] < nudged
+                                  or (distance[i, moved[at]] == nudged and moved[at] < plane)):
+                at += 1
+            for j in range(m - 1, at, -1):
+                moved[j] = moved[j - 1]
+            moved[at] = plane
+            value = 1.0
+            for j in range(m - 2):
+                q = moved[j]
+                value *= column_steps[i, n] if q == plane else steps[i, q]
             out[i, n] = value
-            if p > 0:
-                top[i, n, 0] = row[rank[m - 1]]
-                if m > 1:
-                    top[i, n, 1] = row[rank[m - 2]]
+            top[i, n, 0] = nudged if moved[m - 1] == plane else distance[i, moved[m - 1]]
+            if m > 1:
+                top[i, n, 1] = nudged if moved[m - 2] == plane else distance[i, moved[m - 2]]
     return out, top
 
 
