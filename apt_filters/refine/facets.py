@@ -71,9 +71,9 @@ import numpy as np
 from numba import njit
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
-from scipy.special import erfc
 
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
+from apt_filters.core.special import erfc, erfc_scalar
 from apt_filters.refine.band import adjacency
 from apt_filters.refine.blur import vertex_areas
 
@@ -734,13 +734,13 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
         radius = max(rounding + shift, 0.0)
         for i in range(len(s1)):
             a, b = s1[i] - shift, s2[i] - shift
-            value = 0.25 * math.erfc(a / root2b) * math.erfc((radius + b) / root2b)
+            value = 0.25 * erfc_scalar(a / root2b) * erfc_scalar((radius + b) / root2b)
             if radius > 0.0:
                 for j in range(len(x)):
                     along = -radius + radius * sine[j]
                     edge = -radius + radius * cosine[j]
                     density = math.exp(-0.5 * ((along - b) / blur) ** 2) / norm
-                    value += density * 0.5 * math.erfc((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
+                    value += density * 0.5 * erfc_scalar((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
                         * cosine[j]
             out[i] += g[k] * value
     return out
@@ -761,8 +761,8 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
         for j in range(n):
             a[j] = s1[i] + blur * t[j] + rounding
             b[j] = s2[i] + blur * t[j] + rounding
-            step_a[j] = math.erfc((a[j] - rounding) / root2a)
-            step_b[j] = math.erfc((b[j] - rounding) / root2a)
+            step_a[j] = erfc_scalar((a[j] - rounding) / root2a)
+            step_b[j] = erfc_scalar((b[j] - rounding) / root2a)
         value = 0.0
         for j in range(n):
             for k in range(n):
@@ -776,7 +776,7 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
                         step = step_b[k]
                     else:
                         distance = (outside if outside > 0.0 else max(a[j], b[k])) - rounding
-                        step = math.erfc(distance / root2a)
+                        step = erfc_scalar(distance / root2a)
                 value += g[j] * g[k] * 0.5 * step
         out[i] = value
     return out
