@@ -404,3 +404,17 @@ def test_reach_grid_leaves_the_cells_within_the_inner_distance_unmeasured():
     exact = np.isfinite(part.distance)
     assert np.all(exact[np.abs(whole.distance) <= inner])
     np.testing.assert_array_equal(part.distance[exact], whole.distance[exact])
+
+
+def test_tabulated_erfc_is_within_its_stated_error_everywhere():
+    from scipy.special import erfc as exact
+
+    from apt_filters.core.special import ERROR, erfc, erfc_scalar
+
+    # dense over the table (every interval's worst point included) and beyond it on both sides
+    x = np.r_[np.linspace(-8.0, 8.0, 2_000_001), np.random.default_rng(0).uniform(-7.0, 7.0, 1_000_000)]
+    error = np.abs(erfc(x) - exact(x))
+    assert error.max() <= ERROR, error.max()
+    assert error.max() > 0.5 * ERROR  # the bound is the interpolation's, not a loose one
+    assert erfc_scalar(-30.0) == 2.0 and erfc_scalar(30.0) == 0.0 and erfc_scalar(0.0) == 1.0
+    assert np.isnan(erfc(np.array([np.nan])))[0] and erfc(np.array([-np.inf, np.inf])).tolist() == [2.0, 0.0]

@@ -18,6 +18,7 @@ import pytest
 from numba import njit
 from scipy.special import erfc
 
+from apt_filters.core.special import erfc_scalar
 from apt_filters.refine.blur import lateral_blur, peak_blur
 from apt_filters.refine.facets import edge_and_corner_steps, facet_steps, find_facets
 from apt_filters.refine.spectral import harmonics, low_pass, rim_held_low_pass
@@ -428,7 +429,7 @@ def test_planes_of_a_lath_whose_interface_profile_follows_its_distance_are_not_m
 @njit
 def _naive_parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
     """The mixture over the parallel polyhedra as first written, every node's sine and cosine once per point: the
-    oracle of :func:`apt_filters.refine.facets._parallel_mixture`."""
+    oracle of :func:`apt_filters.refine.facets._parallel_mixture` (with its erfc, the tabulated one)."""
     out = np.zeros(len(s1))
     root2b = math.sqrt(2.0) * blur
     for k in range(len(t)):
@@ -436,14 +437,14 @@ def _naive_parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
         radius = max(rounding + shift, 0.0)
         for i in range(len(s1)):
             a, b = s1[i] - shift, s2[i] - shift
-            value = 0.25 * math.erfc(a / root2b) * math.erfc((radius + b) / root2b)
+            value = 0.25 * erfc_scalar(a / root2b) * erfc_scalar((radius + b) / root2b)
             if radius > 0.0:
                 for j in range(len(x)):
                     theta = 0.25 * math.pi * (x[j] + 1.0)
                     along = -radius + radius * math.sin(theta)
                     edge = -radius + radius * math.cos(theta)
                     density = math.exp(-0.5 * ((along - b) / blur) ** 2) / (math.sqrt(2.0 * math.pi) * blur)
-                    value += density * 0.5 * math.erfc((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
+                    value += density * 0.5 * erfc_scalar((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
                         * math.cos(theta)
             out[i] += g[k] * value
     return out
@@ -463,7 +464,7 @@ def _naive_blurred_profile(s1, s2, rounding, interface, blur, t, g):
                 b = s2[i] + blur * t[k] + rounding
                 outside = math.sqrt(max(a, 0.0) ** 2 + max(b, 0.0) ** 2)
                 distance = (outside if outside > 0.0 else max(a, b)) - rounding
-                value += g[j] * g[k] * 0.5 * math.erfc(distance / root2a)
+                value += g[j] * g[k] * 0.5 * erfc_scalar(distance / root2a)
         out[i] = value
     return out
 

@@ -71,9 +71,9 @@ import numpy as np
 from numba import njit
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
-from scipy.special import erfc
 
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
+from apt_filters.core.special import erfc, erfc_scalar
 from apt_filters.refine.band import adjacency
 from apt_filters.refine.blur import vertex_areas
 
@@ -734,13 +734,13 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx):
         radius = max(rounding + shift, 0.0)
         for i in range(len(s1)):
             a, b = s1[i] - shift, s2[i] - shift
-            value = 0.25 * math.erfc(a / root2b) * math.erfc((radius + b) / root2b)
+            value = 0.25 * erfc_scalar(a / root2b) * erfc_scalar((radius + b) / root2b)
             if radius > 0.0:
                 for j in range(len(x)):
                     along = -radius + radius * sine[j]
                     edge = -radius + radius * cosine[j]
                     density = math.exp(-0.5 * ((along - b) / blur) ** 2) / norm
-                    value += density * 0.5 * math.erfc((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
+                    value += density * 0.5 * erfc_scalar((a - edge) / root2b) * 0.25 * math.pi * gx[j] * radius \
                         * cosine[j]
             out[i] += g[k] * value
     return out
@@ -761,8 +761,8 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
         for j in range(n):
             a[j] = s1[i] + blur * t[j] + rounding
             b[j] = s2[i] + blur * t[j] + rounding
-            step_a[j] = math.erfc((a[j] - rounding) / root2a)
-            step_b[j] = math.erfc((b[j] - rounding) / root2a)
+            step_a[j] = erfc_scalar((a[j] - rounding) / root2a)
+            step_b[j] = erfc_scalar((b[j] - rounding) / root2a)
         value = 0.0
         for j in range(n):
             for k in range(n):
@@ -776,7 +776,7 @@ def _blurred_profile(s1, s2, rounding, interface, blur, t, g):
                         step = step_b[k]
                     else:
                         distance = (outside if outside > 0.0 else max(a[j], b[k])) - rounding
-                        step = math.erfc(distance / root2a)
+                        step = erfc_scalar(distance / root2a)
                 value += g[j] * g[k] * 0.5 * step
         out[i] = value
     return out
@@ -826,33 +826,55 @@ def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np
     as ``np.prod`` takes them from the sorted distances (the same numbers). With ``planes`` (p,) int64, the same
     for each plane ``planes[j]`` nudged, its distances and steps ``columns[:, j]`` and ``column_steps[:, j]``
     (b, p) instead of its own (without copies of the whole arrays): (b, p) products, and (b, p, 2) the nudged
-    rows' largest and second largest distances (-inf for a single plane)."""
+    rows' largest and second largest distances (-inf for a single plane).
+
+    Each row is sorted once (stably: equal distances in the planes' order, as ``np.sort`` leaves them); a nudged
+    row's order is that order with the nudged plane taken out and put back where its new distance goes, so that
+    its product is taken over the same factors in the same order as a sort of the nudged row would give."""
     b, m = distance.shape
     p = planes.shape[0]
     out = np.empty((b, max(p, 1)))
     top = np.full((b, p, 2), -np.inf)
     rank = np.empty(m, dtype=np.int64)
-    row, row_steps = np.empty(m), np.empty(m)
+    moved = np.empty(m, dtype=np.int64)
     for i in range(b):
-        for n in range(max(p, 1)):
-            for j in range(m):
-                row[j], row_steps[j] = distance[i, j], steps[i, j]
-            if p > 0:
-                row[planes[n]], row_steps[planes[n]] = columns[i, n], column_steps[i, n]
-            for j in range(m):  # insertion sort of the planes by distance: m is small
-                k = j
-                while k > 0 and row[rank[k - 1]] > row[j]:
-                    rank[k] = rank[k - 1]
-                    k -= 1
-                rank[k] = j
+        for j in range(m):  # insertion sort of the planes by distance (stable): m is small
+            k = j
+            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+                rank[k] = rank[k - 1]
+                k -= 1
+            rank[k] = j
+        if p == 0:
             value = 1.0
             for j in range(m - 2):
-                value *= row_steps[rank[j]]
+                value *= steps[i, rank[j]]
+            out[i, 0] = value
+            continue
+        for n in range(p):
+            plane, nudged = planes[n], columns[i, n]
+            # the nudged plane's place among the others: after every plane it sorts after (smaller distance, or
+            # the same and a lower index), as the stable sort of the nudged row puts it
+            count = 0
+            for j in range(m):
+                other = rank[j]
+                if other != plane:
+                    moved[count] = other
+                    count += 1
+            at = 0
+            while at < m - 1 and (distance[i, moved[at]] < nudged
+                                  or (distance[i, moved[at]] == nudged and moved[at] < plane)):
+                at += 1
+            for j in range(m - 1, at, -1):
+                moved[j] = moved[j - 1]
+            moved[at] = plane
+            value = 1.0
+            for j in range(m - 2):
+                q = moved[j]
+                value *= column_steps[i, n] if q == plane else steps[i, q]
             out[i, n] = value
-            if p > 0:
-                top[i, n, 0] = row[rank[m - 1]]
-                if m > 1:
-                    top[i, n, 1] = row[rank[m - 2]]
+            top[i, n, 0] = nudged if moved[m - 1] == plane else distance[i, moved[m - 1]]
+            if m > 1:
+                top[i, n, 1] = nudged if moved[m - 2] == plane else distance[i, moved[m - 2]]
     return out, top
 
 
