@@ -519,8 +519,12 @@ def judged(found: list[Facet], halves: list[list[Facet]], cap: float = 20.0) -> 
     for c in sorted({f.component for f in found}):
         mine = [f for f in found if f.component == c]
         theirs = [[h for h in half if h.component == c] for half in halves]
-        if closes(mine) and not any(len(t) and closes(t) for t in theirs):
+        closing = [t for t in theirs if len(t) and closes(t)]
+        if closes(mine) and not closing:
             mine = [f for f in mine if any(float(h.normal @ f.normal) > cosine for t in theirs for h in t)]
+        elif closes(mine):  # the faces a closing half found that the whole's search missed
+            for t in closing:
+                mine = mine + [h for h in t if not any(float(h.normal @ f.normal) > cosine for f in mine)]
         out += mine
     return out
 
@@ -647,9 +651,16 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     turned = np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(2 * np.radians(cap))
     if turned.any() or not _normals_close(normals):
         return list(facets)
+    # one face fitted twice (a face a half found and the whole found tilted, :func:`judged`): the outer plane
+    # bounds nothing the inner one does not, and its vertices are the inner face's
+    same = np.cos(np.radians(cap))
+    face = [k for k in range(m) if not any(normals[k] @ normals[j] > same and
+                                           (params[j, 2], j) < (params[k, 2], k) for j in range(m) if j != k)]
+    normals, params = normals[face], params[face]
     shift, rounding = edge_rounding(q @ normals.T - params[:, 2], u, weight, width)
-    return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2] + shift[k]), f.vertices, f.core,
-                  f.area, f.rms, rounding) for k, f in enumerate(facets)]
+    return [Facet(facets[k].component, normals[i], float(normals[i] @ centre + params[i, 2] + shift[i]),
+                  facets[k].vertices, facets[k].core, facets[k].area, facets[k].rms, rounding)
+            for i, k in enumerate(face)]
 
 
 def rounded_scores(signed: np.ndarray, rounding: float, width: float, share: float = 1.0,
