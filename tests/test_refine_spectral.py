@@ -336,6 +336,37 @@ def test_closing_facets_no_half_found_are_left_to_the_halves_judgement():
     assert len(judged(other + whole[:2], [closed[:2], []])) == 2
 
 
+def test_a_face_the_whole_missed_is_taken_from_a_closing_half_and_fitted_once():
+    # held-out artefact 10004's 4 x 5 x 4 nm cuboid: the whole's search missed its -x face and closed it with five
+    # facets tilted toward it by up to 38° (its corners then 1.3 nm out), whose planes the ions' fit no longer
+    # closes; one half found all six. The half's faces the whole lacks (the -x face, and the +y face a second
+    # time: the half's and the whole's tilted one are 72° apart) complete it, and the joint fit to the ions keeps
+    # one plane per face, the inner one of a face fitted twice
+    from apt_filters.refine.facets import Facet, closes, fit_to_ions, missed
+
+    box, p, u = _blurred_cube_ions(0, 0.9, 0.05)
+    axes = box.rotation.T  # rows: the cube's axes in the world frame
+    none = np.zeros(1, dtype=np.int64)
+
+    def facet(local, offset=3.0):
+        n = np.asarray(local, dtype=float) @ axes
+        n /= np.linalg.norm(n)
+        return Facet(0, n, float(n @ box.center + offset), none, none, 5.0, 0.2)
+
+    whole = [facet(n) for n in ((0.25, 0.06, 0.97), (-0.25, -0.15, -0.96), (0.94, 0.0, -0.33), (-0.5, 0.79, 0.36),
+                                (-0.08, -0.89, 0.44))]
+    half = [facet(n) for n in ((0.98, 0.16, -0.12), (0.23, 0.07, 0.97), (-0.18, -0.15, -0.97), (-1.0, 0.04, 0.03),
+                               (0.14, 0.77, -0.63), (0.02, -0.96, 0.29))]
+    assert closes(whole) and closes(half)
+    assert all(a is b for a, b in zip(fit_to_ions(whole, p, u, np.ones(len(p)), 0.3), whole))  # the fit fails
+    spare = missed(whole, [[], half])
+    assert list(spare) == [0] and len(spare[0]) == 2 and any(f.normal @ -axes[0] > 0.99 for f in spare[0])
+    assert missed(whole, [[], half[:5]]) == {} and missed(whole[:4], [half, half]) == {}  # only both closing
+    fitted = fit_to_ions(whole + spare[0], p, u, np.ones(len(p)), 0.3)
+    tilt, offset = _plane_errors(box, fitted)
+    assert len(fitted) == 6 and tilt.max() < 2.0 and np.abs(offset).max() < 0.05, (tilt, offset)
+
+
 def test_rounded_edges_stay_rounded_as_their_ions_show():
     from dataclasses import replace
 

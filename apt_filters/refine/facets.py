@@ -525,6 +525,31 @@ def judged(found: list[Facet], halves: list[list[Facet]], cap: float = 20.0) -> 
     return out
 
 
+def missed(found: list[Facet], halves: list[list[Facet]], cap: float = 20.0) -> dict[int, list[Facet]]:
+    """Per object whose facets ``found`` close it (:func:`closes`): the facets of the halves that close it too
+    (``halves``, each half of the ions' own) with no counterpart among ``found`` (none within ``cap`` degrees), in
+    turn: the faces the whole's search may have missed (:func:`~apt_filters.refine.surface.refine_surface` adds
+    them only where the whole's planes fail the ions' fit, :func:`fit_to_ions`).
+
+    Held-out artefact 10004's 4 x 5 x 4 nm cuboid: the whole's search missed its -x face, and its five facets
+    closed it only because the neighbouring faces' planes, fitted to vertices, tilted toward the gap by up to
+    38°; its corners stood 1.3 nm out. One half had found all six.
+    """
+    cosine = np.cos(np.radians(cap))
+    out = {}
+    for c in sorted({f.component for f in found}):
+        mine = [f for f in found if f.component == c]
+        if not closes(mine):
+            continue
+        extra: list[Facet] = []
+        for t in ([h for h in half if h.component == c] for half in halves):
+            if len(t) and closes(t):
+                extra += [h for h in t if not any(float(h.normal @ f.normal) > cosine for f in mine + extra)]
+        if extra:
+            out[c] = extra
+    return out
+
+
 def closes(facets: list[Facet], margin: float = 0.25) -> bool:
     """Whether the facets' half-spaces bound a polyhedron: the hull of their unit normals holds the origin at
     least ``margin`` inside (a cube's at 0.58, a regular tetrahedron's at 0.33).
@@ -647,9 +672,16 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     turned = np.einsum("ij,ij->i", normals, [f.normal for f in facets]) < np.cos(2 * np.radians(cap))
     if turned.any() or not _normals_close(normals):
         return list(facets)
+    # one face fitted twice (a face a half found and the whole found tilted, :func:`missed`): the outer plane
+    # bounds nothing the inner one does not, and its vertices are the inner face's
+    same = np.cos(np.radians(cap))
+    face = [k for k in range(m) if not any(normals[k] @ normals[j] > same and
+                                           (params[j, 2], j) < (params[k, 2], k) for j in range(m) if j != k)]
+    normals, params = normals[face], params[face]
     shift, rounding = edge_rounding(q @ normals.T - params[:, 2], u, weight, width)
-    return [Facet(f.component, normals[k], float(normals[k] @ centre + params[k, 2] + shift[k]), f.vertices, f.core,
-                  f.area, f.rms, rounding) for k, f in enumerate(facets)]
+    return [Facet(facets[k].component, normals[i], float(normals[i] @ centre + params[i, 2] + shift[i]),
+                  facets[k].vertices, facets[k].core, facets[k].area, facets[k].rms, rounding)
+            for i, k in enumerate(face)]
 
 
 def rounded_scores(signed: np.ndarray, rounding: float, width: float, share: float = 1.0,
