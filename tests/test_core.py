@@ -111,7 +111,6 @@ def test_face_components_numbered_by_first_face():
     assert shuffled.face_components().tolist() == [0] * 12 + [1] * 12
 
 
-
 def test_merge_keeps_used_vertices_and_the_scalars_every_part_has():
     a = unit_cube()
     # a spare vertex that no face uses, and a scalar only the first part carries

@@ -606,9 +606,9 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     ``m^2 - var m + var P``, by more than :data:`PROFILE_SE` standard errors of that difference from ``P``'s own
     error (the delta method; both biases are read off ``P``, so ``P`` lying off by chance makes ``S`` look biased
     and would choose ``P`` where it is wrong: held-out artefact 10004, a 2 nm cube whose profile of 34 atoms'
-    worth read 45 at.% against its window's 33 and a true 34). A window deep enough (``g_in`` 1) with many atoms keeps its level where the profile
-    disagrees with it (a large sphere's); a thin object's few window atoms, whose level is the pool's, give way
-    to the profile where the pool lies off it by more than their errors.
+    worth read 45 at.% against its window's 33 and a true 34). A window deep enough (``g_in`` 1) with many atoms
+    keeps its level where the profile disagrees with it (a large sphere's); a thin object's few window atoms, whose
+    level is the pool's, give way to the profile where the pool lies off it by more than their errors.
 
     Parameters
     ----------

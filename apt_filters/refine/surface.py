@@ -1027,9 +1027,10 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     lath's narrow faces (eight 3 nm spheres, ``cross_fit=False``: crowd ratios 1.2-3.3 against the laths'
     1.9-3.5), and every one of them was closed by 6-7 such facets; only the held-out test tells them apart."""
     found = find_facets(placed.vertices, faces, **({"peak": np.inf} if unjudged else {})) if facets else []
+    spare = None
     if halves is not None:
         found = judged(found, halves)
-    spare = missed(found, halves) if halves is not None else None
+        spare = missed(found, halves)
     return (_fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}, spare=spare)
             if found else [])
 

@@ -151,7 +151,8 @@ def evaluate(mesh: TriMesh, shape, voxel: float, density: float = 20.0, seed: in
     to_mesh = mesh_distance(mesh, tp)
     nearest = cKDTree(tp).query(mp)[1]
     edge_rng = np.random.default_rng(seed + 1)
-    edges = (edge_against(mesh, shape, voxel, edge_rng) if edges else dict.fromkeys(["edge_chamfer", "edge_precision", "edge_recall", "edge_f1"], np.nan))
+    edges = (edge_against(mesh, shape, voxel, edge_rng) if edges
+             else dict.fromkeys(["edge_chamfer", "edge_precision", "edge_recall", "edge_f1"], np.nan))
     quality = triangle_quality(mesh)
     return MeshReport(
         hausdorff=max(to_true.max(), to_mesh.max()) / voxel,

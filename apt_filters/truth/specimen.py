@@ -48,8 +48,11 @@ def iso_shapes(truth: dict, species: str, iso: float) -> list:
     """The true objects (:mod:`apt_filters.synth.shapes`, nm) whose surfaces make a specimen's iso-surface of
     ``species`` at ``iso`` (fraction): the bounded features of ``truth.json`` whose inside and outside fractions of
     ``species`` lie on either side of ``iso`` (a Cr-rich plate has no Al 15 at.% surface)."""
-    return [shape_from_params(f["shape"]) for f in truth["features"] if f["bounded"]
-            and (f["composition_inside"].get(species, 0.0) - iso) * (f["composition_outside"].get(species, 0.0) - iso) < 0]
+    def crosses(f) -> bool:
+        inside, outside = (f[side].get(species, 0.0) for side in ("composition_inside", "composition_outside"))
+        return (inside - iso) * (outside - iso) < 0
+
+    return [shape_from_params(f["shape"]) for f in truth["features"] if f["bounded"] and crosses(f)]
 
 
 def counted_truths(truth: dict, ions: IonTable, ranges: RangeTable) -> tuple[list[str], dict[int, CountedTruth]]:
