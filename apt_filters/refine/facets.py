@@ -858,14 +858,16 @@ def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np
     as ``np.prod`` takes them from the sorted distances (the same numbers). With ``planes`` (p,) int64, the same
     for each plane ``planes[j]`` nudged, its distances and steps ``columns[:, j]`` and ``column_steps[:, j]``
     (b, p) instead of its own (without copies of the whole arrays): (b, p) products, and (b, p, 2) the nudged
-    rows' largest and second largest distances (-inf for a single plane).
+    rows' largest and second largest distances (-inf for a single plane). Returns the (b,) products, the (b, p)
+    nudged ones and (b, p, 2) their largest distances: the rows are sorted once for both.
 
     Each row is sorted once (stably: equal distances in the planes' order, as ``np.sort`` leaves them); a nudged
     row's order is that order with the nudged plane taken out and put back where its new distance goes, so that
     its product is taken over the same factors in the same order as a sort of the nudged row would give."""
     b, m = distance.shape
     p = planes.shape[0]
-    out = np.empty((b, max(p, 1)))
+    base = np.empty(b)
+    out = np.empty((b, p))
     top = np.full((b, p, 2), -np.inf)
     rank = np.empty(m, dtype=np.int64)
     moved = np.empty(m, dtype=np.int64)
@@ -876,12 +878,10 @@ def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np
                 rank[k] = rank[k - 1]
                 k -= 1
             rank[k] = j
-        if p == 0:
-            value = 1.0
-            for j in range(m - 2):
-                value *= steps[i, rank[j]]
-            out[i, 0] = value
-            continue
+        value = 1.0
+        for j in range(m - 2):
+            value *= steps[i, rank[j]]
+        base[i] = value
         for n in range(p):
             plane, nudged = planes[n], columns[i, n]
             # the nudged plane's place among the others: after every plane it sorts after (smaller distance, or
@@ -907,7 +907,7 @@ def _product_of_others(distance, steps, planes=np.empty(0, np.int64), columns=np
             top[i, n, 0] = nudged if moved[m - 1] == plane else distance[i, moved[m - 1]]
             if m > 1:
                 top[i, n, 1] = nudged if moved[m - 2] == plane else distance[i, moved[m - 2]]
-    return out, top
+    return base, out, top
 
 
 def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float, share: float, width: float,
@@ -923,13 +923,14 @@ def _forward_differences(signed: np.ndarray, shift: np.ndarray, rounding: float,
     order = np.sort(distance, axis=1)
     # each plane's step, the factors of _other_steps: a nudge changes one plane's
     steps = 0.5 * erfc(distance / (np.sqrt(2) * width))
-    edge, others = _edge_scores(order, rounding, width, share), _product_of_others(distance, steps)[0][:, 0]
-    base = edge * others
-    jac = np.empty((len(signed), m + 3))
     planes = np.flatnonzero(free[:m]).astype(np.int64)
     # every nudged plane's distances and steps at once; each row's products and largest two distances in one pass
     columns = signed[:, planes] - (shift[planes] + h)
-    products, top = _product_of_others(distance, steps, planes, columns, 0.5 * erfc(columns / (np.sqrt(2) * width)))
+    others, products, top = _product_of_others(distance, steps, planes, columns,
+                                               0.5 * erfc(columns / (np.sqrt(2) * width)))
+    edge = _edge_scores(order, rounding, width, share)
+    base = edge * others
+    jac = np.empty((len(signed), m + 3))
     for n, k in enumerate(planes):
         # nudging plane k out lowers its distances: where it is not among an ion's two nearest planes, that
         # ion's edge part stays as it is and only the other planes' steps change

@@ -289,7 +289,12 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     # far from the centre in blur units (chndtr is slow there): the planar step shifted by the curvature,
     # P(|x + blur N| < edge) ~ Phi((edge - r - (dims - 1) s^2 / 2r) / s) to O((s / r)^2)
     far = nc > 900.0
-    some = (x > 0) & ~far  # a node whose ball has shrunk to nothing holds nothing
+    # more than 9 blurs inside a node's edge chndtr is exactly 1, more than 9 outside below 1e-19 (both measured
+    # on 400,000 points per dims in [1, 3]): it is evaluated only between
+    gap = (edge[None, :] - r[:, None]) / s
+    inside = (gap > 9.0) & ~far
+    cdf[inside] = 1.0
+    some = (x > 0) & ~far & ~inside & (gap >= -9.0)  # a node whose ball has shrunk to nothing holds nothing
     cdf[some] = chndtr(x[some], dims, nc[some])
     r_far, edge_far = np.sqrt(nc[far]) * s, np.sqrt(x[far]) * s
     cdf[far] = ndtr((edge_far - r_far - (dims - 1) * s ** 2 / (2 * r_far)) / s)
