@@ -324,3 +324,54 @@ def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_w
 
     assert C_IN - level(np.zeros(2)).inside[0] > 2 * sigma, (level(np.zeros(2)).inside, sigma)  # no profiles: as main
     assert abs(level(profiles).inside[0] - C_IN) <= 2 * sigma, (level(profiles).inside, sigma)
+
+
+def test_objects_of_one_phase_fitted_together_read_their_level_within_its_worth():
+    # two small spheres of one phase (1.5 and 1.8 nm, 0.8 nm wide interface, 120 ions/nm³), fitted together (one
+    # inside and one outside level, each its own offset and width): each object's fitted offset is its true one
+    # (the surface 0.1 nm outside) within 2 of its SEs, and the level is the truth within 2 sigma of its stated worth,
+    # which carries the objects' whole joint covariance (their blocks alone state 570 atoms, and the truth lies 1.9 of
+    # that sigma off; the small sphere's own profile reads 51 at.%, truth 41)
+    from apt_filters.refine.levels import fit_balls, profile_levels
+    d, iso, group, radius = [], [], [], []
+    for c, (r, seed) in enumerate(((1.5, 7), (1.8, 8))):
+        dc, ic, surface = _erf_sphere(r, 120.0, seed)
+        d.append(dc)
+        iso.append(ic)
+        group.append(np.full(len(dc), c))
+        radius.append(surface)
+    d, iso, group, radius = map(np.concatenate, (d, iso, group, [radius]))
+    dims = np.full(2, 3.0)
+    joint, cov = fit_balls(d, iso, np.ones_like(iso), group, radius=radius, dims=dims, blur=BLUR,
+                           half_width=WINDOW[1])
+    assert sorted(joint) == [0, 1] and cov.shape == (4, 4)
+    for c, fit in joint.items():
+        assert abs(fit.offset + 0.1) <= 2 * fit.offset_se, (c, fit.offset, fit.offset_se)
+    inside, worth = profile_levels(d, np.column_stack([iso, 1 - iso]), 0, joint, radius=radius, dims=dims, blur=BLUR,
+                                   half_width=WINDOW[1], group=group, cov=cov)
+    blocks = profile_levels(d, np.column_stack([iso, 1 - iso]), 0, joint, radius=radius, dims=dims, blur=BLUR,
+                            half_width=WINDOW[1], group=group, cov=np.kron(np.eye(2), np.ones((2, 2))) * cov)[1]
+    assert worth < blocks, (worth, blocks)
+    assert abs(inside[0] - C_IN) <= 2 * np.sqrt(C_IN * (1 - C_IN) / worth), (inside, worth)
+
+
+@pytest.mark.parametrize("radius, width, short", [(4.0, 0.25, False), (2.3, 0.8, True)])
+def test_a_window_is_short_of_its_plateau_where_its_miss_exceeds_its_counting_error(radius, width, short):
+    # the joint level is offered only to a window short of its plateau. Under the true ball (offset, width, levels)
+    # a 4 nm sphere under a sharp interface fills its inside window (share 0.998 of 14,400 atoms: 0.06 points short
+    # against an error of 0.41): not short, and the window reads the inside level within its counting error; a
+    # 2.3 nm sphere under a 0.8 nm interface fills 0.905 of its window (1,400 atoms): 3.6 points short against an
+    # error of 1.3, and the window reads the level 4.2 points low
+    from apt_filters.refine.levels import BallFit, short_of_plateau
+    d, iso, surface = _erf_sphere(radius, 120.0, 11, width=width)
+    inside = (d <= -WINDOW[0]) & (d >= -WINDOW[1])
+    window = np.array([iso[inside].sum(), (1 - iso[inside]).sum()])
+    truth = BallFit(-0.1, width, C_IN, C_OUT, np.zeros((2, 2)))
+    g_in = ball_profile(d[inside] + 0.1, radius=radius, dims=3.0, width=width, blur=BLUR).mean()
+    w = window[0] / window.sum()
+    se = np.sqrt(w * (1 - w) / window.sum())
+    assert short_of_plateau(window, truth, g_in, 0) == short, (g_in, window)
+    if short:
+        assert C_IN - w > se, (w, se)
+    else:
+        assert abs(C_IN - w) <= 2 * se, (w, se)

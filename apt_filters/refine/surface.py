@@ -93,7 +93,7 @@ from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
-from apt_filters.refine.crossval import (CANDIDATES, SCORED, ModeSelection, apply_modes, basis_size,
+from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelection, apply_modes, basis_size,
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
 from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions,
@@ -101,10 +101,10 @@ from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, fac
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, ObjectLevels, ball_profile, chosen_pools, crossing_share,
-                                      fit_ball, held_out_gain, levels_from_sums, object_shapes, plateau_sums,
-                                      plateaus, profile_better, profile_levels, unmixed_sums, unmixing_shift,
-                                      window_labels)
+from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, ball_profile, chosen_pools,
+                                      crossing_share, fit_ball, fit_balls, held_out_gain, levels_from_sums,
+                                      object_shapes, plateau_sums, plateaus, profile_better, profile_levels,
+                                      short_of_plateau, unmixed_sums, unmixing_shift, window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -749,7 +749,12 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     at low contrast) unmixes by shares it does not know. An object not unmixed takes its inside level from its
     whole fitted profile (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the
     truth than its shrunk window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
-    inside window holds a few atoms of its axis and whose level is then the pool's. Such an object's surface is
+    inside window holds a few atoms of its axis and whose level is then the pool's. Where two or more objects are
+    closed they are also fitted together (shared levels, :func:`~apt_filters.refine.levels.fit_balls`): an object
+    whose own ball is refused is put to the same tests with the joint ball, and one whose own profile level is
+    refused is offered the joint profile level where the joint ball's held-out gain exceeds one standard error and
+    its inside window falls short of its plateau by more than its counting error
+    (:func:`~apt_filters.refine.levels.short_of_plateau`). Such an object's surface is
     placed where its step, taken at the share of that level its blurred profile calls for, stops at its fitted
     interface (:func:`~apt_filters.refine.levels.crossing_share`).
 
@@ -818,8 +823,21 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         if fit is None:
             return None
         level = profile_levels(distance[mine], atoms[mine], k, fit, **ball)
-        if gain is not None and gain[0] > BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
-            shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], fit,
+        # the object's own ball, else the ball fitted with the other objects of its phase (shared levels: a small
+        # object's own levels trade off against its interface), each judged on the held-out ions
+        candidates = [(gain, fit)]
+        if c in joint[2]:
+            candidates.append((held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine],
+                                             fits=(joint[0][c], joint[1][c]), **ball), joint[2][c]))
+        # the joint level is offered below only where the held-out ions prefer the joint ball to the windows by the
+        # one-standard-error rule (the mode selection's): windows that reach their plateau keep their own level
+        # rather than borrow the other objects' atoms (a 4 nm sphere under a sharp interface beside a small one)
+        offered = len(candidates) > 1 and candidates[1][0] is not None and \
+            candidates[1][0][0] > ONE_SE * candidates[1][0][1]
+        for gain, model in candidates:
+            if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
+                continue
+            shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], model,
                                                   radius=radius[c], dims=dims[c], blur=sigma)
             # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not
             # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
@@ -828,18 +846,40 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
                 return shares, None, 1.0, level
         # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
-        g_in = (np.average(ball_profile(distance[deep] - fit.offset, radius=max(radius[c] + fit.offset, 0.0),
-                                        dims=dims[c], width=max(fit.width, 0.02), blur=sigma), weights=total[deep])
-                if total[deep].sum() > 0 else 1.0)
-        if level is None or not profile_better(level, fit, sums[c, 0], pool, g_in, k, p.plateau_prior):
-            return None, None, 1.0, level
-        return None, level[0] * level[1], crossing_share(
-            distance[mine], total[mine], fit, radius=radius[c], dims=dims[c], blur=sigma,
-            lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + fit.offset, 1e-3), half_width=p.half_width,
-            bin_width=p.bin_width), level
 
-    # the objects are independent (their profiles' special functions release the GIL): every core busy
+        def inside_share(model: BallFit) -> float:  # the inside window's mean share of the inside phase
+            return (np.average(ball_profile(distance[deep] - model.offset, radius=max(radius[c] + model.offset, 0.0),
+                                            dims=dims[c], width=max(model.width, 0.02), blur=sigma),
+                               weights=total[deep]) if total[deep].sum() > 0 else 1.0)
+
+        # its own profile's level, else the level of every closed object's profile fitted together (shared levels),
+        # offered only where its window falls short of its plateau by more than its own counting error: a window
+        # at its plateau keeps its level (a level change within its error still moves the surface and what is read
+        # off it, its facets and the shared segregant marker, for a gain in precision the windows' shrinkage
+        # already takes: dev rod 3's fourth rod, docs/refine.md)
+        routes = [(level, fit)]
+        if offered and together is not None and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]),
+                                                                 k):
+            routes.append((together, joint[2][c]))
+        for taken, model in routes:
+            g_in = inside_share(model)
+            if taken is not None and profile_better(taken, model, sums[c, 0], pool, g_in, k, p.plateau_prior):
+                return None, taken[0] * taken[1], crossing_share(
+                    distance[mine], total[mine], model, radius=radius[c], dims=dims[c], blur=sigma,
+                    lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + model.offset, 1e-3),
+                    half_width=p.half_width, bin_width=p.bin_width), level
+        return None, None, 1.0, level
+
     objects = np.flatnonzero(closed).tolist()
+    # the closed objects fitted together (shared levels) on each half and on all ions (fit_balls); {} for fewer than two
+    some = np.isin(comp, objects) & (np.abs(distance) <= p.plateau_window[1])
+    joint = [fit_balls(distance[some & sel], part[some & sel], total[some & sel], comp[some & sel], radius=radius,
+                       dims=dims, blur=sigma, half_width=p.plateau_window[1])
+             for sel in (half == 0, half == 1, np.ones(len(comp), dtype=bool))]
+    together = (profile_levels(distance, atoms, k, joint[2][0], radius=radius, dims=dims, blur=sigma,
+                               half_width=p.plateau_window[1], group=comp, cov=joint[2][1]) if joint[2][0] else None)
+    joint = [fits for fits, _ in joint]
+    # the objects are independent (their profiles' special functions release the GIL): every core busy
     # the pool of the model's levels: every closed object's profile level by its worth in atoms
     shared = np.zeros(len(held[0].atoms.elements))
     for c, result in zip(objects, per_item(level_of, objects)):
