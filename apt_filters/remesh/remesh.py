@@ -360,7 +360,8 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
     tol = tolerance * edge
     points, miss, far_faces = [], [], []
     for a, b, sel, engine in ((mesh, out, mask, None), (out, mesh, out_mask, surface)):
-        d = check.farthest(a, b, np.where(sel, np.arange(a.n_faces), -1), a.n_faces, tol, surface=engine)
+        d = check.farthest(a, b, np.where(sel, np.arange(a.n_faces), -1), a.n_faces, tol, surface=engine,
+                           floor=0.5 * tol)
         far = d > 0.5 * tol  # where the factor below exceeds 1
         points.append(a.vertices[a.faces[far]].mean(axis=1))
         miss.append(d[far])
