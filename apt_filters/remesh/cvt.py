@@ -350,12 +350,43 @@ def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.nda
     return samples.groups(flag, features.patch, features.n_patches)
 
 
+# Up to this many reference points, _knn compares every pair in a compiled loop instead of building a
+# KD-tree: bumpy surfaces have hundreds of small patches, and a tree per patch's group cost more in calls
+# than in search (the same neighbours, nearest first).
+_BRUTE_KNN = 32
+
+
 def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
-    """(q, k) indices of the k nearest reference points (scipy KD-tree; open3d's gave the same
-    indices at the same speed)."""
+    """(q, k) indices of the k nearest reference points, nearest first (scipy KD-tree; open3d's gave the same
+    indices at the same speed; up to ``_BRUTE_KNN`` reference points every pair compared)."""
+    if len(reference) <= _BRUTE_KNN:
+        return _brute_knn(np.ascontiguousarray(reference, np.float64), np.ascontiguousarray(queries, np.float64), k)
     from scipy.spatial import cKDTree
 
     return cKDTree(reference).query(queries, k)[1].astype(np.int64).reshape(len(queries), k)
+
+
+@njit(cache=True)
+def _brute_knn(reference, queries, k):
+    """:func:`_knn` by comparing every pair: (q, k) int64, the lower index first among equal distances."""
+    out = np.empty((len(queries), k), np.int64)
+    best = np.empty(k)
+    for i in range(len(queries)):
+        n = 0
+        for j in range(len(reference)):
+            d = (queries[i, 0] - reference[j, 0]) ** 2 + (queries[i, 1] - reference[j, 1]) ** 2 \
+                + (queries[i, 2] - reference[j, 2]) ** 2
+            if n == k and d >= best[k - 1]:
+                continue
+            pos = min(n, k - 1)
+            while pos > 0 and best[pos - 1] > d:  # insertion into the sorted k best
+                best[pos] = best[pos - 1]
+                out[i, pos] = out[i, pos - 1]
+                pos -= 1
+            best[pos] = d
+            out[i, pos] = j
+            n = min(n + 1, k)
+    return out
 
 
 class _Candidates:
