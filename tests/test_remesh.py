@@ -462,6 +462,6 @@ def test_curve_steps_are_the_one_dimensional_lloyd_step():
     arc = np.array([1.0, 2.0, 6.5])
     positions = np.zeros((3, 3))
     cvt._CurveSteps([curve], [np.arange(3)]).step(arc, positions)
-    cells = [(0.0, 1.5), (1.5, 4.25), (4.25, 7.0)]
+    cells = [(0.5, 1.5), (1.5, 4.25), (4.25, 6.75)]  # between midpoints to the neighbours, end corners included
     assert np.allclose(arc, [0.5 * (a + b) for a, b in cells])
-    assert np.allclose(positions, [[0.75, 0, 0], [2.875, 0, 0], [4.0, 1.625, 0]])
+    assert np.allclose(positions, [[1.0, 0, 0], [2.875, 0, 0], [4.0, 1.5, 0]])
