@@ -376,17 +376,25 @@ def _brute_knn(reference, queries, k):
         for j in range(len(reference)):
             d = (queries[i, 0] - reference[j, 0]) ** 2 + (queries[i, 1] - reference[j, 1]) ** 2 \
                 + (queries[i, 2] - reference[j, 2]) ** 2
-            if n == k and d >= best[k - 1]:
-                continue
-            pos = min(n, k - 1)
-            while pos > 0 and best[pos - 1] > d:  # insertion into the sorted k best
-                best[pos] = best[pos - 1]
-                out[i, pos] = out[i, pos - 1]
-                pos -= 1
-            best[pos] = d
-            out[i, pos] = j
-            n = min(n + 1, k)
+            n = _keep_nearest(best, out[i], n, d, j)
     return out
+
+
+@njit(nogil=True, cache=True)
+def _keep_nearest(best, ids, n, d, h):
+    """Candidate ``h`` at squared distance ``d`` inserted into the ``n`` nearest so far (``best`` (k,) ascending,
+    ``ids`` (k,) theirs; a later candidate at an equal distance goes after): the new count, at most k."""
+    k = len(best)
+    if n == k and d >= best[k - 1]:
+        return n
+    pos = min(n, k - 1)
+    while pos > 0 and best[pos - 1] > d:
+        best[pos] = best[pos - 1]
+        ids[pos] = ids[pos - 1]
+        pos -= 1
+    best[pos] = d
+    ids[pos] = h
+    return min(n + 1, k)
 
 
 class _Candidates:
@@ -475,16 +483,7 @@ def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_r
                 stamp[h] = r
                 d = (positions[h, 0] - positions[c, 0]) ** 2 + (positions[h, 1] - positions[c, 1]) ** 2 \
                     + (positions[h, 2] - positions[c, 2]) ** 2
-                if n_best == k and d >= best_d[k - 1]:
-                    continue
-                pos = min(n_best, k - 1)
-                while pos > 0 and best_d[pos - 1] > d:  # insertion into the sorted k best
-                    best_d[pos] = best_d[pos - 1]
-                    out[r, pos] = out[r, pos - 1]
-                    pos -= 1
-                best_d[pos] = d
-                out[r, pos] = h
-                n_best = min(n_best + 1, k)
+                n_best = _keep_nearest(best_d, out[r], n_best, d, h)
     return out
 
 
