@@ -440,3 +440,28 @@ def test_interior_edges_and_absent_edges_match_their_definition():
     p[:200], q[:200] = b[:200], a[:200]  # half of them existing edges, given either way round
     assert optimize._absent(faces, rings, p, q).tolist() == [tuple(sorted((int(x), int(y)))) not in edges
                                                              for x, y in zip(p, q)]
+
+
+def test_small_neighbour_searches_match_the_kd_tree():
+    # the candidate table's k nearest of small groups (compared pair by pair) are the KD-tree's, nearest first
+    rng = np.random.default_rng(3)
+    for n in (1, 5, cvt._BRUTE_KNN):
+        reference, queries = rng.normal(size=(n, 3)), rng.normal(size=(50, 3))
+        k = min(10, n)
+        expected = cKDTree(reference).query(queries, k)[1].reshape(50, k)
+        assert np.array_equal(cvt._knn(reference, queries, k), expected)
+        assert np.array_equal(cvt._knn(reference, reference, k)[:, 0], np.arange(n))
+
+
+def test_curve_steps_are_the_one_dimensional_lloyd_step():
+    # one compiled pass over every curve: each generator moves to the density's centroid of its arc cell
+    # (midpoints to its neighbours; open curves end at fixed corners, loops wrap), here a uniform density
+    points = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 3.0, 0.0]])  # an open curve 7 long
+    curve = cvt._Curve(points, False, 0.01)
+    curve.weigh(np.ones(len(curve.t)))
+    arc = np.array([1.0, 2.0, 6.5])
+    positions = np.zeros((3, 3))
+    cvt._CurveSteps([curve], [np.arange(3)]).step(arc, positions)
+    cells = [(0.5, 1.5), (1.5, 4.25), (4.25, 6.75)]  # between midpoints to the neighbours, end corners included
+    assert np.allclose(arc, [0.5 * (a + b) for a, b in cells])
+    assert np.allclose(positions, [[1.0, 0, 0], [2.875, 0, 0], [4.0, 1.5, 0]])

@@ -55,3 +55,16 @@ def test_farthest_is_exact_where_walks_stop_short():
     sub = TriMesh(mesh.vertices, mesh.faces[kept])
     assert np.allclose(verify.farthest(mesh, other, group, 2, 0.1),
                        _exact_farthest(sub, other, group[kept], 2), rtol=1e-6, atol=1e-6)
+
+
+def test_farthest_with_a_floor_is_exact_above_it():
+    """A group within the floor reports the floor unsearched; above it, its exact farthest distance (the
+    retries' question: which faces miss by more than half the tolerance)."""
+    mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
+    other = shapes.bumpy(shapes.sphere(5.2), 0.3, seed=1)
+    each = np.arange(mesh.n_faces)
+    exact = _exact_farthest(mesh, other, each, mesh.n_faces)
+    floor = float(np.median(exact))
+    got = verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor)
+    assert np.allclose(got, np.maximum(exact, floor), rtol=1e-6, atol=1e-6)
+    assert (exact > floor).any() and (exact < floor).any()

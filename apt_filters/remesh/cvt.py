@@ -49,15 +49,21 @@ class LloydResult:
 
 
 class _Curve:
-    """A polyline feature curve resampled densely for 1D Lloyd steps."""
+    """A polyline feature curve resampled densely for 1D Lloyd steps: arc lengths ``t`` every ``step`` (nm) or
+    less, at whose points (``at(t)``) :meth:`weigh` takes the density (asked for all curves at once by
+    :func:`initialise`: a KD-tree query per curve was a tenth of the remesh on bumpy surfaces' hundreds of
+    noise creases)."""
 
-    def __init__(self, points: np.ndarray, closed: bool, density, step: float):
+    def __init__(self, points: np.ndarray, closed: bool, step: float):
         seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
         s = np.concatenate([[0.0], np.cumsum(seg)])
         self.points, self.s, self.closed, self.length = points, s, closed, s[-1]
         n = max(int(np.ceil(self.length / step)), 2)
         self.t = np.linspace(0.0, self.length, n + 1)
-        rho = density(self.at(self.t))
+
+    def weigh(self, rho: np.ndarray) -> None:
+        """The measure and mass tables from the density ``rho`` (len(t),) at ``at(t)``."""
+        closed = self.closed
         size = 0.5 * (rho[1:] ** 0.25 + rho[:-1] ** 0.25) * np.diff(self.t)
         self.size = np.concatenate([[0.0], np.cumsum(size)])  # edge-count measure, edges ∝ rho^-1/4
         t, r = self.t, rho
@@ -81,23 +87,65 @@ class _Curve:
         t = np.interp(u, self.size, self.t)
         return t[:-1] if self.closed else t[1:-1]
 
-    def lloyd(self, arc: np.ndarray) -> np.ndarray:
-        """One 1D Lloyd step on sorted arc positions (open curve ends are fixed corners)."""
-        if len(arc) == 0:
-            return arc
-        if self.closed:
-            ext = np.concatenate([[arc[-1] - self.length], arc, [arc[0] + self.length]])
+
+
+class _CurveSteps:
+    """The tables of all ``curves`` (:class:`_Curve`) packed end to end (CSR), with the generators of each
+    (``ids``: (n_curves,) lists of generator ids), for :func:`_curve_steps`: one compiled pass over every
+    curve per Lloyd step (a 1D step per curve in Python was a third of Lloyd's time on the pipeline's
+    refined cubes, with about 80 curves)."""
+
+    def __init__(self, curves: list, ids: list):
+        def packed(arrays, dtype=np.float64, shape=(0,)):
+            ptr = np.r_[0, np.cumsum([len(a) for a in arrays])].astype(np.int64)
+            return ptr, (np.concatenate(arrays).astype(dtype) if arrays else np.empty(shape, dtype))
+
+        self.gen_ptr, self.gen_ids = packed(ids, np.int64)
+        self.point_ptr, self.s = packed([c.s for c in curves])
+        self.points = np.concatenate([c.points for c in curves]) if curves else np.empty((0, 3))
+        self.table_ptr, self.table_t = packed([c.table_t for c in curves])
+        self.m0 = packed([c.m0 for c in curves])[1]
+        self.m1 = packed([c.m1 for c in curves])[1]
+        self.length = np.array([c.length for c in curves], np.float64)
+        self.closed = np.array([c.closed for c in curves], np.bool_)
+
+    def step(self, arc: np.ndarray, positions: np.ndarray) -> None:
+        """One 1D Lloyd step of every curve's generators: ``arc`` (n,) and ``positions`` (n, 3) updated in place."""
+        _curve_steps(arc, positions, self.gen_ptr, self.gen_ids, self.point_ptr, self.s, self.points,
+                     self.table_ptr, self.table_t, self.m0, self.m1, self.length, self.closed)
+
+
+@njit(cache=True)
+def _curve_steps(arc, positions, gen_ptr, gen_ids, point_ptr, s, points, table_ptr, table_t, m0, m1, length, closed):
+    """A 1D Lloyd step on arc length along every curve c: its generators ``gen_ids[gen_ptr[c]:gen_ptr[c + 1]]``
+    move to the centroid of their arc cells (between midpoints to the neighbours; open curve ends are fixed
+    corners, a loop's cells wrap) under the density's mass tables ``m0``, ``m1`` (cumulative ∫ρ dt, ∫ρt dt at
+    ``table_t``), then to their point on the polyline (``points`` at arc lengths ``s``)."""
+    for c in range(len(length)):
+        ids = gen_ids[gen_ptr[c]:gen_ptr[c + 1]]
+        n = len(ids)
+        if n == 0:
+            continue
+        order = ids[np.argsort(arc[ids])]
+        a = arc[order]
+        ext = np.empty(n + 2)
+        ext[1:n + 1] = a
+        if closed[c]:
+            ext[0], ext[n + 1] = a[n - 1] - length[c], a[0] + length[c]
         else:
-            ext = np.concatenate([[0.0], arc, [self.length]])
+            ext[0], ext[n + 1] = 0.0, length[c]
         lo, hi = 0.5 * (ext[:-2] + ext[1:-1]), 0.5 * (ext[1:-1] + ext[2:])
-
-        def integral(table, x):
-            return np.interp(x, self.table_t, table)
-
-        mass = integral(self.m0, hi) - integral(self.m0, lo)
-        new = (integral(self.m1, hi) - integral(self.m1, lo)) / np.maximum(mass, 1e-300)
-        new = np.where(mass > 0, new, arc)
-        return np.mod(new, self.length) if self.closed else new
+        t = table_t[table_ptr[c]:table_ptr[c + 1]]
+        q0, q1 = m0[table_ptr[c]:table_ptr[c + 1]], m1[table_ptr[c]:table_ptr[c + 1]]
+        mass = np.interp(hi, t, q0) - np.interp(lo, t, q0)
+        new = (np.interp(hi, t, q1) - np.interp(lo, t, q1)) / np.maximum(mass, 1e-300)
+        new = np.where(mass > 0, new, a)
+        if closed[c]:
+            new = np.mod(new, length[c])
+        arc[order] = new
+        ss, p = s[point_ptr[c]:point_ptr[c + 1]], points[point_ptr[c]:point_ptr[c + 1]]
+        for k in range(3):
+            positions[order, k] = np.interp(new, ss, np.ascontiguousarray(p[:, k]))
 
 
 class PatchSurfaces:
@@ -224,11 +272,13 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
     """
     pos, kind, owner, arc = [mesh.vertices[features.corners]], [np.full(len(features.corners), CORNER)], \
         [np.arange(len(features.corners))], [np.full(len(features.corners), np.nan)]
-    curves = []
     border = np.zeros(features.n_patches)
-    for i, c in enumerate(features.curves):
-        curve = _Curve(mesh.vertices[c], is_loop(c, features.corners), vertex_density, edge / 8)
-        curves.append(curve)
+    curves = [_Curve(mesh.vertices[c], is_loop(c, features.corners), edge / 8) for c in features.curves]
+    if curves:
+        rho = vertex_density(np.vstack([curve.at(curve.t) for curve in curves]))
+        for curve, r in zip(curves, np.split(rho, np.cumsum([len(curve.t) for curve in curves])[:-1])):
+            curve.weigh(r)
+    for i, curve in enumerate(curves):
         t = curve.initial(edge)
         pos.append(curve.at(t))
         kind.append(np.full(len(t), CURVE))
@@ -300,12 +350,51 @@ def sample_groups(mesh: TriMesh, samples: Samples, features: Features) -> np.nda
     return samples.groups(flag, features.patch, features.n_patches)
 
 
+# Up to this many reference points, _knn compares every pair in a compiled loop instead of building a
+# KD-tree: bumpy surfaces have hundreds of small patches, and a tree per patch's group cost more in calls
+# than in search (the same neighbours, nearest first).
+_BRUTE_KNN = 32
+
+
 def _knn(reference: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
-    """(q, k) indices of the k nearest reference points (scipy KD-tree; open3d's gave the same
-    indices at the same speed)."""
+    """(q, k) indices of the k nearest reference points, nearest first (scipy KD-tree; open3d's gave the same
+    indices at the same speed; up to ``_BRUTE_KNN`` reference points every pair compared)."""
+    if len(reference) <= _BRUTE_KNN:
+        return _brute_knn(np.ascontiguousarray(reference, np.float64), np.ascontiguousarray(queries, np.float64), k)
     from scipy.spatial import cKDTree
 
     return cKDTree(reference).query(queries, k)[1].astype(np.int64).reshape(len(queries), k)
+
+
+@njit(cache=True)
+def _brute_knn(reference, queries, k):
+    """:func:`_knn` by comparing every pair: (q, k) int64, the lower index first among equal distances."""
+    out = np.empty((len(queries), k), np.int64)
+    best = np.empty(k)
+    for i in range(len(queries)):
+        n = 0
+        for j in range(len(reference)):
+            d = (queries[i, 0] - reference[j, 0]) ** 2 + (queries[i, 1] - reference[j, 1]) ** 2 \
+                + (queries[i, 2] - reference[j, 2]) ** 2
+            n = _keep_nearest(best, out[i], n, d, j)
+    return out
+
+
+@njit(nogil=True, cache=True)
+def _keep_nearest(best, ids, n, d, h):
+    """Candidate ``h`` at squared distance ``d`` inserted into the ``n`` nearest so far (``best`` (k,) ascending,
+    ``ids`` (k,) theirs; a later candidate at an equal distance goes after): the new count, at most k."""
+    k = len(best)
+    if n == k and d >= best[k - 1]:
+        return n
+    pos = min(n, k - 1)
+    while pos > 0 and best[pos - 1] > d:
+        best[pos] = best[pos - 1]
+        ids[pos] = ids[pos - 1]
+        pos -= 1
+    best[pos] = d
+    ids[pos] = h
+    return min(n + 1, k)
 
 
 class _Candidates:
@@ -394,16 +483,7 @@ def _refresh_table(table, row_generator, row_group, slot_ptr, slot_group, slot_r
                 stamp[h] = r
                 d = (positions[h, 0] - positions[c, 0]) ** 2 + (positions[h, 1] - positions[c, 1]) ** 2 \
                     + (positions[h, 2] - positions[c, 2]) ** 2
-                if n_best == k and d >= best_d[k - 1]:
-                    continue
-                pos = min(n_best, k - 1)
-                while pos > 0 and best_d[pos - 1] > d:  # insertion into the sorted k best
-                    best_d[pos] = best_d[pos - 1]
-                    out[r, pos] = out[r, pos - 1]
-                    pos -= 1
-                best_d[pos] = d
-                out[r, pos] = h
-                n_best = min(n_best + 1, k)
+                n_best = _keep_nearest(best_d, out[r], n_best, d, h)
     return out
 
 
@@ -517,7 +597,8 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
     w = samples.face_area * density / samples.per_face
     energy: list = []
     free = np.flatnonzero(gens.kind == PATCH)
-    curve_ids = [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i)) for i in range(len(curves))]
+    curve_steps = _CurveSteps(curves, [np.flatnonzero((gens.kind == CURVE) & (gens.owner == i))
+                                       for i in range(len(curves))])
     labels = _first_labels(samples, group, gens.positions, permitted)
 
     hint = np.full(len(free), -1, np.int64)  # each free generator's face at the last projection, walked from
@@ -538,11 +619,7 @@ def lloyd(mesh: TriMesh, features: Features, samples: Samples, group: np.ndarray
         on_surface = (it + 1) % project_every == 0
         if on_surface:
             project()
-        for curve, ids in zip(curves, curve_ids):
-            if len(ids):
-                order = ids[np.argsort(gens.arc[ids])]
-                gens.arc[order] = curve.lloyd(gens.arc[order])
-                gens.positions[order] = curve.at(gens.arc[order])
+        curve_steps.step(gens.arc, gens.positions)
     if not on_surface:  # the last centroids were not projected: project, then label once more
         project()
         _lloyd_pass(samples.lattice.args(), w, group, labels, gens.positions, candidates.slot_ptr,

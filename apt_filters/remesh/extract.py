@@ -20,26 +20,39 @@ from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.sampling import Samples, point_id, lattice_ids
 
 
-def triangulate_polygon(poly: list, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> list:
-    """Triangulate a small convex-ish polygon of generator ids (counter-clockwise).
+def triangulate_polygon(poly, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> np.ndarray:
+    """(k - 2, 3) faces of a small convex-ish polygon of k generator ids (counter-clockwise):
+    :func:`triangulate_polygons` of one."""
+    return triangulate_polygons(np.asarray(poly, np.int64)[None], positions, pinned, sliver)[0]
+
+
+def triangulate_polygons(polys: np.ndarray, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> np.ndarray:
+    """(n, k - 2, 3) faces of n small convex-ish polygons of k generator ids each ((n, k), counter-clockwise),
+    all at once (one at a time, the polygons where five or more cells meet cost a tenth of the remesh on
+    bumpy surfaces).
 
     Diagonals between two feature generators (``pinned``) are taken first, since the edge
     between consecutive generators on a feature curve must exist; otherwise the fan that
-    maximises the smallest angle is used. Never a fan with a face that ``sliver(p, q, r)`` -> (k,) bool
-    forbids (:func:`apt_filters.remesh.remesh.curve_slivers`: three generators along one feature curve,
-    whose diagonal skips the middle one) where another fan has none.
+    maximises the smallest angle is used (the first apex on ties). Never a fan with a face that
+    ``sliver(p, q, r)`` -> (m,) bool forbids (:func:`apt_filters.remesh.remesh.curve_slivers`: three generators
+    along one feature curve, whose diagonal skips the middle one) where another fan has none.
     """
-    k = len(poly)
-    fans = [[(poly[apex], poly[(apex + j) % k], poly[(apex + j + 1) % k]) for j in range(1, k - 1)]
-            for apex in range(k)]
-    faces = np.array(fans).reshape(-1, 3)
+    n, k = polys.shape
+    if n == 0:
+        return np.empty((0, k - 2, 3), np.int64)
+    apex = np.arange(k)[:, None]
+    j = np.arange(1, k - 1)[None]
+    corners = np.stack([np.broadcast_to(apex, (k, k - 2)), (apex + j) % k, (apex + j + 1) % k], axis=2)
+    fans = polys[:, corners]  # (n, apex, k - 2, 3)
+    faces = fans.reshape(-1, 3)
     angles = face_quality(TriMesh(positions, faces))[0]
-    score = angles.min(axis=1).reshape(k, k - 2).min(axis=1)  # degrees
-    for apex in range(k):
-        score[apex] += sum(180.0 for j in range(2, k - 1) if pinned[poly[apex]] and pinned[poly[(apex + j) % k]])
+    score = angles.min(axis=1).reshape(n, k, k - 2).min(axis=2)  # degrees
+    # 180 for every diagonal of the fan (apex to its corner apex + 2 .. apex + k - 2) between pinned generators
+    diagonal = pinned[polys][:, corners[:, 1:, 1]]  # (n, apex, k - 3)
+    score += 180.0 * (pinned[polys][:, :, None] & diagonal).sum(axis=2)
     if sliver is not None:
-        score[sliver(*faces.T).reshape(k, k - 2).any(axis=1)] = -np.inf
-    return fans[int(np.argmax(score))]
+        score[sliver(*faces.T).reshape(n, k, k - 2).any(axis=2)] = -np.inf
+    return fans[np.arange(n), np.argmax(score, axis=1)]
 
 
 def triangulate_quads(quads: np.ndarray, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> np.ndarray:
@@ -199,12 +212,18 @@ def dual_faces(samples: Samples, labels: np.ndarray, positions: np.ndarray,
     repeated = (quads[:, [0, 0, 0, 1, 1, 2]] == quads[:, [1, 2, 3, 2, 3, 3]]).any(axis=1)
     out.append(triangulate_quads(quads[~repeated], positions, pinned, sliver))
     skipped = int(repeated.sum())
-    for g in np.flatnonzero(counts > 4):
-        poly = cl[cstart[g]:cstart[g] + counts[g]].tolist()
-        if len(set(poly)) != len(poly):
-            skipped += 1
-            continue
-        out.append(np.array(triangulate_polygon(poly, positions, pinned, sliver)))
+    # five or more cells: polygons of each size at once, their faces then put back in the Voronoi vertices' order
+    big, keys, faces = np.flatnonzero(counts > 4), [], []
+    for k in np.unique(counts[big]).tolist():
+        at = big[counts[big] == k]
+        polys = cl[cstart[at, None] + np.arange(k)]
+        ordered = np.sort(polys, axis=1)
+        repeated = (ordered[:, 1:] == ordered[:, :-1]).any(axis=1)  # a cell twice round the vertex: skipped
+        skipped += int(repeated.sum())
+        faces.append(triangulate_polygons(polys[~repeated], positions, pinned, sliver).reshape(-1, 3))
+        keys.append(np.repeat(at[~repeated], k - 2))
+    if faces:
+        out.append(np.concatenate(faces)[np.argsort(np.concatenate(keys), kind="stable")])
     result = np.vstack(out) if out else np.empty((0, 3), np.int64)
     bad = (result[:, 0] == result[:, 1]) | (result[:, 1] == result[:, 2]) | (result[:, 0] == result[:, 2])
     skipped += int(bad.sum())
