@@ -291,7 +291,7 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
 
 
 def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
-                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0) -> np.ndarray:
+                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0) -> np.ndarray:
     """Move every ``movable`` vertex to where the sum of its ring's Q = 6/√3 · A/(p · h_max) is largest,
     never taking the ring's smallest angle under ``floor`` degrees (or under its present smallest angle
     where that is lower): optimisation-based smoothing of the mean shape.
@@ -304,7 +304,10 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     seeds 0-3, uniform and adaptive; this pass lifts it to 0.907-0.916 (6 rounds: +0.0007 more, at twice the
     pass's CPU). No ring face may turn by more than ``max_turn`` (10°): at 45° (:func:`improve_angles`') the
     faces of the bumpy tilted sheet came out farther from the input (its first try's check failed
-    otherwise than without the pass). The floor keeps the pass from trading smallest angles for the mean: at 30° it left
+    otherwise than without the pass). Only vertices whose ring is flat (every face within ``bend``, 20°, of
+    the ring's mean normal) move: where the surface bends across a ring (the thin plate's rounded rim) a
+    tangential move shifts the chords, and the thin plate's sampled Hausdorff distance rose from 0.116 to
+    0.128 nm (tolerance 0.125) with all vertices moving; 0.117 with flat rings only. The floor keeps the pass from trading smallest angles for the mean: at 30° it left
     faces at 30.0° that the centring step (:func:`centre_on_samples`) tipped to 29.9°; a ring already under
     the floor is left to :func:`improve_angles`, which runs after it. Candidates, batches and projection as in
     :func:`improve_angles` (a vertex is tried again only once its ring has moved), up to ``rounds`` sweeps
@@ -313,11 +316,24 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
     sweep = _Sweep(out, faces, project, max_turn, floor=np.radians(floor))
-    todo = np.flatnonzero(movable & (np.diff(sweep.start) > 0))
+    todo = np.flatnonzero(movable & (np.diff(sweep.start) > 0) & _flat_rings(out, faces, bend))
     for _ in range(rounds):
         if not sweep.run(todo, QUALITY_STEPS):
             break
     return out
+
+
+def _flat_rings(vertices: np.ndarray, faces: np.ndarray, bend: float) -> np.ndarray:
+    """(v,) bool: every face round the vertex within ``bend`` degrees of the ring's mean normal (area-weighted)."""
+    n = _face_normals(vertices, faces)
+    area = np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                                   vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
+    mean = np.stack([np.bincount(faces.ravel(), np.repeat(n[:, k] * area, 3), minlength=len(vertices))
+                     for k in range(3)], 1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    least = np.ones(len(vertices))
+    np.minimum.at(least, faces.ravel(), np.einsum("ij,ij->i", np.repeat(n, 3, axis=0), mean[faces.ravel()]))
+    return least > np.cos(np.radians(bend))
 
 
 # candidate moves, as fractions of the way to each ring neighbour and to the ring's centroid (negative: away)
