@@ -140,3 +140,19 @@ def test_default_threads_are_one_per_core_within_the_memory_budget(monkeypatch):
 
 def test_available_cores_is_this_process_s_share():
     assert 1 <= available_cores() <= (os.cpu_count() or 1)
+
+
+@pytest.mark.parametrize("kernel", ["square", "sawtooth", "gaussian"])
+def test_fields_are_the_same_bit_for_bit_on_any_number_of_threads(kernel):
+    """A run's surface must not depend on the machine's cores: the pools' sums are exact (whole quanta), so
+    one, two or three scatter threads and any ion order give identical fields (float pools rounded in each
+    pool's order: one core against two moved a held-out surface by 0.08 nm)."""
+    table = random_ions(20_000, [0.0, 0.0, 0.0], [7.0, 9.0, 40.0], seed=7)
+    grid = Grid.covering(np.zeros(3), [7.0, 9.0, 40.0], 1.0, kernel_reach(kernel))
+    shuffled = np.random.default_rng(8).permutation(len(table.positions))
+    results = [voxelize(IonTable(table.positions[idx], table.mz[idx]), ranges(), grid=grid, kernel=kernel,
+                        threads=threads)
+               for threads, idx in ((1, np.arange(len(shuffled))), (2, np.arange(len(shuffled))), (3, shuffled))]
+    for f in results[1:]:
+        for name in f.names:
+            np.testing.assert_array_equal(f.counts[name].dense(), results[0].counts[name].dense(), err_msg=name)

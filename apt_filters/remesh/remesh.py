@@ -505,6 +505,7 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
         if flipped == 0:
             break
     vertices = optimize.relax(vertices, faces, movable, project)
+    vertices = optimize.improve_quality(vertices, faces, movable, project)
     return optimize.improve_angles(vertices, faces, movable, project), faces
 
 

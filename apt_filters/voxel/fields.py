@@ -210,8 +210,8 @@ def voxelize(
         Threads that scatter each chunk, each a contiguous share of its ions into its own pool
         (merged at the end: ``threads`` pools of memory). Default: one per core this process
         may use, fewer if the memory budget cannot hold a pool for each
-        (:func:`~apt_filters.voxel.grid.scatter_threads`). The fields do not depend on the
-        thread count beyond the rounding of the pools' merge.
+        (:func:`~apt_filters.voxel.grid.scatter_threads`). The fields are the same bit for bit on
+        any thread count (the pools' sums are exact: :data:`~apt_filters.voxel.transfer.QUANTUM`).
 
     Returns
     -------
