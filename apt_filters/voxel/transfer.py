@@ -489,11 +489,11 @@ class _Pool:
         """Scatter all ions; returns the index of the first ion outside the admissible range (the
         ions of the pieces before it scattered, none after), or -1.
 
-        The ions go in pieces of at most half ``limit`` weight, so that one piece never fills a
-        block that the guard has just spilled (one piece for ordinary chunks).
+        The ions go in pieces of less than ``limit`` weight, so that one piece never overfills a
+        block that the guard has just spilled (below one weight left); ordinary chunks are one piece.
         """
         strides = self.table.shape[1] * self.table.shape[2], self.table.shape[2]
-        piece = max(1, int(0.5 * self.limit / max(float(row_bound.max()), 1e-300)))
+        piece = max(1, int((self.limit - 1.0) / max(float(row_bound.max()), 1e-300)))
         for a in range(0, len(positions), piece):
             pos, row = positions[a: a + piece], rows[a: a + piece]
             bad = _mark(kind, pos, row, origin, inv_h, lo, hi, csr[0], row_bound, self.marks.ravel(),
@@ -513,7 +513,7 @@ class BlockAccumulator:
     Memory: ``n_channels * 4096`` bytes per pool block. The first chunk sizes the pool to its
     occupied blocks exactly; later chunks that add blocks grow it by at least 1.5× (never beyond
     the box's blocks), so it holds up to 1.5× the occupied blocks, 2.5× for a moment while it
-    grows; plus the slot table and the marks (9 bytes per block of the bounding box). With
+    grows; plus the slot table, the marks and the guard's load and bound (25 bytes per block of the bounding box). With
     ``threads`` > 1 every thread has its own pool (so up to ``threads`` × that), added one after
     the other into the fields at the end.
 
