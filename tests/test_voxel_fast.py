@@ -10,7 +10,9 @@ from apt_filters.io import IonTable, Range, RangeTable
 from apt_filters.voxel import Grid, kernel_reach, voxelize
 from apt_filters.voxel import grid as grid_module
 from apt_filters.voxel.grid import available_cores, field_bytes, scatter_threads
+from apt_filters.voxel import transfer
 from apt_filters.voxel.ranging import MzLookup
+from apt_filters.voxel.transfer import BlockAccumulator
 from tests.voxel_helpers import ions, random_ions, ranges
 
 
@@ -156,3 +158,55 @@ def test_fields_are_the_same_bit_for_bit_on_any_number_of_threads(kernel):
     for f in results[1:]:
         for name in f.names:
             np.testing.assert_array_equal(f.counts[name].dense(), results[0].counts[name].dense(), err_msg=name)
+
+
+def accumulated(grid, kernel, rows, n_channels, positions, row_of_ion, threads):
+    """Dense (n_channels, *grid.shape) fields of a BlockAccumulator fed ``positions`` in three chunks."""
+    acc = BlockAccumulator(grid, kernel, rows, n_channels, threads=threads)
+    for part in np.array_split(np.arange(len(positions)), 3):
+        acc.add(positions[part], row_of_ion[part])
+    coords, channels = acc.result()
+    out = np.zeros((n_channels,) + tuple(np.asarray(grid.block_shape) * 8))
+    for c, values in enumerate(channels):
+        for (x, y, z), block in zip(coords, values):
+            out[c, 8 * x: 8 * x + 8, 8 * y: 8 * y + 8, 8 * z: 8 * z + 8] = block
+    return out[(slice(None),) + tuple(slice(0, n) for n in grid.shape)]
+
+
+@pytest.mark.parametrize("kernel", ["square", "sawtooth", "gaussian"])
+def test_a_grid_point_beyond_the_int64_pool_s_reach_is_summed_right(kernel):
+    """300 ions of weight 2**20 (and -1.5 * 2**20 in a second field) on one grid point: 2**28 weights,
+    32 times what an int64 of 2**-40 quanta holds (numba's sums wrap silently). The guard spills whole
+    weights out of the pools, so the fields equal a float64 reference and stay the same bit for bit on
+    any thread count."""
+    rng = np.random.default_rng(11)
+    grid = Grid.covering(np.zeros(3), [20.0, 20.0, 20.0], 1.0, kernel_reach(kernel))
+    positions = np.concatenate([np.full((300, 3), 10.3), rng.uniform(0.0, 20.0, (3000, 3))])
+    row_of_ion = np.concatenate([np.ones(300, dtype=np.int64), rng.integers(0, 3, 3000)])
+    scale = 2.0**20
+    rows = (np.array([0, 0, 2, 3]), np.array([0, 1, 0]), np.array([scale, -1.5 * scale, 1.0]))
+    runs = [accumulated(grid, kernel, rows, 2, positions, row_of_ion, threads) for threads in (1, 2, 3)]
+    for got in runs[1:]:
+        np.testing.assert_array_equal(got, runs[0])
+    if kernel == "gaussian":  # reference: the same ions with weight 1 (2**18 weights at most: no spill), scaled
+        unit = (np.array([0, 0, 1, 2]), np.array([0, 0]), np.array([1.0, 1.0]))
+        heavy = accumulated(grid, kernel, unit, 1, positions[row_of_ion == 1], row_of_ion[row_of_ion == 1], 1)[0]
+        light = accumulated(grid, kernel, unit, 1, positions[row_of_ion == 2], row_of_ion[row_of_ion == 2] - 1, 1)[0]
+    else:
+        reference = dense_square if kernel == "square" else dense_sawtooth
+        heavy, light = (reference(positions[row_of_ion == r], grid) for r in (1, 2))
+    want = np.stack([scale * heavy + light, -1.5 * scale * heavy])
+    assert np.abs(want).max() > 2.0**23
+    np.testing.assert_allclose(runs[0], want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+
+
+def test_spilled_pools_give_the_unspilled_fields_bit_for_bit(monkeypatch):
+    """With the pools' limit lowered to 16 weights every dense block spills many times (gaussian, molecular
+    ions, three threads): the fields must be the very ones of the unspilled run."""
+    table = random_ions(20_000, [0.0, 0.0, 0.0], [7.0, 9.0, 40.0], seed=12)
+    grid = Grid.covering(np.zeros(3), [7.0, 9.0, 40.0], 1.0, kernel_reach("gaussian"))
+    want = voxelize(table, ranges(), grid=grid, kernel="gaussian", threads=1)
+    monkeypatch.setattr(transfer, "POOL_LIMIT", 16.0)
+    got = voxelize(table, ranges(), grid=grid, kernel="gaussian", threads=3)
+    for name in want.names:
+        np.testing.assert_array_equal(got.counts[name].dense(), want.counts[name].dense(), err_msg=name)

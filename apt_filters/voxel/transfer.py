@@ -30,9 +30,15 @@ QUANTUM = 2.0**-40
 """Resolution of the first pass's pools (an ion's weight at a grid point is held as a whole number of
 these): integer sums are exact, so the fields are the same bit for bit whatever the thread count, the
 shares of the ions or their order (float sums rounded in the order each pool saw its ions: one core
-against two moved held-out rounded 10008's surface by 0.08 nm). 2**-40 keeps ~12 digits of a weight and
-counts up to 2**23 ions per grid point and channel."""
+against two moved held-out rounded 10008's surface by 0.08 nm). 2**-40 keeps ~12 digits of a weight; an
+int64 holds 2**23 whole weights, so a block of a pool that may reach :data:`POOL_LIMIT` spills (see ``_Pool``)."""
 _PER_QUANTUM = 1.0 / QUANTUM
+POOL_LIMIT = 2.0**22
+"""Weight (in ions × |field weight|) that one grid point and channel of the pools may hold, all threads'
+pools together, between spills: half of what an int64 of quanta holds, the other half margin for the
+rounding of each weight to a quantum. Numba's int64 sums wrap silently beyond it."""
+_HIGH = 40
+"""Spills keep the low ``_HIGH`` bits (below one whole weight) in the pool and move the rest to ``_Pool.high``."""
 
 KERNELS = ("square", "sawtooth", "gaussian")
 TRUNCATE = 4.0
@@ -265,10 +271,12 @@ def _u(i):
 
 
 @njit(nogil=True, cache=True)
-def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts):
-    """Count the ions per row and set ``marks`` to 1 on every block their footprints touch.
+def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, row_bound, marks, load, sx, sy, counts):
+    """Count the ions per row, set ``marks`` to 1 on every block their footprints touch and add each
+    ion's ``row_bound`` (the most it adds to one grid point and channel) to ``load`` at its first grid
+    point's block (the footprint reaches that block and the next one per axis at most).
 
-    ``marks`` is flat over the box's blocks: block (x, y, z) at ``x * sx + y * sy + z``.
+    ``marks`` and ``load`` are flat over the box's blocks: block (x, y, z) at ``x * sx + y * sy + z``.
 
     Returns the index of the first ion that counts in a field and lies outside the admissible
     range (or has a NaN coordinate), or -1.
@@ -290,6 +298,7 @@ def _mark(kind, pos, row, origin, inv_h, lo, hi, row_ptr, marks, sx, sy, counts)
         y0, y1 = (iy >> 3) * sy, ((iy + last) >> 3) * sy
         z0, z1 = iz >> 3, (iz + last) >> 3
         marks[_u(x0 + y0 + z0)] = 1
+        load[_u(x0 + y0 + z0)] += row_bound[_u(r)]
         if last:
             marks[_u(x1 + y0 + z0)] = 1
             marks[_u(x0 + y1 + z0)] = 1
@@ -397,10 +406,19 @@ def _unpool(blocks, where, lo, hi, out):
 class _Pool:
     """One thread's blocks: slot table over the box's blocks, block coordinates, values and row counts.
 
-    ``data`` holds ``capacity`` blocks of ``n_channels`` × 512 float64 values, block-major.
+    ``data`` holds ``capacity`` blocks of ``n_channels`` × 512 int64 values (quanta), block-major.
+
+    Overflow guard: an int64 of quanta holds 2**23 whole weights, so a grid point of a dense block
+    could wrap silently after ~8 M ions. Each ion adds its row's bound to ``load`` at its first
+    grid point's block; ``held`` bounds each block's values (in weights) up to the last check. Before
+    each scatter, once ``held``'s maximum plus the weight marked since could pass ``limit``, a block
+    whose bound (its held plus the load of the blocks whose ions reach it) passes ``limit`` is
+    spilled: its whole weights (bits ``_HIGH`` and up) move to ``high`` (int64 in weights, by block
+    offset) and the rest stays in ``data``. The sums stay exact, so the fields still do not depend on
+    the thread count; blocks of ordinary specimens never spill.
     """
 
-    def __init__(self, block_shape: tuple[int, int, int], n_channels: int, n_rows: int):
+    def __init__(self, block_shape: tuple[int, int, int], n_channels: int, n_rows: int, limit: float):
         self.table = np.full(block_shape, -1, dtype=np.int64)  # each block's offset in data, -1: none
         self.marks = np.zeros(block_shape, dtype=np.uint8)
         self.coords = np.zeros((0, 3), dtype=np.int32)
@@ -408,6 +426,12 @@ class _Pool:
         self.data = np.zeros(0, dtype=np.int64)  # in units of QUANTUM: exact sums
         self.n_active = 0
         self.counts = np.zeros(n_rows, dtype=np.int64)
+        self.limit = float(limit)
+        self.load = np.zeros(block_shape)  # weight marked per first-point block since the last check
+        self.pending = 0.0  # its sum
+        self.held = np.zeros(block_shape)  # bound on each block's values at the last check, weights
+        self.held_max = 0.0
+        self.high: dict[int, np.ndarray] = {}  # block offset in data -> (stride,) int64 spilled weights
 
     def blocks(self) -> np.ndarray:
         """(capacity, n_channels * 512) view of the values."""
@@ -437,15 +461,49 @@ class _Pool:
         self.coords[slots] = np.column_stack(np.unravel_index(new, self.table.shape))
         self.n_active += len(new)
 
-    def scatter(self, kind: tuple, positions, rows, origin, inv_h, lo, hi, csr, max_blocks: int) -> int:
-        """Scatter all ions; returns the index of the first ion outside the admissible range (none
-        scattered then), or -1."""
+    def guard(self, kind: tuple) -> None:
+        """Spill the blocks whose values could pass ``limit`` with the ions marked since the last
+        check (see the class docstring); a no-op while ``held_max`` + ``pending`` stays within it."""
+        if self.held_max + self.pending <= self.limit:
+            return
+        add = self.load.copy()
+        if kind:  # sawtooth and gaussian reach the next block on each axis: add the lower neighbours' load
+            for axis in range(3):
+                add[(slice(None),) * axis + (slice(1, None),)] += add[(slice(None),) * axis + (slice(None, -1),)]
+        bound = self.held + add
+        bound[self.table < 0] = 0.0  # no slot after ``assign``: no ion reaches it
+        over = bound > self.limit
+        mask = (1 << _HIGH) - 1
+        for offset in self.table[over]:
+            values = self.data[offset: offset + self.stride]
+            high = self.high.setdefault(int(offset), np.zeros(self.stride, dtype=np.int64))
+            high += values >> _HIGH  # floor: exact for negative weights too
+            values &= mask
+        bound[over] = 1.0 + add[over]  # what stays is below one weight
+        self.held, self.held_max = bound, float(bound.max())
+        self.load[...] = 0.0
+        self.pending = 0.0
+
+    def scatter(self, kind: tuple, positions, rows, origin, inv_h, lo, hi, csr, max_blocks: int,
+                row_bound: np.ndarray) -> int:
+        """Scatter all ions; returns the index of the first ion outside the admissible range (the
+        ions of the pieces before it scattered, none after), or -1.
+
+        The ions go in pieces of less than ``limit`` weight, so that one piece never overfills a
+        block that the guard has just spilled (below one weight left); ordinary chunks are one piece.
+        """
         strides = self.table.shape[1] * self.table.shape[2], self.table.shape[2]
-        bad = _mark(kind, positions, rows, origin, inv_h, lo, hi, csr[0], self.marks.ravel(), *strides, self.counts)
-        if bad >= 0:
-            return bad
-        self.assign(max_blocks)
-        _scatter(kind, positions, rows, origin, inv_h, *csr, self.table.ravel(), *strides, self.data)
+        piece = max(1, int((self.limit - 1.0) / max(float(row_bound.max()), 1e-300)))
+        for a in range(0, len(positions), piece):
+            pos, row = positions[a: a + piece], rows[a: a + piece]
+            bad = _mark(kind, pos, row, origin, inv_h, lo, hi, csr[0], row_bound, self.marks.ravel(),
+                        self.load.ravel(), *strides, self.counts)
+            if bad >= 0:
+                return a + bad
+            self.pending += float(row_bound.max()) * len(pos)
+            self.assign(max_blocks)
+            self.guard(kind)
+            _scatter(kind, pos, row, origin, inv_h, *csr, self.table.ravel(), *strides, self.data)
         return -1
 
 
@@ -455,7 +513,7 @@ class BlockAccumulator:
     Memory: ``n_channels * 4096`` bytes per pool block. The first chunk sizes the pool to its
     occupied blocks exactly; later chunks that add blocks grow it by at least 1.5× (never beyond
     the box's blocks), so it holds up to 1.5× the occupied blocks, 2.5× for a moment while it
-    grows; plus the slot table and the marks (9 bytes per block of the bounding box). With
+    grows; plus the slot table, the marks and the guard's load and bound (25 bytes per block of the bounding box). With
     ``threads`` > 1 every thread has its own pool (so up to ``threads`` × that), added one after
     the other into the fields at the end.
 
@@ -490,7 +548,13 @@ class BlockAccumulator:
         self.rows = tuple(np.ascontiguousarray(a) for a in rows)
         self.lo, self.hi = admissible_range(kernel, grid, delocalization)
         self.max_blocks = int(np.prod(grid.block_shape))
-        self.pools = [_Pool(grid.block_shape, n_channels, len(self.rows[0]) - 1) for _ in range(int(threads))]
+        # the pools' values are added up as int64 at the end: each pool holds its share of the limit
+        self.pools = [_Pool(grid.block_shape, n_channels, len(self.rows[0]) - 1, POOL_LIMIT / int(threads))
+                      for _ in range(int(threads))]
+        row_ptr, _, row_w = self.rows
+        # the most an ion of each row adds to one grid point and channel: its |weights| (a kernel gives a point <= 1)
+        self.row_bound = np.zeros(len(row_ptr) - 1)
+        np.add.at(self.row_bound, np.repeat(np.arange(len(row_ptr) - 1), np.diff(row_ptr)), np.abs(row_w))
         self.row_count = np.zeros(len(self.rows[0]) - 1, dtype=np.int64)
 
     def add(self, positions: np.ndarray, rows: np.ndarray) -> None:
@@ -499,7 +563,7 @@ class BlockAccumulator:
         rows = np.ascontiguousarray(rows)
         parts = shares(len(positions), len(self.pools))
         args = (_KIND[self.kernel], np.asarray(self.grid.origin), 1.0 / self.grid.voxel, self.lo, self.hi,
-                self.rows, self.max_blocks)
+                self.rows, self.max_blocks, self.row_bound)
         bad = on_threads(lambda pool, a, b: pool.scatter(args[0], positions[a:b], rows[a:b], *args[1:]),
                          [(pool, a, b) for pool, (a, b) in zip(self.pools, parts)])
         for (a, _), i in zip(parts, bad):
@@ -534,9 +598,32 @@ class BlockAccumulator:
         wheres = [np.searchsorted(union, key) for key in keys]
         on_threads(lambda lo, hi: [_unpool(b, w, lo, hi, fields) for b, w in zip(blocks, wheres)],
                    shares(len(union), threads))
+        spilled = self._spilled(pools, union, wheres, fields)
         values = fields.view(np.float64)  # in place: no second copy of the fields
         np.multiply(fields, QUANTUM, out=values)
+        if spilled is not None:
+            values[:, spilled[0]] = spilled[1]
         return union, values
+
+    @staticmethod
+    def _spilled(pools, union, wheres, fields):
+        """None, or (indices into ``union``, (n_channels, k, 8, 8, 8) float64 values) of the blocks that
+        some pool spilled (``_Pool.guard``): whole weights plus the quanta below one, each an exact
+        int64, added with one rounding, as ``fields × QUANTUM`` rounds the blocks that none spilled (so
+        a value does not depend on which pools spilled)."""
+        if not any(p.high for p in pools):
+            return None
+        n_channels = fields.shape[0]
+        high = {}
+        for pool, where in zip(pools, wheres):
+            for offset, weights in pool.high.items():
+                k = int(where[offset // pool.stride])
+                blocks = weights.reshape(n_channels, BLOCK, BLOCK, BLOCK).transpose(0, 3, 2, 1)  # z, y, x -> x, y, z
+                high[k] = high[k] + blocks if k in high else blocks.copy()
+        ks = np.array(sorted(high))
+        quanta = fields[:, ks]
+        whole = np.stack([high[k] for k in ks], axis=1) + (quanta >> _HIGH)
+        return ks, whole.astype(np.float64) + (quanta & ((1 << _HIGH) - 1)) * QUANTUM
 
     def partial(self) -> BlockPartial:
         """The first pass so far, as a :class:`BlockPartial` to add to others' (releases the pools).
