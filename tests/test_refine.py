@@ -46,6 +46,43 @@ def test_matched_offset_converges_to_the_step_and_profile_width_is_measured():
     assert t == pytest.approx(true, abs=1e-3)
 
 
+def test_profile_width_of_a_clipped_step_is_the_bins_own_sigma_not_zero():
+    # levels read inside the profile's own range (a thin plate at low contrast: inside level low, outside high)
+    # clip the normalised profile to a jump from 1 to 0; below the binning's own sigma a width is not measured
+    d = -1.5 + 0.25 * (np.arange(12) + 0.5)
+    floor = 0.25 / np.sqrt(12)
+    assert profile_width(np.where(d < 0, 1.4, -0.3), 0.25) == pytest.approx(floor)
+    # a sharp step reads 0-0.44 bin wherever it falls in its bin (the floor on average): never below the floor
+    reads = []
+    for offset in np.linspace(-0.125, 0.125, 41):
+        box = (0.5 * erfc((d[:, None] + np.linspace(-0.125, 0.125, 201) - offset) / 1e-9)).mean(axis=1)
+        reads.append(profile_width(box, 0.25))
+    assert min(reads) == pytest.approx(floor) and max(reads) > 0.4 * 0.25
+    # a step wider than the floor keeps its measured width
+    assert profile_width(_erf_profile(0.0, 0.15, bin_width=0.25)[0], 0.25) == pytest.approx(0.15, rel=0.03)
+
+
+def test_a_clipped_profile_gives_finite_losses_and_offset_errors_of_a_resolved_width():
+    """A sharp 3 nm sphere whose outer 0.7 nm is rich (Al 0.5) over a core near the outside's level (0.14 against
+    0): the inside window reads the core, so the normalised profile clips (above 1 inside, 0 outside) and its
+    integral width was 0.046 nm, under what 0.25 nm bins resolve; the held-out losses and the offset error came
+    from an error function of that width. Ions on a lattice, so the only noise is where the lattice meets the
+    sphere."""
+    from tests.proxigram_specimens import icosphere
+
+    a, size, radius = 0.3, 12.0, 3.0
+    ijk = np.stack(np.meshgrid(*(np.arange(int(size / a)),) * 3, indexing="ij"), -1).reshape(-1, 3)
+    positions = ijk * a + 0.01
+    centre = np.full(3, size / 2 + 0.037)
+    r, s = np.linalg.norm(positions - centre, axis=1), ijk.sum(axis=1)
+    al = np.where(r < radius - 0.7, s % 7 == 0, (r < radius) & (s % 2 == 0))
+    ions = IonTable(positions.astype(np.float32), np.where(al, 26.5, 58.5).astype(np.float32))
+    ranges = RangeTable([Range(26.0, 27.0, (("Al", 1),)), Range(58.0, 59.0, (("Ni", 1),))])
+    result = refine_surface(icosphere(radius, 3, centre), ions, ranges, "Al", ConcentrationBasis())
+    assert result.widths[0] >= result.params.bin_width / np.sqrt(12)
+    assert np.isfinite(result.modes.losses).all() and np.isfinite(result.offset_errors).all()
+
+
 def _grid_mesh(n=6):
     x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
     v = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
