@@ -417,3 +417,52 @@ def test_tabulated_erfc_is_within_its_stated_error_everywhere():
     assert error.max() > 0.5 * ERROR  # the bound is the interpolation's, not a loose one
     assert erfc_scalar(-30.0) == 2.0 and erfc_scalar(30.0) == 0.0 and erfc_scalar(0.0) == 1.0
     assert np.isnan(erfc(np.array([np.nan])))[0] and erfc(np.array([-np.inf, np.inf])).tolist() == [2.0, 0.0]
+
+
+def test_touching_pairs_are_exactly_the_overlapping_balls_and_one_sliver_pairs_only_its_neighbours():
+    from apt_filters.core.checks import touching_pairs
+
+    rng = np.random.default_rng(7)
+    # sizes over four orders of magnitude, so that every size class meets every other
+    centre = rng.uniform(0, 10, (600, 3))
+    radius = 0.05 * 10 ** rng.uniform(0, 4, 600) ** 0.5 * rng.uniform(0.5, 1, 600)
+    gap = np.linalg.norm(centre[:, None] - centre[None], axis=2)
+    i, j = np.triu_indices(len(centre), 1)
+    oracle = {(a, b) for a, b in zip(i, j) if gap[a, b] <= radius[a] + radius[b]}
+    got = touching_pairs(centre, radius)
+    assert (got[:, 0] < got[:, 1]).all() and len(got) == len(oracle) == len({tuple(p) for p in got.tolist()})
+    assert {tuple(p) for p in got.tolist()} == oracle
+    # 5,000 small faces 1 apart along a line and one sliver 5,000 long beside them: every small face touches the
+    # sliver and none another, so 5,000 pairs (one search radius for all, twice the sliver's, paired all 12.5 M)
+    small = np.column_stack([np.arange(5000.0), np.zeros(5000), np.zeros(5000)])
+    centre = np.vstack([small, [[2500.0, 0.1, 0.0]]])
+    radius = np.append(np.full(5000, 0.2), 2500.0)
+    got = touching_pairs(centre, radius)
+    assert len(got) == 5000 and (got[:, 1] == 5000).all()
+
+
+def test_self_intersections_of_a_crumpled_sheet_equal_the_all_pairs_oracle():
+    from apt_filters.core.checks import self_intersecting_faces, triangles_intersect
+
+    rng = np.random.default_rng(3)
+    # a grid sheet whose vertices are thrown about: many faces cross, some of them long slivers
+    n = 14
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)]) + rng.normal(0, 0.9, (n * n, 3))
+    vertices[rng.choice(n * n, 4, replace=False)] += rng.normal(0, 8, (4, 3))
+    k = np.arange(n * n).reshape(n, n)
+    a, b, c, d = k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()
+    faces = np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    got = self_intersecting_faces(vertices, faces)
+    tri = vertices[faces]
+    centre = tri.mean(axis=1)
+    tri = centre[:, None] + (1 - 1e-6) * (tri - centre[:, None])
+    i, j = np.triu_indices(len(faces), 1)
+    keep = (faces[i, :, None] == faces[j, None, :]).sum(axis=(1, 2)) < 2
+    i, j = i[keep], j[keep]
+    hit = triangles_intersect(tri[i], tri[j])
+    oracle = np.zeros(len(faces), dtype=bool)
+    oracle[i[hit]] = oracle[j[hit]] = True
+    # pymeshlab's flags are the candidates: every face they confirm is the oracle's, and it misses none of them
+    assert got.sum() > 20
+    assert not (got & ~oracle).any() and (oracle & ~got).sum() == 0
