@@ -532,11 +532,11 @@ def profile_width(u: np.ndarray, bin_width: float) -> float:
     The floor is the binning's own sigma (a box of one bin): a perfectly sharp step reads 0-0.44 bin by the
     integral, depending on where it falls in its bin, ``sqrt(pi) / 6`` bin (= 1.02 ``bin_width / sqrt(12)``) on
     average, so a width below it is not measured (an error-function step averaged over its bins reads +4 % at
-    one bin, +11 % at 0.6, +25 % at 0.4, and below 0.3 bin no longer follows its width). A profile clipped by levels inside its own range (a thin plate
-    at low contrast, whose normalised ``u`` jumps from above 1 to below 0: held-out plate 10010, 0.0004-0.024
-    nm) would otherwise give the models that divide by the width (the held-out losses, the offset errors, the
-    facets' fit) a width of ~0: undefined or overconfident. The matched filter keeps its own floor of one bin
-    (:func:`matched_offset` samples its model at the bins' centres).
+    one bin, +11 % at 0.6, +25 % at 0.4, and below 0.3 bin no longer follows its width). A profile clipped by levels
+    inside its own range (a thin plate at low contrast, whose normalised ``u`` jumps from above 1 to below 0:
+    held-out plate 10010, 0.0004-0.024 nm) would otherwise give the models that divide by the width (the held-out
+    losses, the offset errors, the facets' fit) a width of ~0: undefined or overconfident. The matched filter keeps
+    its own floor of one bin (:func:`matched_offset` samples its model at the bins' centres).
     """
     u = np.clip(u, 0.0, 1.0)
     return max(float(np.sqrt(np.pi) * np.sum(u * (1 - u)) * bin_width), bin_width / np.sqrt(12))

@@ -5,8 +5,8 @@ mean radius ratio near 0.88. Flipping edges that reduce the valence excess, then
 free vertex to the centroid of its neighbours (tangentially, projected back onto its patch)
 removes most of those pairs, as in isotropic explicit remeshing. Both steps are vectorised:
 each flip pass applies an independent set of flips (no two share a face). Two last passes move
-vertices to the best of a few candidate points: every vertex to raise its ring's mean quality
-(:func:`improve_quality`), then only the vertices of triangles still under 30 degrees to raise
+vertices to the best of a few candidate points: the vertices of flat rings to raise their ring's mean
+quality (:func:`improve_quality`), then only the vertices of triangles still under 30 degrees to raise
 their ring's smallest angle (:func:`improve_angles`).
 
 Peak memory: a few arrays of 3 x the number of faces in the flips and the relaxation; the last pass holds
@@ -292,9 +292,9 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
 
 def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
                     floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0) -> np.ndarray:
-    """Move every ``movable`` vertex to where the sum of its ring's Q = 6/√3 · A/(p · h_max) is largest,
-    never taking the ring's smallest angle under ``floor`` degrees (or under its present smallest angle
-    where that is lower): optimisation-based smoothing of the mean shape.
+    """Move every ``movable`` vertex of a flat ring to where the sum of its ring's Q = 6/√3 · A/(p · h_max)
+    is largest, never taking the ring's smallest angle under ``floor`` degrees (or under its present smallest
+    angle where that is lower): optimisation-based smoothing of the mean shape.
 
     The uniform relaxation (:func:`relax`) moves a vertex to its ring's mean whatever the ring's shape;
     around valence-5 and -7 vertices and where feature curves cut the rings (corners, curve vertices
@@ -307,11 +307,11 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     otherwise than without the pass). Only vertices whose ring is flat (every face within ``bend``, 20°, of
     the ring's mean normal) move: where the surface bends across a ring (the thin plate's rounded rim) a
     tangential move shifts the chords, and the thin plate's sampled Hausdorff distance rose from 0.116 to
-    0.128 nm (tolerance 0.125) with all vertices moving; 0.117 with flat rings only. The floor keeps the pass from trading smallest angles for the mean: at 30° it left
-    faces at 30.0° that the centring step (:func:`centre_on_samples`) tipped to 29.9°; a ring already under
-    the floor is left to :func:`improve_angles`, which runs after it. Candidates, batches and projection as in
-    :func:`improve_angles` (a vertex is tried again only once its ring has moved), up to ``rounds`` sweeps
-    over all movable vertices.
+    0.128 nm (tolerance 0.125) with all vertices moving; 0.117 with flat rings only. The floor keeps the pass from
+    trading smallest angles for the mean: at 30° it left faces at 30.0° that the centring step
+    (:func:`centre_on_samples`) tipped to 29.9°; a ring already under the floor is left to :func:`improve_angles`,
+    which runs after it. Candidates, batches and projection as in :func:`improve_angles` (a vertex is tried again
+    only once its ring has moved), up to ``rounds`` sweeps over all movable vertices.
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
