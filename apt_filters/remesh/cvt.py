@@ -88,7 +88,6 @@ class _Curve:
         return t[:-1] if self.closed else t[1:-1]
 
 
-
 class _CurveSteps:
     """The tables of all ``curves`` (:class:`_Curve`) packed end to end (CSR), with the generators of each
     (``ids``: (n_curves,) lists of generator ids), for :func:`_curve_steps`: one compiled pass over every

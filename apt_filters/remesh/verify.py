@@ -84,9 +84,10 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     distance (nm) of their vertices, edge midpoints and centroids from ``other`` (exact; searched within
     ``near`` nm first), or ``floor`` (nm) where that is farther: a group whose walked bounds (below) are all
     within ``floor`` is not searched (:func:`apt_filters.remesh.remesh.missed` asks which faces, each its own
-    group, miss by more than half the tolerance: searched all, that was two thirds of the check's time). Each vertex and edge midpoint is measured once (not once per face around it:
-    7 probes per face became about 3), ``chunk`` points at a time; a face takes the largest of its
-    own. ``surface``: ``other``'s :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given.
+    group, miss by more than half the tolerance: searched all, that was two thirds of the check's time). Each
+    vertex and edge midpoint is measured once (not once per face around it: 7 probes per face became about 3),
+    ``chunk`` points at a time; a face takes the largest of its own. ``surface``: ``other``'s
+    :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given.
 
     Every probe is first measured to the face of ``other`` reached by walking from the nearest vertex
     of ``other`` (:func:`apt_filters.remesh.walk.walk_closest`): an upper bound of its distance, and
