@@ -408,6 +408,30 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
 
 
+def test_rounding_fits_stop_when_a_parameter_held_at_its_bound_stops_them_moving(monkeypatch):
+    import itertools
+
+    from apt_filters.refine import facets
+
+    # a sharp blurred cube: the fit with the blur's share free drives the share to its bound of 1, where the
+    # Gauss-Newton step keeps asking for more; the fit has converged once nothing moves (main ran it to 10 steps)
+    box, p, u = _blurred_cube_ions(0, 0.9, 0.05)
+    normals = np.array([s * box.rotation.T[k] for k in range(3) for s in (1, -1)])
+    signed = p @ normals.T - (normals @ box.center + 3.0)
+    calls = []
+    differences = facets._forward_differences
+
+    def counted(signed, shift, rounding, share, width, h, free=None):
+        calls.append((tuple(free[-3:]), share))
+        return differences(signed, shift, rounding, share, width, h, free)
+
+    monkeypatch.setattr(facets, "_forward_differences", counted)
+    shift, rounding = facets.edge_rounding(signed, u, np.ones(len(u)), 0.3)
+    assert rounding == 0.0 and np.all(shift == 0.0)  # sharp: the planes as given
+    share_fit = next(list(g) for free, g in itertools.groupby(calls, key=lambda c: c[0]) if free[1])
+    assert share_fit[-1][1] == 1.0 and len(share_fit) <= 6, share_fit  # measured 5 (main: 10)
+
+
 def test_rounding_fit_differences_are_those_of_full_evaluations():
     from apt_filters.refine.facets import _forward_differences, rounded_scores
 

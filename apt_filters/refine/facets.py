@@ -987,11 +987,14 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
             delta = np.zeros(m + 3)
             delta[free] = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w,
                                                   rcond=None)[0], -max_step, max_step)
+            before = np.r_[shift, rounding, share, width]
             shift = shift + delta[:m]
             rounding = min(max(rounding + delta[m], 0.0), deepest)
             share = min(max(share + delta[m + 1], 0.0), 1.0)
             width = max(width + delta[m + 2], 0.05 * width)
-            if np.abs(delta).max() < tolerance:
+            # converged when nothing moves: a radius or share held at its bound keeps asking for the same step,
+            # and the proposed steps would run every fit to ``iterations``
+            if np.abs(np.r_[shift, rounding, share, width] - before).max() < tolerance:
                 break
         return shift, rounding, share, width, jac
 
