@@ -73,7 +73,9 @@ class ModeSelection:
     facets : dict[int, bool]
         Component -> whether its facets are kept: every object with facets on either half's surface, tried
         with and without them; dropped where its best candidate without them has a held-out loss lower by more
-        than one standard error than its best with them.
+        than one standard error than its best with them, each candidate first moved by the offset that fits it
+        to the placing half's ions (:meth:`HeldOutLoss.fitted_shift`: the facets' planes are fitted so, and the
+        test is to judge their shape, not the smooth surface's size).
     lengths : dict[int, float]
         Open object -> its smoothing length, nm (:func:`cross_validated_lengths`; 0: as it is).
     """
