@@ -297,7 +297,10 @@ class HeldOutLoss:
                      ) -> np.ndarray:
         """(n_comp,) nm: each object's outward move of the candidate (``distance``: the ions of ``only``, from
         :meth:`distances`) that minimises these ions' loss, by Gauss-Newton on the one offset per object, each step
-        at most the object's profile width; 0 for objects without ions here."""
+        at most the object's profile width; 0 for objects without ions here or with a profile of zero width (a
+        sharp step has no slope to follow: their candidates are compared as they stand)."""
+        spread = self.sigma[only] > 0
+        only, distance = only[spread], distance[spread]
         comp, f, a = self.comp[only], self.fraction[only], self.total[only]
         lo, hi, sigma = self.lo[only], self.hi[only], self.sigma[only]
         shift = np.zeros(n_comp)
