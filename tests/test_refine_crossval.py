@@ -4,15 +4,21 @@ The cross-validation (``apt_filters.refine.crossval``) never sees the truth; her
 have chosen is compared with the true surface, and its choice must be (nearly) the best of them.
 """
 
+import numpy as np
 import pytest
 
-from apt_filters.core.mesh import split_components, topology
+from apt_filters.contour import marching_cubes
+from apt_filters.core.mesh import split_components, topology, vertex_normals
 from apt_filters.refine import RefineParams, refine_surface
-from apt_filters.refine.composition import ion_atoms
+from apt_filters.refine.band import NearIons
+from apt_filters.refine.composition import ObjectScores, ion_atoms
 from apt_filters.truth import counting_floor, match_objects, surface_error
-from apt_filters.refine.crossval import CANDIDATES, basis_size, object_harmonics
+from apt_filters.refine.crossval import CANDIDATES, SCORED, basis_size, cross_validated_modes, object_harmonics
 from apt_filters.refine.spectral import low_pass
-from apt_filters.synth import generate, preset
+from apt_filters.synth import Cuboid, Cylinder, generate, preset
+from apt_filters.synth.geometry import Box
+from apt_filters.synth.presets import GAMMA
+from apt_filters.synth.specimen import Feature, SpecimenSpec
 from apt_filters.voxel import ConcentrationBasis
 
 from tests.refine_starts import NO_B, speckless_start
@@ -87,3 +93,80 @@ def test_the_offset_errors_the_refinement_reports_match_the_counting_floor(small
     match = match_objects(split_components(result.mesh), [sp.feature_sdf(i) for i in feats])
     for fl, m in zip(floor, match):
         assert 0.75 * fl.offset < result.offset_errors[m] < 1.3 * fl.offset, (fl.offset, result.offset_errors[m])
+
+
+def _judged(sp, rod, cube, inset, prism, rounded, inside):
+    """``ModeSelection.facets`` of rod and cube (test below) for smooth surfaces ``inset`` nm inside the truth and
+    the rod's prism of half-width ``prism`` radii, rounded by ``rounded`` of it; ``inside``: the objects' Al
+    fraction."""
+    radius, length, size = rod.radius, rod.length, cube.size[0]
+    rounding = 0.8
+    smooth = [Cylinder(rod.center, radius - inset, length - 2 * inset),
+              Cuboid(cube.center, (size - 2 * inset - 2 * rounding,) * 3)]
+    lo, hi, h = np.array([-8.0, -5.0, -16.0]), np.array([8.0, 5.0, -4.0]), 0.25
+    shape = np.round((hi - lo) / h).astype(int) + 1
+    grid = np.stack(np.meshgrid(*[lo[a] + h * np.arange(shape[a]) for a in range(3)], indexing="ij"), -1)
+    sdf = np.minimum(smooth[0].sdf(grid.reshape(-1, 3)), smooth[1].sdf(grid.reshape(-1, 3)) - rounding)
+    mesh = marching_cubes(-sdf.reshape(*shape), 0.0, spacing=h, origin=lo)
+    vertices, faces = mesh.vertices, mesh.faces
+    components = topology(faces, len(vertices)).vertex_components
+    c_rod, c_cube = int(components[np.argmin(vertices[:, 0])]), int(components[np.argmax(vertices[:, 0])])
+
+    def faceted(v):
+        """The rod as a square prism of half-width ``prism`` radii rounded by ``rounded`` of it; the cube's rims
+        moved along their normals onto its true faces."""
+        out = v.copy()
+        mine = components == c_rod
+        p = v[mine] - rod.center
+        theta = np.arctan2(p[:, 1], p[:, 0])
+        a, c = prism * radius, rounded * prism * radius
+        lo_t, hi_t = np.zeros(len(p)), np.full(len(p), 2 * a)
+        for _ in range(40):  # along each direction, the rounded square's edge by bisection
+            t = 0.5 * (lo_t + hi_t)
+            q = np.abs(np.stack([t * np.cos(theta), t * np.sin(theta)], 1)) - (a - c)
+            d = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0) - c
+            lo_t, hi_t = np.where(d < 0, t, lo_t), np.where(d < 0, hi_t, t)
+        p[:, :2] *= (0.5 * (lo_t + hi_t) / (radius - inset))[:, None]
+        p[:, 2] *= length / (length - 2 * inset)
+        out[mine] = p + rod.center
+        mine = components == c_cube
+        p, n = v[mine] - cube.center, vertex_normals(v, faces)[mine]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            exit_ = np.where(np.abs(n) > 1e-9, (0.5 * size * np.sign(n) - p) / n, np.inf)
+        out[mine] = v[mine] + np.where(exit_ > -1e-9, exit_, np.inf).min(axis=1)[:, None] * n
+        return out
+
+    near = NearIons.select(sp.ions, sp.ranges, NO_B, vertices, faces, SCORED + 1.0)
+    held = [near.half(k, vertices) for k in (0, 1)]
+    al = held[0].atoms.elements.index("Al")
+    weights = np.zeros((2, len(held[0].atoms.elements)))
+    weights[:, al] = 1.0
+    scores = ObjectScores(np.ones(2, bool), weights, np.full(2, inside / 0.995), np.full(2, 0.10 / 0.995))
+    selection = cross_validated_modes([vertices, vertices], faces, components, [0, 1], held, scores,
+                                      np.full(2, 0.45),
+                                      lambda k, kept: (lambda v: (faceted(v) if kept else v,)),
+                                      faceted_objects={0, 1})
+    return selection.facets[c_rod], selection.facets[c_cube]
+
+
+def test_facets_must_pass_the_held_out_test_as_they_stand_and_at_fitted_sizes():
+    """A 1.5 nm rod offered facets loses them if the held-out ions reject them either as the candidates stand or
+    with each candidate moved to the size the placing half's ions fit it to; a 4.5 nm cube keeps its true faces.
+    Al 10 -> 50 at.%, the smooth surfaces' cube rounded by 0.8 nm. First the smooth surfaces 0.25 nm inside
+    the truth (the rod 31 % small; refined thin rods come out ~10 % small) and the rod offered a sharp square
+    prism of half-width 0.95 radii: the prism wins by its size as it stands (+1.3 SE: kept on main, as thin
+    10005's rod kept a polyhedron 7 % large in volume and 13 % in area) and loses at fitted sizes (-1.6 SE).
+    Then the smooth surfaces at the truth and the prism of 1.05 radii rounded by 0.6 of it: it loses as it
+    stands (-6 SE) and ties at fitted sizes (+0.1 SE: kept by the sized test alone, as dev rod 3's 1.5 nm
+    rod was, its area -2.8 -> +5.3 %)."""
+    radius, length, size, inside = 1.5, 8.0, 4.5, 0.5
+    rod, cube = Cylinder((-3.5, 0.0, -10.0), radius, length), Cuboid((3.5, 0.0, -10.0), (size,) * 3)
+    phase = {"Ni": 0.945 - inside, "Al": inside, "Cr": 0.05, "B": 0.005}
+    spec = SpecimenSpec(Box((16.0, 16.0, 20.0)), GAMMA, (Feature(rod, phase, 0.2, (), "rod"),
+                                                         Feature(cube, phase, 0.2, (), "cube")),
+                        efficiency=0.5, name="rod and cube")
+    sp = generate(spec, seed=4)
+    by_size = _judged(sp, rod, cube, 0.25, 0.95, 0.0, inside)
+    as_it_stands = _judged(sp, rod, cube, 0.0, 1.05, 0.6, inside)
+    assert by_size == (False, True)
+    assert not as_it_stands[0]
