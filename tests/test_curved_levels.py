@@ -375,3 +375,36 @@ def test_a_window_is_short_of_its_plateau_where_its_miss_exceeds_its_counting_er
         assert C_IN - w > se, (w, se)
     else:
         assert abs(C_IN - w) <= 2 * se, (w, se)
+
+
+def test_objects_fitted_together_compute_each_ones_profile_once_per_offset_and_width(monkeypatch):
+    # the joint fits take their derivatives one object's offset or width at a time: every other object's profile is
+    # the one already computed (each object's profile at a given offset and width is computed once, not once per
+    # other object's difference step: with m objects that was m times the work). Four spheres of one phase
+    from apt_filters.refine import levels
+
+    d, iso, group, radius = [], [], [], []
+    for c, (r, seed) in enumerate(((1.5, 7), (1.8, 8), (2.1, 9), (2.4, 10))):
+        dc, ic, surface = _erf_sphere(r, 60.0, seed)
+        d.append(dc)
+        iso.append(ic)
+        group.append(np.full(len(dc), c))
+        radius.append(surface)
+    d, iso, group, radius = map(np.concatenate, (d, iso, group, [radius]))
+    dims = np.full(4, 3.0)
+    seen, exact = [], levels.ball_profile
+
+    def counted(x, *, radius, dims, width, blur):
+        seen.append((len(x), float(x[0]), float(radius), float(width)))
+        return exact(x, radius=radius, dims=dims, width=width, blur=blur)
+
+    monkeypatch.setattr(levels, "ball_profile", counted)
+    joint, cov = levels.fit_balls(d, iso, np.ones_like(iso), group, radius=radius, dims=dims, blur=BLUR,
+                                  half_width=WINDOW[1])
+    assert sorted(joint) == [0, 1, 2, 3]
+    assert len(seen) == len(set(seen)) and len(seen) > 8, len(seen) - len(set(seen))
+    seen.clear()
+    assert levels.profile_levels(d, np.column_stack([iso, 1 - iso]), 0, joint, radius=radius, dims=dims, blur=BLUR,
+                                 half_width=WINDOW[1], group=group, cov=cov) is not None
+    # the point itself and two steps (up, down) in each of the 8 parameters, each step one object's profile
+    assert len(seen) == 4 + 2 * 8, len(seen)
