@@ -682,7 +682,7 @@ def profile_levels(distance: np.ndarray, atoms: np.ndarray, species: int, fit: B
     d, a, grp = distance[use], atoms[use], group[use]
     weight = a.sum(axis=1)
     objects = list(fits)
-    mine = [grp == c for c in objects]
+    mine = [np.flatnonzero(grp == c) for c in objects]  # indices: each solve writes every object's ions, not m masks
     profile = _ShiftedProfiles([d[sel] for sel in mine], [radius[c] for c in objects], [dims[c] for c in objects],
                                blur)
 
