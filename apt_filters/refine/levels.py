@@ -97,11 +97,11 @@ def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_componen
     that is a sliver of one) is measured from halfway to its deepest ion instead (:func:`inside_inner`).
     """
     comp = components[band.vertex]
-    a = atoms.atoms[band.index].astype(np.float64)
     window_of = window_labels(band, comp, n_components, window)
-    use = (window_of >= 0) & (comp >= 0)
+    use = np.flatnonzero((window_of >= 0) & (comp >= 0))
+    a = atoms.atoms[band.index[use]].astype(np.float64)  # the windows' ions only (most of a band is in neither)
     key = 2 * comp[use] + window_of[use]
-    per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
+    per = np.stack([np.bincount(key, weights=a[:, e], minlength=2 * n_components) for e in range(a.shape[1])],
                    axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
     return per.reshape(n_components, 2, a.shape[1])
 
