@@ -153,13 +153,24 @@ def test_refine_surface_with_curved_levels_reads_the_plateaus_of_a_small_sphere(
     assert abs(unmixed - C_IN) <= 2 * sigma / 0.85, (unmixed, sigma)  # the unmixing's gain on ~0.85 of the contrast
 
 
-def test_unmixing_one_object_leaves_the_levels_of_the_others():
+def test_unmixing_one_object_leaves_the_levels_of_the_others(monkeypatch):
     """The small wide sphere above beside the 4 nm sharp one: the held-out ions unmix the small one's windows
     only, and the large one's levels (its own windows, shrunk toward every object's windows) are exactly those
-    without the model."""
+    without the model. Neither is offered the level of both fitted together, which is then not computed (two
+    solves over every closed object's ions per object)."""
+    from apt_filters.refine import surface
+
+    grouped, exact = [], surface.profile_levels
+
+    def counted(*args, **kwargs):
+        grouped.append(kwargs.get("group") is not None)
+        return exact(*args, **kwargs)
+
+    monkeypatch.setattr(surface, "profile_levels", counted)
     read = _read_levels([(-7.5, R, W), (6.5, 4.0, 0.25)], seed=2)
     assert read[True][0] != read[False][0], read
     assert read[True][1] == read[False][1], read
+    assert len(grouped) >= 2 and not any(grouped), grouped
 
 
 def _slab(n, c_in, c_out, seed, half_thickness=1.25, surface=1.0):
@@ -375,3 +386,36 @@ def test_a_window_is_short_of_its_plateau_where_its_miss_exceeds_its_counting_er
         assert C_IN - w > se, (w, se)
     else:
         assert abs(C_IN - w) <= 2 * se, (w, se)
+
+
+def test_objects_fitted_together_compute_each_ones_profile_once_per_offset_and_width(monkeypatch):
+    # the joint fits take their derivatives one object's offset or width at a time: every other object's profile is
+    # the one already computed (each object's profile at a given offset and width is computed once, not once per
+    # other object's difference step: with m objects that was m times the work). Four spheres of one phase
+    from apt_filters.refine import levels
+
+    d, iso, group, radius = [], [], [], []
+    for c, (r, seed) in enumerate(((1.5, 7), (1.8, 8), (2.1, 9), (2.4, 10))):
+        dc, ic, surface = _erf_sphere(r, 60.0, seed)
+        d.append(dc)
+        iso.append(ic)
+        group.append(np.full(len(dc), c))
+        radius.append(surface)
+    d, iso, group, radius = map(np.concatenate, (d, iso, group, [radius]))
+    dims = np.full(4, 3.0)
+    seen, exact = [], levels.ball_profile
+
+    def counted(x, *, radius, dims, width, blur):
+        seen.append((len(x), float(x[0]), float(radius), float(width)))
+        return exact(x, radius=radius, dims=dims, width=width, blur=blur)
+
+    monkeypatch.setattr(levels, "ball_profile", counted)
+    joint, cov = levels.fit_balls(d, iso, np.ones_like(iso), group, radius=radius, dims=dims, blur=BLUR,
+                                  half_width=WINDOW[1])
+    assert sorted(joint) == [0, 1, 2, 3]
+    assert len(seen) == len(set(seen)) and len(seen) > 8, len(seen) - len(set(seen))
+    seen.clear()
+    assert levels.profile_levels(d, np.column_stack([iso, 1 - iso]), 0, joint, radius=radius, dims=dims, blur=BLUR,
+                                 half_width=WINDOW[1], group=group, cov=cov) is not None
+    # the point itself and two steps (up, down) in each of the 8 parameters, each step one object's profile
+    assert len(seen) == 4 + 2 * 8, len(seen)

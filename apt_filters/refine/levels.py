@@ -97,11 +97,11 @@ def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_componen
     that is a sliver of one) is measured from halfway to its deepest ion instead (:func:`inside_inner`).
     """
     comp = components[band.vertex]
-    a = atoms.atoms[band.index].astype(np.float64)
     window_of = window_labels(band, comp, n_components, window)
-    use = (window_of >= 0) & (comp >= 0)
+    use = np.flatnonzero((window_of >= 0) & (comp >= 0))
+    a = atoms.atoms[band.index[use]].astype(np.float64)  # the windows' ions only (most of a band is in neither)
     key = 2 * comp[use] + window_of[use]
-    per = np.stack([np.bincount(key, weights=a[use, e], minlength=2 * n_components) for e in range(a.shape[1])],
+    per = np.stack([np.bincount(key, weights=a[:, e], minlength=2 * n_components) for e in range(a.shape[1])],
                    axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
     return per.reshape(n_components, 2, a.shape[1])
 
@@ -302,6 +302,41 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     return g if d.size <= 256 else np.interp(np.maximum(radius + d, 0.0), r, g)
 
 
+class _ShiftedProfiles:
+    """Each of several objects' fitted ball profiles at its own distances, remembered per (offset, width).
+
+    Object ``i``'s profile with its interface ``offset`` nm out and its own ``width``: :func:`ball_profile` at
+    ``distances[i] - offset`` of the ball of radius ``radius[i] + offset``. The joint fits (:func:`fit_balls`,
+    :func:`profile_levels`) take their derivatives by finite differences, one object's offset or width at a time:
+    the other objects' profiles are then those of the last call, kept here, and each difference costs one object's
+    profile instead of every object's (the same values bit for bit: :func:`ball_profile` is a function of its
+    arguments alone).
+
+    Parameters
+    ----------
+    distances : list of (b_i,) float64, nm
+    radius, dims : (m,) float
+        The objects' balls (:func:`object_shapes`).
+    blur : float, nm
+    """
+
+    KEPT = 5
+    """(offset, width) pairs kept per object: the point derivatives are taken at and its four central steps."""
+
+    def __init__(self, distances, radius, dims, blur: float):
+        self.distances, self.radius, self.dims, self.blur = distances, radius, dims, blur
+        self.kept = [{} for _ in distances]
+
+    def __call__(self, i: int, offset: float, width: float) -> np.ndarray:
+        kept, key = self.kept[i], (float(offset), float(width))
+        if key not in kept:
+            if len(kept) >= self.KEPT:
+                del kept[next(iter(kept))]  # the oldest
+            kept[key] = ball_profile(self.distances[i] - offset, radius=max(self.radius[i] + offset, 0.0),
+                                     dims=self.dims[i], width=width, blur=self.blur)
+        return kept[key]
+
+
 def object_shapes(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray,
                   n_components: int) -> tuple[np.ndarray, np.ndarray]:
     """(radius, dims) of the ball (:func:`ball_profile`) with each closed object's volume, area and total mean curvature.
@@ -482,10 +517,10 @@ def fit_balls(distance: np.ndarray, part: np.ndarray, total: np.ndarray, group: 
     n, y = np.concatenate(counts), np.concatenate(fractions)
     root = np.sqrt(n)
 
+    profile = _ShiftedProfiles(centres, radius[objects], dims[objects], blur)
+
     def levels(q):
-        g = np.concatenate([ball_profile(x - q[2 * i], radius=max(radius[c] + q[2 * i], 0.0), dims=dims[c],
-                                         width=q[2 * i + 1], blur=blur)
-                            for i, (c, x) in enumerate(zip(objects, centres))])
+        g = np.concatenate([profile(i, q[2 * i], q[2 * i + 1]) for i in range(len(objects))])
         design = np.column_stack([1 - g, g]) * root[:, None]
         coef = np.linalg.lstsq(design, y * root, rcond=None)[0]
         return coef, design @ coef - y * root
@@ -647,13 +682,14 @@ def profile_levels(distance: np.ndarray, atoms: np.ndarray, species: int, fit: B
     d, a, grp = distance[use], atoms[use], group[use]
     weight = a.sum(axis=1)
     objects = list(fits)
-    mine = [grp == c for c in objects]
+    mine = [np.flatnonzero(grp == c) for c in objects]  # indices: each solve writes every object's ions, not m masks
+    profile = _ShiftedProfiles([d[sel] for sel in mine], [radius[c] for c in objects], [dims[c] for c in objects],
+                               blur)
 
     def solve(q: np.ndarray):  # q: (m, 2) each object's offset and width
         g = np.empty(len(d))
-        for c, sel, (offset, width) in zip(objects, mine, q):
-            g[sel] = ball_profile(d[sel] - offset, radius=max(radius[c] + offset, 0.0), dims=dims[c],
-                                  width=max(width, 0.02), blur=blur)
+        for i, (sel, (offset, width)) in enumerate(zip(mine, q)):
+            g[sel] = profile(i, offset, max(width, 0.02))
         design = np.column_stack([1 - g, g])
         normal = design.T @ (design * weight[:, None])
         if np.linalg.cond(normal) > 1e12:

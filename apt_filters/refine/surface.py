@@ -79,6 +79,7 @@ float64 arrays.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field, replace
 
@@ -868,9 +869,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         # off it, its facets and the shared segregant marker, for a gain in precision the windows' shrinkage
         # already takes: dev rod 3's fourth rod, docs/refine.md)
         routes = [(level, fit)]
-        if offered and together is not None and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]),
-                                                                 k):
-            routes.append((together, joint[2][c]))
+        if offered and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]), k) and \
+                together() is not None:
+            routes.append((together(), joint[2][c]))
         for taken, model in routes:
             g_in = inside_share(model)
             if taken is not None and profile_better(taken, model, sums[c, 0], pool, g_in, k, p.plateau_prior):
@@ -886,9 +887,20 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     joint = [fit_balls(distance[some & sel], part[some & sel], total[some & sel], comp[some & sel], radius=radius,
                        dims=dims, blur=sigma, half_width=p.plateau_window[1])
              for sel in (half == 0, half == 1, np.ones(len(comp), dtype=bool))]
-    together = (profile_levels(distance, atoms, k, joint[2][0], radius=radius, dims=dims, blur=sigma,
-                               half_width=p.plateau_window[1], group=comp, cov=joint[2][1]) if joint[2][0] else None)
+    whole, cov = joint[2]
     joint = [fits for fits, _ in joint]
+    kept, lock = [], threading.Lock()
+
+    def together() -> tuple | None:
+        """The joint profile level (every closed object's ions, each under its joint ball; :func:`profile_levels`),
+        computed the first time an object is offered it: most surfaces offer it to none, and it costs two solves
+        over all their ions per object."""
+        with lock:
+            if not kept:
+                kept.append(profile_levels(distance, atoms, k, whole, radius=radius, dims=dims, blur=sigma,
+                                           half_width=p.plateau_window[1], group=comp, cov=cov) if whole else None)
+            return kept[0]
+
     # the objects are independent (their profiles' special functions release the GIL): every core busy
     # the pool of the model's levels: every closed object's profile level by its worth in atoms
     shared = np.zeros(len(held[0].atoms.elements))
