@@ -291,3 +291,46 @@ def test_small_chamfer_keeps_its_creases():
     merged = features.detect(mesh, 40.0, min_area=EDGE**2)
     assert (kept.n_patches, merged.n_patches) == (7, 6)
     assert len(kept.corners) == 10  # the cube's seven corners and the facet's three
+
+
+
+def test_quality_sweep_projects_a_bounded_part_of_a_batch_at_a_time():
+    """The thin plate's remesh (7.5 times as many faces as its input): the mean-shape sweep projects and scores
+    its batches of non-adjacent vertices a part at a time, so its traced peak (above what it starts with) stays
+    under 80 bytes per output face (31; all of a batch's candidates at once: 212), and its moves are those of
+    the whole batch at once (no vertex of a batch is in another's ring)."""
+    import tracemalloc
+
+    from apt_filters.remesh import optimize
+    from apt_filters.remesh.cvt import PatchSurfaces
+
+    mesh = shapes.thin_plate()
+    out = remesh(mesh, edge_length=EDGE, verify=False).mesh
+    surfaces = PatchSurfaces(mesh, np.zeros(mesh.n_faces, np.int64))
+
+    def project(points, ids):
+        return surfaces.closest(points, np.zeros(len(points), np.int64), EDGE)[0]
+
+    def sweep(trace=False):
+        vertices = out.vertices.copy()
+        s = optimize._Sweep(vertices, np.ascontiguousarray(out.faces, np.int64), project, 10.0, np.radians(33.0))
+        if trace:
+            tracemalloc.start()
+        try:
+            base = tracemalloc.get_traced_memory()[0]
+            moved = s.run(np.arange(len(vertices)), optimize.QUALITY_STEPS)
+            peak = tracemalloc.get_traced_memory()[1] - base
+        finally:
+            tracemalloc.stop()
+        return vertices, moved, peak
+
+    parts, moved, _ = sweep()  # compiled code loaded first
+    whole = optimize.chunk_length
+    optimize.chunk_length = lambda n: 1 << 40  # the whole batch at once
+    try:
+        at_once, moved_at_once, _ = sweep()
+    finally:
+        optimize.chunk_length = whole
+    assert moved > 1000 and moved == moved_at_once and np.array_equal(parts, at_once)
+    peak = sweep(trace=True)[2]
+    assert peak < 80 * out.n_faces, peak / out.n_faces

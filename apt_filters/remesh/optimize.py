@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from apt_filters.core.mesh import TriMesh
+from apt_filters.remesh.sampling import chunk_length
 from apt_filters.remesh.walk import vertex_rings
 
 
@@ -339,6 +340,9 @@ def _flat_rings(vertices: np.ndarray, faces: np.ndarray, bend: float) -> np.ndar
 # candidate moves, as fractions of the way to each ring neighbour and to the ring's centroid (negative: away)
 ANGLE_STEPS = np.array([0.05, 0.1, 0.2, 0.35, 0.6, -0.05, -0.1, -0.2])
 QUALITY_STEPS = np.array([0.05, 0.1, 0.2, 0.35, -0.05, -0.1])
+RING_CANDIDATES = 7
+"""Candidates per step of a vertex of valence 6 (its six neighbours and their centroid), to size the parts of
+a batch that :class:`_Sweep` projects at once (about :func:`~apt_filters.remesh.sampling.chunk_length` points)."""
 
 
 class _Sweep:
@@ -366,12 +370,19 @@ class _Sweep:
             batch, todo = _independent(todo, faces, start, ring_of, len(out))
             if len(batch) == 0:
                 break
-            ptr, cands = _candidates(out, faces, start, ring_of, batch, steps)
-            cands = self.project(cands, np.repeat(batch, np.diff(ptr)))
             self.last_try[batch] = self.clock
             self.clock += 1
-            went = _choose(out, faces, start, ring_of, batch, ptr, np.ascontiguousarray(cands, np.float64),
-                           self.cos_turn, self.floor)
+            went = np.zeros(len(batch), bool)
+            # a part of the batch at a time: its candidates and their projection's copies were the remesh's
+            # peak (2 kB per input face of the gyroid, all movable vertices at once); the batch's vertices
+            # share no ring, so a part's moves leave the others' candidates and scores as they were
+            part = max(chunk_length(len(faces)) // (len(steps) * RING_CANDIDATES), 1)
+            for first in range(0, len(batch), part):
+                sub = batch[first:first + part]
+                ptr, cands = _candidates(out, faces, start, ring_of, sub, steps)
+                cands = self.project(cands, np.repeat(sub, np.diff(ptr)))
+                went[first:first + part] = _choose(out, faces, start, ring_of, sub, ptr,
+                                                   np.ascontiguousarray(cands, np.float64), self.cos_turn, self.floor)
             self.last_move[batch[went]] = self.clock
             moved += int(went.sum())
         return moved
@@ -543,8 +554,18 @@ def _unique_ids(tris: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return ids[keep[ids]]
 
 
-def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, samples, labels: np.ndarray,
-                      vertex_of: np.ndarray, rounds: int = 2, per_face: int = 4) -> np.ndarray:
+CENTRING_SAMPLES = 4
+"""Samples per output face that :func:`centre_on_samples` visits (about: every k-th sample)."""
+
+
+def centring_stride(n_samples: int, n_faces: int) -> int:
+    """k: :func:`centre_on_samples` visits every k-th of ``n_samples`` samples, about :data:`CENTRING_SAMPLES`
+    per face of an output of ``n_faces`` faces."""
+    return max(n_samples // (CENTRING_SAMPLES * n_faces), 1)
+
+
+def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, samples, start: np.ndarray,
+                      stride: int, rounds: int = 2) -> np.ndarray:
     """Move the ``movable`` vertices along their normals so that the mesh straddles the input
     surface instead of lying inside its curvature (a least-squares fit of vertex offsets).
 
@@ -555,13 +576,14 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     and areas), takes the signed distance along the output face's normal, and moves each vertex by
     the weighted mean of the distances of the samples on its faces (barycentric weights): one Jacobi
     step of the least-squares fit of a piecewise-linear offset. Samples whose closest face faces the
-    other way (the far side of a thin plate) are left out. About ``per_face`` samples per output
-    face take part (every k-th sample): the fit has about half as many unknowns as faces.
+    other way (the far side of a thin plate) are left out. Every ``stride``-th sample takes part
+    (:func:`centring_stride`: about :data:`CENTRING_SAMPLES` per output face): the fit has about half as many
+    unknowns as faces.
 
     The closest face is found by walking, not searched for: each sample starts at the faces round
-    the output vertex of its Voronoi cell (``vertex_of[labels[i]]``: ``labels`` (n_samples,) the
-    generator of each sample, ``vertex_of`` (generators,) its output vertex or -1; samples of a
-    generator that left the mesh start at the nearest vertex) and steps to an edge-neighbour while
+    the output vertex of its Voronoi cell (``start`` (ceil(n_samples / stride),): the output vertex of the
+    generator of every ``stride``-th sample, -1 where that generator left the mesh: such samples start at
+    the nearest vertex; only these, not a label per sample, are kept until here) and steps to an edge-neighbour while
     that comes closer (:func:`apt_filters.remesh.walk.walk_closest`, a local search: a few % of
     samples stop at a face near, not at, their closest). The cell's vertex is within a cell of the
     sample, so the walk takes a step or two; a search in a grid over the output, built every
@@ -577,19 +599,18 @@ def centre_on_samples(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarr
     neighbour = face_neighbours(faces, len(vertices))
     ring_start, ring = vertex_rings(faces, len(vertices))
     out = vertices.copy()
-    stride = max(samples.n_samples // (per_face * len(faces)), 1)
     for _ in range(rounds):
         face_normal = _face_normals(out, faces)
         num = np.zeros(len(out))
         den = np.zeros(len(out))
         tree = None
         for ids, points, normals, weights in samples.chunks(stride):
-            start = vertex_of[labels[ids]]
-            lost = np.flatnonzero(start < 0)
+            first = start[ids // stride]
+            lost = np.flatnonzero(first < 0)
             if len(lost):  # a generator that left the mesh: the nearest vertex instead
                 tree = cKDTree(out) if tree is None else tree
-                start[lost] = tree.query(points[lost])[1]
-            face, bary, near = walk_closest(out, faces, neighbour, ring_start, ring, start, points)
+                first[lost] = tree.query(points[lost])[1]
+            face, bary, near = walk_closest(out, faces, neighbour, ring_start, ring, first, points)
             normal = face_normal[face]
             residual = np.einsum("ij,ij->i", points - near, normal)
             keep = np.einsum("ij,ij->i", normal, normals) > 0.5

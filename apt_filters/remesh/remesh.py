@@ -297,7 +297,8 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     surfaces = cvt.PatchSurfaces(mesh, features.patch)  # closest points per patch, for Lloyd and smoothing
     result = cvt.lloyd(mesh, features, samples, group, gens, curves, density, max_iter, tol, near=edge,
                        surfaces=surfaces)
-    labels = result.labels
+    labels, energy = result.labels, result.energy
+    del result  # its labels are replaced where cells are connected: one per-sample array held, not two
     mark("lloyd")
     pinned = gens.kind != cvt.PATCH
     sliver = curve_slivers(gens.kind, gens.owner, curve_ends(features, mesh.n_vertices), line)
@@ -315,6 +316,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
         labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
+    del group
     mark("connect")
     faces = optimize.flip_caps(gens.positions, repair.repair(gens.positions, faces, on_boundary, pinned, sliver),
                                pinned)
@@ -324,10 +326,15 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     mark("repair")
     kind, owner = gens.kind[used], gens.owner[used]
     extracted = gens.positions[used]
-    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces, line)
+    # the centring needs only the cells of the samples it visits (flips keep the face count): the per-sample
+    # labels (4 bytes a sample, 256 per input face at 64 samples a face) go before the optimisation's peak
+    stride = optimize.centring_stride(samples.n_samples, len(faces))
     vertex_of = np.full(len(gens.positions), -1, np.int64)
     vertex_of[used] = np.arange(len(used))
-    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, labels, vertex_of)
+    start = vertex_of[labels[::stride]]
+    del labels
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces, line)
+    vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, start, stride)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
     out = _transfer_scalars(mesh, TriMesh(vertices, faces), edge, surfaces.whole)
@@ -336,7 +343,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     corner = generator_component[faces]
     out_component = np.where((corner == corner[:, :1]).all(axis=1), corner[:, 0], -1)
     on_curve = isin(features.corners, np.concatenate([c[[0, -1]] for c in features.curves] or [np.empty(0, np.int64)]))
-    return (RemeshResult(out, edge, len(result.energy) - 1, result.energy, skipped, int(on_curve.sum()),
+    return (RemeshResult(out, edge, len(energy) - 1, energy, skipped, int(on_curve.sum()),
                          len(features.curves), timings, [], int((~on_curve).sum())), out_component, surfaces.whole)
 
 
