@@ -256,7 +256,7 @@ def _min_angles(vertices, faces):
 
 
 def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
-                   threshold: float = 30.0, rounds: int = 8, max_turn: float = 45.0) -> np.ndarray:
+                   threshold: float = 30.0, rounds: int = 8, max_turn: float = 45.0, moved=None) -> np.ndarray:
     """Move the vertices of triangles under ``threshold`` degrees to where their ring's smallest
     angle is largest (optimisation-based smoothing on the worst elements only).
 
@@ -277,7 +277,7 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
-    sweep = _Sweep(out, faces, project, max_turn, floor=-1.0)
+    sweep = _Sweep(out, faces, project, max_turn, floor=-1.0, moved=moved)
     for _ in range(rounds):
         angle = _min_angles(out, faces)
         bad = angle < np.radians(threshold)
@@ -291,7 +291,8 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
 
 
 def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
-                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0) -> np.ndarray:
+                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0,
+                    moved=None) -> np.ndarray:
     """Move every ``movable`` vertex of a flat ring to where the sum of its ring's Q = 6/√3 · A/(p · h_max)
     is largest, never taking the ring's smallest angle under ``floor`` degrees (or under its present smallest
     angle where that is lower): optimisation-based smoothing of the mean shape.
@@ -315,7 +316,7 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
-    sweep = _Sweep(out, faces, project, max_turn, floor=np.radians(floor))
+    sweep = _Sweep(out, faces, project, max_turn, floor=np.radians(floor), moved=moved)
     todo = np.flatnonzero(movable & (np.diff(sweep.start) > 0) & _flat_rings(out, faces, bend))
     for _ in range(rounds):
         if not sweep.run(todo, QUALITY_STEPS):
@@ -348,8 +349,8 @@ class _Sweep:
     ``floor`` < 0: the score is the ring's smallest angle; else the ring's summed Q, its smallest angle
     kept at least min(``floor``, its present smallest angle) (radians)."""
 
-    def __init__(self, out, faces, project, max_turn, floor):
-        self.out, self.faces, self.project, self.floor = out, faces, project, floor
+    def __init__(self, out, faces, project, max_turn, floor, moved=None):
+        self.out, self.faces, self.project, self.floor, self.moved = out, faces, project, floor, moved
         n = len(out)
         self.start, self.ring_of = vertex_rings(faces, n)  # faces around vertex v: ring_of[start[v]:start[v + 1]]
         self.cos_turn = np.cos(np.radians(max_turn))
@@ -373,6 +374,8 @@ class _Sweep:
             went = _choose(out, faces, start, ring_of, batch, ptr, np.ascontiguousarray(cands, np.float64),
                            self.cos_turn, self.floor)
             self.last_move[batch[went]] = self.clock
+            if self.moved is not None:
+                self.moved(batch[went], out[batch[went]])
             moved += int(went.sum())
         return moved
 
