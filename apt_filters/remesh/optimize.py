@@ -273,7 +273,9 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
     would, and the candidates of a whole batch are projected in one call (vertex by vertex, the
     Python loop and one projection per vertex were most of the remesh's time on bumpy surfaces).
     A vertex is tried again only once something in its ring has moved since its last try (the
-    same ring gives the same answer), for up to ``rounds`` rounds while anything moves.
+    same ring gives the same answer), for up to ``rounds`` rounds while anything moves. ``moved(ids, points)``,
+    if given, is told where each batch's vertices went (the caller's record of where curve vertices sit along
+    their curve, :class:`apt_filters.remesh.remesh.CurveSlides`).
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
@@ -312,7 +314,7 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     trading smallest angles for the mean: at 30° it left faces at 30.0° that the centring step
     (:func:`centre_on_samples`) tipped to 29.9°; a ring already under the floor is left to :func:`improve_angles`,
     which runs after it. Candidates, batches and projection as in :func:`improve_angles` (a vertex is tried again
-    only once its ring has moved), up to ``rounds`` sweeps over all movable vertices.
+    only once its ring has moved), up to ``rounds`` sweeps over all movable vertices; ``moved`` as there.
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
@@ -347,7 +349,8 @@ class _Sweep:
     candidate (:func:`_choose`); remembers when each vertex last moved and was tried, so that a vertex is
     tried again only once something in its ring has moved (the same ring gives the same answer).
     ``floor`` < 0: the score is the ring's smallest angle; else the ring's summed Q, its smallest angle
-    kept at least min(``floor``, its present smallest angle) (radians)."""
+    kept at least min(``floor``, its present smallest angle) (radians). ``moved(ids, points)`` (optional) is told
+    of every batch's moves."""
 
     def __init__(self, out, faces, project, max_turn, floor, moved=None):
         self.out, self.faces, self.project, self.floor, self.moved = out, faces, project, floor, moved
