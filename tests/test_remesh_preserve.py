@@ -334,3 +334,42 @@ def test_quality_sweep_projects_a_bounded_part_of_a_batch_at_a_time():
     assert moved > 1000 and moved == moved_at_once and np.array_equal(parts, at_once)
     peak = sweep(trace=True)[2]
     assert peak < 80 * out.n_faces, peak / out.n_faces
+
+
+def test_curve_vertices_beside_a_kink_never_meet():
+    """Two vertices of one feature curve on either side of a kink, both pulled towards its apex (a point off
+    the curve whose closest point on it is the apex): put back by the closest point of the whole curve both
+    went to the apex (two output vertices at one point, faces without area); slid within their windows they
+    stay on their own sides, in order."""
+    from apt_filters.remesh import cvt
+    from apt_filters.remesh.remesh import CurveSlides
+
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 0.0, 0.0]])
+    apex = np.sqrt(2.0)
+    kind = np.array([cvt.CORNER, cvt.CURVE, cvt.CURVE, cvt.CORNER])
+    owner = np.array([0, 0, 0, 1])
+    arc = np.array([np.nan, 0.9 * apex, 1.1 * apex, np.nan])
+    slides = CurveSlides(points, [np.array([0, 1, 2])], np.array([0, 2]), kind, owner, arc)
+    ids, pull = np.array([1, 2]), np.array([[1.0, 1.5, 0.0], [1.0, 1.5, 0.0]])
+    # both at once (the relaxation's reach)
+    moved = slides.project(pull, ids, 0.4)
+    assert moved[0, 0] < 1.0 < moved[1, 0]  # each on its own side of the apex
+    assert np.allclose(moved[:, 1], 1.0 - np.abs(moved[:, 0] - 1.0))  # on the curve
+    slides.moved(ids, moved)
+    assert np.allclose(slides.arc, np.hypot(moved[:, 0] - [0.0, 2.0], moved[:, 1]) * [1, -1] + [0.0, 2 * apex])
+    # one after the other (the sweeps'): the first may reach the apex, the second then stays short of it
+    first = slides.project(pull[:1], ids[:1], 0.9)
+    assert np.allclose(first, [[1.0, 1.0, 0.0]])
+    slides.moved(ids[:1], first)
+    second = slides.project(pull[1:], ids[1:], 0.9)
+    assert second[0, 0] > 1.0 + 1e-3
+
+
+def test_bumpy_gyroid_is_never_given_back():
+    """The bumpy gyroid with seed 3 (bench_remesh's): two vertices of a noise crease slid onto its kink's apex
+    and faces of three vertices of one crease were straightened to a line; every try then had a face without
+    area and the component was given back after four."""
+    mesh = shapes.bumpy(shapes.gyroid(half=8.0), 0.1)
+    result = remesh(mesh, edge_length=EDGE, seed=3)
+    assert result.kept_input == 0, result.checks
+    assert (result.mesh.face_areas() > verify.FLAT_AREA * EDGE ** 2).all()

@@ -257,7 +257,7 @@ def _min_angles(vertices, faces):
 
 
 def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
-                   threshold: float = 30.0, rounds: int = 8, max_turn: float = 45.0) -> np.ndarray:
+                   threshold: float = 30.0, rounds: int = 8, max_turn: float = 45.0, moved=None) -> np.ndarray:
     """Move the vertices of triangles under ``threshold`` degrees to where their ring's smallest
     angle is largest (optimisation-based smoothing on the worst elements only).
 
@@ -274,11 +274,13 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
     would, and the candidates of a whole batch are projected in one call (vertex by vertex, the
     Python loop and one projection per vertex were most of the remesh's time on bumpy surfaces).
     A vertex is tried again only once something in its ring has moved since its last try (the
-    same ring gives the same answer), for up to ``rounds`` rounds while anything moves.
+    same ring gives the same answer), for up to ``rounds`` rounds while anything moves. ``moved(ids, points)``,
+    if given, is told where each batch's vertices went (the caller's record of where curve vertices sit along
+    their curve, :class:`apt_filters.remesh.remesh.CurveSlides`).
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
-    sweep = _Sweep(out, faces, project, max_turn, floor=-1.0)
+    sweep = _Sweep(out, faces, project, max_turn, floor=-1.0, moved=moved)
     for _ in range(rounds):
         angle = _min_angles(out, faces)
         bad = angle < np.radians(threshold)
@@ -292,7 +294,8 @@ def improve_angles(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray,
 
 
 def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray, project,
-                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0) -> np.ndarray:
+                    floor: float = 33.0, rounds: int = 3, max_turn: float = 10.0, bend: float = 20.0,
+                    moved=None) -> np.ndarray:
     """Move every ``movable`` vertex of a flat ring to where the sum of its ring's Q = 6/√3 · A/(p · h_max)
     is largest, never taking the ring's smallest angle under ``floor`` degrees (or under its present smallest
     angle where that is lower): optimisation-based smoothing of the mean shape.
@@ -312,11 +315,11 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     trading smallest angles for the mean: at 30° it left faces at 30.0° that the centring step
     (:func:`centre_on_samples`) tipped to 29.9°; a ring already under the floor is left to :func:`improve_angles`,
     which runs after it. Candidates, batches and projection as in :func:`improve_angles` (a vertex is tried again
-    only once its ring has moved), up to ``rounds`` sweeps over all movable vertices.
+    only once its ring has moved), up to ``rounds`` sweeps over all movable vertices; ``moved`` as there.
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
-    sweep = _Sweep(out, faces, project, max_turn, floor=np.radians(floor))
+    sweep = _Sweep(out, faces, project, max_turn, floor=np.radians(floor), moved=moved)
     todo = np.flatnonzero(movable & (np.diff(sweep.start) > 0) & _flat_rings(out, faces, bend))
     for _ in range(rounds):
         if not sweep.run(todo, QUALITY_STEPS):
@@ -350,10 +353,11 @@ class _Sweep:
     candidate (:func:`_choose`); remembers when each vertex last moved and was tried, so that a vertex is
     tried again only once something in its ring has moved (the same ring gives the same answer).
     ``floor`` < 0: the score is the ring's smallest angle; else the ring's summed Q, its smallest angle
-    kept at least min(``floor``, its present smallest angle) (radians)."""
+    kept at least min(``floor``, its present smallest angle) (radians). ``moved(ids, points)`` (optional) is told
+    of every batch's moves."""
 
-    def __init__(self, out, faces, project, max_turn, floor):
-        self.out, self.faces, self.project, self.floor = out, faces, project, floor
+    def __init__(self, out, faces, project, max_turn, floor, moved=None):
+        self.out, self.faces, self.project, self.floor, self.moved = out, faces, project, floor, moved
         n = len(out)
         self.start, self.ring_of = vertex_rings(faces, n)  # faces around vertex v: ring_of[start[v]:start[v + 1]]
         self.cos_turn = np.cos(np.radians(max_turn))
@@ -384,6 +388,8 @@ class _Sweep:
                 went[first:first + part] = _choose(out, faces, start, ring_of, sub, ptr,
                                                    np.ascontiguousarray(cands, np.float64), self.cos_turn, self.floor)
             self.last_move[batch[went]] = self.clock
+            if self.moved is not None:
+                self.moved(batch[went], out[batch[went]])
             moved += int(went.sum())
         return moved
 

@@ -29,6 +29,10 @@ MAX_SHRINK = 4.0
 GRADATION, GRADATION_PASSES = 1.3, 6
 # Components that fail the check are remeshed again, finer where the last try missed, at most this many times.
 RETRIES = 3
+# How far a curve vertex may slide towards the next one on its curve, as a fraction of the arc between them:
+# in the relaxation (all vertices at once) and in the sweeps of improve_quality / improve_angles (one of
+# two neighbours at a time).
+SLIDE_REACH = (0.4, 0.9)
 
 
 @dataclass
@@ -333,7 +337,8 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     vertex_of[used] = np.arange(len(used))
     start = vertex_of[labels[::stride]]
     del labels
-    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, smooth_rounds, edge, surfaces, line)
+    vertices, faces = _optimise(mesh, features, extracted, faces, kind, owner, gens.arc[used], smooth_rounds, edge,
+                                surfaces, line)
     vertices = optimize.centre_on_samples(vertices, faces, kind == cvt.PATCH, samples, start, stride)
     vertices = optimize.undo_crossings(extracted, vertices, faces)
     mark("optimise")
@@ -468,11 +473,11 @@ def _on_boundary(features: feat.Features, gens: cvt.Generators) -> np.ndarray:
 
 
 def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, faces: np.ndarray,
-              kind: np.ndarray, owner: np.ndarray, rounds: int, edge: float,
+              kind: np.ndarray, owner: np.ndarray, arc: np.ndarray, rounds: int, edge: float,
               surfaces: cvt.PatchSurfaces, line: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve,
-    corners stay. Patch vertices are projected onto their patch (``surfaces``),
-    searched within ``edge`` (nm) first. ``line``: :func:`curve_slivers`'."""
+    """Valence flips and tangential relaxation, then Delaunay flips; curve vertices slide along their curve
+    in order (:class:`CurveSlides`; ``arc`` (v,) their arc lengths), corners stay. Patch vertices are projected
+    onto their patch (``surfaces``), searched within ``edge`` (nm) first. ``line``: :func:`curve_slivers`'."""
     if rounds == 0 or len(faces) == 0:
         return vertices, faces
     pinned = kind != cvt.PATCH
@@ -487,16 +492,29 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
     sliver = curve_slivers(kind, owner, curve_ends(features, mesh.n_vertices), line)
 
     hint = np.full(len(vertices), -1, np.int64)  # each vertex's face at its last projection, walked from
-    curve_ptr = np.r_[0, np.cumsum([len(c) for c in features.curves])].astype(np.int64)
-    curve_points = mesh.vertices[np.concatenate(features.curves)] if features.curves else np.empty((0, 3))
+    slides = CurveSlides(mesh.vertices, features.curves, features.corners, kind, owner, arc)
 
-    def project(points, ids):
-        out = points.copy()
-        sel = kind[ids] == cvt.PATCH
-        out[sel], hint[ids[sel]] = surfaces.closest(points[sel], owner[ids][sel], edge, hint[ids[sel]])
-        sel = kind[ids] == cvt.CURVE
-        out[sel] = closest_on_polylines(curve_points, curve_ptr, owner[ids][sel], points[sel])
-        return out
+    def projection(reach, commit):
+        def project(points, ids):
+            out = points.copy()
+            sel = kind[ids] == cvt.PATCH
+            out[sel], hint[ids[sel]] = surfaces.closest(points[sel], owner[ids][sel], edge, hint[ids[sel]])
+            sel = kind[ids] == cvt.CURVE
+            out[sel] = slides.project(points[sel], ids[sel], reach)
+            if commit:  # every point given is where its vertex goes (the relaxation's)
+                slides.moved(ids[sel], out[sel])
+            return out
+        return project
+
+    # all vertices move at once in the relaxation: two curve neighbours, each less than half way to the other,
+    # stay apart; in the sweeps one of two neighbours moves at a time
+    project, sweep_project = projection(SLIDE_REACH[0], True), projection(SLIDE_REACH[1], False)
+
+    def relax(vertices, faces):
+        vertices = optimize.relax(vertices, faces, movable, project)
+        # three vertices of one curve in a face, which the curve's bend gave area when extracted, come to lie on
+        # a line as they slide along a straight stretch: such a cap's long edge is flipped as at extraction
+        return vertices, optimize.flip_caps(vertices, faces, pinned)
 
     movable = kind != cvt.CORNER
     for r in range(rounds):
@@ -504,16 +522,16 @@ def _optimise(mesh: TriMesh, features: feat.Features, vertices: np.ndarray, face
             faces, flipped = optimize.flip_pass(vertices, faces, fixed, target, seed=r * 3 + k, sliver=sliver)
             if flipped == 0:
                 break
-        vertices = optimize.relax(vertices, faces, movable, project)
+        vertices, faces = relax(vertices, faces)
     # Delaunay flips once the valences settled (in every round they undo valence flips: mean Q fell
     # by 0.01), then one more relaxation: +0.002 mean Q, fewer triangles under 30 degrees
     for k in range(5):
         faces, flipped = optimize.delaunay_pass(vertices, faces, fixed, seed=rounds * 3 + k, sliver=sliver)
         if flipped == 0:
             break
-    vertices = optimize.relax(vertices, faces, movable, project)
-    vertices = optimize.improve_quality(vertices, faces, movable, project)
-    return optimize.improve_angles(vertices, faces, movable, project), faces
+    vertices, faces = relax(vertices, faces)
+    vertices = optimize.improve_quality(vertices, faces, movable, sweep_project, moved=slides.moved)
+    return optimize.improve_angles(vertices, faces, movable, sweep_project, moved=slides.moved), faces
 
 
 def curve_slivers(kind: np.ndarray, owner: np.ndarray, ends: np.ndarray, line: np.ndarray | None = None):
@@ -555,29 +573,128 @@ def curve_ends(features: feat.Features, n_vertices: int) -> np.ndarray:
     return corner_of[np.array([c[[0, -1]] for c in features.curves], np.int64).reshape(-1, 2)]
 
 
+class CurveSlides:
+    """Where the curve vertices of a remesh sit along their feature curve, and the moves that keep them in order.
+
+    A curve vertex may only slide along its curve, and never onto or past the next vertex of its curve. Put
+    back on the curve by the closest point of the whole polyline, two vertices beside a kink of a bumpy
+    surface's noise crease both went to the kink's apex (two output vertices at one point: faces without
+    area, which the check counts and no flip mends; the bumpy gyroid's seed 3 was given back after four
+    tries so). So every curve vertex keeps its arc length along its curve and is put back on the curve within
+    a window: no more than ``reach`` of the way to the vertex before or after it on its curve (the curve's
+    ends, fixed corners, at 0 and its length; a loop wraps). In the relaxation all vertices move at once and
+    a reach under 1/2 keeps two neighbours apart; in the sweeps (:func:`apt_filters.remesh.optimize.
+    improve_quality`, :func:`~apt_filters.remesh.optimize.improve_angles`) no two neighbours move together,
+    and the sweeps say where each went (:meth:`moved`).
+
+    ``points`` (n, 3): the input's vertices, ``curves`` its feature curves (vertex ids), ``corners`` its
+    corner vertices; ``kind``, ``owner`` (v,) of the remesh's vertices (a curve vertex's owner is its curve)
+    and ``arc`` (v,) their arc lengths along it (nm; :class:`cvt.Generators`' own, nan off the curves).
+    """
+
+    def __init__(self, points: np.ndarray, curves: list, corners: np.ndarray, kind: np.ndarray,
+                 owner: np.ndarray, arc: np.ndarray):
+        self.ptr = np.r_[0, np.cumsum([len(c) for c in curves])].astype(np.int64)
+        self.points = points[np.concatenate(curves)] if curves else np.empty((0, 3))
+        seg = [np.linalg.norm(np.diff(points[c], axis=0), axis=1) for c in curves]
+        self.s = np.concatenate([np.r_[0.0, np.cumsum(d)] for d in seg]) if curves else np.empty(0)
+        self.length = np.array([d.sum() for d in seg], np.float64)
+        self.closed = np.array([cvt.is_loop(c, corners) for c in curves], np.bool_)
+        self.ids = np.flatnonzero(kind == cvt.CURVE)
+        self.curve = owner[self.ids].astype(np.int64)
+        self.index = np.full(len(kind), -1, np.int64)  # position of each curve vertex in ``ids``
+        self.index[self.ids] = np.arange(len(self.ids))
+        self.arc = np.asarray(arc, np.float64)[self.ids].copy()
+
+    def _neighbours(self) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) arc lengths of the vertex before and after each curve vertex on its curve (loops unwrapped)."""
+        order = np.lexsort((self.arc, self.curve))
+        a, c = self.arc[order], self.curve[order]
+        m = len(a)
+        first = np.r_[True, c[1:] != c[:-1]] if m else np.zeros(0, bool)
+        last = np.r_[c[1:] != c[:-1], True] if m else np.zeros(0, bool)
+        head = np.maximum.accumulate(np.where(first, np.arange(m), 0))
+        tail = np.minimum.accumulate(np.where(last, np.arange(m), m)[::-1])[::-1]
+        before, after = np.empty(m), np.empty(m)
+        before[1:], after[:-1] = a[:-1], a[1:]
+        closed, length = self.closed[c], self.length[c]
+        before[first] = np.where(closed, a[tail] - length, 0.0)[first]
+        after[last] = np.where(closed, a[head] + length, length)[last]
+        out_before, out_after = np.empty(m), np.empty(m)
+        out_before[order], out_after[order] = before, after
+        return out_before, out_after
+
+    def project(self, points: np.ndarray, ids: np.ndarray, reach: float) -> np.ndarray:
+        """(k, 3) the closest point to each of ``points`` on the curve of vertex ``ids`` (curve vertices)
+        within its window: no more than ``reach`` of the way to the vertex before or after it on its curve."""
+        before, after = self._neighbours()
+        i = self.index[ids]
+        lo, hi = self.arc[i] - reach * (self.arc[i] - before[i]), self.arc[i] + reach * (after[i] - self.arc[i])
+        return _closest_in_window(points, self.curve[i], lo, hi, self.ptr, self.s, self.points, self.length,
+                                  self.closed)[0]
+
+    def moved(self, ids: np.ndarray, points: np.ndarray) -> None:
+        """Record that the vertices ``ids`` (any kind) went to ``points`` (k, 3), which :meth:`project` gave."""
+        sel = self.index[ids] >= 0
+        if not sel.any():
+            return
+        i = self.index[ids[sel]]
+        before, after = self._neighbours()
+        self.arc[i] = _closest_in_window(points[sel], self.curve[i], before[i], after[i], self.ptr, self.s,
+                                         self.points, self.length, self.closed)[1]
+
+
 @njit(cache=True)
-def closest_on_polylines(polylines: np.ndarray, ptr: np.ndarray, which: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(n, 3) closest point to each of ``points`` (n, 3) on its polyline ``which`` (n,): polyline c is
-    ``polylines[ptr[c]:ptr[c + 1]]`` (k, 3); n x k work, in one compiled pass over all polylines (per polyline
-    in numpy, the relaxation's projections spent more in calls than in arithmetic on curved surfaces with
-    many short feature curves)."""
-    out = np.empty((len(points), 3))
-    for i in range(len(points)):
-        p = points[i]
-        best = np.inf
-        for j in range(ptr[which[i]], ptr[which[i] + 1] - 1):
-            a, b = polylines[j], polylines[j + 1]
-            ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-            # summed in numpy's einsum order (x + z) + y, which the numpy version had: the same outputs bit for bit
-            t = (((p[0] - a[0]) * ab0 + (p[2] - a[2]) * ab2) + (p[1] - a[1]) * ab1) \
-                / max(ab0 ** 2 + ab1 ** 2 + ab2 ** 2, 1e-300)
-            t = min(max(t, 0.0), 1.0)
-            n0, n1, n2 = a[0] + t * ab0, a[1] + t * ab1, a[2] + t * ab2
-            d = (n0 - p[0]) ** 2 + (n1 - p[1]) ** 2 + (n2 - p[2]) ** 2
-            if d < best:
-                best = d
-                out[i, 0], out[i, 1], out[i, 2] = n0, n1, n2
+def _points_at(arc, curve, ptr, s, points):
+    """(n, 3) the points at arc lengths ``arc`` (n,) along polylines ``curve`` (n,) (``points[ptr[c]:ptr[c + 1]]``
+    at arc lengths ``s[ptr[c]:ptr[c + 1]]``)."""
+    out = np.empty((len(arc), 3))
+    for i in range(len(arc)):
+        a, b = ptr[curve[i]], ptr[curve[i] + 1]
+        j = min(max(np.searchsorted(s[a:b], arc[i]) - 1, 0), b - a - 2) + a
+        t = (arc[i] - s[j]) / max(s[j + 1] - s[j], 1e-300)
+        t = min(max(t, 0.0), 1.0)
+        for k in range(3):
+            out[i, k] = points[j, k] + t * (points[j + 1, k] - points[j, k])
     return out
+
+
+@njit(cache=True)
+def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
+    """The closest point to each of ``p`` (n, 3) on its polyline ``curve`` (n,) among those of arc length in
+    [``lo``, ``hi``] (n,; a loop's taken modulo its length), and its arc length: (n, 3), (n,)."""
+    out = np.empty((len(p), 3))
+    where = np.empty(len(p))
+    for i in range(len(p)):
+        c = curve[i]
+        best = np.inf
+        out[i] = p[i]
+        where[i] = lo[i]
+        shifts = 3 if closed[c] else 1
+        for h in range(shifts):
+            shift = (h - 1) * length[c] if closed[c] else 0.0
+            for j in range(ptr[c], ptr[c + 1] - 1):
+                s0, s1 = s[j] + shift, s[j + 1] + shift
+                if s1 < lo[i] or s0 > hi[i]:
+                    continue
+                d0, d1 = points[j + 1, 0] - points[j, 0], points[j + 1, 1] - points[j, 1]
+                d2 = points[j + 1, 2] - points[j, 2]
+                seg = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-300)
+                t = ((p[i, 0] - points[j, 0]) * d0 + (p[i, 1] - points[j, 1]) * d1
+                     + (p[i, 2] - points[j, 2]) * d2) / seg
+                # the part of the segment inside the window
+                t0 = max((lo[i] - s0) / max(s1 - s0, 1e-300), 0.0)
+                t1 = min((hi[i] - s0) / max(s1 - s0, 1e-300), 1.0)
+                t = min(max(t, t0), t1)
+                x0, x1, x2 = points[j, 0] + t * d0, points[j, 1] + t * d1, points[j, 2] + t * d2
+                d = (x0 - p[i, 0]) ** 2 + (x1 - p[i, 1]) ** 2 + (x2 - p[i, 2]) ** 2
+                if d < best:
+                    best = d
+                    out[i, 0], out[i, 1], out[i, 2] = x0, x1, x2
+                    where[i] = s0 + t * (s1 - s0)
+        if closed[c]:
+            where[i] = where[i] % length[c]
+    return out, where
 
 
 def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float, surface: SurfaceDistance) -> TriMesh:
