@@ -1098,7 +1098,7 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     vertex of a face the move would turn: that held them where the placement had them, rough and inflated
     (held-out ``plate`` 10010's second plate, 4.2 points of contrast: 23 folded pairs on its 9-mode shape, 540
     of its 2,046 vertices held back, its area 234 -> 383 nm² against a true 261; unfolded: 189 vertices moved,
-    259 nm²). Only folds that this leaves go to the guard. ``pairs``: the faces' edge-adjacent pairs;
+    262 nm²). Only folds that this leaves go to the guard. ``pairs``: the faces' edge-adjacent pairs;
     ``plain``: the umbrella operator.
     """
     if not len(folded_pairs(target, faces, FOLD_ANGLE)):
