@@ -74,12 +74,16 @@ def untangle(vertices: np.ndarray, faces: np.ndarray, original: np.ndarray,
     return _relax(vertices, faces, mean_of_neighbours, _tangled_vertices, SMOOTH_ROUNDS, original, REVERT_ROUNDS)
 
 
-def unfold(vertices: np.ndarray, faces: np.ndarray, mean_of_neighbours: csr_matrix) -> tuple[np.ndarray, int]:
+def unfold(vertices: np.ndarray, faces: np.ndarray, mean_of_neighbours: csr_matrix,
+           original: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Vertices with no folded face pair (:func:`~apt_filters.core.checks.folded_pairs`), and the rounds used.
 
     Marching cubes on a noisy, masked field leaves a few folds (13 pairs on the 10M-ion ``many``
     specimen, on sliver triangles of ~0.1 nm²); the fold guard of the refinement keeps folds it
     is given, so they are removed first, as :func:`untangle` removes crossings (3 rounds there,
-    moves < 0.5 nm). Gives up after :data:`UNFOLD_ROUNDS` rounds.
+    moves < 0.5 nm). Gives up after :data:`UNFOLD_ROUNDS` rounds; where ``original`` (n, 3), free of folds,
+    is given, the folded vertices left and one ring around them are then moved halfway back toward it each
+    round for :data:`REVERT_ROUNDS` rounds, the last all the way (as :func:`untangle` does).
     """
-    return _relax(vertices, faces, mean_of_neighbours, _folded_vertices, UNFOLD_ROUNDS)
+    return _relax(vertices, faces, mean_of_neighbours, _folded_vertices, UNFOLD_ROUNDS, original,
+                  REVERT_ROUNDS if original is not None else 0)
