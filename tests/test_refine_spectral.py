@@ -484,6 +484,21 @@ def test_rounding_fit_derivatives_are_those_of_the_profile():
         assert np.array_equal(_scores_and_slopes(signed, shift, rounding, share, width, free)[1], jac[:, free])
 
 
+def test_gauss_newton_steps_from_the_normal_equations_are_the_least_squares_ones():
+    from apt_filters.refine.facets import _least_squares
+
+    # weighted, and with a column no ion moves (a plane without ions): the minimum-norm solution, 0 there
+    rng = np.random.default_rng(3)
+    jac = rng.normal(size=(5000, 8)) * np.r_[1.0, 0.1, 3.0, 1.0, 1.0, 0.5, 1.0, 1.0]
+    jac[:, 5] = 0.0
+    residual, weight = rng.normal(size=5000), rng.integers(1, 3, 5000).astype(float)
+    root = np.sqrt(weight)
+    step = _least_squares(jac, residual, weight)
+    assert np.allclose(step, np.linalg.lstsq(jac * root[:, None], residual * root, rcond=None)[0], rtol=1e-10,
+                       atol=1e-14)
+    assert abs(step[5]) < 1e-12
+
+
 def test_planes_of_a_lath_whose_interface_profile_follows_its_distance_are_not_moved_out():
     from apt_filters.refine.facets import fit_to_ions
 
