@@ -419,41 +419,84 @@ def test_rounding_fits_stop_when_a_parameter_held_at_its_bound_stops_them_moving
     normals = np.array([s * box.rotation.T[k] for k in range(3) for s in (1, -1)])
     signed = p @ normals.T - (normals @ box.center + 3.0)
     calls = []
-    differences = facets._forward_differences
+    slopes = facets._scores_and_slopes
 
-    def counted(signed, shift, rounding, share, width, h, free=None):
+    def counted(signed, shift, rounding, share, width, free):
         calls.append((tuple(free[-3:]), share))
-        return differences(signed, shift, rounding, share, width, h, free)
+        return slopes(signed, shift, rounding, share, width, free)
 
-    monkeypatch.setattr(facets, "_forward_differences", counted)
+    monkeypatch.setattr(facets, "_scores_and_slopes", counted)
     shift, rounding = facets.edge_rounding(signed, u, np.ones(len(u)), 0.3)
     assert rounding == 0.0 and np.all(shift == 0.0)  # sharp: the planes as given
     share_fit = next(list(g) for free, g in itertools.groupby(calls, key=lambda c: c[0]) if free[1])
     assert share_fit[-1][1] == 1.0 and len(share_fit) <= 6, share_fit  # measured 5 (main: 10)
 
 
-def test_rounding_fit_differences_are_those_of_full_evaluations():
-    from apt_filters.refine.facets import _forward_differences, rounded_scores
+def _differences(signed, shift, rounding, share, width, h=1e-6):
+    """The naive oracle of :func:`apt_filters.refine.facets._scores_and_slopes`: :func:`rounded_scores` and its
+    central differences by ``h`` in each shift, the radius, the share and the width (b, m + 3), one-sided into the
+    parameter's range at a bound (the radius at 0; the share at 0 or 1, there by 1e-3 as the fit takes it)."""
+    from apt_filters.refine.facets import rounded_scores
 
-    # ions around a rounded box: each plane is one of the two nearest for some ions and not for others, and the
-    # shortcut (re-evaluating the edge term only where a nudged plane is among those two) gives the same bits,
-    # whichever way the profile is integrated (the blur all of it, the wider part, the narrower part)
+    m = signed.shape[1]
+    params = np.r_[shift, rounding, share, width]
+
+    def model(p):
+        return rounded_scores(signed - p[:m], p[m], p[m + 2], p[m + 1])
+
+    base, jac = model(params), np.empty((len(signed), m + 3))
+    for c in range(m + 3):
+        nudge = h * (np.arange(m + 3) == c)
+        if c == m + 1 and share in (0.0, 1.0):
+            step = 1e-3 if share == 0.0 else -1e-3
+            jac[:, c] = (model(params + step / h * nudge) - base) / step
+        elif c == m and rounding == 0.0:
+            jac[:, c] = (model(params + nudge) - base) / h
+        else:
+            jac[:, c] = (model(params + nudge) - model(params - nudge)) / (2 * h)
+    return base, jac
+
+
+def test_rounding_fit_derivatives_are_those_of_the_profile():
+    from apt_filters.refine.facets import _scores_and_slopes, rounded_scores
+
+    # ions around a box cut by a slanted plane: each plane is one of an ion's two nearest for some and not for
+    # others; the closed-form derivatives in every parameter are the profile's own (central differences), whichever
+    # way the profile is integrated (the blur all of it, the wider part, the narrower part; sharp and rounded
+    # edges; the share at its bounds, where its column is the one-sided difference)
     rng = np.random.default_rng(7)
     normals = np.vstack([np.eye(3), -np.eye(3), [np.ones(3) / np.sqrt(3)]])
     signed = rng.uniform(-5.0, 5.0, (4000, 3)) @ normals.T - np.r_[np.full(6, 3.0), 4.5]
-    signed[:50, 1] = signed[:50, 0]  # ties between the two nearest planes
-    shift, rounding, width, h = rng.normal(0.0, 0.2, 7), 0.9, 0.4, 1e-3
-    for share in (1.0, 0.6, 0.2):
-        base, jac = _forward_differences(signed, shift, rounding, share, width, h)
+    shift = rng.normal(0.0, 0.2, 7)
+    every = np.ones(10, dtype=bool)
+    for rounding, share, width in ((0.9, 1.0, 0.4), (0.9, 0.6, 0.4), (0.9, 0.2, 0.4), (0.0, 0.6, 0.4),
+                                   (0.0, 1.0, 0.4), (0.3, 0.0, 0.5), (0.5, 0.45, 0.3)):
+        base, jac = _scores_and_slopes(signed, shift, rounding, share, width, every)
         assert np.array_equal(base, rounded_scores(signed - shift, rounding, width, share))
-        for k in range(7):
-            nudged = shift + h * (np.arange(7) == k)
-            assert np.array_equal(jac[:, k], (rounded_scores(signed - nudged, rounding, width, share) - base) / h), k
-        assert np.array_equal(jac[:, 7], (rounded_scores(signed - shift, rounding + h, width, share) - base) / h)
-        dh = h if share < 1 else -h
-        assert np.array_equal(jac[:, 8], (rounded_scores(signed - shift, rounding, width, share + dh) - base) / dh)
-        assert np.array_equal(jac[:, 9], (rounded_scores(signed - shift, rounding, width + h, share) - base) / h)
-        assert np.abs(jac).max() > 0.1  # the differences are not all zero
+        naive_base, naive = _differences(signed, shift, rounding, share, width)
+        assert np.array_equal(base, naive_base)
+        # central differences by 1e-6 of the tabulated erfc (error <= 2.7e-12): measured <= 2.6e-9 apart; the
+        # one-sided ones at the radius's bound 0 differ by h times the curvature (<= 2.2e-7)
+        assert np.abs(jac - naive).max() < 1e-6, (rounding, share, np.abs(jac - naive).max(axis=0))
+        assert np.abs(jac).max() > 0.5  # the derivatives are not all zero
+        # the free parameters' columns only are those columns of all of them
+        free = np.r_[np.ones(7, dtype=bool), rounding > 0.0, rounding == 0.0, True]
+        assert np.array_equal(_scores_and_slopes(signed, shift, rounding, share, width, free)[1], jac[:, free])
+
+
+def test_gauss_newton_steps_from_the_normal_equations_are_the_least_squares_ones():
+    from apt_filters.refine.facets import _least_squares
+
+    # weighted, and with a column no ion moves (a plane without ions): the minimum-norm solution, 0 there
+    rng = np.random.default_rng(3)
+    jac = rng.normal(size=(5000, 8)) * np.r_[1.0, 0.1, 3.0, 1.0, 1.0, 0.5, 1.0, 1.0]
+    jac[:, 5] = 0.0
+    residual, weight = rng.normal(size=5000), rng.integers(1, 3, 5000).astype(float)
+    root = np.sqrt(weight)
+    step = _least_squares(jac, residual, weight)
+    assert np.allclose(step, np.linalg.lstsq(jac * root[:, None], residual * root, rcond=None)[0], rtol=1e-10,
+                       atol=1e-14)
+    assert abs(step[5]) < 1e-12
 
 
 def test_planes_of_a_lath_whose_interface_profile_follows_its_distance_are_not_moved_out():
@@ -525,8 +568,8 @@ def _naive_blurred_profile(s1, s2, rounding, interface, blur, t, g):
 
 
 def test_edge_profile_kernels_give_the_bits_of_their_naive_forms():
-    from apt_filters.refine.facets import (BLUR_NODES, INTERFACE_NODES, _blurred_profile, _forward_differences,
-                                           _hermite, _legendre, _parallel_mixture)
+    from apt_filters.refine.facets import (BLUR_NODES, INTERFACE_NODES, _blurred_profile, _hermite, _legendre,
+                                           _parallel_mixture)
 
     # points inside, outside and around an edge, on it and on its planes (zero distances, ties between the two)
     rng = np.random.default_rng(11)
@@ -536,20 +579,18 @@ def test_edge_profile_kernels_give_the_bits_of_their_naive_forms():
     for rounding in (0.0, 0.4, 1.3):
         for interface, blur in ((0.3, 0.4), (0.6, 0.25), (0.5, 0.5)):
             mixture = _parallel_mixture(s1, s2, rounding, interface, blur, *_hermite(INTERFACE_NODES),
-                                        *_legendre(8))
+                                        *_legendre(8))[0]
             assert np.array_equal(mixture, _naive_parallel_mixture(s1, s2, rounding, interface, blur,
                                                                    *_hermite(INTERFACE_NODES), *_legendre(8)))
-            profile = _blurred_profile(s1, s2, rounding, interface, blur, *_hermite(BLUR_NODES))
+            profile = _blurred_profile(s1, s2, rounding, interface, blur, *_hermite(BLUR_NODES))[0]
             assert np.array_equal(profile, _naive_blurred_profile(s1, s2, rounding, interface, blur,
                                                                   *_hermite(BLUR_NODES)))
             assert 0.2 < mixture.mean() < 0.8 and 0.2 < profile.mean() < 0.8  # not all 0 or 1
-    # the differences in the free parameters only are those columns of all of them
-    signed = rng.uniform(-5.0, 5.0, (2000, 3)) @ np.vstack([np.eye(3), -np.eye(3)]).T - 3.0
-    shift = rng.normal(0.0, 0.2, 6)
-    for free in (np.r_[np.ones(6, dtype=bool), False, True, True], np.r_[np.ones(6, dtype=bool), True, False, False]):
-        base, jac = _forward_differences(signed, shift, 0.5, 0.6, 0.4, 1e-3, free)
-        every = _forward_differences(signed, shift, 0.5, 0.6, 0.4, 1e-3)
-        assert np.array_equal(base, every[0]) and np.array_equal(jac, every[1][:, free])
+            # the pass with the derivatives gives the same values
+            assert np.array_equal(mixture, _parallel_mixture(s1, s2, rounding, interface, blur,
+                                                             *_hermite(INTERFACE_NODES), *_legendre(8), True)[0])
+            assert np.array_equal(profile, _blurred_profile(s1, s2, rounding, interface, blur,
+                                                            *_hermite(BLUR_NODES), True)[0])
 
 
 def test_a_blur_share_the_ions_cannot_show_leaves_the_planes_where_they_are():
