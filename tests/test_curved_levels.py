@@ -337,6 +337,19 @@ def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_w
     assert abs(level(profiles).inside[0] - C_IN) <= 2 * sigma, (level(profiles).inside, sigma)
 
 
+def _spheres_of_one_phase(spheres, density):
+    """Ions of several ``_erf_sphere`` objects of one phase, ``spheres`` ((radius nm, seed), ...) at ``density``
+    ions/nm³: (distances, iso, object of each ion, each object's true surface radius)."""
+    d, iso, group, radius = [], [], [], []
+    for c, (r, seed) in enumerate(spheres):
+        dc, ic, surface = _erf_sphere(r, density, seed)
+        d.append(dc)
+        iso.append(ic)
+        group.append(np.full(len(dc), c))
+        radius.append(surface)
+    return tuple(map(np.concatenate, (d, iso, group, [radius])))
+
+
 def test_objects_of_one_phase_fitted_together_read_their_level_within_its_worth():
     # two small spheres of one phase (1.5 and 1.8 nm, 0.8 nm wide interface, 120 ions/nm³), fitted together (one
     # inside and one outside level, each its own offset and width): each object's fitted offset is its true one
@@ -344,14 +357,7 @@ def test_objects_of_one_phase_fitted_together_read_their_level_within_its_worth(
     # which carries the objects' whole joint covariance (their blocks alone state 570 atoms, and the truth lies 1.9 of
     # that sigma off; the small sphere's own profile reads 51 at.%, truth 41)
     from apt_filters.refine.levels import fit_balls, profile_levels
-    d, iso, group, radius = [], [], [], []
-    for c, (r, seed) in enumerate(((1.5, 7), (1.8, 8))):
-        dc, ic, surface = _erf_sphere(r, 120.0, seed)
-        d.append(dc)
-        iso.append(ic)
-        group.append(np.full(len(dc), c))
-        radius.append(surface)
-    d, iso, group, radius = map(np.concatenate, (d, iso, group, [radius]))
+    d, iso, group, radius = _spheres_of_one_phase(((1.5, 7), (1.8, 8)), 120.0)
     dims = np.full(2, 3.0)
     joint, cov = fit_balls(d, iso, np.ones_like(iso), group, radius=radius, dims=dims, blur=BLUR,
                            half_width=WINDOW[1])
@@ -394,14 +400,7 @@ def test_objects_fitted_together_compute_each_ones_profile_once_per_offset_and_w
     # other object's difference step: with m objects that was m times the work). Four spheres of one phase
     from apt_filters.refine import levels
 
-    d, iso, group, radius = [], [], [], []
-    for c, (r, seed) in enumerate(((1.5, 7), (1.8, 8), (2.1, 9), (2.4, 10))):
-        dc, ic, surface = _erf_sphere(r, 60.0, seed)
-        d.append(dc)
-        iso.append(ic)
-        group.append(np.full(len(dc), c))
-        radius.append(surface)
-    d, iso, group, radius = map(np.concatenate, (d, iso, group, [radius]))
+    d, iso, group, radius = _spheres_of_one_phase(((1.5, 7), (1.8, 8), (2.1, 9), (2.4, 10)), 60.0)
     dims = np.full(4, 3.0)
     seen, exact = [], levels.ball_profile
 
