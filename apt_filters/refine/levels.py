@@ -436,8 +436,16 @@ def fit_ball(distance: np.ndarray, part: np.ndarray, total: np.ndarray, *, radiu
     -------
     BallFit, or None where fewer than 10 bins hold atoms.
     """
-    from scipy.optimize import least_squares
+    binned = _binned_profile(distance, part, total, half_width, bin_width)
+    if binned is None:
+        return None
+    return _fit_shared_levels([binned], [radius], [dims], blur)[0][0]
 
+
+def _binned_profile(distance: np.ndarray, part: np.ndarray, total: np.ndarray, half_width: float,
+                    bin_width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(centres nm, atoms, fractions) of one object's bins of ``bin_width`` within ``half_width`` that hold atoms;
+    None where fewer than 10 do."""
     edges = np.arange(-half_width, half_width + 1e-9, bin_width)
     idx = np.digitize(distance, edges) - 1
     ok = (idx >= 0) & (idx < len(edges) - 1)
@@ -446,21 +454,34 @@ def fit_ball(distance: np.ndarray, part: np.ndarray, total: np.ndarray, *, radiu
     use = n > 0
     if use.sum() < 10:
         return None
-    centre, n, y = (0.5 * (edges[1:] + edges[:-1]))[use], n[use], k[use] / n[use]
+    return (0.5 * (edges[1:] + edges[:-1]))[use], n[use], k[use] / n[use]
+
+
+def _fit_shared_levels(binned: list, radius, dims, blur: float) -> tuple[list[BallFit], np.ndarray]:
+    """The m objects' binned profiles (:func:`_binned_profile`) fitted with one inside and one outside level
+    shared by all, each its own offset and width (:func:`fit_ball` is the case m = 1): each object's
+    :class:`BallFit` (its block of the covariance) and the (2 m, 2 m) joint covariance of the offsets and widths."""
+    from scipy.optimize import least_squares
+
+    n, y = np.concatenate([b[1] for b in binned]), np.concatenate([b[2] for b in binned])
     root = np.sqrt(n)
+    profile = _ShiftedProfiles([b[0] for b in binned], radius, dims, blur)
+    m = len(binned)
 
     def levels(q):
-        g = ball_profile(centre - q[0], radius=max(radius + q[0], 0.0), dims=dims, width=q[1], blur=blur)
+        g = np.concatenate([profile(i, q[2 * i], q[2 * i + 1]) for i in range(m)])
         design = np.column_stack([1 - g, g]) * root[:, None]
         coef = np.linalg.lstsq(design, y * root, rcond=None)[0]
         return coef, design @ coef - y * root
 
-    fit = least_squares(lambda q: levels(q)[1], [0.0, 0.5], bounds=([-1.0, 0.02], [1.0, 3.0]))
+    fit = least_squares(lambda q: levels(q)[1], np.tile([0.0, 0.5], m),
+                        bounds=(np.tile([-1.0, 0.02], m), np.tile([1.0, 3.0], m)))
     (outside, inside), _ = levels(fit.x)
     # residuals in units of sqrt(atoms): their variance is the binomial c (1 - c), or the fit's own scatter if larger
-    scale = max(float(np.sum(fit.fun ** 2)) / max(len(y) - 4, 1), float(np.average(y * (1 - y), weights=n)))
+    scale = max(float(np.sum(fit.fun ** 2)) / max(len(y) - 2 * m - 2, 1), float(np.average(y * (1 - y), weights=n)))
     cov = np.linalg.pinv(fit.jac.T @ fit.jac) * scale
-    return BallFit(float(fit.x[0]), float(fit.x[1]), float(inside), float(outside), cov)
+    return [BallFit(float(fit.x[2 * i]), float(fit.x[2 * i + 1]), float(inside), float(outside),
+                    cov[2 * i:2 * i + 2, 2 * i:2 * i + 2].copy()) for i in range(m)], cov
 
 
 def fit_balls(distance: np.ndarray, part: np.ndarray, total: np.ndarray, group: np.ndarray, *, radius: np.ndarray,
@@ -495,44 +516,17 @@ def fit_balls(distance: np.ndarray, part: np.ndarray, total: np.ndarray, group: 
         The joint covariance of the m objects' (offset, width), in the order of ``fits`` (the shared levels tie
         them: one level too high moves every object's interface).
     """
-    from scipy.optimize import least_squares
-
-    edges = np.arange(-half_width, half_width + 1e-9, bin_width)
-    idx = np.digitize(distance, edges) - 1
-    ok = (idx >= 0) & (idx < len(edges) - 1)
-    centres, counts, fractions, objects = [], [], [], []
-    for c in np.unique(group[ok]):
-        mine = ok & (group == c)
-        n = np.bincount(idx[mine], weights=total[mine], minlength=len(edges) - 1)
-        k = np.bincount(idx[mine], weights=part[mine], minlength=len(edges) - 1)
-        use = n > 0
-        if use.sum() < 10 or radius[c] <= 0:
-            continue
-        objects.append(int(c))
-        centres.append((0.5 * (edges[1:] + edges[:-1]))[use])
-        counts.append(n[use])
-        fractions.append(k[use] / n[use])
+    objects, binned = [], []
+    for c in np.unique(group):
+        mine = group == c
+        one = _binned_profile(distance[mine], part[mine], total[mine], half_width, bin_width)
+        if one is not None and radius[c] > 0:
+            objects.append(int(c))
+            binned.append(one)
     if len(objects) < 2:
         return {}, np.zeros((0, 0))
-    n, y = np.concatenate(counts), np.concatenate(fractions)
-    root = np.sqrt(n)
-
-    profile = _ShiftedProfiles(centres, radius[objects], dims[objects], blur)
-
-    def levels(q):
-        g = np.concatenate([profile(i, q[2 * i], q[2 * i + 1]) for i in range(len(objects))])
-        design = np.column_stack([1 - g, g]) * root[:, None]
-        coef = np.linalg.lstsq(design, y * root, rcond=None)[0]
-        return coef, design @ coef - y * root
-
-    m = len(objects)
-    fit = least_squares(lambda q: levels(q)[1], np.tile([0.0, 0.5], m),
-                        bounds=(np.tile([-1.0, 0.02], m), np.tile([1.0, 3.0], m)))
-    (outside, inside), _ = levels(fit.x)
-    scale = max(float(np.sum(fit.fun ** 2)) / max(len(y) - 2 * m - 2, 1), float(np.average(y * (1 - y), weights=n)))
-    cov = np.linalg.pinv(fit.jac.T @ fit.jac) * scale
-    return {c: BallFit(float(fit.x[2 * i]), float(fit.x[2 * i + 1]), float(inside), float(outside),
-                       cov[2 * i:2 * i + 2, 2 * i:2 * i + 2].copy()) for i, c in enumerate(objects)}, cov
+    fits, cov = _fit_shared_levels(binned, radius[objects], dims[objects], blur)
+    return dict(zip(objects, fits)), cov
 
 
 def unmixed_sums(sums: np.ndarray, mixed: np.ndarray) -> np.ndarray:
