@@ -605,10 +605,24 @@ class CurveSlides:
         self.index = np.full(len(kind), -1, np.int64)  # position of each curve vertex in ``ids``
         self.index[self.ids] = np.arange(len(self.ids))
         self.arc = np.asarray(arc, np.float64)[self.ids].copy()
+        # the sweeps ask for the windows once per batch, and curve vertices stay in their order along the curve
+        # (within their windows): the windows are kept until a move, the order until it no longer sorts
+        self._order = np.lexsort((self.arc, self.curve))
+        self._windows = None
+
+    def _sorted(self, order: np.ndarray) -> bool:
+        """Whether ``order`` is :func:`numpy.lexsort`'s of (arc, curve) (ties by index, as its stable sort)."""
+        c, a = self.curve[order], self.arc[order]
+        same_arc = (a[1:] == a[:-1]) & (order[1:] > order[:-1])
+        return bool(((c[1:] > c[:-1]) | ((c[1:] == c[:-1]) & ((a[1:] > a[:-1]) | same_arc))).all())
 
     def _neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """(m,) arc lengths of the vertex before and after each curve vertex on its curve (loops unwrapped)."""
-        order = np.lexsort((self.arc, self.curve))
+        if self._windows is not None:
+            return self._windows
+        if not self._sorted(self._order):
+            self._order = np.lexsort((self.arc, self.curve))
+        order = self._order
         a, c = self.arc[order], self.curve[order]
         m = len(a)
         first = np.r_[True, c[1:] != c[:-1]] if m else np.zeros(0, bool)
@@ -622,7 +636,8 @@ class CurveSlides:
         after[last] = np.where(closed, a[head] + length, length)[last]
         out_before, out_after = np.empty(m), np.empty(m)
         out_before[order], out_after[order] = before, after
-        return out_before, out_after
+        self._windows = out_before, out_after
+        return self._windows
 
     def project(self, points: np.ndarray, ids: np.ndarray, reach: float) -> np.ndarray:
         """(k, 3) the closest point to each of ``points`` on the curve of vertex ``ids`` (curve vertices)
@@ -642,6 +657,7 @@ class CurveSlides:
         before, after = self._neighbours()
         self.arc[i] = _closest_in_window(points[sel], self.curve[i], before[i], after[i], self.ptr, self.s,
                                          self.points, self.length, self.closed)[1]
+        self._windows = None
 
 
 @njit(cache=True)
