@@ -187,11 +187,17 @@ def flip_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_a
     open one per round from the end whose neighbour is no cap, so ``rounds`` bounds the longest such
     chain mended (4 rounds left 3 caps of a 6-cap fan on a try of the bumpy gyroid). Returns the new faces.
     """
+    limit = np.radians(max_angle)
     for r in range(rounds):
+        # a cap is a face of three pinned vertices with an angle over the limit: where there is none (most
+        # calls, after every relaxation), the edge tables over the whole mesh are not built
+        whole = faces[pinned[faces].all(axis=1)]
+        if not any((_angle(vertices, whole[:, k], whole[:, k - 1], whole[:, k - 2]) > limit - 1e-9).any()
+                   for k in range(3)):
+            break
         edge, rings = _interior_edges(faces, len(vertices))
         a, b, c, d, f1, f2 = edge
         at_c, at_d = _angle(vertices, c, a, b), _angle(vertices, d, a, b)
-        limit = np.radians(max_angle)
         cap = pinned[a] & pinned[b] & ((pinned[c] & (at_c > limit)) | (pinned[d] & (at_d > limit)))
         # the new faces (c, a, d) and (d, b, c) split the other face at the apex: they keep its normal
         other = np.where(at_c > at_d, f2, f1)

@@ -416,11 +416,13 @@ def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray,
     if not len(vertices):
         return features, np.arange(len(features.curves))
     extra, curves, curve_patches, boundary, origin = [vertices], [], [], [], []
+    pin = np.zeros(mesh.n_vertices, bool)  # a lookup per curve (an isin per curve was a tenth of a try's CPU)
+    pin[vertices] = True
     for i, (c, patches, on_rim) in enumerate(zip(features.curves, features.curve_patches, features.boundary_curve)):
-        cut = np.flatnonzero(isin(c, vertices))
+        cut = np.flatnonzero(pin[c])
         if cvt.is_loop(c, features.corners) and len(cut):  # a loop: start it at a pinned vertex
             c = np.concatenate([c[cut[0]:-1], c[:cut[0] + 1]])
-            cut = np.flatnonzero(isin(c, vertices))
+            cut = np.flatnonzero(pin[c])
             if len(unique(c[cut])) == 1:
                 extra.append(c[[len(c) // 2]])
                 cut = np.union1d(cut, [len(c) // 2])
@@ -431,7 +433,10 @@ def pin_corners(mesh: TriMesh, features: feat.Features, vertices: np.ndarray,
             curve_patches.append(patches)
             boundary.append(on_rim)
     new = unique(np.concatenate(extra))
-    around = [unique(features.patch[np.flatnonzero((mesh.faces == v).any(axis=1))]) for v in new]
+    # the patches round each new corner, from its faces' (vertex, patch) pairs sorted once
+    at = isin(mesh.faces.ravel(), new)
+    pairs = unique_rows(np.stack([mesh.faces.ravel()[at], np.repeat(features.patch, 3)[at]], 1))[0]
+    around = np.split(pairs[:, 1], np.searchsorted(pairs[:, 0], new[1:]))
     return replace(features, corners=np.concatenate([features.corners, new]), curves=curves,
                    curve_patches=curve_patches, corner_patches=list(features.corner_patches) + around,
                    boundary_curve=np.array(boundary, bool)), np.array(origin, np.int64)
@@ -605,10 +610,24 @@ class CurveSlides:
         self.index = np.full(len(kind), -1, np.int64)  # position of each curve vertex in ``ids``
         self.index[self.ids] = np.arange(len(self.ids))
         self.arc = np.asarray(arc, np.float64)[self.ids].copy()
+        # the sweeps ask for the windows once per batch, and curve vertices stay in their order along the curve
+        # (within their windows): the windows are kept until a move, the order until it no longer sorts
+        self._order = np.lexsort((self.arc, self.curve))
+        self._windows = None
+
+    def _sorted(self, order: np.ndarray) -> bool:
+        """Whether ``order`` is :func:`numpy.lexsort`'s of (arc, curve) (ties by index, as its stable sort)."""
+        c, a = self.curve[order], self.arc[order]
+        same_arc = (a[1:] == a[:-1]) & (order[1:] > order[:-1])
+        return bool(((c[1:] > c[:-1]) | ((c[1:] == c[:-1]) & ((a[1:] > a[:-1]) | same_arc))).all())
 
     def _neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """(m,) arc lengths of the vertex before and after each curve vertex on its curve (loops unwrapped)."""
-        order = np.lexsort((self.arc, self.curve))
+        if self._windows is not None:
+            return self._windows
+        if not self._sorted(self._order):
+            self._order = np.lexsort((self.arc, self.curve))
+        order = self._order
         a, c = self.arc[order], self.curve[order]
         m = len(a)
         first = np.r_[True, c[1:] != c[:-1]] if m else np.zeros(0, bool)
@@ -622,7 +641,8 @@ class CurveSlides:
         after[last] = np.where(closed, a[head] + length, length)[last]
         out_before, out_after = np.empty(m), np.empty(m)
         out_before[order], out_after[order] = before, after
-        return out_before, out_after
+        self._windows = out_before, out_after
+        return self._windows
 
     def project(self, points: np.ndarray, ids: np.ndarray, reach: float) -> np.ndarray:
         """(k, 3) the closest point to each of ``points`` on the curve of vertex ``ids`` (curve vertices)
@@ -642,6 +662,7 @@ class CurveSlides:
         before, after = self._neighbours()
         self.arc[i] = _closest_in_window(points[sel], self.curve[i], before[i], after[i], self.ptr, self.s,
                                          self.points, self.length, self.closed)[1]
+        self._windows = None
 
 
 @njit(cache=True)
