@@ -314,19 +314,22 @@ class HeldOutLoss:
         only, distance = only[spread], distance[spread]
         comp, f, a = self.comp[only], self.fraction[only], self.total[only]
         lo, hi, sigma = self.lo[only], self.hi[only], self.sigma[only]
+        # what the steps do not change, taken once (the same numbers as in every step)
+        above, contrast, half_contrast = f - lo, hi - lo, (hi - lo) * 0.5
+        density = np.sqrt(np.pi) * sigma
+        # at most one width (sigma / sqrt 2) a step
+        width = np.bincount(comp, sigma, minlength=n_comp) / np.maximum(np.bincount(comp, minlength=n_comp), 1)
+        largest, settled = width / np.sqrt(2), 1e-6 * np.maximum(width, 1e-12)
         shift = np.zeros(n_comp)
         for _ in range(iterations):
             x = (distance - shift[comp]) / sigma
-            residual = f - lo - (hi - lo) * 0.5 * erfc(x)
-            slope = (hi - lo) * np.exp(-x * x) / (np.sqrt(np.pi) * sigma)  # d model / d shift
+            residual = above - half_contrast * erfc(x)
+            slope = contrast * np.exp(-x * x) / density  # d model / d shift
             num = np.bincount(comp, a * residual * slope, minlength=n_comp)
             den = np.bincount(comp, a * slope * slope, minlength=n_comp)
-            # at most one width (sigma / sqrt 2) a step
-            width = np.bincount(comp, sigma, minlength=n_comp) / np.maximum(np.bincount(comp, minlength=n_comp), 1)
-            step = np.clip(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0), -width / np.sqrt(2),
-                           width / np.sqrt(2))
+            step = np.clip(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0), -largest, largest)
             shift += step
-            if np.all(np.abs(step) <= 1e-6 * np.maximum(width, 1e-12)):
+            if np.all(np.abs(step) <= settled):
                 break
         return shift
 

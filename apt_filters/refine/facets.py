@@ -357,8 +357,8 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
             sel = np.flatnonzero(which.ravel() == g)
             planes = plane_n[u].T
             mixes = np.ascontiguousarray(np.linalg.lstsq(planes, normals[idx[rows[sel]]].T, rcond=None)[0].T)
-            spanned[sel] = [not (mix.min() < -0.1 or np.linalg.norm(planes @ mix - normals[idx[rows[j]]]) > span_tol)
-                            for j, mix in zip(sel, mixes)]
+            residual = np.linalg.norm(mixes @ planes.T - normals[idx[rows[sel]]], axis=1)
+            spanned[sel] = ~((mixes.min(axis=1) < -0.1) | (residual > span_tol))
         rows = rows[spanned]
         u, s = use[rows], signed[rows]
         with np.errstate(divide="ignore", invalid="ignore"):  # the planes a vertex does not use are masked
