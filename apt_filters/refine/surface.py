@@ -1078,7 +1078,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
 
 def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
                    half_width: float, distance: str, chosen: dict | None = None, halves: list | None = None,
-                   unjudged: bool = False) -> list:
+                   unjudged: bool = False, found: list | None = None) -> list:
     """The facets of a surface as the iterations left it (none if switched off), as the halves' facets
     (``halves``, where given) judged them (:func:`~apt_filters.refine.facets.judged`), fitted to its ions where
     they close an object (:func:`_fitted_facets`); only those of the objects ``chosen`` (component -> bool,
@@ -1087,12 +1087,14 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     ``unjudged``: no held-out ions will judge these facets (``select_modes`` off), so none from the search for
     crowded normals (``find_facets(peak=inf)``): on a refined surface a small sphere's lumps crowd as much as a
     lath's narrow faces (eight 3 nm spheres, ``cross_fit=False``: crowd ratios 1.2-3.3 against the laths'
-    1.9-3.5), and every one of them was closed by 6-7 such facets; only the held-out test tells them apart."""
-    found = find_facets(placed.vertices, faces, **({"peak": np.inf} if unjudged else {})) if facets else []
-    spare = None
-    if halves is not None:
-        found = judged(found, halves)
-        spare = missed(found, halves)
+    1.9-3.5), and every one of them was closed by 6-7 such facets; only the held-out test tells them apart.
+
+    ``found``: the facets of ``placed`` already found (and judged by ``halves``), not searched for again."""
+    if found is None:
+        found = find_facets(placed.vertices, faces, **({"peak": np.inf} if unjudged else {})) if facets else []
+        if halves is not None:
+            found = judged(found, halves)
+    spare = missed(found, halves) if halves is not None else None
     return (_fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}, spare=spare)
             if found else [])
 
@@ -1119,6 +1121,11 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     if not len(folded_pairs(target, faces, FOLD_ANGLE)):
         return target, 0
     return guarded_move(vertices, faces, target - vertices, pairs)
+
+
+def _unclosed(found: list[Facet]) -> set[int]:
+    """The objects with facets ``found`` that they do not close (:func:`closes`)."""
+    return {c for c in {f.component for f in found} if not closes([f for f in found if f.component == c])}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1216,7 +1223,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
-    selection, half_facets = None, None
+    selection, half_facets, whole_facets = None, None, None
     vertices, guarded = placed.vertices, placed.guarded
     shape_errors = np.full((len(closed), 2), np.nan)
     clock = time.perf_counter()
@@ -1224,11 +1231,14 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # candidates are finished with the blur given, or without one while it is still to be estimated
         half_facets = on_threads(lambda fit: _placed_facets(fit, faces, components, scores, p.facets, p.half_width,
                                                             p.distance), [(fit,) for fit in fits])
+        # the whole's facets as the halves judge them, found here since those that close no object must win
+        whole_facets = judged(find_facets(placed.vertices, faces), half_facets) if p.facets else []
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
                                                                     None if auto else blur),
-                                          faceted_objects={f.component for found in half_facets for f in found})
+                                          faceted_objects={f.component for found in half_facets for f in found},
+                                          unclosed=_unclosed(whole_facets))
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
@@ -1254,7 +1264,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     # facets only as the held-out ions judged them: those the halves found, where the ions preferred them
     found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
                            selection.facets if selection is not None else None, half_facets,
-                           unjudged=selection is None)
+                           unjudged=selection is None, found=whole_facets)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
