@@ -1076,6 +1076,14 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
     return finish
 
 
+def _found_facets(vertices: np.ndarray, faces: np.ndarray, facets: bool, halves: list | None = None,
+                  unjudged: bool = False) -> list:
+    """The facets of the surface ``vertices`` (none if ``facets`` is off), as the halves' facets (``halves``, where
+    given) judged them; ``unjudged`` as :func:`_placed_facets`'."""
+    found = find_facets(vertices, faces, **({"peak": np.inf} if unjudged else {})) if facets else []
+    return judged(found, halves) if halves is not None else found
+
+
 def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, scores: ObjectScores, facets: bool,
                    half_width: float, distance: str, chosen: dict | None = None, halves: list | None = None,
                    unjudged: bool = False, found: list | None = None) -> list:
@@ -1089,11 +1097,9 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
     lath's narrow faces (eight 3 nm spheres, ``cross_fit=False``: crowd ratios 1.2-3.3 against the laths'
     1.9-3.5), and every one of them was closed by 6-7 such facets; only the held-out test tells them apart.
 
-    ``found``: the facets of ``placed`` already found (and judged by ``halves``), not searched for again."""
+    ``found``: the facets of ``placed`` already found (:func:`_found_facets`), not searched for again."""
     if found is None:
-        found = find_facets(placed.vertices, faces, **({"peak": np.inf} if unjudged else {})) if facets else []
-        if halves is not None:
-            found = judged(found, halves)
+        found = _found_facets(placed.vertices, faces, facets, halves, unjudged)
     spare = missed(found, halves) if halves is not None else None
     return (_fitted_facets(found, placed, components, scores, half_width, distance, chosen or {}, spare=spare)
             if found else [])
@@ -1232,7 +1238,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         half_facets = on_threads(lambda fit: _placed_facets(fit, faces, components, scores, p.facets, p.half_width,
                                                             p.distance), [(fit,) for fit in fits])
         # the whole's facets as the halves judge them, found here since those that close no object must win
-        whole_facets = judged(find_facets(placed.vertices, faces), half_facets) if p.facets else []
+        whole_facets = _found_facets(placed.vertices, faces, p.facets, half_facets)
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
