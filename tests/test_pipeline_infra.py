@@ -1,9 +1,14 @@
+import os
+import pathlib
+import signal
+
 import numpy as np
 import pytest
 
-from apt_filters.core import AptFiltersError
+from apt_filters.core import AptFiltersError, atomic
+from apt_filters.pipeline.run import scratch_folder
 from apt_filters.pipeline import config as cfg
-from apt_filters.pipeline.staging import MARKER, staged_folder
+from apt_filters.pipeline.staging import CLAIM_SUFFIX, MARKER, staged_folder
 from apt_filters.pipeline.steps import StepLog
 
 
@@ -68,6 +73,46 @@ def test_staged_folder_appears_whole_or_not_at_all(tmp_path):
         (stage / "new.json").write_text("{}")
     assert sorted(p.name for p in target.iterdir()) == [MARKER, "new.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def _signalled_after(monkeypatch, owner, name, made):
+    """Make ``owner.name`` send this process SIGTERM right after each call that ``made(args)`` says created
+    a temporary path: the moment a signal is most likely to leave one behind."""
+    monkeypatch.setattr(atomic, "_received", [])  # the handler records signals; none may reach later tests
+    old = signal.signal(signal.SIGTERM, atomic.raise_on_signal)
+    original = getattr(owner, name)
+
+    def call(*args, **kwargs):
+        result = original(*args, **kwargs)
+        if made(args):
+            signal.raise_signal(signal.SIGTERM)
+        return result
+
+    monkeypatch.setattr(owner, name, call)
+    return old
+
+
+@pytest.mark.parametrize("where", ["scratch folder", "atomic file", "claim"])
+def test_a_signal_right_after_a_temporary_path_is_made_still_removes_it(tmp_path, monkeypatch, where):
+    """Was: the scratch folder, the atomic file's temporary and the claim were made before the ``try`` that removes
+    them, so a SIGTERM in between left ``.out.apt-filters-tmp.*`` behind (seen once in CI's interrupted-run test)."""
+    target = tmp_path / "out"
+    if where == "scratch folder":
+        old = _signalled_after(monkeypatch, pathlib.Path, "mkdir", lambda a: atomic.TMP_TAG in a[0].name)
+        block = scratch_folder(target)
+    elif where == "atomic file":
+        old = _signalled_after(monkeypatch, os, "open", lambda a: atomic.TMP_TAG in str(a[0]))
+        block = atomic.atomic_output(target)
+    else:
+        old = _signalled_after(monkeypatch, pathlib.Path, "rename", lambda a: str(a[1]).endswith(CLAIM_SUFFIX))
+        block = staged_folder(target)
+    try:
+        with pytest.raises(atomic.Interrupted):
+            with block:
+                pass
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_step_log_measures_peak_memory_of_each_step():

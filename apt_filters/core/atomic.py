@@ -167,8 +167,9 @@ def atomic_output(path: str | os.PathLike, overwrite: bool = False) -> Iterator[
     _check_target(path, overwrite)
     tidy(path.parent)
     tmp_path = scratch_path(path, path.suffix)
-    os.close(os.open(tmp_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
     try:
+        # created inside the try: a signal arriving right after it must still remove the file
+        os.close(os.open(tmp_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         yield tmp_path
         os.replace(tmp_path, path)
     finally:

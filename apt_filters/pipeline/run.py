@@ -141,8 +141,8 @@ def scratch_folder(out: str | Path):
     killed outright leaves a folder the next run there removes (:func:`~apt_filters.core.atomic.tidy`).
     """
     folder = scratch_path(Path(out).resolve())
-    folder.mkdir()
     try:
+        folder.mkdir()  # inside the try: a signal arriving right after it must still remove the folder
         yield folder
     finally:
         with signals_held():

@@ -106,8 +106,8 @@ def claim_folder(target: Path) -> Path:
     claim = target.with_name(f".{target.name}{CLAIM_SUFFIX}")
     for _ in range(2):
         draft = scratch_path(claim)
-        draft.mkdir()
         try:
+            draft.mkdir()
             (draft / "owner").write_text(f"{host_tag()} {os.getpid()}\n")
             draft.rename(claim)  # fails when the claim exists: it holds its owner file, so it is not empty
             return claim
@@ -135,13 +135,15 @@ def staged_folder(target: str | os.PathLike, force: bool = False,
     """
     inputs = list(inputs)
     target = check_output_folder(target, inputs, force)
+    claim = None
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tidy(target.parent)
-        claim = claim_folder(target)
-    except OSError as exc:
-        raise AptFiltersError(f"cannot create the output folder: {exc.strerror}", target) from None
-    try:
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tidy(target.parent)
+            with signals_held():  # no signal between making the claim and the clean-up knowing of it
+                claim = claim_folder(target)
+        except OSError as exc:
+            raise AptFiltersError(f"cannot create the output folder: {exc.strerror}", target) from None
         stage = claim / "out"
         stage.mkdir()
         (stage / MARKER).write_text(f"written by apt-filters {__version__}; --force may replace this folder\n")
@@ -153,5 +155,6 @@ def staged_folder(target: str | os.PathLike, force: bool = False,
                 target.rename(claim / "old")
             stage.rename(target)
     finally:
-        with signals_held():
-            remove(claim)
+        if claim is not None:
+            with signals_held():
+                remove(claim)
