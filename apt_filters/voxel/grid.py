@@ -109,8 +109,10 @@ class Grid:
         margin = np.broadcast_to(np.asarray(margin, dtype=np.int64), (3,))
         start = np.floor(lower / voxel) * voxel if align else lower.copy()
         origin = start - margin * voxel
-        # +1: the top grid point must lie at or above the upper corner
-        steps = np.ceil((upper - origin) / voxel - 1e-9)
+        # +1: the top grid point must lie at or above the upper corner; an overflow is refused just below,
+        # in one line, so numpy need not warn of it too
+        with np.errstate(over="ignore"):
+            steps = np.ceil((upper - origin) / voxel - 1e-9)
         if not np.all(np.isfinite(steps)):
             raise AptFiltersError(f"a grid of {voxel:g} nm voxels over {lower.tolist()} .. {upper.tolist()} nm "
                                   "has too many voxels to count")
