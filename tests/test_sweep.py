@@ -36,12 +36,14 @@ def client():
 
 @pytest.fixture(scope="module")
 def base(specimen):
-    # The sweep's machinery, not the pipeline's accuracy, is under test: the cheaper steps keep it fast.
+    # The sweep's machinery, not the pipeline's accuracy, is under test: the cheaper steps keep it fast. The maps
+    # (a third of such a run's CPU, mostly their pictures) feed no row of a sweep.
     config = cfg.PipelineConfig(surface=[cfg.SurfaceConfig("Al", 0.15)])
     config.input.ions, config.input.ranges = str(specimen / "specimen.pos"), str(specimen / "specimen.rrng")
     config.refine.enabled = False
     config.remesh.method = "none"
     config.analysis.audit = False
+    config.analysis.maps = False
     return config
 
 
