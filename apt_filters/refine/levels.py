@@ -731,15 +731,15 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     (its misfit); the window, unmixed by the fitted shares, ``(W - O (1 - g_in)) / g_in``, reads the inside phase
     without it, so ``P`` less that reading, ``m``, estimates it: ``m^2 - var m``, its positive part. ``P`` is taken where the
     estimated mean squared error of ``S``, ``b^2 - var b + var S``, exceeds that of ``P``,
-    ``m^2 - var m + var P``, for every level of ``P`` within :data:`PROFILE_SE` of its own standard error (both
-    biases are read off ``P``, so ``P`` lying off by chance makes ``S`` look biased and would choose ``P`` where
-    it is wrong: held-out artefact 10004, a 2 nm cube whose profile of 34 atoms' worth read 45 at.% against its
-    window's 33 and a true 34). The difference is taken exactly over that interval, not linearised at ``P``: the
-    positive part of ``b^2 - var b`` cannot fall below zero, so where ``S``'s variance alone exceeds ``P``'s the
-    choice is ``P`` however little of the bias is real (held-out thin 10019's third rod: 7 window atoms, a level
-    that is the pool's of 72 window atoms, variance 2.4 times that of its profile worth 180; linearised at a bias
-    just above its error, the slope of ``b^2`` read as a spread of 0.0054 against a gain of 0.0024, and the pool's
-    level 6.5 points below the truth was kept). A window deep enough (``g_in`` 1) with many atoms keeps its level
+    ``m^2 - var m + var P``, with ``P`` moved by :data:`PROFILE_SE` of its own standard error either way (the
+    delta method; both biases are read off ``P``, so ``P`` lying off by chance makes ``S`` look biased and would
+    choose ``P`` where it is wrong: held-out artefact 10004, a 2 nm cube whose profile of 34 atoms' worth read 45
+    at.% against its window's 33 and a true 34). Each positive part moves along its slope but not below zero: the
+    estimate of a squared bias cannot fall further, so where ``S``'s variance alone exceeds ``P``'s the choice is
+    ``P`` however little of the bias is real (held-out thin 10019's third rod: 7 window atoms, a level that is the
+    pool's of 72 window atoms, variance 2.4 times that of its profile worth 180; with the slope of ``b^2`` taken
+    whole at a bias just above its error, a fall of 0.0054 against a positive part of 0.0005 and a gain of 0.0024,
+    the pool's level 6.5 points below the truth was kept). A window deep enough (``g_in`` 1) with many atoms keeps its level
     where the profile disagrees with it (a large sphere's); a thin object's few window atoms, whose level is the
     pool's, give way to the profile where the pool is the less certain or lies off it by more than their errors.
 
@@ -772,37 +772,25 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     s = (window[k] + prior * pool[k] / n_pool) / (n_in + prior)
     var_s = s * (1 - s) * (n_in + prior ** 2 / n_pool) / (n_in + prior) ** 2
     var_p = p_in * (1 - p_in) / worth
-    # both biases are linear in P: bias = b0 - slope_b P (d bias / dP = -(1 - w g_in)), misfit = P - unmixed
-    slope_b = 1 - w * g_in
-    b0 = w * fit.outside * (1 - g_in) + (1 - w) * pool[k] / n_pool
-    var_bias = var_p * slope_b ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
-    unmixed, var_misfit = None, 0.0
+    bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
+    var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
+    misfit = var_misfit = 0.0
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
-        unmixed = (own - fit.outside * (1 - g_in)) / g_in
+        misfit = p_in - (own - fit.outside * (1 - g_in)) / g_in
         var_misfit = var_p + own * (1 - own) / n_in / g_in ** 2
-
-    def gain(q: np.ndarray) -> np.ndarray:
-        """The estimated mean squared error of S less that of P, were P's level ``q``; squared biases estimated by
-        their positive parts (a squared bias is not negative; the part below zero is noise that would choose at
-        random between estimators of equal error)."""
-        out = np.maximum((b0 - slope_b * q) ** 2 - var_bias, 0.0) + var_s - var_p
-        if unmixed is not None:
-            out -= np.maximum((q - unmixed) ** 2 - var_misfit, 0.0)
-        return out
-
-    # both biases are read off P, so P lying off by chance would make it look better: P is taken only where the gain
-    # stays positive for every level within PROFILE_SE of P's own error. On that interval the gain is piecewise
-    # quadratic with no interior least point (the bias's piece is convex with its vertex where it is not active, the
-    # misfit's and both together concave, slope_b <= 1): its least lies at the interval's ends or where a positive
-    # part starts, |bias| or |misfit| at its own error
-    reach = PROFILE_SE * np.sqrt(var_p)
-    starts = [(b0 - np.sqrt(var_bias)) / slope_b, (b0 + np.sqrt(var_bias)) / slope_b]
-    if unmixed is not None:
-        starts += [unmixed - np.sqrt(var_misfit), unmixed + np.sqrt(var_misfit)]
-    starts = np.array(starts)
-    at = np.concatenate([[p_in - reach, p_in + reach], starts[np.abs(starts - p_in) < reach]])
-    return bool(gain(at).min() > 0)
+    # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
+    # noise that would choose at random between estimators of equal error)
+    biased, misfitted = max(bias ** 2 - var_bias, 0.0), max(misfit ** 2 - var_misfit, 0.0)
+    # both biases are read off P (d bias / dP = -(1 - w g_in), d misfit / dP = 1), and P lying off by chance would
+    # make it look better: P is taken where the gain stays positive with P moved by PROFILE_SE of its own error
+    # either way, each positive part moved along its slope but not below zero (it cannot fall further: where S's
+    # variance alone exceeds P's, S gives way however little of its bias is real)
+    step = PROFILE_SE * np.sqrt(var_p)
+    d_biased = -2 * bias * (1 - w * g_in) * (biased > 0) * step
+    d_misfitted = 2 * misfit * (misfitted > 0) * step
+    return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted, 0.0) - var_p
+               for sign in (-1.0, 1.0)) > 0
 
 
 def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> bool:
