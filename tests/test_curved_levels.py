@@ -256,6 +256,23 @@ def test_a_profile_that_lies_off_by_its_own_error_is_not_taken():
     assert profile_better((np.array([0.454, 0.546]), 680.0), fit, window, pool, 0.756, 0, 3000.0)
 
 
+
+def test_a_thin_objects_pool_less_certain_than_its_profile_gives_way_however_far_it_lies():
+    # held-out thin 10019's third rod (truth 45.37 at.% Mg inside): 7 window atoms of its axis at 28.6 at.%, so its
+    # level S is the pool's, 72 window atoms, whose counting error alone (5.7 points) exceeds its profile's (P 46.1,
+    # worth 180 atoms: 3.7 points, 0.2 of them from the truth). Linearised at a bias just beyond its error, the slope
+    # of the squared bias read as a spread that kept S with the pool at 36-39 at.%, 6-9 points (over 2.7 of S's own
+    # errors) below the truth, and took P with the pool nearer or farther: S, less certain than P even unbiased, must
+    # give way wherever the pool lies
+    from apt_filters.refine.levels import BallFit, profile_better
+    truth = 0.4537
+    fit = BallFit(0.029, 0.448, 0.4608, 0.0183, np.zeros((2, 2)))
+    level, window, prior = (np.array([0.4611, 0.5389]), 180.0), np.array([2.0, 5.0]), 3000.0
+    assert abs(level[0][0] - truth) < 2 * np.sqrt(truth * (1 - truth) / level[1])
+    for read in np.arange(0.20, 0.52, 0.01):
+        pool = np.array([read, 1 - read]) * 72
+        assert profile_better(level, fit, window, pool, 0.930, 0, prior), read
+
 @pytest.mark.parametrize("radius, dims", [(1.0, 2.0), (0.8, 2.0), (3.0, 3.0)])
 def test_the_share_stops_the_placements_step_at_a_thin_objects_interface(radius, dims):
     # the placement's own estimator (its matched step, the width read off the normalised profile) iterated to its
