@@ -20,7 +20,7 @@ from scipy.special import erfc
 
 from apt_filters.core.special import erfc_scalar
 from apt_filters.refine.blur import lateral_blur, peak_blur
-from apt_filters.refine.facets import edge_and_corner_steps, facet_steps, find_facets
+from apt_filters.refine.facets import edge_and_corner_steps, facet_frames, facet_steps, find_facets
 from apt_filters.refine.spectral import harmonics, low_pass, rim_held_low_pass
 from apt_filters.synth import Cuboid, Sphere
 
@@ -228,6 +228,25 @@ def test_vertices_are_put_along_the_edges_of_a_rounded_box():
     before, after = _box_error(box, mesh, corners), _box_error(box, mesh, edges)
     assert abs(after.area_error) < abs(before.area_error) / 2
     assert after.mean_distance < 0.9 * before.mean_distance
+
+
+def test_the_facets_frames_taken_once_finish_every_surface_as_taken_per_surface():
+    """The mode selection finishes up to 14 candidates with one set of facets: what the planes alone fix of the
+    edges and corners (a box's 8 corners, 12 edges) is taken once, and each surface's moves are the same numbers
+    as with the frames taken from the facets in the call."""
+    box, mesh = _rounded_box()
+    facets = find_facets(mesh.vertices, mesh.faces, fit_cap=20.0)
+    frames = facet_frames(facets)
+    assert [len(f.corners) for f in frames] == [8] and [len(f.lines) for f in frames] == [12]
+    step, normals = facet_steps(mesh.vertices, mesh.faces, facets)
+    rims = mesh.vertices + step[:, None] * normals
+    rng = np.random.default_rng(3)
+    for surface in (rims, rims + rng.normal(0.0, 0.05, rims.shape), 1.02 * rims):
+        for edges in (True, False):
+            once = edge_and_corner_steps(surface, mesh.faces, facets, edges=edges,
+                                         frames=facet_frames(facets, edges=edges))
+            assert np.count_nonzero(once.any(axis=1)) >= 8
+            assert np.array_equal(once, edge_and_corner_steps(surface, mesh.faces, facets, edges=edges))
 
 
 def _blurred_cube_ions(seed, c_in, c_out, n=60000, blur=0.3):

@@ -402,8 +402,80 @@ def rounded_distance(signed: np.ndarray, rounding: float) -> np.ndarray:
     return np.where(outside > 0, outside, inner.max(axis=1)) - rounding
 
 
+@dataclass(frozen=True)
+class FacetFrame:
+    """One object's facets and what their planes alone fix of its edges and corners (:func:`facet_frames`),
+    the same for every surface the facets finish.
+
+    Attributes
+    ----------
+    component : int
+    facets : list of Facet
+        The object's facets (in the order given).
+    corners : (q, 3) float64, nm
+        The corners' targets, on the planes' rounded intersections: those of trios of facets whose normals are
+        well apart and that lie inside every other plane.
+    trios : (q, 3) int
+        Each corner's facets (indices into ``facets``).
+    lines : list of (int, int, (3,) float64, (3,) float64, float, float)
+        Each edge: its pair of facets, a point (nm) of the rounded intersection line, the line's unit direction,
+        and its stretch (nm along the direction from the point) inside every other plane.
+    """
+
+    component: int
+    facets: list
+    corners: np.ndarray
+    trios: np.ndarray
+    lines: list
+
+
+def facet_frames(facets: list[Facet], slack: float = 0.1, edges: bool = True) -> list[FacetFrame]:
+    """Each object's :class:`FacetFrame` (by component, in increasing order): the geometry of
+    :func:`edge_and_corner_steps` that depends on the facets' planes alone, computed once for all the surfaces
+    the same facets finish (``slack``, ``edges``: as there)."""
+    frames = []
+    for c in sorted({f.component for f in facets}):
+        mine = [f for f in facets if f.component == c]
+        normals = np.array([f.normal for f in mine])
+        # a rounded object's edges and corners are those of its planes moved in by the radius, grown by a ball
+        rounding = mine[0].rounding
+        offsets = np.array([f.offset for f in mine]) - rounding
+        corners, trios = [], []
+        for trio in itertools.combinations(range(len(mine)), 3):
+            n3 = normals[list(trio)]
+            if abs(np.linalg.det(n3)) < 0.5:
+                continue
+            corner = np.linalg.solve(n3, offsets[list(trio)])
+            if np.any(normals @ corner - offsets > slack):
+                continue
+            out = n3.sum(axis=0)
+            corners.append(corner + rounding * out / np.linalg.norm(out))
+            trios.append(trio)
+        lines = []
+        for i, j in itertools.combinations(range(len(mine)), 2) if edges else ():
+            direction = np.cross(normals[i], normals[j])
+            if np.linalg.norm(direction) < np.sin(np.radians(30.0)):
+                continue
+            direction /= np.linalg.norm(direction)
+            point = np.linalg.lstsq(normals[[i, j]], offsets[[i, j]], rcond=None)[0]
+            # the line's stretch inside every other plane
+            rate, room = normals @ direction, offsets + slack - normals @ point
+            others = np.setdiff1d(np.arange(len(mine)), [i, j])
+            lo = max([room[k] / rate[k] for k in others if rate[k] < -1e-9], default=-np.inf)
+            hi = min([room[k] / rate[k] for k in others if rate[k] > 1e-9], default=np.inf)
+            outside = any(room[k] < 0 for k in others if abs(rate[k]) <= 1e-9)
+            if outside or not np.isfinite(lo) or not np.isfinite(hi):
+                continue
+            out = normals[i] + normals[j]
+            lines.append((i, j, point + rounding * out / np.linalg.norm(out), direction, lo, hi))
+        frames.append(FacetFrame(c, mine, np.array(corners).reshape(-1, 3),
+                                 np.array(trios, dtype=np.int64).reshape(-1, 3), lines))
+    return frames
+
+
 def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], reach: float = 2.5,
-                          max_move: float = 1.5, slack: float = 0.1, edges: bool = True) -> np.ndarray:
+                          max_move: float = 1.5, slack: float = 0.1, edges: bool = True,
+                          frames: list[FacetFrame] | None = None) -> np.ndarray:
     """(n, 3) moves that put one vertex on each convex corner of an object's facets and a row of vertices along
     each of its edges (module docstring, step 3).
 
@@ -414,6 +486,9 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
     inside every other facet's plane; points along it one mean mesh edge apart, within ``reach`` of both
     facets' vertices, each take the nearest vertex not yet taken if it is within ``max_move / 2`` (a
     shorter reach than a corner's: an edge's rim is rounded less deeply than a corner's).
+
+    ``frames``: :func:`facet_frames` of ``facets`` (with the same ``slack`` and ``edges``), where the caller
+    finishes several surfaces with the same facets; taken from ``facets`` if not given.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     components = topology(faces, len(vertices)).vertex_components
@@ -424,49 +499,27 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
     start = np.searchsorted(np.sort(faces.ravel()), np.arange(len(vertices) + 1))
     edge = vertices[faces[:, 1]] - vertices[faces[:, 0]]
     spacing = float(np.mean(np.linalg.norm(edge, axis=1))) if len(faces) else 1.0
-    for c in sorted({f.component for f in facets}):
-        mine = [f for f in facets if f.component == c]
-        trees = [cKDTree(vertices[f.vertices]) for f in mine]
-        idx = np.flatnonzero(components == c)
-        tree = cKDTree(vertices[idx])
-        normals = np.array([f.normal for f in mine])
-        # a rounded object's edges and corners are those of its planes moved in by the radius, grown by a ball
-        rounding = mine[0].rounding
-        offsets = np.array([f.offset for f in mine]) - rounding
-        targets = []
-        for trio in itertools.combinations(range(len(mine)), 3):
-            n3 = normals[list(trio)]
-            if abs(np.linalg.det(n3)) < 0.5:
+    for frame in facet_frames(facets, slack, edges) if frames is None else frames:
+        # the candidate points (the corners, then each edge's row) and the facets each must be within reach of
+        points, owners = [frame.corners], [frame.trios]
+        for i, j, point, direction, lo, hi in frame.lines:
+            if hi - lo < 2 * spacing:
                 continue
-            corner = np.linalg.solve(n3, offsets[list(trio)])
-            if any(trees[k].query(corner)[0] > reach for k in trio) or np.any(normals @ corner - offsets > slack):
-                continue
-            out = n3.sum(axis=0)
-            targets.append(corner + rounding * out / np.linalg.norm(out))
-        n_corners = len(targets)
-        if edges:
-            for i, j in itertools.combinations(range(len(mine)), 2):
-                direction = np.cross(normals[i], normals[j])
-                if np.linalg.norm(direction) < np.sin(np.radians(30.0)):
-                    continue
-                direction /= np.linalg.norm(direction)
-                point = np.linalg.lstsq(normals[[i, j]], offsets[[i, j]], rcond=None)[0]
-                # the line's stretch inside every other plane
-                rate, room = normals @ direction, offsets + slack - normals @ point
-                others = np.setdiff1d(np.arange(len(mine)), [i, j])
-                lo = max([room[k] / rate[k] for k in others if rate[k] < -1e-9], default=-np.inf)
-                hi = min([room[k] / rate[k] for k in others if rate[k] > 1e-9], default=np.inf)
-                outside = any(room[k] < 0 for k in others if abs(rate[k]) <= 1e-9)
-                if outside or not np.isfinite(lo) or not np.isfinite(hi) or hi - lo < 2 * spacing:
-                    continue
-                out = normals[i] + normals[j]
-                point = point + rounding * out / np.linalg.norm(out)
-                row = point + np.arange(lo + spacing, hi - 0.5 * spacing, spacing)[:, None] * direction
-                targets += list(row[(trees[i].query(row)[0] <= reach) & (trees[j].query(row)[0] <= reach)])
-        if not targets:
+            points.append(point + np.arange(lo + spacing, hi - 0.5 * spacing, spacing)[:, None] * direction)
+            owners.append(np.broadcast_to([i, i, j], (len(points[-1]), 3)))  # (a corner's three columns)
+        points, owners = np.concatenate(points), np.concatenate(owners)
+        # one KD-tree query per facet, of all the points that must be near it (the same distances as point by point)
+        near_all = np.ones(len(points), dtype=bool)
+        for k, f in enumerate(frame.facets):
+            sel = np.flatnonzero((owners == k).any(axis=1))
+            if len(sel):
+                near_all[sel] &= cKDTree(vertices[f.vertices]).query(points[sel])[0] <= reach
+        if not near_all.any():
             continue
-        targets = np.array(targets)
-        near = idx[tree.query(targets, k=min(8, len(idx)))[1].reshape(len(targets), -1)]
+        n_corners = int(np.count_nonzero(near_all[:len(frame.corners)]))
+        targets = points[near_all]
+        idx = np.flatnonzero(components == frame.component)
+        near = idx[cKDTree(vertices[idx]).query(targets, k=min(8, len(idx)))[1].reshape(len(targets), -1)]
         limit = np.where(np.arange(len(targets)) < n_corners, max_move, 0.5 * max_move)
         _take_nearest(targets, near, limit, vertices, faces, order, start, taken, moves)
     return moves

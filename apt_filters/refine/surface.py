@@ -97,8 +97,8 @@ from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelection, apply_modes, basis_size,
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
-from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, facet_steps, find_facets, fit_to_ions,
-                                      judged, missed)
+from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, facet_frames, facet_steps, find_facets,
+                                      fit_to_ions, judged, missed)
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
@@ -1054,6 +1054,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
     if lift is not None:
         found = [replace(f, offset=f.offset + lift[f.component]) for f in found]
         lift = np.where(components >= 0, lift[np.maximum(components, 0)], 0.0)
+    frames = facet_frames(found)  # what the planes alone fix of the edges and corners: once for every surface
 
     def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray, float]:
         guarded = 0
@@ -1067,7 +1068,7 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
         if found:
             step, along = facet_steps(vertices, faces, found)
             vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
-            corners = edge_and_corner_steps(vertices, faces, found)
+            corners = edge_and_corner_steps(vertices, faces, found, frames=frames)
             vertices, g2 = guarded_move(vertices, faces, corners, pairs)
             guarded += g + g2
             sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
