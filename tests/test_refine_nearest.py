@@ -244,3 +244,18 @@ def test_subset_on_the_assigned_mesh_skips_the_walk_with_the_walks_result():
     both(near, moved, 2.0)
     sub = both(near, moved, 2.5)
     both(sub, moved, 1.0)
+
+
+def test_the_nearest_corner_of_each_face_is_numpys_argmin_bit_for_bit():
+    # the walks' start (NearIons.cover): the compiled loop against numpy's own expression (kept here as the oracle),
+    # with ties (corners at one place, points equidistant from two corners) and coordinates of mixed magnitude
+    from apt_filters.refine.band import _nearest_corner
+    rng = np.random.default_rng(5)
+    vertices = np.vstack([rng.normal(0, 30, (500, 3)), np.zeros((1, 3)), np.zeros((1, 3)), [[2.0, 0, 0]]])
+    ring = rng.integers(0, len(vertices), (20_000, 3))
+    ring[:100] = [500, 501, 0]  # two corners at one place: the first of them
+    points = vertices[ring[:, 0]] + rng.normal(0, 5, (len(ring), 3))
+    points[100:200] = [1.0, 3.0, 0.0]
+    ring[100:200] = [502, 500, 1]  # (1, 3, 0) equidistant from (0, 0, 0) and (2, 0, 0)
+    oracle = ring[np.arange(len(ring)), np.argmin(((vertices[ring] - points[:, None]) ** 2).sum(axis=2), axis=1)]
+    assert np.array_equal(_nearest_corner(points, vertices, ring), oracle)

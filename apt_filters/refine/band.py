@@ -260,8 +260,7 @@ class NearIons:
         near = select_near(ions.positions[candidates], TriMesh(vertices[used], local.reshape(-1, 3)), self.radius)
         rows, positions = candidates[near.rows], near.positions
         # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
-        ring = used[local.reshape(-1, 3)[near.face]]
-        start = ring[np.arange(len(rows)), np.argmin(((vertices[ring] - positions[:, None]) ** 2).sum(axis=2), axis=1)]
+        start = _nearest_corner(positions, vertices, used[local.reshape(-1, 3)[near.face]])
         vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT, self.second)
         keep = d2 <= self.radius * self.radius
         rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
@@ -551,6 +550,29 @@ def _near_cells(positions: np.ndarray, points: np.ndarray, reach: float, held: n
         n = _in_cells(part, start, low.astype(np.float64), float(reach), shape, occupied, held, int(parity), buffer)
         out.append(buffer[:n].copy())
     return np.concatenate(out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _nearest_corners(points, vertices, ring, out):
+    for i in prange(points.shape[0]):
+        best, out[i] = np.inf, ring[i, 0]
+        for k in range(3):
+            v = ring[i, k]
+            d = (vertices[v, 0] - points[i, 0]) ** 2 + (vertices[v, 1] - points[i, 1]) ** 2 + (
+                vertices[v, 2] - points[i, 2]) ** 2
+            if d < best:  # the first of equals, as argmin
+                best, out[i] = d, v
+
+
+def _nearest_corner(points: np.ndarray, vertices: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """(m,) int64: of each point's three vertices ``ring`` (m, 3), the nearest to it (points (m, 3) and vertices
+    float64, nm), the first of equals; the squared distances summed x, y, z in turn, as numpy's
+    ``argmin(((vertices[ring] - points[:, None]) ** 2).sum(axis=2), axis=1)`` sums them (the same vertex bit for
+    bit, without its (m, 3, 3) temporaries)."""
+    out = np.empty(len(points), dtype=np.int64)
+    _nearest_corners(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(vertices, dtype=np.float64),
+                     np.ascontiguousarray(ring, dtype=np.int64), out)
+    return out
 
 
 @njit(cache=True, nogil=True, parallel=True)
