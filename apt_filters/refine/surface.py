@@ -162,8 +162,8 @@ class RefineParams:
     Iterations
 
     iterations : int, [0, 1000]
-        At most this many; they stop when no vertex moves more than ``tolerance`` (the cross-fit's halves: see
-        ``settle_halves``).
+        At most this many; they stop when every object's vertices move (rms) less than ``tolerance`` times the
+        counting error of its mean offset.
     far_iterations : int, [0, iterations]
         Iterations that use the equal-area rule (robust far from the interface); later ones use the matched
         filter with each object's measured profile width.
@@ -174,16 +174,11 @@ class RefineParams:
         but roughen 3 nm spheres.
     max_step : float, nm, (0, 5]
         Largest move per iteration.
-    tolerance : float, nm, [0, 1]
-        Convergence: largest move of an iteration (times its gain).
-    settle_halves : float, [0, 1]
-        The cross-fit's halves stop once an iteration moved every object's vertices by less (rms) than this
-        fraction of the counting error of its mean offset (the standard error of a shift of the whole object from
-        the ions of its binned profile, as ``RefineResult.offset_errors``): a half only measures the other half's
-        windows and feeds the held-out choices, and further steps move it within what its ions can tell. 0: the
-        whole's rule (``tolerance``). 0.5: 10M ``many`` halves stop at 7-8 of 12, gamma-prime's at 8. The
-        whole keeps ``tolerance``: the same rule for it moved held-out thin rods' caps, a small object and an
-        open interface beyond their errors.
+    tolerance : float, [0, 1]
+        Convergence, a fraction of each object's counting error (the standard error of its mean offset from the ions
+        of its binned profile, as ``RefineResult.offset_errors``): the iterations stop once an iteration moved
+        every object's vertices by less (rms) than that. 0.5: gamma-prime's whole placement settles at iteration 8
+        of 12 (0.43 of its error; 0.24 at iteration 12).
 
     Regularisation
 
@@ -256,8 +251,7 @@ class RefineParams:
     far_iterations: int = 2
     full_steps: int = 4
     max_step: float = 0.5
-    tolerance: float = 0.02
-    settle_halves: float = 0.5
+    tolerance: float = 0.5
     smoothing: int = 10
     crease_angle: float = 20.0
     crease_smoothing: int = 6
@@ -284,8 +278,8 @@ class RefineParams:
 
 _RANGES = {"half_width": (0.5, 5.0), "bin_width": (0.05, 2.5), "pool_radius": (0.0, 10.0), "normal_power": (0.0, 64.0),
            "plateau_prior": (0.0, 1e9), "iterations": (0, 1000), "far_iterations": (0, 1000), "full_steps": (1, 1000),
-           "max_step": (1e-6, 5.0), "tolerance": (0.0, 1.0), "settle_halves": (0.0, 1.0), "smoothing": (0, 100),
-           "crease_angle": (0.0, 180.0), "crease_smoothing": (0, 100), "normal_smoothing": (0, 100), "tangential": (0.0, 1.0),
+           "max_step": (1e-6, 5.0), "tolerance": (0.0, 1.0), "smoothing": (0, 100), "crease_angle": (0.0, 180.0),
+           "crease_smoothing": (0, 100), "normal_smoothing": (0, 100), "tangential": (0.0, 1.0),
            "subdivisions": (0, 3), "relax_start": (0, 1000)}
 _INTEGERS = {"iterations", "far_iterations", "full_steps", "smoothing", "crease_smoothing", "normal_smoothing",
              "subdivisions", "relax_start"}
@@ -610,8 +604,7 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
 
 
 def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str,
-           fixed: list[ObjectLevels] | None, p: RefineParams, pairs_near: Pairs, settle: float | None = None
-           ) -> _Placed:
+           fixed: list[ObjectLevels] | None, p: RefineParams, pairs_near: Pairs) -> _Placed:
     """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``.
 
     ``near``: the ions within ``reach + RESELECT`` of the start, completed from the ion table where the surface
@@ -687,8 +680,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
             vertices, g = guarded_move(vertices, faces, p.tangential * np.where(ok[:, None], lap, 0.0), pairs)
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
-        if (history[-1] < p.tolerance * gain if settle is None
-                else _settled(step, components, obj_t, levels, scores, widths, settle, p)):
+        if _settled(step, components, obj_t, levels, scores, widths, p):
             break
     near.cover(vertices, reach)
     normals = smoothed_normals(vertices, faces, p.normal_smoothing)
@@ -699,8 +691,8 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
 
 
 def _settled(step: np.ndarray, components: np.ndarray, obj_t: np.ndarray, levels: list[ObjectLevels],
-             scores: ObjectScores, widths: np.ndarray, fraction: float, p: RefineParams) -> bool:
-    """Whether every object's iteration ``step`` (n,) nm moved its vertices by less (rms) than ``fraction`` times
+             scores: ObjectScores, widths: np.ndarray, p: RefineParams) -> bool:
+    """Whether every object's iteration ``step`` (n,) nm moved its vertices by less (rms) than ``p.tolerance`` times
     the counting error of its mean offset (:func:`_mean_offset_error` on its profile's binned atoms ``obj_t``
     (objects, bins)): further steps move it within what its ions can tell. Objects without a usable contrast
     do not move and do not count."""
@@ -710,7 +702,7 @@ def _settled(step: np.ndarray, components: np.ndarray, obj_t: np.ndarray, levels
     count = np.bincount(components[used], minlength=len(obj_t))
     for c in np.flatnonzero(scores.usable & (np.abs(scores.inside - scores.outside) > 0) & (count > 0)):
         error = _mean_offset_error(centres, obj_t[c], levels[c], scores, c, widths[c])
-        if not np.sqrt(moved[c] / count[c]) < fraction * error:  # nan (no information): not settled
+        if not np.sqrt(moved[c] / count[c]) < p.tolerance * error:  # nan (no information): not settled
             return False
     return True
 
@@ -1241,8 +1233,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     if p.cross_fit:
         clock = time.perf_counter()
         # the halves are independent: one thread each (their compiled loops and numpy release the GIL)
-        fits = on_threads(lambda k: _place(start, faces, near.half(k, start), species, None, p, pairs_start,
-                                         p.settle_halves or None),
+        fits = on_threads(lambda k: _place(start, faces, near.half(k, start), species, None, p, pairs_start),
                           [(0,), (1,)])
         # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
         # smoothness selection
