@@ -162,8 +162,7 @@ class RefineParams:
     Iterations
 
     iterations : int, [0, 1000]
-        At most this many; they stop when every object's vertices move (rms) less than ``tolerance`` times the
-        counting error of its mean offset.
+        At most this many; they stop when no vertex moves more than ``tolerance``.
     far_iterations : int, [0, iterations]
         Iterations that use the equal-area rule (robust far from the interface); later ones use the matched
         filter with each object's measured profile width.
@@ -174,11 +173,8 @@ class RefineParams:
         but roughen 3 nm spheres.
     max_step : float, nm, (0, 5]
         Largest move per iteration.
-    tolerance : float, [0, 1]
-        Convergence, a fraction of each object's counting error (the standard error of its mean offset from the ions
-        of its binned profile, as ``RefineResult.offset_errors``): the iterations stop once an iteration moved
-        every object's vertices by less (rms) than that. 0.5: gamma-prime's whole placement settles at iteration 8
-        of 12 (0.43 of its error; 0.24 at iteration 12).
+    tolerance : float, nm, [0, 1]
+        Convergence: largest move of an iteration (times its gain).
 
     Regularisation
 
@@ -251,7 +247,7 @@ class RefineParams:
     far_iterations: int = 2
     full_steps: int = 4
     max_step: float = 0.5
-    tolerance: float = 0.5
+    tolerance: float = 0.02
     smoothing: int = 10
     crease_angle: float = 20.0
     crease_smoothing: int = 6
@@ -680,7 +676,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
             vertices, g = guarded_move(vertices, faces, p.tangential * np.where(ok[:, None], lap, 0.0), pairs)
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
-        if _settled(step, components, obj_t, levels, scores, widths, p):
+        if history[-1] < p.tolerance * gain:
             break
     near.cover(vertices, reach)
     normals = smoothed_normals(vertices, faces, p.normal_smoothing)
@@ -688,23 +684,6 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
         levels = plateaus(near.band(vertices, normals, reach, p.distance, shell), near.atoms, components, n_comp,
                           species, p.plateau_window, p.plateau_prior)
     return _Placed(vertices, levels, widths, normals, near, guarded, history, it)
-
-
-def _settled(step: np.ndarray, components: np.ndarray, obj_t: np.ndarray, levels: list[ObjectLevels],
-             scores: ObjectScores, widths: np.ndarray, p: RefineParams) -> bool:
-    """Whether every object's iteration ``step`` (n,) nm moved its vertices by less (rms) than ``p.tolerance`` times
-    the counting error of its mean offset (:func:`_mean_offset_error` on its profile's binned atoms ``obj_t``
-    (objects, bins)): further steps move it within what its ions can tell. Objects without a usable contrast
-    do not move and do not count."""
-    centres = _centres(obj_t.shape[1], p.half_width, p.bin_width)
-    used = components >= 0
-    moved = np.bincount(components[used], step[used] ** 2, len(obj_t))
-    count = np.bincount(components[used], minlength=len(obj_t))
-    for c in np.flatnonzero(scores.usable & (np.abs(scores.inside - scores.outside) > 0) & (count > 0)):
-        error = _mean_offset_error(centres, obj_t[c], levels[c], scores, c, widths[c])
-        if not np.sqrt(moved[c] / count[c]) < p.tolerance * error:  # nan (no information): not settled
-            return False
-    return True
 
 
 def _shell(p: RefineParams, profile: float, outer: float) -> tuple[float, float] | None:
@@ -1036,6 +1015,8 @@ def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
     fractions' own steps). One over the square root of the sum over the object's atoms within
     ``half_width`` is the error of its mean offset; times its area, that of its volume.
     """
+    from scipy.special import erfc
+
     n_comp = len(levels)
     band = near.band(vertices, normals, half_width, distance)
     comp = components[band.vertex]
@@ -1043,24 +1024,17 @@ def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
     out = np.full(n_comp, np.nan)
     for c in np.flatnonzero(scores.usable & (np.abs(scores.inside - scores.outside) > 0)):
         mine = comp == c
-        out[c] = _mean_offset_error(band.distance[mine], total[mine], levels[c], scores, c, widths[c])
+        d, atoms = band.distance[mine], total[mine]
+        w = widths[c]
+        step = 0.5 * erfc(d / (np.sqrt(2) * w))
+        fractions = levels[c].outside + (levels[c].inside - levels[c].outside) * step[:, None]
+        weights = scores.weights[c]
+        mean = fractions @ weights
+        var = np.maximum(fractions @ weights ** 2 - mean ** 2, 1e-12)
+        slope = (scores.inside[c] - scores.outside[c]) * np.exp(-0.5 * (d / w) ** 2) / (np.sqrt(2 * np.pi) * w)
+        info = float(np.sum(atoms * slope ** 2 / var))
+        out[c] = 1.0 / np.sqrt(info) if info > 0 else np.nan
     return out
-
-
-def _mean_offset_error(d: np.ndarray, atoms: np.ndarray, levels: ObjectLevels, scores: ObjectScores, c: int,
-                       width: float) -> float:
-    """nm: :func:`_offset_errors`' standard error of object ``c``'s mean offset from ``atoms`` (m,) basis atoms at
-    signed distances ``d`` (m,) nm (its ions, or its profile's bins at their centres); nan without information."""
-    from scipy.special import erfc
-
-    step = 0.5 * erfc(d / (np.sqrt(2) * width))
-    fractions = levels.outside + (levels.inside - levels.outside) * step[:, None]
-    weights = scores.weights[c]
-    mean = fractions @ weights
-    var = np.maximum(fractions @ weights ** 2 - mean ** 2, 1e-12)
-    slope = (scores.inside[c] - scores.outside[c]) * np.exp(-0.5 * (d / width) ** 2) / (np.sqrt(2 * np.pi) * width)
-    info = float(np.sum(atoms * slope ** 2 / var))
-    return 1.0 / np.sqrt(info) if info > 0 else np.nan
 
 
 def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tuple[float, float] | None,
