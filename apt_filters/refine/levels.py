@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
@@ -262,6 +264,16 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     ``(dims - 1) blur^2 / (2 radius)`` near the interface but not deep inside, and the interface's tails
     reach deeper than a plane's (more of a small ball's volume lies near its surface).
 
+    Within 30 blurs of the centre the distribution function is its Poisson mixture of central ones,
+    ``P = sum_i Pois(i; r^2 / 2 s^2) P_gamma(dims / 2 + i, e^2 / 2 s^2)`` (``s`` the blur, ``e`` a node's edge,
+    ``P_gamma`` the regularized lower incomplete gamma function; Johnson, Kotz & Balakrishnan, *Continuous
+    Univariate Distributions* 2, ch. 29), so the average over the width's nodes is taken inside the sum once per
+    call, ``c_i = sum_Z h(Z) P_gamma(dims / 2 + i, e(Z)^2 / 2 s^2)``, and each distance needs only its Poisson
+    weights, ``g(r) = sum_i Pois(i; r^2 / 2 s^2) c_i`` (:func:`_poisson_mixture`): O((n + q) terms) instead of
+    n q noncentral distribution functions (scipy's ``chndtr``, ~1 us each). The Poisson weights left out are
+    below 1e-20 in all, and the result agrees with the node-by-node ``chndtr`` average within 1e-12
+    (tests/test_curved_levels.py keeps that average as the oracle).
+
     Parameters
     ----------
     d : (n,) float64, nm
@@ -272,7 +284,7 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     -------
     (n,) float64 in [0, 1]
     """
-    from scipy.special import chndtr, ndtr
+    from scipy.special import gammainc
 
     d = np.asarray(d, dtype=np.float64)
     if d.size <= 256:
@@ -284,22 +296,96 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     h /= h.sum()
     edge = np.maximum(radius + width * z, 0.0)  # (q,) the ball's radius at each node of its own width
     s = max(blur, 0.1 * max(width, 1e-3), 1e-3)  # a vanishing blur: a tenth of the width, ~0.5 % of its variance
-    x, nc = np.broadcast_arrays((edge[None, :] / s) ** 2, (r[:, None] / s) ** 2)
-    cdf = np.zeros(x.shape)
-    # far from the centre in blur units (chndtr is slow there): the planar step shifted by the curvature,
-    # P(|x + blur N| < edge) ~ Phi((edge - r - (dims - 1) s^2 / 2r) / s) to O((s / r)^2)
+    nc = (r / s) ** 2
+    g = np.empty(len(r))
+    # far from the centre in blur units (the mixture needs ~r^2 / s^2 terms there): the planar step shifted by the
+    # curvature, P(|x + blur N| < edge) ~ Phi((edge - r - (dims - 1) s^2 / 2r) / s) to O((s / r)^2)
     far = nc > 900.0
-    # more than 9 blurs inside a node's edge chndtr is exactly 1, more than 9 outside below 1e-19 (both measured
-    # on 400,000 points per dims in [1, 3]): it is evaluated only between
-    gap = (edge[None, :] - r[:, None]) / s
-    inside = (gap > 9.0) & ~far
-    cdf[inside] = 1.0
-    some = (x > 0) & ~far & ~inside & (gap >= -9.0)  # a node whose ball has shrunk to nothing holds nothing
-    cdf[some] = chndtr(x[some], dims, nc[some])
-    r_far, edge_far = np.sqrt(nc[far]) * s, np.sqrt(x[far]) * s
-    cdf[far] = ndtr((edge_far - r_far - (dims - 1) * s ** 2 / (2 * r_far)) / s)
-    g = np.clip(cdf @ h, 0.0, 1.0)
-    return g if d.size <= 256 else np.interp(np.maximum(radius + d, 0.0), r, g)
+    if far.any():
+        g[far] = _shifted_steps(r[far], edge, h, s, dims)
+    if not far.all():
+        mu = 0.5 * nc[~far]
+        top = int(np.ceil(mu.max() + 15.0 * np.sqrt(mu.max()) + 60.0))  # past every Poisson weight above e^-50
+        y = 0.5 * (edge / s) ** 2
+        a = 0.5 * dims
+        # each node's P_gamma at the top of the sums, from where the mixture's terms are added downward
+        g[~far] = _poisson_mixture(mu, y, h, a, gammainc(a + top, y), top)
+    return np.clip(g, 0.0, 1.0) if d.size <= 256 else np.interp(np.maximum(radius + d, 0.0), r, np.clip(g, 0.0, 1.0))
+
+
+@njit(cache=True, nogil=True)
+def _shifted_steps(r, edge, h, s, dims):
+    """``sum_j h_j Phi((edge_j - r - (dims - 1) s^2 / 2r) / s)`` for each ``r`` (n,), nm: :func:`ball_profile` far
+    from the centre. ``Phi(x) = erfc(-x / sqrt 2) / 2``; beyond x > 8.3 it is 1 and below -38.5 it is 0 in float64."""
+    out = np.empty(r.shape[0])
+    for k in range(r.shape[0]):
+        shift = r[k] + (dims - 1.0) * s * s / (2.0 * r[k])
+        total = 0.0
+        for j in range(edge.shape[0]):
+            x = (edge[j] - shift) / s
+            if x > 8.3:
+                total += h[j]
+            elif x > -38.5:
+                total += h[j] * 0.5 * math.erfc(-x / math.sqrt(2.0))
+        out[k] = total
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _poisson_mixture(mu, y, h, a, p_top, top):
+    """``sum_i Pois(i; mu) sum_j h_j P_gamma(a + i, y_j)`` for each ``mu`` (:func:`ball_profile`).
+
+    ``mu`` (n,) Poisson means; ``y`` (q,) the gamma functions' arguments (0: a node holding nothing), ``h`` (q,)
+    their weights; ``p_top`` (q,) ``P_gamma(a + top, y)``; ``top``: terms, past every Poisson weight above e^-50.
+    ``P_gamma(a + i, y) = P_gamma(a + i + 1, y) + y^(a+i) e^-y / Gamma(a + i + 1)`` is summed downward from ``top``
+    (positive terms, no cancellation). The Poisson weights are taken outward from the mode by their ratios and
+    stop below e^-50 (a tail beyond it is at most ~3 times its first term: the ratios are below 0.7 there).
+    Returns (n,) float64.
+    """
+    log_gamma = np.empty(top)
+    for i in range(top):
+        log_gamma[i] = math.lgamma(a + i + 1.0)
+    c = np.zeros(top)
+    for j in range(y.shape[0]):
+        if y[j] <= 0.0:
+            continue
+        ly = math.log(y[j])
+        p = p_top[j]
+        term = 0.0
+        for i in range(top - 1, -1, -1):
+            # the term y^(a+i) e^-y / Gamma(a+i+1) from its logarithm every 16 steps (and while it would be
+            # subnormal), between by its ratio to the one above, (a+i+1) / y: ~2e-15 relative error at most
+            if i % 16 == 0 or term < 1e-290:
+                log_term = (a + i) * ly - y[j] - log_gamma[i]
+                term = math.exp(log_term) if log_term > -745.2 else 0.0  # below, exp is 0
+            else:
+                term *= (a + i + 1.0) / y[j]
+            p += term
+            c[i] += h[j] * p
+    out = np.empty(mu.shape[0])
+    floor = math.exp(-50.0)
+    for k in range(mu.shape[0]):
+        m = mu[k]
+        if m <= 0.0:
+            out[k] = c[0]
+            continue
+        mode = min(int(m), top - 1)
+        w0 = math.exp(-m + mode * math.log(m) - math.lgamma(mode + 1.0))
+        total = w0 * c[mode]
+        w = w0
+        for i in range(mode + 1, top):
+            w *= m / i
+            total += w * c[i]
+            if w < floor:
+                break
+        w = w0
+        for i in range(mode - 1, -1, -1):
+            w *= (i + 1) / m
+            total += w * c[i]
+            if w < floor:
+                break
+        out[k] = total
+    return out
 
 
 class _ShiftedProfiles:
