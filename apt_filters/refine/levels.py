@@ -860,11 +860,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     var_p = p_in * (1 - p_in) / worth
     bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
     var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
-    misfit = var_misfit = 0.0
+    misfit = var_misfit = var_own = 0.0
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
         misfit = p_in - (own - fit.outside * (1 - g_in)) / g_in
-        var_misfit = var_p + own * (1 - own) / n_in / g_in ** 2
+        var_own = own * (1 - own) / n_in / g_in ** 2
+        var_misfit = var_p + var_own
     # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
     # noise that would choose at random between estimators of equal error)
     biased, misfitted = max(bias ** 2 - var_bias, 0.0), max(misfit ** 2 - var_misfit, 0.0)
@@ -875,8 +876,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     step = PROFILE_SE * np.sqrt(var_p)
     d_biased = -2 * bias * (1 - w * g_in) * (biased > 0) * step
     d_misfitted = 2 * misfit * (misfitted > 0) * step
-    return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted, 0.0) - var_p
-               for sign in (-1.0, 1.0)) > 0
+    # the misfit is the window's evidence against P: it vetoes P only as far as it holds with the window's reading
+    # moved toward P by PROFILE_SE of the window's own counting error (d misfit / d window = -1 / g_in), as P's
+    # evidence for itself is taken only as far as it holds with P moved by its own
+    own_fall = 2 * abs(misfit) * (misfitted > 0) * PROFILE_SE * np.sqrt(var_own)
+    return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted - own_fall, 0.0)
+               - var_p for sign in (-1.0, 1.0)) > 0
 
 
 def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> bool:
