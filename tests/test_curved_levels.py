@@ -273,6 +273,29 @@ def test_a_thin_objects_pool_less_certain_than_its_profile_gives_way_however_far
         pool = np.array([read, 1 - read]) * 72
         assert profile_better(level, fit, window, pool, 0.930, 0, prior), read
 
+def test_a_misfit_within_the_windows_own_counting_error_does_not_veto_the_profile():
+    # unseen thin 10033's second rod (truth 17.1 at.% Al inside, 7.0 outside): its profile reads 17.39 at.%, worth
+    # 964 atoms (0.3 of its errors from the truth); its window of 76 atoms reads 23.68 at.%, 1.6 of its counting
+    # errors above what the truth gives it, and unmixed (24.2) disagrees with the profile by 6.8 points, 1.3 of that
+    # misfit's error: the positive part of m^2 - var m vetoed P and kept S, the pool's 20.1, three points off the
+    # truth. Moved toward P by the window's own counting error the misfit is within it, and P is taken. The same
+    # reading from four times the atoms (3.3 of their errors above the truth's) is a misfit the window's noise does
+    # not explain, and still keeps S
+    from apt_filters.refine.levels import BallFit, profile_better
+    inside, outside, g_in = 0.171, 0.070, 0.967
+    fit = BallFit(0.131, 0.518, 0.1738, 0.0705, np.zeros((2, 2)))
+    level = (np.array([0.1739, 0.8261]), 964.0)
+    assert abs(level[0][0] - inside) < np.sqrt(inside * (1 - inside) / level[1])
+    window, others = np.array([18.0, 58.0]), np.array([7.0, 42.0])
+    expected = outside + (inside - outside) * g_in
+    for atoms, veto in ((1, False), (4, True)):
+        n = atoms * window.sum()
+        excess = (atoms * window[0] / n - expected) / np.sqrt(expected * (1 - expected) / n)
+        assert 1 < excess < 2 if not veto else excess > 3
+        taken = profile_better(level, fit, atoms * window, atoms * (window + others), g_in, 0, 3000.0)
+        assert taken != veto, atoms
+
+
 @pytest.mark.parametrize("radius, dims", [(1.0, 2.0), (0.8, 2.0), (3.0, 3.0)])
 def test_the_share_stops_the_placements_step_at_a_thin_objects_interface(radius, dims):
     # the placement's own estimator (its matched step, the width read off the normalised profile) iterated to its

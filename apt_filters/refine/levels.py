@@ -799,7 +799,8 @@ def profile_levels(distance: np.ndarray, atoms: np.ndarray, species: int, fit: B
 
 PROFILE_SE = 1.0
 """Standard errors of the profile level's own by which it may lie off while its mean squared error stays below the
-window's (:func:`profile_better`; the one-standard-error rule of the mode selection)."""
+window's, and of the window's own by which its reading may lie off while its misfit still vetoes the profile
+(:func:`profile_better`; the one-standard-error rule of the mode selection)."""
 
 
 def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.ndarray, pool: np.ndarray, g_in: float,
@@ -825,9 +826,15 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     ``P`` however little of the bias is real (held-out thin 10019's third rod: 7 window atoms, a level that is the
     pool's of 72 window atoms, variance 2.4 times that of its profile worth 180; with the slope of ``b^2`` taken
     whole at a bias just above its error, a fall of 0.0054 against a positive part of 0.0005 and a gain of 0.0024,
-    the pool's level 6.5 points below the truth was kept). A window deep enough (``g_in`` 1) with many atoms keeps its level
-    where the profile disagrees with it (a large sphere's); a thin object's few window atoms, whose level is the
-    pool's, give way to the profile where the pool is the less certain or lies off it by more than their errors.
+    the pool's level 6.5 points below the truth was kept). The misfit is the window's evidence against ``P``, and
+    counts only as far as it holds with the window's reading moved toward ``P`` by :data:`PROFILE_SE` of its own
+    counting error (the positive part of ``m^2 - var m`` moved by ``2 |m| sd W / g_in``, not below zero): a small
+    window reading high by chance does not veto a profile worth many more atoms (unseen thin 10033's second rod: a
+    76-atom window 1.6 of its errors above the truth's reading vetoed ``P`` 17.39 at.% worth 964, truth 17.1, and
+    kept the pool's 20.0); the same reading from four times the atoms still does. A window deep enough (``g_in``
+    1) with many atoms keeps its level where the profile disagrees with it (a large sphere's); a thin object's few
+    window atoms, whose level is the pool's, give way to the profile where the pool is the less certain or lies off
+    it by more than their errors.
 
     Parameters
     ----------
@@ -860,11 +867,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     var_p = p_in * (1 - p_in) / worth
     bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
     var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
-    misfit = var_misfit = 0.0
+    misfit = var_misfit = var_own = 0.0
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
         misfit = p_in - (own - fit.outside * (1 - g_in)) / g_in
-        var_misfit = var_p + own * (1 - own) / n_in / g_in ** 2
+        var_own = own * (1 - own) / n_in / g_in ** 2
+        var_misfit = var_p + var_own
     # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
     # noise that would choose at random between estimators of equal error)
     biased, misfitted = max(bias ** 2 - var_bias, 0.0), max(misfit ** 2 - var_misfit, 0.0)
@@ -875,8 +883,12 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     step = PROFILE_SE * np.sqrt(var_p)
     d_biased = -2 * bias * (1 - w * g_in) * (biased > 0) * step
     d_misfitted = 2 * misfit * (misfitted > 0) * step
-    return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted, 0.0) - var_p
-               for sign in (-1.0, 1.0)) > 0
+    # the misfit is the window's evidence against P: it vetoes P only as far as it holds with the window's reading
+    # moved toward P by PROFILE_SE of the window's own counting error (d misfit / d window = -1 / g_in), as P's
+    # evidence for itself is taken only as far as it holds with P moved by its own
+    own_fall = 2 * abs(misfit) * (misfitted > 0) * PROFILE_SE * np.sqrt(var_own)
+    return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted - own_fall, 0.0)
+               - var_p for sign in (-1.0, 1.0)) > 0
 
 
 def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> bool:
