@@ -272,7 +272,7 @@ def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blu
     weights, ``g(r) = sum_i Pois(i; r^2 / 2 s^2) c_i`` (:func:`_poisson_mixture`): O((n + q) terms) instead of
     n q noncentral distribution functions (scipy's ``chndtr``, ~1 us each). The Poisson weights left out are
     below 1e-20 in all, and the result agrees with the node-by-node ``chndtr`` average within 1e-12
-    (tests/test_curved_levels.py keeps that average as the oracle).
+    (tests/test_ball_profile.py keeps that average as the oracle).
 
     Parameters
     ----------
