@@ -10,6 +10,7 @@
   edge profile's compiled kernels give the bits of their naive forms.
 """
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -247,6 +248,31 @@ def test_the_facets_frames_taken_once_finish_every_surface_as_taken_per_surface(
                                          frames=facet_frames(facets, edges=edges))
             assert np.count_nonzero(once.any(axis=1)) >= 8
             assert np.array_equal(once, edge_and_corner_steps(surface, mesh.faces, facets, edges=edges))
+
+
+def test_a_rounded_objects_corner_is_taken_where_its_planes_meet_within_reach():
+    """A rounded object's corner is tested for reach before its rounding (where its planes, moved in by the radius,
+    meet), as it always was; each such corner moves one vertex. Was (the frames' first version): the rounded target
+    was tested instead, and a rounded box at reach 1 nm lost 4 of its corners (0 moved where 4 are due)."""
+    box, mesh = _rounded_box()
+    for rounding in (0.0, 0.3, 0.8):
+        facets = [replace(f, rounding=rounding) for f in find_facets(mesh.vertices, mesh.faces,
+                                                                                  fit_cap=20.0)]
+        step, normals = facet_steps(mesh.vertices, mesh.faces, facets)
+        rims = mesh.vertices + step[:, None] * normals
+        n = np.array([f.normal for f in facets])
+        offsets = np.array([f.offset for f in facets]) - rounding
+        for reach in (0.6, 1.0, 1.5):
+            due = 0  # the naive count: every trio of well-apart planes meeting inside the others, within reach
+            for trio in itertools.combinations(range(len(facets)), 3):
+                n3 = n[list(trio)]
+                if abs(np.linalg.det(n3)) < 0.5:
+                    continue
+                corner = np.linalg.solve(n3, offsets[list(trio)])
+                due += bool(np.all(n @ corner - offsets <= 0.1) and all(
+                    np.min(np.linalg.norm(rims[facets[k].vertices] - corner, axis=1)) <= reach for k in trio))
+            moves = edge_and_corner_steps(rims, mesh.faces, facets, reach=reach, edges=False)
+            assert np.count_nonzero(moves.any(axis=1)) == due, (rounding, reach)
 
 
 def _blurred_cube_ions(seed, c_in, c_out, n=60000, blur=0.3):

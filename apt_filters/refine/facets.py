@@ -415,6 +415,9 @@ class FacetFrame:
     corners : (q, 3) float64, nm
         The corners' targets, on the planes' rounded intersections: those of trios of facets whose normals are
         well apart and that lie inside every other plane.
+    sharp : (q, 3) float64, nm
+        The same corners before rounding (the planes moved in by the radius meeting): a corner is taken where
+        this point lies within reach of its three facets' vertices.
     trios : (q, 3) int
         Each corner's facets (indices into ``facets``).
     lines : list of (int, int, (3,) float64, (3,) float64, float, float)
@@ -425,6 +428,7 @@ class FacetFrame:
     component: int
     facets: list
     corners: np.ndarray
+    sharp: np.ndarray
     trios: np.ndarray
     lines: list
 
@@ -440,7 +444,7 @@ def facet_frames(facets: list[Facet], slack: float = 0.1, edges: bool = True) ->
         # a rounded object's edges and corners are those of its planes moved in by the radius, grown by a ball
         rounding = mine[0].rounding
         offsets = np.array([f.offset for f in mine]) - rounding
-        corners, trios = [], []
+        corners, sharp, trios = [], [], []
         for trio in itertools.combinations(range(len(mine)), 3):
             n3 = normals[list(trio)]
             if abs(np.linalg.det(n3)) < 0.5:
@@ -450,6 +454,7 @@ def facet_frames(facets: list[Facet], slack: float = 0.1, edges: bool = True) ->
                 continue
             out = n3.sum(axis=0)
             corners.append(corner + rounding * out / np.linalg.norm(out))
+            sharp.append(corner)
             trios.append(trio)
         lines = []
         for i, j in itertools.combinations(range(len(mine)), 2) if edges else ():
@@ -468,7 +473,7 @@ def facet_frames(facets: list[Facet], slack: float = 0.1, edges: bool = True) ->
                 continue
             out = normals[i] + normals[j]
             lines.append((i, j, point + rounding * out / np.linalg.norm(out), direction, lo, hi))
-        frames.append(FacetFrame(c, mine, np.array(corners).reshape(-1, 3),
+        frames.append(FacetFrame(c, mine, np.array(corners).reshape(-1, 3), np.array(sharp).reshape(-1, 3),
                                  np.array(trios, dtype=np.int64).reshape(-1, 3), lines))
     return frames
 
@@ -500,20 +505,22 @@ def edge_and_corner_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[
     edge = vertices[faces[:, 1]] - vertices[faces[:, 0]]
     spacing = float(np.mean(np.linalg.norm(edge, axis=1))) if len(faces) else 1.0
     for frame in facet_frames(facets, slack, edges) if frames is None else frames:
-        # the candidate points (the corners, then each edge's row) and the facets each must be within reach of
-        points, owners = [frame.corners], [frame.trios]
+        # the candidate points (the corners, then each edge's row), where each is tested for reach (a corner
+        # before its rounding, a row's points as they are) and the facets each must be within reach of
+        points, probes, owners = [frame.corners], [frame.sharp], [frame.trios]
         for i, j, point, direction, lo, hi in frame.lines:
             if hi - lo < 2 * spacing:
                 continue
             points.append(point + np.arange(lo + spacing, hi - 0.5 * spacing, spacing)[:, None] * direction)
+            probes.append(points[-1])
             owners.append(np.broadcast_to([i, i, j], (len(points[-1]), 3)))  # (a corner's three columns)
-        points, owners = np.concatenate(points), np.concatenate(owners)
+        points, probes, owners = np.concatenate(points), np.concatenate(probes), np.concatenate(owners)
         # one KD-tree query per facet, of all the points that must be near it (the same distances as point by point)
         near_all = np.ones(len(points), dtype=bool)
         for k, f in enumerate(frame.facets):
             sel = np.flatnonzero((owners == k).any(axis=1))
             if len(sel):
-                near_all[sel] &= cKDTree(vertices[f.vertices]).query(points[sel])[0] <= reach
+                near_all[sel] &= cKDTree(vertices[f.vertices]).query(probes[sel])[0] <= reach
         if not near_all.any():
             continue
         n_corners = int(np.count_nonzero(near_all[:len(frame.corners)]))
