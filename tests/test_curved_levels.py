@@ -256,7 +256,6 @@ def test_a_profile_that_lies_off_by_its_own_error_is_not_taken():
     assert profile_better((np.array([0.454, 0.546]), 680.0), fit, window, pool, 0.756, 0, 3000.0)
 
 
-
 def test_a_thin_objects_pool_less_certain_than_its_profile_gives_way_however_far_it_lies():
     # held-out thin 10019's third rod (truth 45.37 at.% Mg inside): 7 window atoms of its axis at 28.6 at.%, so its
     # level S is the pool's, 72 window atoms, whose counting error alone (5.7 points) exceeds its profile's (P 46.1,
@@ -272,6 +271,7 @@ def test_a_thin_objects_pool_less_certain_than_its_profile_gives_way_however_far
     for read in np.arange(0.20, 0.52, 0.01):
         pool = np.array([read, 1 - read]) * 72
         assert profile_better(level, fit, window, pool, 0.930, 0, prior), read
+
 
 def test_a_misfit_within_the_windows_own_counting_error_does_not_veto_the_profile():
     # unseen thin 10033's second rod (truth 17.1 at.% Al inside, 7.0 outside): its profile reads 17.39 at.%, worth
