@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from apt_filters.refine.levels import POOL_SE, agreeing_pools, levels_from_sums
+from apt_filters.refine.levels import agreeing_pools, levels_from_sums
+from apt_filters.refine.specks import ALPHA
 
 PRIOR = 3000.0
 
@@ -39,7 +40,7 @@ def test_objects_of_two_phases_keep_their_own_levels():
 
 def test_objects_of_one_phase_stay_pooled():
     """Objects of one phase (their windows differ by counting alone): the pair test splits them in no more than the
-    family-wise share its level allows, so their levels keep the pool's precision (a 60-atom window's level within
+    family-wise share its level allows (the speck test's), so their levels keep the pool's precision (a 60-atom window's level within
     the pool's error, not its own 5 points)."""
     rng = np.random.default_rng(1)
     truth, atoms = np.full(4, 0.20), [5000, 300, 300, 60]
@@ -48,8 +49,7 @@ def test_objects_of_one_phase_stay_pooled():
         sums = _windows(rng, truth, atoms)
         split += not np.array_equal(agreeing_pools(sums, 0, PRIOR), np.broadcast_to(sums.sum(axis=0), sums.shape))
         errors.append(_levels(sums) - truth)
-    alpha = math.erfc(POOL_SE / math.sqrt(2))
-    assert split / 600 <= alpha + 3 * math.sqrt(alpha * (1 - alpha) / 600), split
+    assert split / 600 <= ALPHA + 3 * math.sqrt(ALPHA * (1 - ALPHA) / 600), split
     rms = np.sqrt((np.array(errors) ** 2).mean(axis=0))
     assert rms[3] < 0.25 * math.sqrt(0.2 * 0.8 / 60), rms
 

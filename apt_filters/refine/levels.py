@@ -15,6 +15,7 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
 from apt_filters.refine.band import Band, NearIons
 from apt_filters.refine.composition import IonAtoms
+from apt_filters.refine.specks import ALPHA
 from apt_filters.voxel import ConcentrationBasis
 
 PLATEAU_WINDOW = (0.75, 3.0)
@@ -29,10 +30,6 @@ atoms inside and the reported plateau came out worse (seeds 1-3, worst / mean ab
 PLATEAU_PRIOR = 3000.0
 """Default weight (atoms) of the pooled plateaus of all objects in each object's own (shrinkage)."""
 
-POOL_SE = 2.0
-"""Family-wise standard errors by which two objects' windows must disagree before neither is shrunk toward the other
-(:func:`agreeing_pools`): the two-sided level of the targets' "within 2 counting sigma", held over every pair of
-objects and both sides of one measurement."""
 
 
 @dataclass
@@ -169,10 +166,10 @@ def agreeing_pools(sums: np.ndarray, k: int, prior: float) -> np.ndarray:
     The shrinkage is the posterior mean of a model in which the objects' true levels spread about a common one by
     ``tau^2 = f (1 - f) / m`` (``m`` = ``prior`` atoms is that spread's worth): objects of one phase. Two windows of
     ``n_i`` and ``n_j`` atoms then differ by ``f (1 - f) (1 / n_i + 1 / n_j + 2 / m)`` in variance (``f`` their
-    pooled fraction). Where they differ by more than :data:`POOL_SE` family-wise standard errors (Bonferroni over
-    every pair and both sides; a pair of large windows must differ by more than the prior's spread, a pair of
-    small ones by more than their counting), the data refute the model for that pair and neither is shrunk toward
-    the other: objects of two phases keep their own levels instead of each being pulled to the mean of both
+    pooled fraction). Where they differ significantly at the speck test's family-wise rate
+    (:data:`~apt_filters.refine.specks.ALPHA`, two-sided, Bonferroni over every pair and both sides; a pair of large
+    windows must differ by more than the prior's spread, a pair of small ones by more than their counting), the
+    data refute the model for that pair and neither is shrunk toward the other: objects of two phases keep their own levels instead of each being pulled to the mean of both
     (two phases at 15 and 25 at.%, windows of 8000 and 800 atoms: the small object's level off by 7.2 at.% RMS
     pooled, by 1.5 apart, its own window's counting error). Where the data do not refute it the pool is every agreeing window's atoms, as for identical objects
     (held-out plate 10010: its two plates' windows, 2004 atoms at 17.1 at.% (lobe-diluted) and 797 at 20.2, differ
@@ -194,7 +191,9 @@ def agreeing_pools(sums: np.ndarray, k: int, prior: float) -> np.ndarray:
     pairs = sum(int(has[:, s].sum()) * (int(has[:, s].sum()) - 1) // 2 for s in (0, 1))
     if prior <= 0 or not pairs:
         return pooled
-    z = float(ndtri(1.0 - math.erfc(POOL_SE / math.sqrt(2.0)) / (2.0 * pairs)))
+    # a stricter level than the targets' 2 sigma: a pair of one phase split by chance takes the small window's own
+    # noisy level (at 2 sigma, one phase in 7700- and 800-atom windows: the small one's RMS error 0.51 -> 0.62 at.%)
+    z = float(ndtri(1.0 - ALPHA / (2.0 * pairs)))
     for s in (0, 1):
         for i, j in zip(*np.triu_indices(len(sums), 1)):
             if not (has[i, s] and has[j, s]):
