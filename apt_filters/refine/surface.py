@@ -151,7 +151,8 @@ class RefineParams:
         +0.24 at.%, and the cross-fit removes the rest.
     plateau_prior : float, atoms, [0, 1e9]
         Weight of the pooled plateaus of all objects in each object's own (see
-        :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window.
+        :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window. The
+        final levels pool only objects whose windows agree (:func:`~apt_filters.refine.levels.agreeing_pools`).
     score : {"contrast", "species"}
         Profile of every element weighted by its contrast (:func:`~apt_filters.refine.composition.contrast_weights`),
         or of the iso-surface species alone.
@@ -215,7 +216,8 @@ class RefineParams:
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
         the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
         mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
-        chosen, the others toward every object's windows (``plateau_prior``). The model's ions are measured a
+        chosen, the others toward every object's windows (``plateau_prior``; each only toward the objects that agree
+        with it, :func:`~apt_filters.refine.levels.agreeing_pools`). The model's ions are measured a
         second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
