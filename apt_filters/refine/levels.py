@@ -871,7 +871,11 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
         misfit = p_in - (own - fit.outside * (1 - g_in)) / g_in
-        var_own = own * (1 - own) / n_in / g_in ** 2
+        # the window's counting variance at the reading P predicts for it (the misfit's null), not at its own
+        # reading: a window of a few atoms reads 0 or 1 and would count as certain (held-out thin 10005's fourth
+        # rod: 0 of 3 atoms vetoed a joint profile level worth 1406 atoms)
+        expected = min(max(fit.outside + (p_in - fit.outside) * g_in, 0.0), 1.0)
+        var_own = expected * (1 - expected) / n_in / g_in ** 2
         var_misfit = var_p + var_own
     # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
     # noise that would choose at random between estimators of equal error)
@@ -891,7 +895,7 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
                - var_p for sign in (-1.0, 1.0)) > 0
 
 
-def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> bool:
+def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int, worth: float = 0.0) -> bool:
     """Whether an object's inside window falls short of its inside plateau by more than its own counting error.
 
     Under the fitted ball the window reads ``O + (I - O) g_in`` (``g_in`` its mean share of the inside phase), short
@@ -921,7 +925,7 @@ def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> b
         True also for an empty window (its level is wholly the pool's).
     """
     n = window.sum()
-    if n <= 0:
+    if n <= 0 or n < worth:
         return True
     short = (1.0 - g_in) * (fit.inside - fit.outside)
     f = fit.inside - short
