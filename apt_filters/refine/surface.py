@@ -869,8 +869,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         # off it, its facets and the shared segregant marker, for a gain in precision the windows' shrinkage
         # already takes: dev rod 3's fourth rod, docs/refine.md)
         routes = [(level, fit)]
-        if offered and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]), k,
-                                        0.0 if level is None else level[1]) and \
+        if offered and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]), k) and \
                 together() is not None:
             routes.append((together(), joint[2][c]))
         for taken, model in routes:
