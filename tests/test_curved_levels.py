@@ -458,3 +458,24 @@ def test_objects_fitted_together_compute_each_ones_profile_once_per_offset_and_w
                                  half_width=WINDOW[1], group=group, cov=cov) is not None
     # the point itself and two steps (up, down) in each of the 8 parameters, each step one object's profile
     assert len(seen) == 4 + 2 * 8, len(seen)
+
+
+
+def test_a_few_atoms_window_reading_nothing_does_not_veto_a_profile_worth_far_more():
+    # held-out thin 10005's fourth rod (truth 28.61 at.% Al inside, 3.00 outside): its window, measured from the
+    # other half's surface 0.25 nm inside the rod, holds 3 atoms of its axis and none is Al. Its profile level reads
+    # 27.73 at.%, worth 478 atoms (0.4 of its errors from the truth). The misfit against that 0-of-3 reading counted
+    # the window's variance at its own reading, 0, and vetoed the profile, keeping the pool's 29.30 of 450 atoms
+    # (the other rods' windows; its error 2.1 points). At the reading the profile predicts for the window (27.2 at.%)
+    # 0 of 3 is within its counting error (p = 0.38), and so are 0 of 5 and 0 of 10 (0.04 alone, within the window
+    # moved toward P by one of its errors): P is taken; 0 of 20 (p 0.002) and 0 of 30 are misfits no chance explains
+    # and still veto it
+    from apt_filters.refine.levels import BallFit, profile_better
+    truth, g_in = 0.2861, 0.989
+    fit = BallFit(0.263, 0.357, 0.2771, 0.0307, np.zeros((2, 2)))
+    level = (np.array([0.2773, 0.7227]), 478.0)
+    assert abs(level[0][0] - truth) < 0.5 * np.sqrt(truth * (1 - truth) / level[1])
+    others = np.array([0.2933, 0.7067]) * 447
+    for atoms, veto in ((3, False), (5, False), (10, False), (20, True), (30, True)):
+        window = np.array([0.0, atoms])
+        assert profile_better(level, fit, window, others + window, g_in, 0, 3000.0) != veto, atoms

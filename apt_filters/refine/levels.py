@@ -883,7 +883,11 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     whole at a bias just above its error, a fall of 0.0054 against a positive part of 0.0005 and a gain of 0.0024,
     the pool's level 6.5 points below the truth was kept). The misfit is the window's evidence against ``P``, and
     counts only as far as it holds with the window's reading moved toward ``P`` by :data:`PROFILE_SE` of its own
-    counting error (the positive part of ``m^2 - var m`` moved by ``2 |m| sd W / g_in``, not below zero): a small
+    counting error (the positive part of ``m^2 - var m`` moved by ``2 |m| sd W / g_in``, not below zero), its variance
+    taken at the reading ``P`` predicts for it, ``O + (P - O) g_in``, the misfit's null (at its own reading a window of
+    a few atoms reads 0 or 1 and counts as certain: held-out thin 10005's fourth rod, 0 of 3 atoms, vetoed its
+    profile level 27.73 at.% worth 478 atoms, 0.4 of its errors from the truth 28.61, and kept the pool's 29.30 of
+    450; 0 of 20 still vetoes it): a small
     window reading high by chance does not veto a profile worth many more atoms (unseen thin 10033's second rod: a
     76-atom window 1.6 of its errors above the truth's reading vetoed ``P`` 17.39 at.% worth 964, truth 17.1, and
     kept the pool's 20.0); the same reading from four times the atoms still does. A window deep enough (``g_in``
@@ -926,7 +930,11 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
         misfit = p_in - (own - fit.outside * (1 - g_in)) / g_in
-        var_own = own * (1 - own) / n_in / g_in ** 2
+        # the window's counting variance at the reading P predicts for it (the misfit's null), not at its own
+        # reading: a window of a few atoms reads 0 or 1 and would count as certain (held-out thin 10005's fourth
+        # rod: 0 of 3 atoms vetoed a profile level worth 478 atoms)
+        expected = min(max(fit.outside + (p_in - fit.outside) * g_in, 0.0), 1.0)
+        var_own = expected * (1 - expected) / n_in / g_in ** 2
         var_misfit = var_p + var_own
     # squared biases estimated by their positive parts (a squared bias is not negative; the part below zero is
     # noise that would choose at random between estimators of equal error)
