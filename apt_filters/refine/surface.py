@@ -102,10 +102,10 @@ from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, fac
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, ball_profile, chosen_pools,
-                                      crossing_share, fit_ball, fit_balls, held_out_gain, levels_from_sums,
-                                      object_shapes, plateau_sums, plateaus, profile_better, profile_levels,
-                                      short_of_plateau, unmixed_sums, unmixing_shift, window_labels)
+from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
+                                      chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
+                                      levels_from_sums, object_shapes, plateau_sums, plateaus, profile_better,
+                                      profile_levels, short_of_plateau, unmixed_sums, unmixing_shift, window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -151,7 +151,8 @@ class RefineParams:
         +0.24 at.%, and the cross-fit removes the rest.
     plateau_prior : float, atoms, [0, 1e9]
         Weight of the pooled plateaus of all objects in each object's own (see
-        :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window.
+        :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window. The
+        final levels pool only objects whose windows agree (:func:`~apt_filters.refine.levels.agreeing_pools`).
     score : {"contrast", "species"}
         Profile of every element weighted by its contrast (:func:`~apt_filters.refine.composition.contrast_weights`),
         or of the iso-surface species alone.
@@ -215,7 +216,8 @@ class RefineParams:
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
         the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
         mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
-        chosen, the others toward every object's windows (``plateau_prior``). The model's ions are measured a
+        chosen, the others toward every object's windows (``plateau_prior``; each only toward the objects that agree
+        with it, :func:`~apt_filters.refine.levels.agreeing_pools`). The model's ions are measured a
         second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
@@ -725,11 +727,13 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
         bands.append(exact)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
+    k = held[0].atoms.elements.index(species)
     if not curved:
-        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior)
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior,
+                                agreeing_pools(sums, k, p.plateau_prior))
     unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
-    pooled = chosen_pools(sums, best, chosen, balls, shared)
+    pooled = chosen_pools(sums, best, chosen, balls, shared, k, p.plateau_prior)
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
@@ -817,7 +821,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     balls = np.zeros(n_comp, dtype=bool)
     share = np.ones(n_comp)
     profiled = {}
-    pool = sums[:, 0].sum(axis=0)  # what every object's inside level is shrunk toward (levels_from_sums)
+    pools = agreeing_pools(sums, k, p.plateau_prior)  # what each object's levels are shrunk toward
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
@@ -874,7 +878,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             routes.append((together(), joint[2][c]))
         for taken, model in routes:
             g_in = inside_share(model)
-            if taken is not None and profile_better(taken, model, sums[c, 0], pool, g_in, k, p.plateau_prior):
+            if taken is not None and profile_better(taken, model, sums[c, 0], pools[c, 0], g_in, k, p.plateau_prior):
                 return None, taken[0] * taken[1], crossing_share(
                     distance[mine], total[mine], model, radius=radius[c], dims=dims[c], blur=sigma,
                     lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + model.offset, 1e-3),
