@@ -120,31 +120,41 @@ def _curve_steps(arc, positions, gen_ptr, gen_ids, point_ptr, s, points, table_p
     move to the centroid of their arc cells (between midpoints to the neighbours; open curve ends are fixed
     corners, a loop's cells wrap) under the density's mass tables ``m0``, ``m1`` (cumulative ∫ρ dt, ∫ρt dt at
     ``table_t``), then to their point on the polyline (``points`` at arc lengths ``s``)."""
+    # Element loops instead of fancy indexing and np.where: the same arithmetic, without numba's advanced
+    # indexing, which made this the costliest compile of a fresh install's pipeline (alone, cold: 9.7 -> 6.2 s CPU).
     for c in range(len(length)):
-        ids = gen_ids[gen_ptr[c]:gen_ptr[c + 1]]
-        n = len(ids)
+        g0, n = gen_ptr[c], gen_ptr[c + 1] - gen_ptr[c]
         if n == 0:
             continue
-        order = ids[np.argsort(arc[ids])]
-        a = arc[order]
+        unsorted = np.empty(n)
+        for j in range(n):
+            unsorted[j] = arc[gen_ids[g0 + j]]
+        rank = np.argsort(unsorted)
+        order = np.empty(n, np.int64)
         ext = np.empty(n + 2)
-        ext[1:n + 1] = a
+        for j in range(n):
+            order[j] = gen_ids[g0 + rank[j]]
+            ext[j + 1] = unsorted[rank[j]]
         if closed[c]:
-            ext[0], ext[n + 1] = a[n - 1] - length[c], a[0] + length[c]
+            ext[0], ext[n + 1] = ext[n] - length[c], ext[1] + length[c]
         else:
             ext[0], ext[n + 1] = 0.0, length[c]
         lo, hi = 0.5 * (ext[:-2] + ext[1:-1]), 0.5 * (ext[1:-1] + ext[2:])
         t = table_t[table_ptr[c]:table_ptr[c + 1]]
         q0, q1 = m0[table_ptr[c]:table_ptr[c + 1]], m1[table_ptr[c]:table_ptr[c + 1]]
         mass = np.interp(hi, t, q0) - np.interp(lo, t, q0)
-        new = (np.interp(hi, t, q1) - np.interp(lo, t, q1)) / np.maximum(mass, 1e-300)
-        new = np.where(mass > 0, new, a)
+        new = np.interp(hi, t, q1) - np.interp(lo, t, q1)
+        for j in range(n):
+            new[j] = new[j] / max(mass[j], 1e-300) if mass[j] > 0 else ext[j + 1]
         if closed[c]:
             new = np.mod(new, length[c])
-        arc[order] = new
+        for j in range(n):
+            arc[order[j]] = new[j]
         ss, p = s[point_ptr[c]:point_ptr[c + 1]], points[point_ptr[c]:point_ptr[c + 1]]
         for k in range(3):
-            positions[order, k] = np.interp(new, ss, np.ascontiguousarray(p[:, k]))
+            at = np.interp(new, ss, np.ascontiguousarray(p[:, k]))
+            for j in range(n):
+                positions[order[j], k] = at[j]
 
 
 class PatchSurfaces:

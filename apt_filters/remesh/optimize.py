@@ -476,7 +476,11 @@ def _candidates(out, faces, start, ring_of, batch, steps):
     new_ptr = np.zeros(len(batch) + 1, np.int64)
     for b in range(len(batch)):
         count = used[b] - ptr[b]
-        cands[total:total + count] = cands[ptr[b]:used[b]]
+        # row by row, not a slice copy: numba's shape check of that copy compiles its error message's string
+        # formatting, ~6 s of a fresh install's CPU (rows move only forward, onto rows already read)
+        for c in range(count):
+            for k in range(3):
+                cands[total + c, k] = cands[ptr[b] + c, k]
         total += count
         new_ptr[b + 1] = total
     return new_ptr, cands[:total].copy()
@@ -546,7 +550,9 @@ def _choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, floor):
             f = ring_of[start[v] + s]
             a, bb, c = out[faces[f, 0]], out[faces[f, 1]], out[faces[f, 2]]
             normal = np.cross(bb - a, c - a)
-            old[s] = normal / max(np.sqrt((normal**2).sum()), 1e-300)
+            length = max(np.sqrt((normal**2).sum()), 1e-300)
+            for k in range(3):  # element by element, not a row copy (see _candidates)
+                old[s, k] = normal[k] / length
         now, smallest = _ring_score(out, faces, start, ring_of, v, out[v].copy(), old, -2.0, -1.0 if floor < 0 else 0.0)
         least = min(floor, smallest) if floor >= 0 else floor
         best, arg = -np.inf, -1
@@ -555,7 +561,8 @@ def _choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, floor):
             if score > best:
                 best, arg = score, c
         if arg >= 0 and best > now + (1e-3 if floor < 0 else 1e-4 * r):
-            out[v] = cands[arg]
+            for k in range(3):
+                out[v, k] = cands[arg, k]
             went[b] = True
     return went
 

@@ -689,7 +689,9 @@ def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
     for i in range(len(p)):
         c = curve[i]
         best = np.inf
-        out[i] = p[i]
+        # element by element, not a row copy: numba's shape check of that copy compiles its error message's
+        # string formatting, seconds of a fresh install's CPU
+        out[i, 0], out[i, 1], out[i, 2] = p[i, 0], p[i, 1], p[i, 2]
         where[i] = lo[i]
         shifts = 3 if closed[c] else 1
         for h in range(shifts):
