@@ -125,7 +125,11 @@ def blur_shift(mesh: TriMesh, blur: tuple[float, float], normal_smoothing: int =
     normals = smoothed_normals(vertices, mesh.faces, normal_smoothing)
     sigma = np.diag([lateral ** 2, lateral ** 2, depth ** 2])
     shift = 0.5 * np.einsum("ij,nji->n", sigma, shape_operator(vertices, mesh.faces, normals))
-    return shift, normals
+    # the expansion is first order in the blur over the radius of curvature: it holds where the radius exceeds
+    # the blur, i.e. for shifts up to the largest sigma; beyond it the shape operator reads the mesh's own
+    # crumples (a low-passed rough surface's collapsed faces), not the interface's curvature
+    reach = max(lateral, depth)
+    return np.clip(shift, -reach, reach), normals
 
 
 @dataclass
