@@ -50,6 +50,14 @@ def _threads_for(n: int):
     finally:
         numba.set_num_threads(threads)
 
+_CHUNK = 1 << 20
+"""Points a query converts to float64 and searches at a time (24 MB)."""
+
+_ROUNDING = 1e-12
+"""Rounding of the search's distances and bounds relative to the largest coordinate (float64: ~100 x
+its own error): a bound passes a triangle over only when it exceeds the best distance by this much,
+so a triangle exactly as near as the best (a tie, :func:`_before`) is never lost to rounding."""
+
 _RUN = 64
 """Consecutive triangles (in cell order) whose common box a search beyond the grid's rings tests
 first (:attr:`TriangleGrid.run_boxes`): a run no nearer than the best so far is passed over whole."""
@@ -195,15 +203,9 @@ class SurfaceDistance:
         With ``closest``, the barycentric weights of each closest point are kept too
         (``weights``, 24 more bytes per point).
         """
-        if points.dtype not in (np.float32, np.float64):
-            points = points.astype(np.float32)
-        points = np.ascontiguousarray(points)
         n = len(points)
         out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool),
                              weights=np.zeros((n if closest else 0, 3)))
-        if n == 0:
-            out.weights = out.weights if closest else None
-            return out
         top, nrm = self.topology, self.normals
         signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
                  nrm.vertex_normals, top.boundary_vertex)
@@ -212,16 +214,26 @@ class SurfaceDistance:
         m = self.home
         offsets, bound, r, first, covered = g.offsets(min(reach, g.cell * float(min(g.shape.max(), _MAX_RING))), m)
         # homes beyond r cells of the grid hold no triangle within the plan's reach
-        pad = -(-r // m)
-        low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
-        order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-        with _threads_for(n):
-            out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
-                                                g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
-                                                g.tris, g.boxes, g.run_boxes, offsets, bound, first, covered,
-                                                reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
-                                                out.feature, out.on_boundary, out.weights,
-                                                numba.get_num_threads()).sum())
+        rim = -(-r // m)
+        low, dims = np.full(3, -rim, np.int64), -(-g.shape // m) + 2 * rim
+        extent = float(np.abs(g.triangles[:, :9]).max()) if len(g.triangles) else 0.0
+        # float64 chunk by chunk: one compiled signature whatever the points' type, 24 bytes per point of a chunk;
+        # the closest face does not depend on the order the points are visited in (:func:`_before`)
+        for s in range(0, n, _CHUNK):
+            part = np.ascontiguousarray(points[s:s + _CHUNK], dtype=np.float64)
+            k = len(part)
+            order, keys = _spatial_order(part, g.origin, m * g.cell, low, dims)
+            # rounding of the distances and bounds of coordinates this large, far below any real tie's gap
+            pad = _ROUNDING * max(extent, float(np.abs(part).max()), 1.0)
+            with _threads_for(k):
+                out.searched += int(_signed_in_cells(part, order, keys, _blocks(keys, order, 256), low, dims, m,
+                                                     g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot,
+                                                     g.start, g.tris, g.boxes, g.run_boxes, offsets, bound, first,
+                                                     covered, reach * reach * (1 + 1e-12), pad, *signs,
+                                                     out.distance[s:s + k], out.face[s:s + k],
+                                                     out.feature[s:s + k], out.on_boundary[s:s + k],
+                                                     out.weights[s:s + k] if closest else out.weights,
+                                                     numba.get_num_threads()).sum())
         if not closest:
             out.weights = None
         return out
@@ -452,26 +464,50 @@ def _blocks(keys, order, size):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _beyond_disk(px, py, pz, tri, t, best, root):
+def _beyond_disk(px, py, pz, tri, t, cut, root):
     """Whether the disk of triangle ``t`` (in its plane, about its centroid, radius to the farthest
-    corner: columns 9-15 of ``tri``) proves p no nearer to it than ``best`` (squared nm; ``root``
-    its square root)."""
+    corner: columns 9-15 of ``tri``) proves p farther from it than ``root`` (nm; ``cut`` its square):
+    strictly, so that a triangle as near as the best so far (an exact tie) is never passed over."""
     qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
     q2 = qx * qx + qy * qy + qz * qz
     rad = tri[t, 12]
     reach = root + rad
-    if q2 >= reach * reach:
+    if q2 > reach * reach:
         return True
     h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
     h2 = h * h
-    if h2 >= best:
+    if h2 > cut:
         return True
     lateral2 = q2 - h2
     if lateral2 > rad * rad:
         lateral = np.sqrt(lateral2) - rad
-        if h2 + lateral * lateral >= best:
+        if h2 + lateral * lateral > cut:
             return True
     return False
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _before(d, t, best, best_t, tri, face_id):
+    """Whether triangle ``t`` (row of ``tri``) at squared distance ``d`` takes the place of the best so far,
+    ``best_t`` at ``best``: it is nearer, or exactly as near (a tie: the closest point on a corner or an edge
+    the two share) and its centroid is lower (x, then y, then z; the lower mesh face where two centroids are
+    equal). The closest face is then the same whatever order the triangles are tried in."""
+    if d != best:
+        return d < best
+    if best_t < 0:
+        return True
+    for k in range(9, 12):
+        if tri[t, k] != tri[best_t, k]:
+            return tri[t, k] < tri[best_t, k]
+    return face_id[t] < face_id[best_t]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cut(best, pad):
+    """The pruning radius of the best squared distance so far, ``best`` + its rounding ``pad`` (nm), and its
+    square: a bound must exceed it to pass over a triangle, so that no tie is lost to rounding."""
+    root = np.sqrt(best) + pad
+    return root, root * root
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -484,25 +520,25 @@ def _box_gap2(px, py, pz, box, k):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, mark):
-    """Closest of row ``r``'s triangles to p if nearer than ``best`` (squared nm).
+def _nearer_in_row(px, py, pz, r, tri, face_id, start, tris, best, best_t, bu, bw, seen, mark, pad):
+    """Closest of row ``r``'s triangles to p if before the best so far (``best`` squared nm; :func:`_before`).
 
     A triangle lies in every row its box meets (2.5 rows on average): ``seen[t] == mark`` says
     it was tried for this point already (mailboxing), and is set for those tried now. Lower
     bounds from the triangle's disk (:func:`_beyond_disk`) reject most triangles.
     """
-    root = np.sqrt(best)
+    root, cut = _cut(best, pad)
     for s in range(start[r], start[r + 1]):
         t = tris[s]
         if seen[t] == mark:
             continue
         seen[t] = mark
-        if _beyond_disk(px, py, pz, tri, t, best, root):
+        if _beyond_disk(px, py, pz, tri, t, cut, root):
             continue
         d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-        if d < best:
+        if _before(d, t, best, best_t, tri, face_id):
             best, best_t, bu, bw = d, t, u, w
-            root = np.sqrt(best)
+            root, cut = _cut(best, pad)
     return best, best_t, bu, bw
 
 
@@ -518,7 +554,7 @@ def _run_boxes(triangles: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
-                     tris, boxes, run_boxes, offsets, offset_bound, first, covered, limit, vertices, faces,
+                     tris, boxes, run_boxes, offsets, offset_bound, first, covered, limit, pad, vertices, faces,
                      face_normals, face_edge, edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face,
                      feature, rim, weights, n_workers):
     """Exact signed distances of points visited home by home (``order``; homes are blocks of
@@ -600,30 +636,32 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
                     if prev >= 0:
                         tried[prev] = j
                         d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
-                        if d < best:
+                        if _before(d, prev, best, best_t, tri, face_id):
                             best, best_t, bu, bw = d, prev, u, w
+                    cut = _cut(best, pad)[1]
                     for q in range(row_list.shape[0]):
-                        if row_gap[q] >= best:
+                        if row_gap[q] > cut:
                             finished = True
                             break
                         r = row_list[q]
-                        if _box_gap2(px, py, pz, boxes, r) < best:
-                            best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw,
-                                                                  tried, j)
-                if not finished and best > covered:
-                    # every triangle in turn; those the runs' boxes and the disks prove no nearer than the best
-                    # so far are passed over (the same triangles measured, in the same order, as measuring all)
-                    root = np.sqrt(best)
+                        if _box_gap2(px, py, pz, boxes, r) <= cut:
+                            best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, face_id, start, tris, best,
+                                                                  best_t, bu, bw, tried, j, pad)
+                            cut = _cut(best, pad)[1]
+                root, cut = _cut(best, pad)
+                if not finished and cut >= covered:
+                    # every triangle in turn; those the runs' boxes and the disks prove farther than the best so far
+                    # are passed over (the same closest face as measuring all)
                     for c in range(run_boxes.shape[0]):
-                        if _box_gap2(px, py, pz, run_boxes, c) >= best:
+                        if _box_gap2(px, py, pz, run_boxes, c) > cut:
                             continue
                         for t in range(c * _RUN, min((c + 1) * _RUN, n_tri)):
-                            if _beyond_disk(px, py, pz, tri, t, best, root):
+                            if _beyond_disk(px, py, pz, tri, t, cut, root):
                                 continue
                             d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-                            if d < best:
+                            if _before(d, t, best, best_t, tri, face_id):
                                 best, best_t, bu, bw = d, t, u, w
-                                root = np.sqrt(best)
+                                root, cut = _cut(best, pad)
                 if best_t < 0:
                     distance[i], face[i], feature[i], rim[i] = np.nan, -1, FACE, False
                     continue
