@@ -377,6 +377,49 @@ def test_points_beyond_the_rings_get_the_nearest_of_every_triangle():
         assert every[f] == every.min() and d == np.float32(np.sqrt(every.min()))
 
 
+def test_the_closest_face_is_the_rules_whatever_the_order_of_the_search():
+    """Where several faces are exactly as near (the closest point on a corner or an edge they share), the face
+    returned is the one of lowest centroid (x, then y, then z), as a naive pass over every face finds it, whatever
+    order the ions, the faces, the grid's cells or its homes make the search take; float32 and float64 points
+    take one compiled kernel."""
+    from apt_filters.core.distance import SurfaceDistance, _signed_in_cells
+    from apt_filters.core.triangle import closest_on_triangle
+    from tests.proxigram_specimens import icosphere
+
+    mesh = icosphere(3.0, 2)  # 320 faces, 162 corners
+    rng = np.random.default_rng(11)
+    # points straight out from the corners (their closest point: the corner, on 5-6 faces at once), points just
+    # off the edges' midpoints (on 2), and points anywhere near the surface
+    edges = mesh.vertices[mesh.faces[:, [0, 1]]].mean(axis=1)
+    points = np.vstack([mesh.vertices * rng.uniform(1.02, 1.6, (len(mesh.vertices), 1)),
+                        edges * rng.uniform(1.02, 1.3, (len(edges), 1)),
+                        rng.normal(size=(600, 3)) * 2.0])
+    corners = mesh.vertices[mesh.faces]
+    centre = (mesh.vertices[mesh.faces[:, 0]] + mesh.vertices[mesh.faces[:, 1]] + mesh.vertices[mesh.faces[:, 2]]) / 3
+    expected = np.empty(len(points), np.int64)
+    ties = 0
+    for i, p in enumerate(points):
+        every = np.array([closest_on_triangle(*p, *c.ravel())[0] for c in corners])
+        tied = np.flatnonzero(every == every.min())
+        ties += len(tied) > 1
+        expected[i] = tied[np.lexsort(centre[tied].T[::-1])[0]]
+    assert ties > 150
+    first = SurfaceDistance(mesh).query(points)
+    assert np.array_equal(first.face, expected)
+    shuffle = rng.permutation(len(points))
+    faces = rng.permutation(mesh.n_faces)
+    for engine, order, back in [(SurfaceDistance(mesh, cell=0.4, home=1), shuffle, np.arange(mesh.n_faces)),
+                                (SurfaceDistance(mesh, cell=1.7, home=3), np.arange(len(points)), np.arange(mesh.n_faces)),
+                                (SurfaceDistance(TriMesh(mesh.vertices, mesh.faces[faces])), shuffle, faces)]:
+        for dtype in (np.float64, np.float32):
+            sd = engine.query(points[order].astype(dtype))
+            assert np.array_equal(back[sd.face], SurfaceDistance(mesh).query(points[order].astype(dtype)).face)
+        sd = engine.query(points[order])
+        assert np.array_equal(back[sd.face], first.face[order])
+        assert np.array_equal(sd.distance, first.distance[order]) and np.array_equal(sd.feature, first.feature[order])
+    assert len(_signed_in_cells.signatures) == 1
+
+
 def test_reach_grid_leaves_the_cells_within_the_inner_distance_unmeasured():
     """A shell (3, 4] nm as the segregant search asks: coarse cells proved nearer than 3 nm are :data:`CORE` (their
     fine centres not measured, every ion of them searched, as each is nearer than 3 nm); the selection keeps the

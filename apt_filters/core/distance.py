@@ -50,6 +50,18 @@ def _threads_for(n: int):
     finally:
         numba.set_num_threads(threads)
 
+_CHUNK = 1 << 20
+"""Points a query converts to float64 and searches at a time (24 MB)."""
+
+_ROUNDING = 1e-12
+"""Rounding of the search's distances and bounds relative to the largest coordinate (float64: ~100 x
+its own error): a bound passes a triangle over only when it exceeds the best distance by this much,
+so a triangle exactly as near as the best (a tie, :func:`_before`) is never lost to rounding."""
+
+_PARTS = 4
+"""Sub-cells per home edge by which a query orders its points within each home: the previous point's
+closest face, which seeds each search, is then seldom far (a quarter less CPU than home order alone)."""
+
 _RUN = 64
 """Consecutive triangles (in cell order) whose common box a search beyond the grid's rings tests
 first (:attr:`TriangleGrid.run_boxes`): a run no nearer than the best so far is passed over whole."""
@@ -166,8 +178,9 @@ class SurfaceDistance:
 
     Notes
     -----
-    Memory: the grid (:class:`TriangleGrid`, about 170 bytes per triangle) plus 30 bytes per
-    queried point for the results and the visiting order.
+    Memory: the grid (:class:`TriangleGrid`, about 170 bytes per triangle) plus 14 bytes per
+    queried point for the results, and about 70 bytes per point of a million-point chunk (its float64
+    copy in visiting order, the order, the keys and the chunk's results before they are put back).
     """
 
     def __init__(self, mesh: TriMesh, cell: float | None = None, home: int = 2, reach: float | None = None):
@@ -185,7 +198,11 @@ class SurfaceDistance:
     def query(self, points: np.ndarray, max_distance: float | None = None, closest: bool = False) -> SignedDistance:
         """Exact signed distance of every point (N, 3) nm to the surface.
 
-        Points are visited cell by cell, so that consecutive searches touch the same cells. With
+        Points are visited a million at a time (as float64), cell by cell and within each cell by
+        its sub-cells, so that consecutive searches touch the same cells and start from a near
+        face. Where faces are exactly as near (a closest point on a shared edge or corner), the
+        face is the one of lowest centroid (x, then y, then z): no result depends on the order of
+        the points or of the faces, nor on the grid. With
         ``max_distance`` (nm), points farther than that from the surface get a NaN distance and
         face -1, and the search never looks farther: a point whose cell has no triangle within
         range costs a few nanoseconds. Without it, a point more than ``_MAX_RING`` grid cells
@@ -195,15 +212,9 @@ class SurfaceDistance:
         With ``closest``, the barycentric weights of each closest point are kept too
         (``weights``, 24 more bytes per point).
         """
-        if points.dtype not in (np.float32, np.float64):
-            points = points.astype(np.float32)
-        points = np.ascontiguousarray(points)
         n = len(points)
         out = SignedDistance(np.empty(n, np.float32), np.empty(n, np.int64), np.empty(n, np.int8), np.empty(n, bool),
                              weights=np.zeros((n if closest else 0, 3)))
-        if n == 0:
-            out.weights = out.weights if closest else None
-            return out
         top, nrm = self.topology, self.normals
         signs = (self._vertices, self._faces, nrm.face_normals, top.face_edge, nrm.edge_normals, top.edge_faces,
                  nrm.vertex_normals, top.boundary_vertex)
@@ -212,16 +223,34 @@ class SurfaceDistance:
         m = self.home
         offsets, bound, r, first, covered = g.offsets(min(reach, g.cell * float(min(g.shape.max(), _MAX_RING))), m)
         # homes beyond r cells of the grid hold no triangle within the plan's reach
-        pad = -(-r // m)
-        low, dims = np.full(3, -pad, np.int64), -(-g.shape // m) + 2 * pad
-        order, keys = _spatial_order(points, g.origin, m * g.cell, low, dims)
-        with _threads_for(n):
-            out.searched = int(_signed_in_cells(points, order, keys, _blocks(keys, order, 256), low, dims, m,
-                                                g.triangles, g.face_id, g.origin, g.cell, g.shape, g.slot, g.start,
-                                                g.tris, g.boxes, g.run_boxes, offsets, bound, first, covered,
-                                                reach * reach * (1 + 1e-12), *signs, out.distance, out.face,
-                                                out.feature, out.on_boundary, out.weights,
-                                                numba.get_num_threads()).sum())
+        rim = -(-r // m)
+        low, dims = np.full(3, -rim, np.int64), -(-g.shape // m) + 2 * rim
+        extent = float(np.abs(g.triangles[:, :9]).max()) if len(g.triangles) else 0.0
+        # float64 chunk by chunk: one compiled signature whatever the points' type, 24 bytes per point of a chunk;
+        # the closest face does not depend on the order the points are visited in (:func:`_before`)
+        for s in range(0, n, _CHUNK):
+            part = np.asarray(points[s:s + _CHUNK])
+            k = len(part)
+            order, keys = _spatial_order(part, g.origin, m * g.cell, low, dims, _PARTS)
+            # in visiting order: consecutive points lie close together in memory as in space
+            part, keys = np.ascontiguousarray(part[order], dtype=np.float64), keys[order]
+            # rounding of the distances and bounds of coordinates this large, far below any real tie's gap
+            pad = _ROUNDING * max(extent, float(np.abs(part).max()), 1.0)
+            # the results in visiting order, then each array put back in the points' order at once
+            found = SignedDistance(np.empty(k, np.float32), np.empty(k, np.int64), np.empty(k, np.int8),
+                                   np.empty(k, bool), weights=np.zeros((k if closest else 0, 3)))
+            with _threads_for(k):
+                out.searched += int(_signed_in_cells(part, keys, _blocks(keys, 256), low, dims, m, g.triangles,
+                                                     g.face_id, g.origin, g.cell, g.shape, g.slot, g.start, g.tris,
+                                                     g.boxes, g.run_boxes, offsets, bound, first, covered,
+                                                     reach * reach * (1 + 1e-12), pad, *signs, found.distance,
+                                                     found.face, found.feature, found.on_boundary, found.weights,
+                                                     numba.get_num_threads()).sum())
+            order += s
+            out.distance[order], out.face[order], out.feature[order] = found.distance, found.face, found.feature
+            out.on_boundary[order] = found.on_boundary
+            if closest:
+                out.weights[order] = found.weights
         if not closest:
             out.weights = None
         return out
@@ -424,54 +453,112 @@ def _counting_order(key, n_keys):
     return order
 
 
+@njit(cache=True)
+def _within_cells(points, order, keys, origin, cell, low, dims, parts):
+    """``order`` (points sorted by cell, :func:`_cell_keys`) sorted within each cell by its
+    ``parts`` x ``parts`` x ``parts`` sub-cells (x, then y, then z; counting sort)."""
+    n = order.shape[0]
+    outside = dims[0] * dims[1] * dims[2]
+    out = order.copy()
+    sub = np.empty(n, np.int64)
+    count = np.empty(parts * parts * parts + 1, np.int64)
+    j = 0
+    while j < n:
+        key = keys[order[j]]
+        e = j + 1
+        while e < n and keys[order[e]] == key:
+            e += 1
+        if key != outside:
+            corner = (key // (dims[1] * dims[2]) + low[0], (key // dims[2]) % dims[1] + low[1], key % dims[2] + low[2])
+            count[:] = 0
+            for q in range(j, e):
+                s = 0
+                for k in range(3):
+                    c = int((np.float64(points[order[q], k]) - origin[k] - corner[k] * cell) / cell * parts)
+                    s = s * parts + min(max(c, 0), parts - 1)
+                sub[q] = s
+                count[s + 1] += 1
+            for c in range(parts * parts * parts):
+                count[c + 1] += count[c]
+            for q in range(j, e):
+                out[j + count[sub[q]]] = order[q]
+                count[sub[q]] += 1
+        j = e
+    return out
+
+
 def _spatial_order(points: np.ndarray, origin: np.ndarray, cell: float, low: np.ndarray,
-                   dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Order visiting ``points`` cell by cell (see :func:`_cell_keys`), and the cell keys.
+                   dims: np.ndarray, parts: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Order visiting ``points`` cell by cell (see :func:`_cell_keys`), within each cell by its
+    ``parts``³ sub-cells, and the cell keys.
 
     A counting sort (linear time) when there are not many more cells than points (a sort of a few
     points, not a pass over a million empty cells, for the small queries of a remesh).
     """
     keys = _cell_keys(points, origin, cell, low, dims)
     n_keys = int(np.prod(dims)) + 1
-    if n_keys <= 4 * len(points):
-        return _counting_order(keys, n_keys), keys
-    return np.argsort(keys, kind="stable"), keys
+    order = _counting_order(keys, n_keys) if n_keys <= 4 * len(points) else np.argsort(keys, kind="stable")
+    return (_within_cells(points, order, keys, origin, cell, low, dims, parts) if parts > 1 else order), keys
 
 
 @njit(cache=True)
-def _blocks(keys, order, size):
-    """Starts (and end) of the blocks of about ``size`` consecutive points of ``order`` that
-    split only between cells, so that each cell's list is built once."""
-    n = order.shape[0]
+def _blocks(keys, size):
+    """Starts (and end) of the blocks of about ``size`` consecutive points (cell ``keys`` in
+    visiting order) that split only between cells, so that each cell's list is built once."""
+    n = keys.shape[0]
     starts = [0]
     for j in range(1, n):
-        if j - starts[-1] >= size and keys[order[j]] != keys[order[j - 1]]:
+        if j - starts[-1] >= size and keys[j] != keys[j - 1]:
             starts.append(j)
     starts.append(n)
     return np.array(starts, np.int64)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _beyond_disk(px, py, pz, tri, t, best, root):
+def _beyond_disk(px, py, pz, tri, t, cut, root):
     """Whether the disk of triangle ``t`` (in its plane, about its centroid, radius to the farthest
-    corner: columns 9-15 of ``tri``) proves p no nearer to it than ``best`` (squared nm; ``root``
-    its square root)."""
+    corner: columns 9-15 of ``tri``) proves p farther from it than ``root`` (nm; ``cut`` its square):
+    strictly, so that a triangle as near as the best so far (an exact tie) is never passed over."""
     qx, qy, qz = px - tri[t, 9], py - tri[t, 10], pz - tri[t, 11]
     q2 = qx * qx + qy * qy + qz * qz
     rad = tri[t, 12]
     reach = root + rad
-    if q2 >= reach * reach:
+    if q2 > reach * reach:
         return True
     h = qx * tri[t, 13] + qy * tri[t, 14] + qz * tri[t, 15]
     h2 = h * h
-    if h2 >= best:
+    if h2 > cut:
         return True
     lateral2 = q2 - h2
     if lateral2 > rad * rad:
         lateral = np.sqrt(lateral2) - rad
-        if h2 + lateral * lateral >= best:
+        if h2 + lateral * lateral > cut:
             return True
     return False
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _before(d, t, best, best_t, tri, face_id):
+    """Whether triangle ``t`` (row of ``tri``) at squared distance ``d`` takes the place of the best so far,
+    ``best_t`` at ``best``: it is nearer, or exactly as near (a tie: the closest point on a corner or an edge
+    the two share) and its centroid is lower (x, then y, then z; the lower mesh face where two centroids are
+    equal). The closest face is then the same whatever order the triangles are tried in."""
+    if d != best:
+        return d < best
+    if best_t < 0:
+        return True
+    for k in range(9, 12):
+        if tri[t, k] != tri[best_t, k]:
+            return tri[t, k] < tri[best_t, k]
+    return face_id[t] < face_id[best_t]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cut(best, pad):
+    """The pruning radius of the best squared distance so far, ``best`` + its rounding ``pad`` (nm), and its
+    square: a bound must exceed it to pass over a triangle, so that no tie is lost to rounding."""
+    root = np.sqrt(best) + pad
+    return root, root * root
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -484,25 +571,25 @@ def _box_gap2(px, py, pz, box, k):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw, seen, mark):
-    """Closest of row ``r``'s triangles to p if nearer than ``best`` (squared nm).
+def _nearer_in_row(px, py, pz, r, tri, face_id, start, tris, best, best_t, bu, bw, seen, mark, pad):
+    """Closest of row ``r``'s triangles to p if before the best so far (``best`` squared nm; :func:`_before`).
 
     A triangle lies in every row its box meets (2.5 rows on average): ``seen[t] == mark`` says
     it was tried for this point already (mailboxing), and is set for those tried now. Lower
     bounds from the triangle's disk (:func:`_beyond_disk`) reject most triangles.
     """
-    root = np.sqrt(best)
+    root, cut = _cut(best, pad)
     for s in range(start[r], start[r + 1]):
         t = tris[s]
         if seen[t] == mark:
             continue
         seen[t] = mark
-        if _beyond_disk(px, py, pz, tri, t, best, root):
+        if _beyond_disk(px, py, pz, tri, t, cut, root):
             continue
         d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-        if d < best:
+        if _before(d, t, best, best_t, tri, face_id):
             best, best_t, bu, bw = d, t, u, w
-            root = np.sqrt(best)
+            root, cut = _cut(best, pad)
     return best, best_t, bu, bw
 
 
@@ -517,14 +604,17 @@ def _run_boxes(triangles: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
-                     tris, boxes, run_boxes, offsets, offset_bound, first, covered, limit, vertices, faces,
+def _signed_in_cells(points, keys, blocks, low, dims, m, tri, face_id, origin, cell, shape, slot, start,
+                     tris, boxes, run_boxes, offsets, offset_bound, first, covered, limit, pad, vertices, faces,
                      face_normals, face_edge, edge_normals, edge_faces, vertex_normals, boundary_vertex, distance, face,
                      feature, rim, weights, n_workers):
-    """Exact signed distances of points visited home by home (``order``; homes are blocks of
-    m x m x m grid cells, ``keys`` from :func:`_cell_keys` over the homes ``low`` + [0, ``dims``)),
-    written to the output arrays at the points' indices (NaN, face -1 beyond ``limit``, squared nm);
-    ``weights`` (N, 3) gets the closest points' barycentric weights unless it has no rows.
+    """Exact signed distances of ``points`` (N, 3) float64 given in visiting order, home by home (homes
+    are blocks of m x m x m grid cells, ``keys`` their homes from :func:`_cell_keys` over the homes
+    ``low`` + [0, ``dims``)), written to the output arrays in the same order (NaN, face -1 beyond
+    ``limit``, squared nm); ``weights`` (N, 3) gets the closest points' barycentric weights unless it
+    has no rows. The closest face is the first by :func:`_before` (distance, then centroid), whatever
+    the order: every bound passes a triangle over only when it exceeds the best so far by ``pad`` nm
+    (the rounding of these coordinates).
 
     ``n_workers`` workers (one per thread) take every ``n_workers``-th block of ``blocks``, each
     with its own mailbox (8 bytes per triangle). For each home, once: the non-empty grid rows
@@ -532,12 +622,12 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
     bound ``offset_bound``), sorted by the distance from the home's box to the row's box; ``first``
     (homes tiling the grid) skips the offsets that lead to empty cells only. For each point: the previous point's
     closest triangle seeds an upper bound, the rows are visited in that order until their bound
-    is no nearer than the best triangle so far, each row skipped when the point's own distance
-    to its box is no nearer, its triangles pruned by disk bounds (:func:`_nearer_in_row`).
+    is farther than the best triangle so far, each row skipped when the point's own distance
+    to its box is farther, its triangles pruned by disk bounds (:func:`_nearer_in_row`).
     ``covered``: squared distance within which the offsets reach every cell; a point whose
     nearest triangle is farther (and within ``limit``) is finished by trying every triangle in
     turn, passing over the runs of :data:`_RUN` triangles whose box (``run_boxes``) and the
-    triangles whose disk is no nearer than the best so far.
+    triangles whose disk is farther than the best so far.
 
     Returns (blocks,) int64: the points of each block whose home lists any row (the narrow
     band: the others cost a few nanoseconds each).
@@ -557,9 +647,8 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
             key_now = -1
             prev = -1
             for j in range(blocks[b], blocks[b + 1]):
-                i = order[j]
-                key = keys[i]
-                px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+                key = keys[j]
+                px, py, pz = points[j, 0], points[j, 1], points[j, 2]
                 best, best_t, bu, bw = limit, -1, 0.0, 0.0
                 finished = False
                 if key != outside:
@@ -600,39 +689,41 @@ def _signed_in_cells(points, order, keys, blocks, low, dims, m, tri, face_id, or
                     if prev >= 0:
                         tried[prev] = j
                         d, u, w = _closest_on_triangle(px, py, pz, tri, prev)
-                        if d < best:
+                        if _before(d, prev, best, best_t, tri, face_id):
                             best, best_t, bu, bw = d, prev, u, w
+                    cut = _cut(best, pad)[1]
                     for q in range(row_list.shape[0]):
-                        if row_gap[q] >= best:
+                        if row_gap[q] > cut:
                             finished = True
                             break
                         r = row_list[q]
-                        if _box_gap2(px, py, pz, boxes, r) < best:
-                            best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, start, tris, best, best_t, bu, bw,
-                                                                  tried, j)
-                if not finished and best > covered:
-                    # every triangle in turn; those the runs' boxes and the disks prove no nearer than the best
-                    # so far are passed over (the same triangles measured, in the same order, as measuring all)
-                    root = np.sqrt(best)
+                        if _box_gap2(px, py, pz, boxes, r) <= cut:
+                            best, best_t, bu, bw = _nearer_in_row(px, py, pz, r, tri, face_id, start, tris, best,
+                                                                  best_t, bu, bw, tried, j, pad)
+                            cut = _cut(best, pad)[1]
+                root, cut = _cut(best, pad)
+                if not finished and cut >= covered:
+                    # every triangle in turn; those the runs' boxes and the disks prove farther than the best so far
+                    # are passed over (the same closest face as measuring all)
                     for c in range(run_boxes.shape[0]):
-                        if _box_gap2(px, py, pz, run_boxes, c) >= best:
+                        if _box_gap2(px, py, pz, run_boxes, c) > cut:
                             continue
                         for t in range(c * _RUN, min((c + 1) * _RUN, n_tri)):
-                            if _beyond_disk(px, py, pz, tri, t, best, root):
+                            if _beyond_disk(px, py, pz, tri, t, cut, root):
                                 continue
                             d, u, w = _closest_on_triangle(px, py, pz, tri, t)
-                            if d < best:
+                            if _before(d, t, best, best_t, tri, face_id):
                                 best, best_t, bu, bw = d, t, u, w
-                                root = np.sqrt(best)
+                                root, cut = _cut(best, pad)
                 if best_t < 0:
-                    distance[i], face[i], feature[i], rim[i] = np.nan, -1, FACE, False
+                    distance[j], face[j], feature[j], rim[j] = np.nan, -1, FACE, False
                     continue
                 prev = best_t
                 f = face_id[best_t]
-                face[i] = f
+                face[j] = f
                 if weights.shape[0] > 0:
-                    weights[i, 0], weights[i, 1], weights[i, 2] = 1.0 - bu - bw, bu, bw
-                distance[i], feature[i], rim[i] = _signed_one(
+                    weights[j, 0], weights[j, 1], weights[j, 2] = 1.0 - bu - bw, bu, bw
+                distance[j], feature[j], rim[j] = _signed_one(
                     px, py, pz, f, bu, bw, best, vertices, faces, face_normals, face_edge, edge_normals, edge_faces,
                     vertex_normals, boundary_vertex)
     return searched
