@@ -114,7 +114,10 @@ def _symmetric_csr(ij, n):
 def _pool(vertices, normals, indptr, indices, radius, power, profiles, out):
     inv = 2.0 / (radius * radius)  # exp(-r² / 2 sigma²) with sigma = radius / 2
     for i in prange(vertices.shape[0]):
-        out[i] = profiles[i]
+        # element by element: a row copy would compile numba's shape-check error path and its string formatting
+        # (~4 s CPU in every cold process, st30)
+        for col in range(profiles.shape[1]):
+            out[i, col] = profiles[i, col]
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
             r2 = ((vertices[i, 0] - vertices[j, 0]) ** 2 + (vertices[i, 1] - vertices[j, 1]) ** 2
