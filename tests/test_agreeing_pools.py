@@ -40,8 +40,8 @@ def test_objects_of_two_phases_keep_their_own_levels():
 
 def test_objects_of_one_phase_stay_pooled():
     """Objects of one phase (their windows differ by counting alone): the pair test splits them in no more than the
-    family-wise share its level allows (the speck test's), so their levels keep the pool's precision (a 60-atom window's level within
-    the pool's error, not its own 5 points)."""
+    family-wise share its level allows (the speck test's), so their levels keep the pool's precision (a 60-atom
+    window's level within the pool's error, not its own 5 points)."""
     rng = np.random.default_rng(1)
     truth, atoms = np.full(4, 0.20), [5000, 300, 300, 60]
     split, errors = 0, []

@@ -371,7 +371,8 @@ def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_w
     sigma = np.sqrt(C_IN * (1 - C_IN) / profiles.sum())
 
     def level(pool):
-        return levels_from_sums(best, ["Al", "other"], "Al", 3000.0, chosen_pools(sums, best, chosen, chosen, pool, 0, 3000.0))[0]
+        pooled = chosen_pools(sums, best, chosen, chosen, pool, 0, 3000.0)
+        return levels_from_sums(best, ["Al", "other"], "Al", 3000.0, pooled)[0]
 
     assert C_IN - level(np.zeros(2)).inside[0] > 2 * sigma, (level(np.zeros(2)).inside, sigma)  # no profiles: as main
     assert abs(level(profiles).inside[0] - C_IN) <= 2 * sigma, (level(profiles).inside, sigma)

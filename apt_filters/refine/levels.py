@@ -31,7 +31,6 @@ PLATEAU_PRIOR = 3000.0
 """Default weight (atoms) of the pooled plateaus of all objects in each object's own (shrinkage)."""
 
 
-
 @dataclass
 class ObjectLevels:
     """The two plateaus of one connected surface (one object), in the concentration basis.
@@ -168,13 +167,14 @@ def agreeing_pools(sums: np.ndarray, k: int, prior: float) -> np.ndarray:
     ``n_i`` and ``n_j`` atoms then differ by ``f (1 - f) (1 / n_i + 1 / n_j + 2 / m)`` in variance (``f`` their
     pooled fraction). Where they differ significantly at the speck test's family-wise rate
     (:data:`~apt_filters.refine.specks.ALPHA`, two-sided, Bonferroni over every pair and both sides; a pair of large
-    windows must differ by more than the prior's spread, a pair of small ones by more than their counting), the
-    data refute the model for that pair and neither is shrunk toward the other: objects of two phases keep their own levels instead of each being pulled to the mean of both
-    (two phases at 15 and 25 at.%, windows of 8000 and 800 atoms: the small object's level off by 7.2 at.% RMS
-    pooled, by 1.5 apart, its own window's counting error). Where the data do not refute it the pool is every agreeing window's atoms, as for identical objects
-    (held-out plate 10010: its two plates' windows, 2004 atoms at 17.1 at.% (lobe-diluted) and 797 at 20.2, differ
-    by 1.6 standard errors and stay pooled; the truth is 19.0 for both). ``prior`` 0 (no shrinkage): every
-    object's windows.
+    windows must differ by more than the prior's spread, a pair of small ones by more than their counting), the data
+    refute the model for that pair and neither is shrunk toward the other: objects of two phases keep their own
+    levels instead of each being pulled to the mean of both (two phases at 15 and 25 at.%, windows of 8000 and 800
+    atoms: the small object's level off by 7.2 at.% RMS pooled, by 1.5 apart, its own window's counting error).
+    Where the data do not refute it the pool is every agreeing window's atoms, as for identical objects (held-out
+    plate 10010: its two plates' windows, 2004 atoms at 17.1 at.% (lobe-diluted) and 797 at 20.2, differ by 1.6
+    standard errors and stay pooled; the truth is 19.0 for both). ``prior`` 0 (no shrinkage): every object's
+    windows.
 
     Parameters
     ----------
