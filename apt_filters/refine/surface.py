@@ -405,7 +405,8 @@ class RefineResult:
     offset_errors : (c,) float64, nm
         Counting-statistics standard error of each object's mean offset along its normals, from the
         Fisher information of its score profile (NaN for objects without both plateaus), combined with its
-        segregant's peak where ``marker`` moved it; times the object's area it is that of its volume. From
+        segregant's peak where ``marker`` moved it, and its own plateau levels' counting error
+        (:func:`_level_offset_errors`); times the object's area it is that of its volume. From
         the score alone, on the gamma-prime specimen 0.035-0.041 nm for a 3 nm sphere (3.5-4.1 % of its
         volume), against the Cramér-Rao floor of all the element profiles with the truth known, 0.036 nm
         (:func:`~apt_filters.truth.counting_floor`).
