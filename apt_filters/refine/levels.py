@@ -48,6 +48,9 @@ class ObjectLevels:
         Basis atoms of this object counted in each plateau window.
     iso : float
         Midpoint of the iso species' two plateaus: where this object's surface belongs.
+    worth_inside, worth_outside : float
+        Atoms whose binomial count would be as certain as each shrunk plateau (:func:`shrunk_worth`): the window's
+        own atoms and the prior's, the prior no more certain than the pool it is drawn from. NaN where not known.
     """
 
     component: int
@@ -57,6 +60,8 @@ class ObjectLevels:
     n_inside: float
     n_outside: float
     iso: float
+    worth_inside: float = math.nan
+    worth_outside: float = math.nan
 
     def as_dict(self) -> dict:
         return {"component": self.component, "iso": self.iso, "n_inside": self.n_inside, "n_outside": self.n_outside,
@@ -154,8 +159,23 @@ def levels_from_sums(sums: np.ndarray, elements: list[str], species: str, prior:
         c_in = inside / inside.sum() if inside.sum() > 0 else np.full(len(inside), np.nan)
         c_out = outside / outside.sum() if outside.sum() > 0 else np.full(len(outside), np.nan)
         out.append(ObjectLevels(c, list(elements), c_in, c_out, float(n_in), float(n_out),
-                                float(0.5 * (c_in[k] + c_out[k]))))
+                                float(0.5 * (c_in[k] + c_out[k])), shrunk_worth(n_in, prior, pooled[c, 0].sum()),
+                                shrunk_worth(n_out, prior, pooled[c, 1].sum())))
     return out
+
+
+def shrunk_worth(n: float, prior: float, n_pool: float) -> float:
+    """Atoms whose binomial count would be as certain as a window of ``n`` atoms shrunk toward a pool of ``n_pool``
+    atoms that holds it, by ``prior`` atoms (:func:`levels_from_sums`).
+
+    The shrunk fraction ``(x + prior (x + y) / N) / (n + prior)`` (``x`` of the window's ``n`` atoms, ``y`` of the
+    pool's other ``N - n``; ``N`` = ``n_pool``) has the variance ``f (1 - f) (n + 2 n prior / N + prior^2 / N) /
+    (n + prior)^2``: a prior of 3000 atoms drawn from a pool of 2000 is no more certain than those 2000, and an object
+    pooled with itself alone is worth its own atoms. Its worth is ``f (1 - f)`` over it.
+    """
+    if prior <= 0 or n_pool <= 0:
+        return float(n)
+    return float((n + prior) ** 2 / (n + (2 * n * prior + prior ** 2) / n_pool)) if n + prior > 0 else 0.0
 
 
 def agreeing_pools(sums: np.ndarray, k: int, prior: float) -> np.ndarray:
