@@ -18,7 +18,7 @@ from apt_filters.refine.crossval import CANDIDATES, SCORED, basis_size, cross_va
 from apt_filters.refine.spectral import low_pass
 from apt_filters.refine.facets import find_facets
 from apt_filters.refine.surface import _finisher, _low_passed, _unclosed, umbrella
-from apt_filters.synth import Cuboid, Cylinder, generate, preset
+from apt_filters.synth import Capsule, Cuboid, Cylinder, generate, preset
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.presets import GAMMA
 from apt_filters.synth.specimen import Feature, SpecimenSpec
@@ -225,7 +225,7 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
     rough = vertices + np.random.default_rng(0).normal(0.0, 0.3, len(vertices))[:, None] * vertex_normals(vertices,
                                                                                                            faces)
     found = find_facets(rough, faces)
-    assert len(found) == 2 and _unclosed(found) == {0}
+    assert len(found) == 2 and _unclosed(found) == {0: 2}
     faceted = _finisher(found, faces, topo.face_pairs, None)(vertices)[0]
     true_volume = sp.truth["features"][0]["volume_nm3"]
     assert abs(TriMesh(vertices, faces).signed_volume() / true_volume - 1) < 0.01
@@ -240,3 +240,22 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
                                       lambda k, kept: _finisher(found if kept else [], faces, topo.face_pairs, None),
                                       faceted_objects={0}, unclosed=_unclosed(found))
     assert selection.facets == {0: False}
+
+
+def test_a_smooth_capsule_keeps_no_strips_of_facets_the_held_out_ions_prefer_only_within_their_number():
+    """A capsule like development rod 10039's second rod (radius 1.8 nm, axis 11 nm; Al 10 -> 31 at.% over a 0.93
+    nm tanh interface) refined with every default. Its rough halves crowd their normals into 5-6 strips round its
+    axis (no plane of the truth); the whole's five strips close nothing, and the held-out ions prefer the halves'
+    prisms by 2.01 and 1.51 SE: kept on main (one standard error), which turned the capsule into a pentagonal prism
+    (area +5.0 %, volume -10.2 %). Five planes must win by 1.86 SE in both tests (``unclosed_margin``): no facets,
+    area +0.1 %, volume -10.6 % (the start's and the levels' error, not the facets')."""
+    inside = 0.31
+    rod = Capsule((0.0, 0.0, -13.0), 1.8, 11.0)
+    phase = {"Ni": 0.945 - inside, "Al": inside, "Cr": 0.05, "B": 0.005}
+    spec = SpecimenSpec(Box((14.0, 14.0, 26.0)), GAMMA, (Feature(rod, phase, 0.93, (), "rod"),), efficiency=0.57,
+                        name="capsule")
+    sp = generate(spec, seed=3)
+    result = refine_surface(speckless_start(sp, iso=0.5 * (inside + 0.10)), sp.ions, sp.ranges, "Al", NO_B)
+    assert result.facets == 0
+    area = result.mesh.area() / sp.truth["features"][0]["area_nm2"] - 1
+    assert abs(area) < 0.02, area

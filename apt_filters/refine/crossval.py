@@ -45,6 +45,7 @@ from scipy.special import erfc
 from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.refine.band import NearIons
 from apt_filters.refine.composition import ObjectScores
+from apt_filters.refine.facets import unclosed_margin
 from apt_filters.refine.spectral import Harmonics, harmonics, low_pass, rim_held_low_pass
 
 CANDIDATES = (4, 9, 16, 25, 36)
@@ -76,8 +77,8 @@ class ModeSelection:
         than one standard error than its best with them, either as the candidates stand or with each first moved
         by the offset that fits it to the placing half's ions (:meth:`HeldOutLoss.fitted_shift`: the facets'
         planes are fitted so; this second test judges their shape, not the smooth surface's size). Facets that do
-        not close their object (``unclosed``) are kept only where both tests prefer them by more than one
-        standard error.
+        not close their object (``unclosed``) are kept only where both tests prefer them by a margin that grows
+        with their planes (:func:`~apt_filters.refine.facets.unclosed_margin`).
     lengths : dict[int, float]
         Open object -> its smoothing length, nm (:func:`cross_validated_lengths`; 0: as it is).
     """
@@ -122,7 +123,7 @@ def basis_size(k: int) -> int:
 def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
                           held_out: list[NearIons], scores: ObjectScores, widths: np.ndarray, finisher: Callable[[int], Callable],
                           candidates: tuple[int, ...] = CANDIDATES, faceted_objects=(),
-                          unclosed=()) -> ModeSelection:
+                          unclosed: dict[int, int] | None = None) -> ModeSelection:
     """Each object's number of modes by two-fold cross-validation (module docstring).
 
     Parameters
@@ -148,10 +149,11 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     candidates : tuple of int
     faceted_objects : iterable of int
         Objects with facets on either half's surface: tried without them too.
-    unclosed : iterable of int
+    unclosed : dict[int, int]
         Of those, the objects whose facets on the whole surface (those the finish will apply) do not close them
-        (:func:`~apt_filters.refine.facets.closes`): they keep their facets only where the held-out ions prefer
-        them (below), not merely where they do not reject them.
+        (:func:`~apt_filters.refine.facets.closes`), with the number of those facets: they keep their facets only
+        where the held-out ions prefer them by :func:`~apt_filters.refine.facets.unclosed_margin` of that number
+        (below), not merely where they do not reject them.
     """
     n_comp = len(scores.usable)
     plain = list(candidates) + [0]
@@ -217,13 +219,14 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         # planes, and what lies between them stays where the low-pass left it, so on a curved low-passed face the
         # flattened core breaks off from its surroundings (held-out plate 10010's second plate, 4.2 points of
         # contrast: two parallel faces on its 9-mode lens, their cores up to 1.6 nm off the planes, area 262 ->
-        # 318 nm² against a true 261, at +0.06 and -0.36 SE). They are a weaker prior, so they must win: kept
-        # only where the held-out ions prefer them by more than one standard error in both tests.
+        # 318 nm² against a true 261, at +0.06 and -0.36 SE). They are a weaker prior, so they must win in both
+        # tests, by a margin that grows with their planes: a search that cuts a smooth object into more strips has
+        # more chances to fit its noise (unclosed_margin: a capsule's eight strips won by 1.85 and 1.21 SE)
         with_facets = True
         if faceted[c]:
             gains = [_facets_gain(loss, gram[c], sums[c], count[c], start, half) for start in (0, 2 * half)]
             with_facets = bool(np.isfinite(loss[:half]).any()) and (
-                all(diff > ONE_SE * se for diff, se in gains) if c in unclosed
+                all(diff > unclosed_margin(unclosed[c], ONE_SE) * se for diff, se in gains) if c in (unclosed or {})
                 else not any(diff < -ONE_SE * se for diff, se in gains))
             keep_facets[c] = with_facets
         side = slice(0, half) if with_facets else slice(half, 2 * half)

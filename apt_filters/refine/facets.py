@@ -70,6 +70,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 from scipy.sparse.csgraph import connected_components
+from scipy.special import ndtr, ndtri
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
@@ -619,6 +620,21 @@ def closes(facets: list[Facet], margin: float = 0.25) -> bool:
     and its ions past the missing face would pull the neighbouring planes.
     """
     return _normals_close(np.array([f.normal for f in facets]), margin)
+
+
+def unclosed_margin(planes: int, one: float) -> float:
+    """Standard errors by which facets of ``planes`` planes that do not close their object (:func:`closes`) must
+    beat the smooth surface on held-out ions (:func:`~apt_filters.refine.crossval.cross_validated_modes`): the
+    one-sided rate of ``one`` standard error (the cross-validation's one-standard-error rule,
+    :data:`~apt_filters.refine.crossval.ONE_SE`; 16 %) held over the planes by Bonferroni, ``ndtri(1 - Phi(-one) /
+    planes)``: ``one`` for a single plane, 1.41 for a plate's two faces, 2.06 for eight. Each plane is a direction
+    the search picked from every vertex normal's cone, so a smooth object offers more chances to fit its noise the
+    more planes it is cut into: a 1.8 nm capsule's rough surface (development rod 10039's second rod) crowded its
+    normals into 8 strips round its axis (5-6 on each half), and the held-out ions preferred the halves' prisms
+    to the smooth surface by 1.85 and 1.21 SE, past the one standard error that kept them (volume -9 points, area
+    +3 to +8). The speck test's rate (:data:`~apt_filters.refine.specks.ALPHA`) would ask 3.29 SE of two planes,
+    more than true plates' two faces gain (2.7-3.7 SE: development plates 10038 and dev plate 2)."""
+    return float(ndtri(1.0 - ndtr(-one) / max(planes, 1)))
 
 
 def _normals_close(normals: np.ndarray, margin: float = 0.25) -> bool:

@@ -1160,9 +1160,12 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     return guarded_move(vertices, faces, target - vertices, pairs)
 
 
-def _unclosed(found: list[Facet]) -> set[int]:
-    """The objects with facets ``found`` that they do not close (:func:`closes`)."""
-    return {c for c in {f.component for f in found} if not closes([f for f in found if f.component == c])}
+def _unclosed(found: list[Facet]) -> dict[int, int]:
+    """The objects with facets ``found`` that they do not close (:func:`closes`), each with its number of facets."""
+    per = {}
+    for f in found:
+        per.setdefault(f.component, []).append(f)
+    return {c: len(mine) for c, mine in per.items() if not closes(mine)}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
