@@ -13,6 +13,7 @@ from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold
 from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled
+from apt_filters.refine.crossval import SCORED
 from apt_filters.refine.nearest import descend
 from apt_filters.refine.surface import umbrella
 from apt_filters.voxel import ConcentrationBasis
@@ -259,3 +260,37 @@ def test_the_nearest_corner_of_each_face_is_numpys_argmin_bit_for_bit():
     ring[100:200] = [502, 500, 1]  # (1, 3, 0) equidistant from (0, 0, 0) and (2, 0, 0)
     oracle = ring[np.arange(len(ring)), np.argmin(((vertices[ring] - points[:, None]) ** 2).sum(axis=2), axis=1)]
     assert np.array_equal(_nearest_corner(points, vertices, ring), oracle)
+
+
+def test_held_out_distances_read_grouped_by_vertex_are_each_ions_own_bit_for_bit():
+    """The cross-validation's held-out ions (``HeldOutLoss``) are walked in a copy grouped by nearest vertex; every
+    candidate's distances, of all of them and of a subset (``only``), must be those of the ions walked in their own
+    order (the copy's inverse), bit for bit, through candidates that move past the reassignment distance."""
+    from apt_filters.refine.composition import ObjectScores
+    from apt_filters.refine.crossval import held_out_loss
+
+    mesh = _blob()
+    rng = np.random.default_rng(7)
+    positions = rng.uniform(-7, 7, size=(120_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),)), Range(57.5, 58.5, (("Ni", 1),))])
+    ions = IonTable(positions, rng.choice(np.array([27.0, 58.0], dtype=np.float32), len(positions)))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.5)
+    components = topology(mesh.faces, len(mesh.vertices)).vertex_components
+    scores = ObjectScores(np.array([True]), np.array([[1.0, 0.0]]), np.array([0.8]), np.array([0.1]))
+    comp, loss = held_out_loss(mesh.vertices, mesh.faces, components, [0], near, scores, np.array([0.4]))
+    grouped = loss.held.vertex
+    assert np.all(np.diff(grouped) >= 0) and not np.all(np.diff(near.vertex) >= 0)
+    own = loss.held.take(np.argsort(loss._order))  # the same ions and state in their own order
+    only = rng.choice(len(comp), len(comp) // 3, replace=False)
+    some = None
+    for j, scale in enumerate((1.0, 1.06, 0.95, 1.02, 1.1)):
+        moved = mesh.vertices * scale + 0.01 * np.sin(3.0 * mesh.vertices)
+        for subset in (None, only):
+            if subset is not None and some is None:
+                some = own.take(subset)
+            ref = own if subset is None else some
+            band = ref.band(moved, vertex_normals(moved, mesh.faces), SCORED + 1.0)
+            expect = np.full(len(ref.positions), SCORED + 1.0)
+            expect[band.index] = band.distance
+            got = loss.distances(moved, subset)
+            assert got.tobytes() == expect.tobytes(), (j, subset is None)
