@@ -292,30 +292,18 @@ class HeldOutLoss:
 
     def __init__(self, held: NearIons, faces: np.ndarray, comp: np.ndarray, fraction: np.ndarray, total: np.ndarray,
                  lo: np.ndarray, hi: np.ndarray, sigma: np.ndarray):
-        self.faces, self.comp, self.fraction, self.total = faces, comp, fraction, total
+        self.held, self.faces, self.comp, self.fraction, self.total = held, faces, comp, fraction, total
         self.lo, self.hi, self.sigma = lo, hi, sigma
-        # the walks and fans of every candidate read the ions grouped by nearest vertex (a copy taken once; each
-        # ion's walk and distance are its own, so only the reads' order differs): in the ions' own order their
-        # random reads of the points cost most of each pass (sp39: 2-4x on 1.3M held-out ions at 10^7)
-        self._order = np.argsort(held.vertex, kind="stable")
-        self.held = held.take(self._order)
         self._some = None  # the ions of ``only``, taken once: their nearest vertices followed from there on
 
     def distances(self, vertices: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
         """(h,) or (len(only),) nm: the scored ions' signed distances to ``vertices`` (``SCORED + 1`` beyond it)."""
         if only is not None and self._some is None:
-            # ``only``'s ions in the grouped copy's order, and where each of ``only`` lies among them
-            at = np.empty(len(self._order), dtype=np.int64)
-            at[self._order] = np.arange(len(self._order))
-            picked = at[only]
-            rank = np.argsort(picked, kind="stable")
-            self._some, self._some_order = self.held.take(picked[rank]), rank
-        ions, order = (self.held, self._order) if only is None else (self._some, self._some_order)
+            self._some = self.held.take(only)
+        ions = self.held if only is None else self._some
         band = ions.band(vertices, vertex_normals(vertices, self.faces), SCORED + 1.0)
-        grouped = np.full(len(ions.positions), SCORED + 1.0)
-        grouped[band.index] = band.distance
-        distance = np.empty_like(grouped)
-        distance[order] = grouped
+        distance = np.full(len(ions.positions), SCORED + 1.0)
+        distance[band.index] = band.distance
         return distance
 
     def at(self, distance: np.ndarray, only: np.ndarray | None = None, shift: np.ndarray | None = None
