@@ -259,3 +259,53 @@ def test_the_nearest_corner_of_each_face_is_numpys_argmin_bit_for_bit():
     ring[100:200] = [502, 500, 1]  # (1, 3, 0) equidistant from (0, 0, 0) and (2, 0, 0)
     oracle = ring[np.arange(len(ring)), np.argmin(((vertices[ring] - points[:, None]) ** 2).sum(axis=2), axis=1)]
     assert np.array_equal(_nearest_corner(points, vertices, ring), oracle)
+
+
+
+def _own_order_bands(near, state, vertices, reach, shell):
+    """``NearIons.bands`` as the ions' own order gives it: the walk and the fans' kernels over the ions as they are
+    stored (``state``: [nearest vertices, the vertices they were found on], followed as ``_bands`` follows them)."""
+    from apt_filters.core.mesh import face_normals
+    from apt_filters.refine.band import EXACT, REASSIGN, _fan_offsets, _largest_move
+
+    if state[1] is None or _largest_move(vertices, state[1]) > REASSIGN:
+        state[0], _ = descend(near.positions, vertices, near.indptr, near.indices, state[0], EXACT, near.second)
+        state[1] = vertices.copy()
+    n = len(state[0])
+    d2, signed, spared = np.empty(n), np.empty(n), np.full(n, np.nan)
+    _fan_offsets(near.positions, state[0], vertices, vertex_normals(vertices, near.faces), near.fan.indptr, near.fan.a,
+                 near.fan.b, face_normals(vertices, near.faces)[near.fan.face], EXACT, reach * reach, *shell, d2,
+                 signed, spared)
+    return d2, signed, np.where(np.isnan(spared), signed, spared)
+
+
+def test_walks_and_fans_read_grouped_by_vertex_give_each_ions_own_bits():
+    """``NearIons`` walks its ions and measures their fans in a copy grouped by nearest vertex; every band (the
+    shell's and the exact one), and the nearest vertices followed, must be those of the ions taken in their own
+    order, bit for bit, through moves past the reassignment distance and a ``cover`` that adds ions."""
+    mesh = _blob()
+    rng = np.random.default_rng(7)
+    positions = rng.uniform(-7, 7, size=(120_000, 3)).astype(np.float32)
+    ranges = RangeTable([Range(26.5, 27.5, (("Al", 1),)), Range(57.5, 58.5, (("Ni", 1),))])
+    ions = IonTable(positions, rng.choice(np.array([27.0, 58.0], dtype=np.float32), len(positions)))
+    near = NearIons.select(ions, ranges, ConcentrationBasis(), mesh.vertices, mesh.faces, 3.0)
+    assert not np.all(np.diff(near.vertex) >= 0)  # the ions' own order is not the grouped one
+    state = [near.vertex.copy(), near.assigned]
+    reach, shell = 2.5, (0.6, 1.6)
+    for j, scale in enumerate((1.0, 1.06, 1.07, 0.95, 1.25)):
+        moved = mesh.vertices * scale + 0.01 * np.sin(3.0 * mesh.vertices)
+        if scale > 1.2:  # faces moved past the selection's slack: ions added from the table
+            count = len(near.rows)
+            near.cover(moved, reach)
+            assert len(near.rows) > count
+            state[0] = np.concatenate([state[0], near.vertex[count:]])
+        bands = near.bands(moved, vertex_normals(moved, mesh.faces), reach, "mesh", shell)
+        d2, signed, shelled = _own_order_bands(near, state, moved, reach, shell)
+        keep = np.flatnonzero(d2 <= reach * reach)
+        if j == 0:  # the copy the kernels read is grouped by nearest vertex
+            assert np.all(np.diff(near.vertex[near.walk[0]]) >= 0)
+        assert near.vertex.tobytes() == state[0].tobytes(), j
+        assert bands[0].index.tobytes() == keep.tobytes() and bands[1].index.tobytes() == keep.tobytes(), j
+        assert bands[0].distance.tobytes() == shelled[keep].tobytes(), j
+        assert bands[1].distance.tobytes() == signed[keep].tobytes(), j
+        assert np.count_nonzero(shelled[keep] != signed[keep]) > 0.05 * len(keep)  # the shell spares some
