@@ -88,26 +88,17 @@ class Pairs:
         return Pairs.find(vertices, components, self.radius, self.slack)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _symmetric_csr(ij, n):
-    """(indptr, indices) int64 of the (n, n) symmetric 0/1 matrix with the pairs ``ij`` (p, 2) (each once, i != j):
-    each row's columns sorted, as scipy's canonical CSR of the same matrix."""
-    counts = np.zeros(n + 1, np.int64)
-    for k in range(ij.shape[0]):
-        counts[ij[k, 0] + 1] += 1
-        counts[ij[k, 1] + 1] += 1
-    indptr = np.cumsum(counts)
-    fill = indptr[:n].copy()
-    indices = np.empty(indptr[n], np.int64)
-    for k in range(ij.shape[0]):
-        i, j = ij[k, 0], ij[k, 1]
-        indices[fill[i]] = j
-        fill[i] += 1
-        indices[fill[j]] = i
-        fill[j] += 1
-    for i in prange(n):
-        indices[indptr[i]:indptr[i + 1]] = np.sort(indices[indptr[i]:indptr[i + 1]])
-    return indptr, indices
+def _symmetric_csr(ij: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices) int64 of the (n, n) symmetric 0/1 matrix with the pairs ``ij`` (p, 2) int64 (each once,
+    i != j): each row's columns sorted, as scipy's canonical CSR of the same matrix."""
+    # both directions of every pair as one key row * n + column (< n**2, far inside int64 for any mesh), sorted:
+    # rows in order, each row's columns sorted. numpy's sort, not a compiled kernel: the kernel's cold compile
+    # (~5 s CPU, numba's quicksort inside a parallel loop) cost more than this takes on any mesh here
+    keys = np.concatenate([ij[:, 0] * n + ij[:, 1], ij[:, 1] * n + ij[:, 0]])
+    keys.sort()
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(keys // n, minlength=n), out=indptr[1:])
+    return indptr, keys % n
 
 
 @njit(cache=True, nogil=True, parallel=True)
