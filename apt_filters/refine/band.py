@@ -19,7 +19,7 @@ within a radius (numba).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -195,10 +195,6 @@ class NearIons:
         Whether every ion's ``vertex`` is where a walk on ``assigned`` ended (not so for ions :meth:`cover` added
         after the mesh moved): a walk from it on the same vertices would not move, so :meth:`subset` on
         ``assigned`` itself keeps ``vertex`` without walking.
-    walk : (order, points) or None
-        The order that grouped these ions by nearest vertex at the first :meth:`band` and their positions copied
-        in it (float64), which the walks and the fans' distances read (:meth:`_bands`); None until then and after
-        :meth:`cover` added ions.
     """
 
     rows: np.ndarray
@@ -217,7 +213,6 @@ class NearIons:
     parity: int = -1
     assigned: np.ndarray | None = None
     settled: bool = False
-    walk: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def select(cls, ions: IonTable, ranges: RangeTable, basis: ConcentrationBasis, vertices: np.ndarray,
@@ -274,7 +269,6 @@ class NearIons:
         self.settled = self.assigned is None or (self.settled and _same(vertices, self.assigned))
         self.assigned = vertices.copy() if self.assigned is None else self.assigned
         self.covered[far] = corners[far]
-        self.walk = None
         return self
 
     def subset(self, keep: np.ndarray, vertices: np.ndarray, radius: float | None = None) -> "NearIons":
@@ -305,7 +299,7 @@ class NearIons:
         return replace(self, rows=self.rows[keep], positions=self.positions[keep],
                        atoms=IonAtoms(self.atoms.elements, self.atoms.atoms[keep]),
                        everything=IonAtoms(self.everything.elements, self.everything.atoms[keep]),
-                       vertex=self.vertex[keep], covered=self.covered.copy(), walk=None,
+                       vertex=self.vertex[keep], covered=self.covered.copy(),
                        assigned=None if self.assigned is None else self.assigned.copy())
 
     def half(self, parity: int, vertices: np.ndarray) -> "NearIons":
@@ -352,32 +346,20 @@ class NearIons:
     def _bands(self, vertices: np.ndarray, normals: np.ndarray, reach: float, distance: str,
                shell: tuple[float, float] | None, exact: bool) -> tuple[Band, Band | None]:
         """The band with ``shell``'s distances and, if ``exact``, the one with every ion's own (see :meth:`band`)."""
-        # the walks and fans read the ions grouped by nearest vertex (in the table's order their random reads of
-        # the points cost most of each pass, 2-4x at 10^7 ions); each ion's walk and distance are its own, so they
-        # are put back in the ions' order bit for bit
-        if self.walk is None:
-            order = np.argsort(self.vertex, kind="stable")
-            self.walk = order, np.ascontiguousarray(self.positions[order], dtype=np.float64)
-        order, points = self.walk
-        vertex = self.vertex[order]
         if self.assigned is None or _largest_move(vertices, self.assigned) > REASSIGN:
-            vertex, _ = descend(points, vertices, self.indptr, self.indices, vertex, EXACT, self.second)
-            self.vertex = np.empty_like(vertex)
-            self.vertex[order] = vertex
+            self.vertex, _ = descend(self.positions, vertices, self.indptr, self.indices, self.vertex, EXACT,
+                                     self.second)
             self.assigned, self.settled = vertices.copy(), True
         n = len(self.vertex)
         d2, signed, spared = np.empty(n), np.empty(n), np.full(n if exact else 0, np.nan)
         if distance == "mesh":
-            _fan_offsets(points, vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
+            _fan_offsets(self.positions, self.vertex, vertices, normals, self.fan.indptr, self.fan.a, self.fan.b,
                          face_normals(vertices, self.faces)[self.fan.face], EXACT, reach * reach,
                          *(shell if shell is not None else (np.inf, np.inf)), d2, signed, spared)
         elif distance == "tangent":
-            _offsets(points, vertex, vertices, normals, d2, signed)
+            _offsets(self.positions, self.vertex, vertices, normals, d2, signed)
         else:
             raise ValueError(f"distance must be 'mesh' or 'tangent', got {distance!r}")
-        d2[order], signed[order] = d2.copy(), signed.copy()
-        if exact:
-            spared[order] = spared.copy()
         keep = np.flatnonzero(d2 <= reach * reach)
         if not exact:
             return Band(keep, self.vertex[keep], signed[keep]), None
