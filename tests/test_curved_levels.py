@@ -354,7 +354,7 @@ def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_w
     # every object's levels as chosen (the other's windows; plateau_prior 3000 atoms against the unmixed counts'
     # few hundred) the unmixed sphere's level lies 2.6 sigma low; toward the pool of both spheres' profile levels it
     # is the truth within 2 sigma (sigma: that pool's count)
-    from apt_filters.refine.levels import chosen_pools, levels_from_sums, profile_levels
+    from apt_filters.refine.levels import agreeing_pools, chosen_pools, levels_from_sums, profile_levels
     sums, mixed, profiles = [], [], np.zeros(2)
     for d, iso, surface in (_erf_sphere(2.3, 30.0, 0), _erf_sphere(3.0, 60.0, 100)):
         sides = [(d <= -WINDOW[0]) & (d >= -WINDOW[1]), (d >= WINDOW[0]) & (d <= WINDOW[1])]
@@ -371,7 +371,7 @@ def test_an_unmixed_objects_level_is_shrunk_toward_the_profiles_not_the_others_w
     sigma = np.sqrt(C_IN * (1 - C_IN) / profiles.sum())
 
     def level(pool):
-        pooled = chosen_pools(sums, best, chosen, chosen, pool, 0, 3000.0)
+        pooled = chosen_pools(agreeing_pools(sums, 0, 3000.0), best, chosen, chosen, pool, 0, 3000.0)
         return levels_from_sums(best, ["Al", "other"], "Al", 3000.0, pooled)[0]
 
     assert C_IN - level(np.zeros(2)).inside[0] > 2 * sigma, (level(np.zeros(2)).inside, sigma)  # no profiles: as main

@@ -226,7 +226,7 @@ def agreeing_pools(sums: np.ndarray, k: int, prior: float) -> np.ndarray:
     return pooled
 
 
-def chosen_pools(sums: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmixed: np.ndarray,
+def chosen_pools(windows: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmixed: np.ndarray,
                  profiles: np.ndarray, k: int, prior: float) -> np.ndarray:
     """(n_components, 2, k) what each object's levels are shrunk toward (``pooled`` of :func:`levels_from_sums`)
     where some objects' levels are read off the model (``RefineParams.curved_levels``).
@@ -243,8 +243,10 @@ def chosen_pools(sums: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmixed
 
     Parameters
     ----------
-    sums, best : (n_components, 2, k) float64
-        Each object's window sums (:func:`plateau_sums`) and its sums as chosen (unmixed, or its profile's level).
+    windows : (n_components, 2, k) float64
+        What each object's window sums (:func:`plateau_sums`) are shrunk toward: :func:`agreeing_pools` of them.
+    best : (n_components, 2, k) float64
+        Each object's sums as chosen (its windows, unmixed, or its profile's level).
     chosen, unmixed : (n_components,) bool
     profiles : (k,) float64
         Every closed object's profile level times its worth in atoms, summed.
@@ -253,7 +255,7 @@ def chosen_pools(sums: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmixed
     prior : float
         The shrinkage's atoms (``plateau_prior``): windows pool with those that agree (:func:`agreeing_pools`).
     """
-    pooled = np.where(chosen[:, None, None], agreeing_pools(best, k, prior), agreeing_pools(sums, k, prior))
+    pooled = np.where(chosen[:, None, None], agreeing_pools(best, k, prior), windows)
     if profiles.sum() > 0:
         pooled[unmixed, 0] = profiles
     return pooled

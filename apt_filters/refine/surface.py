@@ -729,12 +729,12 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         bands.append(exact)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     k = held[0].atoms.elements.index(species)
+    windows = agreeing_pools(sums, k, p.plateau_prior)
     if not curved:
-        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior,
-                                agreeing_pools(sums, k, p.plateau_prior))
-    unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, species, p, closed)
+        return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior, windows)
+    unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, windows, species, p, closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
-    pooled = chosen_pools(sums, best, chosen, balls, shared, k, p.plateau_prior)
+    pooled = chosen_pools(windows, best, chosen, balls, shared, k, p.plateau_prior)
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
@@ -745,9 +745,11 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
-                   species: str, p: RefineParams, closed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   pools: np.ndarray, species: str, p: RefineParams,
+                   closed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cross-fitted window sums of each closed object with its interface's share taken out
-    (:func:`~apt_filters.refine.levels.unmixed_sums`), and which objects the held-out ions choose them for.
+    (:func:`~apt_filters.refine.levels.unmixed_sums`), and which objects the held-out ions choose them for
+    (``pools``: what each object's windows are shrunk toward, :func:`~apt_filters.refine.levels.agreeing_pools`).
 
     Per object: its ball (radius and dimension from the two half surfaces' volume, area and total mean curvature,
     :func:`~apt_filters.refine.levels.object_shapes`), the interface's offset and own width fitted to the iso
@@ -822,7 +824,6 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     balls = np.zeros(n_comp, dtype=bool)
     share = np.ones(n_comp)
     profiled = {}
-    pools = agreeing_pools(sums, k, p.plateau_prior)  # what each object's levels are shrunk toward
     order = np.argsort(comp, kind="stable")
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
@@ -1053,7 +1054,8 @@ def _level_offset_errors(levels: list[ObjectLevels], scores: ObjectScores, width
     fractions ``f`` (score weights ``w``). :func:`_offset_errors` holds the levels fixed; this is the rest, and where
     the inside window holds ~1000 atoms on a low-contrast wide interface it is the larger part (rod 10039: contrast
     0.21, width 0.93 nm, an inside level uncertain by 0.014, its midpoint by 0.007, the surface by ~0.07 nm, 8 % of
-    a 1.85 nm rod's volume). NaN for objects without both plateaus or without their worth.
+    a 1.85 nm rod's volume). NaN for objects without both plateaus (``scores.usable``); infinite where a level is
+    worth no atoms or its worth is not known (NaN: an ``ObjectLevels`` made other than by ``levels_from_sums``).
     """
     out = np.full(len(levels), np.nan)
     for c in np.flatnonzero(scores.usable & (np.abs(scores.inside - scores.outside) > 0)):
