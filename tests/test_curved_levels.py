@@ -194,7 +194,7 @@ def test_the_ball_is_refused_where_its_fit_does_not_fix_the_interface(seed):
     d, iso, window, _ = _slab(40_000, 0.19, 0.148, seed)
     fit = fit_ball(d, iso, np.ones_like(iso), radius=1.0, dims=1.0, blur=BLUR)
     u = unmixing_shift(d, iso, np.ones_like(iso), window, fit, radius=1.0, dims=1.0, blur=BLUR)
-    assert u.gain < 0 and u.weight < 0.5, (u.shift, u.var, u.gain, u.weight)
+    assert u.gain < 0 and u.weight == 0, (u.shift, u.var, u.gain, u.weight)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -207,7 +207,7 @@ def test_the_ball_is_chosen_where_its_level_is_nearer_the_truth(seed):
     u = unmixing_shift(d, iso, np.ones_like(iso), window, fit, radius=1.0, dims=1.0, blur=BLUR)
     assert truth > 2 * np.sqrt(u.var), "the windows' midpoint is biased beyond the ball's error"
     assert abs(u.shift - truth) <= 2 * np.sqrt(u.var), (u.shift, truth, u.var)
-    assert u.gain > 0 and u.weight > 0.5, (u.shift, u.var, u.gain, u.weight)
+    assert u.gain > 0 and u.weight > 0, (u.shift, u.var, u.gain, u.weight)
 
 
 def test_a_thin_objects_profile_level_is_the_truth_from_either_surface():
@@ -485,9 +485,9 @@ def test_a_few_atoms_window_reading_nothing_does_not_veto_a_profile_worth_far_mo
 
 def test_the_unmixing_weight_states_the_spread_of_the_level_it_gives_where_a_hard_choice_does_not():
     # a small sphere's windows drawn 1,500 times (exact truth: inside 71, outside 10 at.%; 400 and 1,500 atoms; the
-    # inside window holds 10 % of the interface, its shares known to 0.05 and 0.015): unmixing where its shift looks
-    # large against its error (main's hard choice, weight rounded at 1/2) takes the draws whose shift is noise, and
-    # its inside level lies off by twice the error it states; the weighted level's error is the one it states
+    # inside window holds 10 % of the interface, its shares known to 0.05 and 0.015): unmixing whole where its shift
+    # looks large against its error (main's hard choice) takes the draws whose shift is noise, and its inside level
+    # lies off by 2.26 times the error it states; the weighted level (RMS error no larger) by the error it states
     from apt_filters.refine.levels import unmixing_weight
     rng = np.random.default_rng(0)
     c_in, c_out, g, n = 0.71, 0.10, np.array([0.90, 0.02]), np.array([400.0, 1500.0])
@@ -510,5 +510,5 @@ def test_the_unmixing_weight_states_the_spread_of_the_level_it_gives_where_a_har
         return np.sqrt(np.mean(e ** 2) / np.mean(var))
 
     assert ratio(hard) > 1.8, ratio(hard)
-    assert 0.8 < ratio(soft) < 1.1, ratio(soft)
-    assert np.sqrt(np.mean(np.array(soft)[:, 0] ** 2)) < np.sqrt(np.mean(np.array(hard)[:, 0] ** 2))
+    assert 0.9 < ratio(soft) < 1.15, ratio(soft)
+    assert np.sqrt(np.mean(np.array(soft)[:, 0] ** 2)) <= np.sqrt(np.mean(np.array(hard)[:, 0] ** 2))

@@ -214,9 +214,9 @@ class RefineParams:
         and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
         ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
         that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds), and moved toward
-        them by the weight that minimises the moved level's estimated mean squared error
-        (:func:`~apt_filters.refine.levels.unmixing_weight`: 0 where the fit does not fix the level it unmixes to; a
-        weight, not a hard choice, whose own variance the levels' worth carries); the objects so unmixed are shrunk
+        them by the share of the shift that is estimated bias (:func:`~apt_filters.refine.levels.unmixing_weight`:
+        0 where the unmixed level is not expected the nearer the truth; a weight, not a hard choice, whose own
+        variance the levels' worth carries); the objects so unmixed are shrunk
         toward every object's levels as chosen, the others toward every object's windows (``plateau_prior``; each
         only toward the objects that agree with it, :func:`~apt_filters.refine.levels.agreeing_pools`). The model's
         ions are measured a second time, with exact distances.
@@ -763,15 +763,14 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     window ions better than that half's flat windows do, summed over both folds, by more than :data:`BALL_SE`
     standard errors of that gain (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold
     cross-validation as the mode selection, the windows the simpler model; its windows are then moved toward the
-    unmixed levels by the weight that minimises the moved midpoint's estimated mean squared error, with the fit's
-    covariance and the amplified counts (:func:`~apt_filters.refine.levels.unmixing_shift`,
+    unmixed levels by the share of their shift that is estimated bias, with the fit's covariance and the
+    amplified counts (:func:`~apt_filters.refine.levels.unmixing_shift`,
     :func:`~apt_filters.refine.levels.unmixing_weight`): a fit that does not fix the interface (a thin object at
-    low contrast) unmixes by shares it does not know (weight 0), and a hard choice at weight 1/2 would take the
-    draws whose shift is noise. An object whose weight is at most 1/2 takes its inside level from its
-    whole fitted profile (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the
-    truth than its shrunk window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
-    inside window holds a few atoms of its axis and whose level is then the pool's; else its windows are moved by
-    its weight. Where two or more objects are
+    low contrast) unmixes by shares it does not know (weight 0), and taken whole the unmixed levels would follow
+    the draws whose shift is noise. An object of weight 0 takes its inside level from its whole fitted profile
+    (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the truth than its shrunk
+    window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
+    inside window holds a few atoms of its axis and whose level is then the pool's. Where two or more objects are
     closed they are also fitted together (shared levels, :func:`~apt_filters.refine.levels.fit_balls`): an object
     whose own ball is refused is put to the same tests with the joint ball, and one whose own profile level is
     refused is offered the joint profile level where the joint ball's held-out gain exceeds one standard error and
@@ -786,8 +785,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         Window sums, moved toward the unmixed levels where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
     chosen : (n_components,) bool
     balls : (n_components,) bool
-        The objects unmixed, by a weight above 0 (chosen for their ball; the others chosen take their profile's
-        level).
+        The objects unmixed (chosen for their ball; the others chosen take their profile's level).
     share : (n_components,) float64
         The share of its inside level at which each object's placement takes its crossing
         (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
@@ -857,21 +855,16 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         # rather than borrow the other objects' atoms (a 4 nm sphere under a sharp interface beside a small one)
         offered = len(candidates) > 1 and candidates[1][0] is not None and \
             candidates[1][0][0] > ONE_SE * candidates[1][0][1]
-        partial = None
         for gain, model in candidates:
             if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
                 continue
             unmixing = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], model,
                                       radius=radius[c], dims=dims[c], blur=sigma)
-            # the windows moved toward the ball's levels by how much nearer the truth those are expected (a fit that
-            # does not fix the interface unmixes by shares it does not know: weight 0); windows that cannot tell
-            # the phases apart are left as they are (unmixed_sums keeps them)
-            if unmixing.mixed[0] - unmixing.mixed[1] <= 0.1 or unmixing.weight <= 0:
-                continue
-            if unmixing.weight > 0.5:  # the ball's levels expected the nearer: taken ahead of the profile's
+            # the windows moved toward the ball's levels where those are expected nearer the truth, by the share of
+            # the shift that is bias (a fit that does not fix the interface unmixes by shares it does not know:
+            # weight 0); windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
+            if unmixing.weight > 0 and unmixing.mixed[0] - unmixing.mixed[1] > 0.1:
                 return unmixing, None, 1.0, level
-            if partial is None or unmixing.weight > partial.weight:
-                partial = unmixing
         # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
 
@@ -896,8 +889,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
                     distance[mine], total[mine], model, radius=radius[c], dims=dims[c], blur=sigma,
                     lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + model.offset, 1e-3),
                     half_width=p.half_width, bin_width=p.bin_width), level
-        # the windows nearer the truth than the ball's levels but not by a margin that makes the ball's weight 0
-        return partial, None, 1.0, level
+        return None, None, 1.0, level
 
     objects = np.flatnonzero(closed).tolist()
     # the closed objects fitted together (shared levels) on each half and on all ions (fit_balls); {} for fewer than two
