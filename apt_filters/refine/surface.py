@@ -213,12 +213,13 @@ class RefineParams:
         interface widths its windows never reach its phases (the inside one reads low, the outside one high),
         and its midpoint level, and its surface, move out. Each object's unmixed windows are used only where the
         ball's profile fitted on one half of the cross-fit predicts the other half's window ions better than
-        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds) and the fit fixes
-        the level it unmixes to (:func:`~apt_filters.refine.levels.unmixing_shift`: the unmixed level's estimated
-        mean squared error below the windows'); the objects so unmixed are shrunk toward every object's levels as
-        chosen, the others toward every object's windows (``plateau_prior``; each only toward the objects that agree
-        with it, :func:`~apt_filters.refine.levels.agreeing_pools`). The model's ions are measured a
-        second time, with exact distances.
+        that half's flat windows (:func:`~apt_filters.refine.levels.held_out_gain`, both folds), and moved toward
+        them by the share of the shift that is estimated bias (:func:`~apt_filters.refine.levels.unmixing_weight`:
+        0 where the unmixed level is not expected the nearer the truth; a weight, not a hard choice, whose own
+        variance the levels' worth carries); the objects so unmixed are shrunk
+        toward every object's levels as chosen, the others toward every object's windows (``plateau_prior``; each
+        only toward the objects that agree with it, :func:`~apt_filters.refine.levels.agreeing_pools`). The model's
+        ions are measured a second time, with exact distances.
     select_modes : bool
         Low-pass each closed object to the number of manifold harmonics that best predicts held-out ions
         (two-fold cross-validation on the cross-fit's halves, :mod:`apt_filters.refine.crossval`); needs
@@ -761,12 +762,14 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     plateaus). An object is unmixed only where the ball's profile fitted on one half predicts the other half's
     window ions better than that half's flat windows do, summed over both folds, by more than :data:`BALL_SE`
     standard errors of that gain (:func:`~apt_filters.refine.levels.held_out_gain`): the same two-fold
-    cross-validation as the mode selection, the windows the simpler model; and only where the unmixed midpoint,
-    with the fit's covariance and its amplified counts, is expected nearer the truth than the windows'
-    (:func:`~apt_filters.refine.levels.unmixing_shift`): a fit that does not fix the interface (a thin object
-    at low contrast) unmixes by shares it does not know. An object not unmixed takes its inside level from its
-    whole fitted profile (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the
-    truth than its shrunk window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
+    cross-validation as the mode selection, the windows the simpler model; its windows are then moved toward the
+    unmixed levels by the share of their shift that is estimated bias, with the fit's covariance and the
+    amplified counts (:func:`~apt_filters.refine.levels.unmixing_shift`,
+    :func:`~apt_filters.refine.levels.unmixing_weight`): a fit that does not fix the interface (a thin object at
+    low contrast) unmixes by shares it does not know (weight 0), and taken whole the unmixed levels would follow
+    the draws whose shift is noise. An object of weight 0 takes its inside level from its whole fitted profile
+    (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the truth than its shrunk
+    window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
     inside window holds a few atoms of its axis and whose level is then the pool's. Where two or more objects are
     closed they are also fitted together (shared levels, :func:`~apt_filters.refine.levels.fit_balls`): an object
     whose own ball is refused is put to the same tests with the joint ball, and one whose own profile level is
@@ -779,7 +782,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     Returns
     -------
     unmixed : (n_components, 2, k) float64
-        Window sums, unmixed where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
+        Window sums, moved toward the unmixed levels where chosen (:func:`~apt_filters.refine.levels.unmixed_sums`).
     chosen : (n_components,) bool
     balls : (n_components,) bool
         The objects unmixed (chosen for their ball; the others chosen take their profile's level).
@@ -819,7 +822,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         half.append(np.full(len(c), fold))
     comp, distance, part, total, window, half = map(np.concatenate, (comp, distance, part, total, window, half))
     atoms = np.concatenate(atoms)
-    mixed = np.tile([1.0, 0.0], (n_comp, 1))
+    mixed, weight, worth = np.tile([1.0, 0.0], (n_comp, 1)), np.zeros(n_comp), np.zeros((n_comp, 2))
     chosen = np.zeros(n_comp, dtype=bool)
     balls = np.zeros(n_comp, dtype=bool)
     share = np.ones(n_comp)
@@ -828,9 +831,10 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     starts = np.searchsorted(comp[order], np.arange(n_comp + 1))
 
     def level_of(c: int) -> tuple | None:
-        """Object ``c``'s window shares of the inside phase where the ball is chosen for it (shares, None, 1), its
-        profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else (None, None,
-        1); last, its profile's level (:func:`profile_levels`; None where it has none). None where it has no fit."""
+        """Object ``c``'s unmixing where the ball is chosen for it (:class:`~apt_filters.refine.levels.Unmixing`,
+        None, 1), its profile's inside atoms and crossing share where that level is chosen (None, atoms, share), else
+        (None, None, 1); last, its profile's level (:func:`profile_levels`; None where it has none). None where it
+        has no fit."""
         mine = order[starts[c]:starts[c + 1]]
         if radius[c] <= 0 or not len(mine):
             return None
@@ -854,13 +858,13 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         for gain, model in candidates:
             if gain is None or gain[0] <= BALL_SE * gain[1]:  # the windows, the simpler model, unless clearly worse
                 continue
-            shares, _, _, better = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], model,
-                                                  radius=radius[c], dims=dims[c], blur=sigma)
-            # the ball's level only where it is expected nearer the truth than the windows' (a fit that does not
-            # fix the interface unmixes by shares it does not know); windows that cannot tell the phases apart are
-            # left as they are (unmixed_sums keeps them)
-            if better > 0 and shares[0] - shares[1] > 0.1:
-                return shares, None, 1.0, level
+            unmixing = unmixing_shift(distance[mine], part[mine], total[mine], window[mine], model,
+                                      radius=radius[c], dims=dims[c], blur=sigma)
+            # the windows moved toward the ball's levels where those are expected nearer the truth, by the share of
+            # the shift that is bias (a fit that does not fix the interface unmixes by shares it does not know:
+            # weight 0); windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
+            if unmixing.weight > 0 and unmixing.mixed[0] - unmixing.mixed[1] > 0.1:
+                return unmixing, None, 1.0, level
         # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
 
@@ -913,14 +917,15 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     for c, result in zip(objects, per_item(level_of, objects)):
         if result is None:
             continue
-        shares, inside, share[c], level = result
+        unmixing, inside, share[c], level = result
         if level is not None:
             shared += level[0] * level[1]
-        if shares is not None:
-            chosen[c], balls[c], mixed[c] = True, True, shares
+        if unmixing is not None:
+            chosen[c], balls[c] = True, True
+            mixed[c], weight[c], worth[c] = unmixing.mixed, unmixing.weight, unmixing.worth
         elif inside is not None:
             chosen[c], profiled[c] = True, inside
-    out = unmixed_sums(sums, mixed)
+    out = unmixed_sums(sums, mixed, weight, worth)
     for c, inside in profiled.items():
         out[c, 0] = inside
     return out, chosen, balls, share, shared
