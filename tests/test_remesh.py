@@ -519,7 +519,8 @@ def test_candidate_choice_is_that_of_scoring_every_candidate_in_full(floor, max_
             old.append(n / max(np.sqrt((n**2).sum()), 1e-300))
         now, smallest = _full_ring_score(expect, faces, ring, v, expect[v], old, -2.0, -1.0 if low < 0 else 0.0)
         least = min(low, smallest) if low >= 0 else low
-        scores = [_full_ring_score(expect, faces, ring, v, c, old, cos_turn, least)[0] for c in cands[ptr[b]:ptr[b + 1]]]
+        scores = [_full_ring_score(expect, faces, ring, v, c, old, cos_turn, least)[0]
+                  for c in cands[ptr[b]:ptr[b + 1]]]
         best = int(np.argmax(scores))
         if scores[best] > now + (1e-3 if low < 0 else 1e-4 * len(ring)):
             expect[v] = cands[ptr[b] + best]
