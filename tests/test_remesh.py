@@ -1,5 +1,7 @@
 """Remesher against ground truth: analytic shapes as sliver-rich meshes (voxel = 1 nm)."""
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -465,3 +467,64 @@ def test_curve_steps_are_the_one_dimensional_lloyd_step():
     cells = [(0.5, 1.5), (1.5, 4.25), (4.25, 6.75)]  # between midpoints to the neighbours, end corners included
     assert np.allclose(arc, [0.5 * (a + b) for a, b in cells])
     assert np.allclose(positions, [[1.0, 0, 0], [2.875, 0, 0], [4.0, 1.5, 0]])
+
+
+def _full_ring_score(out, faces, ring, v, point, old, cos_turn, floor):
+    """The ring score of :func:`optimize._ring_score` by its definition, in its arithmetic (scalar IEEE doubles,
+    one arccos per face): every face scored, no early exit."""
+    worst, total = np.inf, 0.0
+    for s, f in enumerate(ring):
+        q = [float(x) for u in faces[f] for x in (point if u == v else out[u])]
+        ux, uy, uz, wx, wy, wz = q[3] - q[0], q[4] - q[1], q[5] - q[2], q[6] - q[0], q[7] - q[1], q[8] - q[2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        length = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+        if (nx * old[s][0] + ny * old[s][1] + nz * old[s][2]) / length <= cos_turn:
+            return -np.inf, worst
+        if floor < 0:
+            worst = min(worst, *(optimize._angle_at(*q[3 * k:], *q[:3 * k]) for k in range(3)))
+            continue
+        a2, c2 = ux * ux + uy * uy + uz * uz, wx * wx + wy * wy + wz * wz
+        e2 = (q[6] - q[3]) ** 2 + (q[7] - q[4]) ** 2 + (q[8] - q[5]) ** 2
+        a, c, e = math.sqrt(a2), math.sqrt(c2), math.sqrt(e2)
+        cosine = max((a2 + c2 - e2) / max(2 * a * c, 1e-300), (a2 + e2 - c2) / max(2 * a * e, 1e-300),
+                     (c2 + e2 - a2) / max(2 * c * e, 1e-300))
+        worst = min(worst, math.acos(min(cosine, 1.0)))
+        total += 6 / math.sqrt(3) * (length / 2) / max((a + c + e) / 2 * max(a, c, e), 1e-300)
+    if floor < 0:
+        return worst, worst
+    return (total if worst >= floor else -np.inf), worst
+
+
+@pytest.mark.parametrize("floor, max_turn", [(-1.0, 45.0), (33.0, 10.0)])
+def test_candidate_choice_is_that_of_scoring_every_candidate_in_full(floor, max_turn):
+    # the sweeps' choice (_choose, whose scoring stops once a candidate surely loses) against scoring every
+    # candidate on every face of its ring, on a jittered sheet: the same vertices move to the same candidates
+    sheet = shapes.tilted_sheet()
+    rng = np.random.default_rng(5)
+    vertices = sheet.vertices + rng.normal(scale=0.15, size=sheet.vertices.shape)
+    faces = np.ascontiguousarray(sheet.faces, np.int64)
+    start, ring_of = optimize.vertex_rings(faces, len(vertices))
+    inside = np.flatnonzero(~optimize.boundary_vertices(TriMesh(vertices, faces)) & (np.diff(start) > 0))
+    batch = optimize._independent(inside, faces, start, ring_of, len(vertices))[0]
+    ptr, cands = optimize._candidates(vertices, faces, start, ring_of, batch, optimize.QUALITY_STEPS)
+    cos_turn, low = np.cos(np.radians(max_turn)), np.radians(floor) if floor >= 0 else -1.0
+    out = vertices.copy()
+    went = optimize._choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, low)
+    expect, moved = vertices.copy(), []
+    for b, v in enumerate(batch):
+        ring = ring_of[start[v]:start[v + 1]]
+        old = []
+        for f in ring:
+            n = np.cross(expect[faces[f, 1]] - expect[faces[f, 0]], expect[faces[f, 2]] - expect[faces[f, 0]])
+            old.append(n / max(np.sqrt((n**2).sum()), 1e-300))
+        now, smallest = _full_ring_score(expect, faces, ring, v, expect[v], old, -2.0, -1.0 if low < 0 else 0.0)
+        least = min(low, smallest) if low >= 0 else low
+        scores = [_full_ring_score(expect, faces, ring, v, c, old, cos_turn, least)[0]
+                  for c in cands[ptr[b]:ptr[b + 1]]]
+        best = int(np.argmax(scores))
+        if scores[best] > now + (1e-3 if low < 0 else 1e-4 * len(ring)):
+            expect[v] = cands[ptr[b] + best]
+            moved.append(b)
+    assert len(moved) > 0.2 * len(batch)  # a test of moves, not of none
+    assert np.flatnonzero(went).tolist() == moved
+    assert np.array_equal(out, expect)
