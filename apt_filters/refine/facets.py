@@ -721,7 +721,8 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         spread[3 * k, 2 * own.index(j)] = spread[3 * k + 1, 2 * own.index(j) + 1] = sign
         spread[3 * k + 2, 2 * len(own) + k] = 1.0
     q = positions - centre
-    tilt_1, tilt_2 = q @ e1.T, q @ e2.T
+    # d s_k = tilt_1 da + tilt_2 db - dd to first order in the tilts: the levers (b, m, 3) do not change with the fit
+    lever = np.stack([q @ e1.T, q @ e2.T, np.full((len(q), m), -1.0)], axis=2)
     params = np.zeros((m, 3))
     params[:, 2] = np.einsum("ij,ij->i", n0, anchor - centre)
 
@@ -733,9 +734,8 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         z = (q @ planes(params).T - params[:, 2]) / (np.sqrt(2) * width)
         step = np.clip(0.5 * erfc(z), 1e-12, None)
         model = step.prod(axis=1)
-        # d model / d s_k; to first order in the tilts, d s_k = tilt_1 da + tilt_2 db - dd
-        slope = model[:, None] / step * -np.exp(-z ** 2) / (np.sqrt(2 * np.pi) * width)
-        jac = (slope[:, :, None] * np.stack([tilt_1, tilt_2, -np.ones_like(z)], axis=2)).reshape(len(q), 3 * m)
+        slope = model[:, None] / step * -np.exp(-z ** 2) / (np.sqrt(2 * np.pi) * width)  # d model / d s_k
+        jac = (slope[:, :, None] * lever).reshape(len(q), 3 * m)
         free = _least_squares(jac @ spread, u - model, weight)
         delta = (spread @ np.clip(free, -max_step, max_step)).reshape(m, 3)
         params += delta
@@ -866,16 +866,23 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx, slopes=Fal
     root2b = math.sqrt(2.0) * blur
     norm = math.sqrt(2.0 * math.pi) * blur
     # the arc's nodes depend on the parallel polyhedron only: computed once, not once per point
-    sine, cosine = np.empty(len(x)), np.empty(len(x))
+    sine, cosine, weight = np.empty(len(x)), np.empty(len(x)), np.empty(len(x))
     arc_sum = 0.0  # the quadrature of int_0^(pi/2) cos: the arc's derivative in the radius at radius 0 is its multiple
     for j in range(len(x)):
         theta = 0.25 * math.pi * (x[j] + 1.0)
         sine[j], cosine[j] = math.sin(theta), math.cos(theta)
-        arc_sum += 0.25 * math.pi * gx[j] * cosine[j]
+        weight[j] = 0.25 * math.pi * gx[j] * cosine[j]
+        arc_sum += weight[j]
+    # and the arc's points and weights on each parallel polyhedron: once per polyhedron, not once per point
+    along, edge, arc = np.empty(len(x)), np.empty(len(x)), np.empty(len(x))
     for k in range(len(t)):
         shift = interface * t[k]
         radius = max(rounding + shift, 0.0)
         rounds = rounding + shift >= 0.0
+        for j in range(len(x)):
+            along[j] = -radius + radius * sine[j]
+            edge[j] = -radius + radius * cosine[j]
+            arc[j] = weight[j] * radius
         for i in range(len(s1)):
             a, b = s1[i] - shift, s2[i] - shift
             e1, e2 = erfc_scalar(a / root2b), erfc_scalar((radius + b) / root2b)
@@ -889,21 +896,17 @@ def _parallel_mixture(s1, s2, rounding, interface, blur, t, g, x, gx, slopes=Fal
                 d_blur = (p1 * a * f2 + (f1 * p2 * (radius + b) if p2 > 0.0 else 0.0)) / blur
             if radius > 0.0:
                 for j in range(len(x)):
-                    along = -radius + radius * sine[j]
-                    edge = -radius + radius * cosine[j]
-                    u = (along - b) / blur
+                    u = (along[j] - b) / blur
                     density = math.exp(-0.5 * u ** 2) / norm
-                    inner = 0.5 * erfc_scalar((a - edge) / root2b)
+                    inner = 0.5 * erfc_scalar((a - edge[j]) / root2b)
                     value += density * inner * 0.25 * math.pi * gx[j] * radius * cosine[j]
                     if slopes and density > 0.0:
-                        p_edge = math.exp(-0.5 * ((a - edge) / blur) ** 2) / norm
-                        c = 0.25 * math.pi * gx[j] * cosine[j]
-                        arc = c * radius
-                        d_a -= density * p_edge * arc
-                        d_b += density * u / blur * inner * arc
-                        d_radius += arc * density * (p_edge * (cosine[j] - 1.0) - u / blur * (sine[j] - 1.0) * inner) \
-                            + density * inner * c
-                        d_blur += arc * density * ((u * u - 1.0) / blur * inner + p_edge * (a - edge) / blur)
+                        p_edge = math.exp(-0.5 * ((a - edge[j]) / blur) ** 2) / norm
+                        d_a -= density * p_edge * arc[j]
+                        d_b += density * u / blur * inner * arc[j]
+                        d_radius += arc[j] * density * (p_edge * (cosine[j] - 1.0) - u / blur * (sine[j] - 1.0)
+                                                        * inner) + density * inner * weight[j]
+                        d_blur += arc[j] * density * ((u * u - 1.0) / blur * inner + p_edge * (a - edge[j]) / blur)
             out[i] += g[k] * value
             if slopes:
                 if not rounds:
@@ -1009,34 +1012,42 @@ def _other_steps(order: np.ndarray, width: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _product_of_others(distance, steps, slopes):
-    """:func:`_other_steps` from the planes' distances ``distance`` (b, m), their steps ``steps`` (b, m) and the
+def _product_of_others(distance, scaled, slopes):
+    """:func:`_other_steps` from the planes' distances ``distance`` (b, m), the same over ``sqrt(2) width``
+    ``scaled`` (b, m) (each step is ``0.5 erfc(scaled)``, computed here: the same numbers as the ufunc's) and the
     steps' derivatives ``slopes`` (b, m) in the distances: the (b,) products of the steps of all but each point's
     two largest distances, taken in ascending order of distance as ``np.prod`` takes them from the sorted distances
     (the same numbers); (b, m) their derivatives in each plane's distance (0 for the two largest); (b, 2) the
     planes of the largest and second largest distances (-1 for a single plane). Each row is sorted once (stably:
-    equal distances in the planes' order, as ``np.sort`` leaves them)."""
+    equal distances in the planes' order, as ``np.sort`` leaves them), on a copy of its distances beside their
+    planes rather than through the planes' indices."""
     b, m = distance.shape
     base = np.empty(b)
     grad = np.zeros((b, m))
     top = np.full((b, 2), -1, dtype=np.int64)
     rank = np.empty(m, dtype=np.int64)
+    key = np.empty(m)
+    steps = np.empty(m)
     for i in range(b):
         for j in range(m):  # insertion sort of the planes by distance (stable): m is small
+            value = distance[i, j]
+            steps[j] = 0.5 * erfc_scalar(scaled[i, j])
             k = j
-            while k > 0 and distance[i, rank[k - 1]] > distance[i, j]:
+            while k > 0 and key[k - 1] > value:
+                key[k] = key[k - 1]
                 rank[k] = rank[k - 1]
                 k -= 1
+            key[k] = value
             rank[k] = j
         value = 1.0
         for j in range(m - 2):
-            value *= steps[i, rank[j]]
+            value *= steps[rank[j]]
         base[i] = value
         for j in range(m - 2):  # each factor's derivative times the others (not a division: a step may be 0)
             slope = slopes[i, rank[j]]
             for k in range(m - 2):
                 if k != j:
-                    slope *= steps[i, rank[k]]
+                    slope *= steps[rank[k]]
             grad[i, rank[j]] = slope
         top[i, 0] = rank[m - 1]
         if m > 1:
@@ -1058,10 +1069,8 @@ def _scores_and_slopes(signed: np.ndarray, shift: np.ndarray, rounding: float, s
     inside, as a bounded parameter's one-sided slope."""
     m = signed.shape[1]
     distance = signed - shift
-    root2w = np.sqrt(2) * width
-    steps = 0.5 * erfc(distance / root2w)
-    others, d_others, top = _product_of_others(distance, steps,
-                                               -np.exp(-(distance / root2w) ** 2) / (np.sqrt(2 * np.pi) * width))
+    scaled = distance / (np.sqrt(2) * width)  # once for the steps and their slopes
+    others, d_others, top = _product_of_others(distance, scaled, -np.exp(-scaled ** 2) / (np.sqrt(2 * np.pi) * width))
     rows = np.arange(len(signed))
     second = top[:, 1] >= 0
     s1 = distance[rows, top[:, 0]]
