@@ -108,6 +108,67 @@ def test_guarded_move_cancels_folding_steps_and_keeps_good_ones():
     assert touched == 0 and np.allclose(moved, v + benign)
 
 
+def test_object_scores_fraction_in_pieces_is_the_whole_pass_bit_for_bit():
+    from apt_filters.refine.composition import ROWS, ObjectScores
+
+    rng = np.random.default_rng(3)
+    n, k = 2 * ROWS + 12_345, 3  # pieces, and a part piece at the end
+    atoms = rng.integers(0, 3, (n, k)).astype(np.float32)
+    component = rng.integers(0, 7, n)
+    weights = rng.normal(size=(7, k))
+    scores = ObjectScores(np.ones(7, bool), weights, np.ones(7), np.zeros(7))
+    score, total = scores.fraction(atoms, component)
+    a = atoms.astype(np.float64)  # the whole pass it replaces
+    assert np.array_equal(score.view(np.uint64), np.einsum("ij,ij->i", a, weights[component]).view(np.uint64))
+    assert np.array_equal(total, a.sum(axis=1))
+
+
+def _guarded_move_recomputed(vertices, faces, step):
+    """guarded_move as it was before sp42: every face's turn and every pair's fold measured again per halving (the
+    oracle of the incremental update)."""
+    from apt_filters.core.mesh import face_normals, topology
+    from apt_filters.refine.surface import FOLD_ANGLE, GUARD_HALVINGS
+
+    pairs = topology(faces, len(vertices)).face_pairs
+    limit = np.cos(np.radians(FOLD_ANGLE))
+
+    def folded(normals):
+        return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
+
+    before = face_normals(vertices, faces)
+    existing = folded(before)
+    moved = vertices + step
+    after = face_normals(moved, faces)
+    scale, touched, attempt = np.ones(len(vertices)), np.zeros(len(vertices), dtype=bool), 0
+    while True:
+        bad = np.einsum("ij,ij->i", before, after) < 0.0
+        bad[pairs[folded(after) & ~existing].ravel()] = True
+        bad &= (scale[faces] > 0).any(axis=1)
+        if not bad.any():
+            return moved, int(touched.sum())
+        verts = np.unique(faces[bad])
+        touched[verts] = True
+        scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+        moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
+        changed = np.zeros(len(vertices), dtype=bool)
+        changed[verts] = True
+        around = np.flatnonzero(changed[faces].any(axis=1))
+        after[around] = face_normals(moved, faces[around])
+        attempt += 1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_guarded_move_updates_only_the_changed_faces_bit_for_bit(seed):
+    # a sphere shaken hard enough that many faces turn over or fold, some only after several halvings
+    m = Sphere((0.0, 0.0, 0.0), 4.0).mesh(0.7)
+    rng = np.random.default_rng(seed)
+    step = rng.normal(scale=0.6, size=m.vertices.shape)
+    moved, touched = guarded_move(m.vertices, m.faces, step)
+    want, want_touched = _guarded_move_recomputed(m.vertices, m.faces, step)
+    assert touched == want_touched > 20
+    assert np.array_equal(moved.view(np.uint64), want.view(np.uint64))
+
+
 def test_subdivide_keeps_the_surface():
     m = Sphere((1.0, -2.0, 0.5), 3.0).mesh(0.8)
     s = subdivide(m)
