@@ -124,37 +124,27 @@ def test_object_scores_fraction_in_pieces_is_the_whole_pass_bit_for_bit():
 
 
 def _guarded_move_recomputed(vertices, faces, step):
-    """guarded_move as it was before sp42: every face's turn and every pair's fold measured again per halving (the
-    oracle of the incremental update)."""
+    """guarded_move's rule with everything measured again from the moved vertices at every halving (the oracle of
+    its incremental update): the faces that turn over or newly fold, while any of their vertices still moves."""
     from apt_filters.core.mesh import face_normals, topology
     from apt_filters.refine.surface import FOLD_ANGLE, GUARD_HALVINGS
 
     pairs = topology(faces, len(vertices)).face_pairs
-    limit = np.cos(np.radians(FOLD_ANGLE))
-
-    def folded(normals):
-        return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
-
     before = face_normals(vertices, faces)
-    existing = folded(before)
-    moved = vertices + step
-    after = face_normals(moved, faces)
-    scale, touched, attempt = np.ones(len(vertices)), np.zeros(len(vertices), dtype=bool), 0
-    while True:
-        bad = np.einsum("ij,ij->i", before, after) < 0.0
-        bad[pairs[folded(after) & ~existing].ravel()] = True
-        bad &= (scale[faces] > 0).any(axis=1)
-        if not bad.any():
-            return moved, int(touched.sum())
-        verts = np.unique(faces[bad])
-        touched[verts] = True
-        scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
-        moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
-        changed = np.zeros(len(vertices), dtype=bool)
-        changed[verts] = True
-        around = np.flatnonzero(changed[faces].any(axis=1))
-        after[around] = face_normals(moved, faces[around])
-        attempt += 1
+    cos_fold = np.cos(np.radians(FOLD_ANGLE))
+    kept_folds = np.einsum("ij,ij->i", before[pairs[:, 0]], before[pairs[:, 1]]) < cos_fold
+    scale = np.ones(len(vertices))
+    for attempt in range(GUARD_HALVINGS + 2 + len(faces)):
+        now = face_normals(vertices + scale[:, None] * step, faces)
+        offending = np.einsum("ij,ij->i", before, now) < 0.0
+        new_folds = (np.einsum("ij,ij->i", now[pairs[:, 0]], now[pairs[:, 1]]) < cos_fold) & ~kept_folds
+        offending[pairs[new_folds].ravel()] = True
+        offending &= (scale[faces] > 0).any(axis=1)
+        if not offending.any():
+            return vertices + scale[:, None] * step, int((scale < 1).sum())
+        corners = np.unique(faces[offending])
+        scale[corners] = scale[corners] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+    raise AssertionError("the guard did not end")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
