@@ -179,7 +179,7 @@ class NearIons:
     faces : (m, 3) int64
     covered : (m, 3, 3) float64
         Each face's corners when the ions within ``radius`` of it were last selected.
-    indptr, indices : int arrays
+    indptr, indices : int64 arrays
         CSR vertex adjacency of the mesh (the walk's edges).
     second : (ptr, ring) int arrays
         The vertices' second rings (:func:`~apt_filters.refine.nearest.second_ring`), where a walk looks further.
