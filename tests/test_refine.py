@@ -108,6 +108,57 @@ def test_guarded_move_cancels_folding_steps_and_keeps_good_ones():
     assert touched == 0 and np.allclose(moved, v + benign)
 
 
+def test_object_scores_fraction_in_pieces_is_the_whole_pass_bit_for_bit():
+    from apt_filters.refine.composition import ROWS, ObjectScores
+
+    rng = np.random.default_rng(3)
+    n, k = 2 * ROWS + 12_345, 3  # pieces, and a part piece at the end
+    atoms = rng.integers(0, 3, (n, k)).astype(np.float32)
+    component = rng.integers(0, 7, n)
+    weights = rng.normal(size=(7, k))
+    scores = ObjectScores(np.ones(7, bool), weights, np.ones(7), np.zeros(7))
+    score, total = scores.fraction(atoms, component)
+    a = atoms.astype(np.float64)  # the whole pass it replaces
+    assert np.array_equal(score.view(np.uint64), np.einsum("ij,ij->i", a, weights[component]).view(np.uint64))
+    assert np.array_equal(total, a.sum(axis=1))
+
+
+def _guarded_move_recomputed(vertices, faces, step):
+    """guarded_move's rule with everything measured again from the moved vertices at every halving (the oracle of
+    its incremental update): the faces that turn over or newly fold, while any of their vertices still moves."""
+    from apt_filters.core.mesh import face_normals, topology
+    from apt_filters.refine.surface import FOLD_ANGLE, GUARD_HALVINGS
+
+    pairs = topology(faces, len(vertices)).face_pairs
+    before = face_normals(vertices, faces)
+    cos_fold = np.cos(np.radians(FOLD_ANGLE))
+    kept_folds = np.einsum("ij,ij->i", before[pairs[:, 0]], before[pairs[:, 1]]) < cos_fold
+    scale = np.ones(len(vertices))
+    for attempt in range(GUARD_HALVINGS + 2 + len(faces)):
+        now = face_normals(vertices + scale[:, None] * step, faces)
+        offending = np.einsum("ij,ij->i", before, now) < 0.0
+        new_folds = (np.einsum("ij,ij->i", now[pairs[:, 0]], now[pairs[:, 1]]) < cos_fold) & ~kept_folds
+        offending[pairs[new_folds].ravel()] = True
+        offending &= (scale[faces] > 0).any(axis=1)
+        if not offending.any():
+            return vertices + scale[:, None] * step, int((scale < 1).sum())
+        corners = np.unique(faces[offending])
+        scale[corners] = scale[corners] * 0.5 if attempt < GUARD_HALVINGS else 0.0
+    raise AssertionError("the guard did not end")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_guarded_move_updates_only_the_changed_faces_bit_for_bit(seed):
+    # a sphere shaken hard enough that many faces turn over or fold, some only after several halvings
+    m = Sphere((0.0, 0.0, 0.0), 4.0).mesh(0.7)
+    rng = np.random.default_rng(seed)
+    step = rng.normal(scale=0.6, size=m.vertices.shape)
+    moved, touched = guarded_move(m.vertices, m.faces, step)
+    want, want_touched = _guarded_move_recomputed(m.vertices, m.faces, step)
+    assert touched == want_touched > 20
+    assert np.array_equal(moved.view(np.uint64), want.view(np.uint64))
+
+
 def test_subdivide_keeps_the_surface():
     m = Sphere((1.0, -2.0, 0.5), 3.0).mesh(0.8)
     s = subdivide(m)

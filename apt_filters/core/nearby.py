@@ -118,6 +118,12 @@ ION_CELL = 0.5
 centres cost a fifth of a search of every ion, while the ions the bound leaves undecided lie within
 the distance to their centre (0.24 nm on average) of the reach."""
 
+FAR_CELL = 1.0
+"""nm: edge of the reach grid's cell where it only has to prove ions far, every kept ion being searched anyway
+(:func:`select_near` with exact distances throughout): an eighth of the centres to measure for a few more ions
+searched near the reach (refinement's selections of 0.7-2M ions: 9-25 % less CPU than at :data:`ION_CELL`); the
+rows and distances are the same whatever the grid."""
+
 
 @dataclass
 class ReachGrid:
@@ -289,7 +295,8 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     # kept ion needs its exact distance the grid still spares the search of those it proves beyond the reach.
     side_only = 0 < exact < reach and closed
     unsearched = exact == 0 or side_only  # ions the grid proves within the reach are kept without a search
-    grid = ReachGrid.of(engine, reach, inner=exact if side_only else 0.0) if engine.mesh.n_faces else None
+    grid = ReachGrid.of(engine, reach, inner=exact if side_only else 0.0, cell=ION_CELL if unsearched else FAR_CELL) \
+        if engine.mesh.n_faces else None
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
         [np.zeros(0, np.int64)]
     rim = [np.zeros(0, bool)]

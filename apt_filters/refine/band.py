@@ -179,7 +179,7 @@ class NearIons:
     faces : (m, 3) int64
     covered : (m, 3, 3) float64
         Each face's corners when the ions within ``radius`` of it were last selected.
-    indptr, indices : int arrays
+    indptr, indices : int64 arrays
         CSR vertex adjacency of the mesh (the walk's edges).
     second : (ptr, ring) int arrays
         The vertices' second rings (:func:`~apt_filters.refine.nearest.second_ring`), where a walk looks further.
@@ -228,7 +228,8 @@ class NearIons:
         everything = ion_atoms(IonTable(np.zeros((0, 3), np.float32), np.zeros(0, np.float32)), ranges,
                                ConcentrationBasis())
         out = cls(empty, np.zeros((0, 3)), basis_atoms(everything, basis), everything, empty, radius, faces,
-                  np.full((len(faces), 3, 3), np.inf), adj.indptr, adj.indices, second_ring(adj.indptr, adj.indices),
+                  np.full((len(faces), 3, 3), np.inf), adj.indptr.astype(np.int64), adj.indices.astype(np.int64),
+                  second_ring(adj.indptr, adj.indices),
                   Fan.of(faces, len(vertices)),
                   (ions, ranges, basis))
         return out.cover(vertices, 0.0)
@@ -590,11 +591,13 @@ def _largest_move(vertices: np.ndarray, before: np.ndarray) -> float:
     return float(np.sqrt(np.max(np.sum((vertices - before) ** 2, axis=1)))) if len(vertices) else 0.0
 
 
-def binned(vertex: np.ndarray, distance: np.ndarray, weights: np.ndarray, n_vertices: int,
-           half_width: float, bin_width: float) -> np.ndarray:
-    """(n_vertices, n_bins) sum of ``weights`` per vertex and distance bin over [-half_width, half_width)."""
+def binned(vertex: np.ndarray, distance: np.ndarray, weights: tuple[np.ndarray, ...], n_vertices: int,
+           half_width: float, bin_width: float) -> list[np.ndarray]:
+    """For each of ``weights`` (b,): the (n_vertices, n_bins) sum of it per vertex and distance bin over
+    [-half_width, half_width) (the ions' bins found once for all of them)."""
     n_bins = int(round(2 * half_width / bin_width))
     b = np.floor((distance + half_width) / bin_width).astype(np.int64)
     ok = (b >= 0) & (b < n_bins)
-    flat = np.bincount(vertex[ok] * n_bins + b[ok], weights=weights[ok], minlength=n_vertices * n_bins)
-    return flat.reshape(n_vertices, n_bins)
+    key = vertex[ok] * n_bins + b[ok]
+    return [np.bincount(key, weights=w[ok], minlength=n_vertices * n_bins).reshape(n_vertices, n_bins)
+            for w in weights]

@@ -106,7 +106,8 @@ def descend(points: np.ndarray, vertices: np.ndarray, indptr: np.ndarray, indice
     """
     ptr2, ring2 = second_ring(indptr, indices) if second is None else second
     out, d2 = np.empty(len(points), dtype=np.int64), np.empty(len(points))
+    # as they are where they are int64 already (no copy of the ions' start vertices on every walk)
     _descend(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(vertices, dtype=np.float64),
-             indptr.astype(np.int64), indices.astype(np.int64), ptr2, ring2, start.astype(np.int64), exact * exact,
-             out, d2)
+             np.asarray(indptr, dtype=np.int64), np.asarray(indices, dtype=np.int64), ptr2, ring2,
+             np.asarray(start, dtype=np.int64), exact * exact, out, d2)
     return out, d2

@@ -486,19 +486,23 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
     pairs = topology(faces, len(vertices)).face_pairs if pairs is None else pairs
     limit = np.cos(np.radians(FOLD_ANGLE))
 
-    def folded(normals: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < limit
+    def folded(normals: np.ndarray, some: slice | np.ndarray = slice(None)) -> np.ndarray:
+        return np.einsum("ij,ij->i", normals[pairs[some, 0]], normals[pairs[some, 1]]) < limit
 
     before = face_normals(vertices, faces)
     existing = folded(before)
     moved = vertices + step
     after = face_normals(moved, faces)
+    # which faces turn over and which pairs fold, kept up to date where a shortened step changes them: each row's
+    # dot product is the one a pass over every face or pair gives it (einsum's rows do not depend on one another)
+    turned = np.einsum("ij,ij->i", before, after) < 0.0
+    folds = folded(after)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
     attempt = 0
     while True:
-        bad = np.einsum("ij,ij->i", before, after) < 0.0
-        bad[pairs[folded(after) & ~existing].ravel()] = True
+        bad = turned.copy()
+        bad[pairs[folds & ~existing].ravel()] = True
         bad &= (scale[faces] > 0).any(axis=1)
         if not bad.any():
             return moved, int(touched.sum())
@@ -506,11 +510,15 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
         touched[verts] = True
         scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
         moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
-        # only the faces around the shortened steps change
+        # only the faces around the shortened steps change, and the pairs holding one of them
         changed = np.zeros(len(vertices), dtype=bool)
         changed[verts] = True
-        around = np.flatnonzero(changed[faces].any(axis=1))
+        hit = changed[faces].any(axis=1)
+        around = np.flatnonzero(hit)
         after[around] = face_normals(moved, faces[around])
+        turned[around] = np.einsum("ij,ij->i", before[around], after[around]) < 0.0
+        both = np.flatnonzero(hit[pairs[:, 0]] | hit[pairs[:, 1]])
+        folds[both] = folded(after, both)
         attempt += 1
 
 
@@ -640,8 +648,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
         ion_score, ion_total = scores.fraction(near.atoms.atoms[band.index], components[band.vertex])
         pairs_near = pairs_near.update(vertices, components)
         mean_of_neighbours = umbrella(adj, normals, p.normal_power)
-        raw_s = binned(band.vertex, band.distance, ion_score, n, p.half_width, p.bin_width)
-        raw_t = binned(band.vertex, band.distance, ion_total, n, p.half_width, p.bin_width)
+        raw_s, raw_t = binned(band.vertex, band.distance, (ion_score, ion_total), n, p.half_width, p.bin_width)
         s_sum, t_sum = np.hsplit(pooled(np.hstack([raw_s, raw_t]), vertices, normals, pairs_near, p.normal_power), 2)
         ok = usable[components] & (np.abs(s_in - s_out)[components] > 0)
         u = normalised_profile(s_sum, t_sum, s_in[components], s_out[components], p.half_width, p.bin_width)
