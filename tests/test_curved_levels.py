@@ -512,3 +512,34 @@ def test_the_unmixing_weight_states_the_spread_of_the_level_it_gives_where_a_har
     assert ratio(hard) > 1.8, ratio(hard)
     assert 0.9 < ratio(soft) < 1.15, ratio(soft)
     assert np.sqrt(np.mean(np.array(soft)[:, 0] ** 2)) <= np.sqrt(np.mean(np.array(hard)[:, 0] ** 2))
+
+
+def _pooled_profile_errors(redraws, first=0):
+    """(main's, this pool's) errors over stated errors of the pool of two spheres' profile levels (2.0 and 2.6 nm, one
+    phase, 1.0 nm wide interface, 40 ions/nm³), each redraw its own ions."""
+    from apt_filters.refine.levels import pooled_profiles, profile_levels
+    main, pooled = [], []
+    for draw in range(first, first + redraws):
+        levels = []
+        for radius, seed in ((2.0, 2 * draw), (2.6, 2 * draw + 1)):
+            d, iso, surface = _erf_sphere(radius, 40.0, 5000 + seed, width=1.0, surface_shift=0.0)
+            near = np.abs(d) <= WINDOW[1]
+            d, iso = d[near], iso[near]
+            fit = fit_ball(d, iso, np.ones_like(iso), radius=surface, dims=3.0, blur=BLUR)
+            levels.append(profile_levels(d, np.column_stack([iso, 1 - iso]), 0, fit, radius=surface, dims=3.0,
+                                         blur=BLUR))
+        for pool, out in ((sum(inside * worth for inside, worth in levels), main),
+                          (pooled_profiles(levels=levels, species=0), pooled)):
+            f = pool[0] / pool.sum()
+            out.append((f - C_IN) / np.sqrt(f * (1 - f) / pool.sum()))
+    return np.array(main), np.array(pooled)
+
+
+def test_the_pool_of_profile_levels_states_its_spread_where_their_worths_move_with_their_errors():
+    # a profile level's worth moves with its own error (a fitted interface narrow by chance reads the level low and
+    # states it more certain): pooled by their worths (main) two spheres' levels lie off by more than the pool states,
+    # and low; pooled as a random-effects mean, the objects' scatter beyond their errors counted, by about what it
+    # states
+    main, pooled = _pooled_profile_errors(180)
+    rms = [float(np.sqrt(np.mean(z ** 2))) for z in (main, pooled)]
+    assert rms[0] > 1.2 and rms[1] < 1.1, rms

@@ -235,7 +235,7 @@ def chosen_pools(windows: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmi
     without the model. An object whose levels the model reads (``chosen``): every object's levels as chosen that
     agree with its own (``best``; its own windows, which the held-out ions
     found biased, left out). An unmixed one's inside level (``unmixed``): the pool of every object's profile level
-    by its worth in atoms (``profiles``, :func:`profile_levels`), where there is one. Its unmixed counts are worth
+    (``profiles``, :func:`profile_levels`, :func:`pooled_profiles`), where there is one. Its unmixed counts are worth
     ``(g_in - g_out)^2`` of its window atoms (:func:`unmixed_sums`), a few hundred on a small object against the
     prior's 3000, and the others' windows, which do not reach their plateaus either where the interface is as wide,
     would pull its level back to theirs (held-out rod 10011's first rod: inside 67.6 at.% toward its neighbour's
@@ -249,7 +249,7 @@ def chosen_pools(windows: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmi
         Each object's sums as chosen (its windows, unmixed, or its profile's level).
     chosen, unmixed : (n_components,) bool
     profiles : (k,) float64
-        Every closed object's profile level times its worth in atoms, summed.
+        Every closed object's profile level pooled, times the pool's worth in atoms (:func:`pooled_profiles`).
     k : int
         Index of the measured species.
     prior : float
@@ -947,6 +947,48 @@ def profile_levels(distance: np.ndarray, atoms: np.ndarray, species: int, fit: B
     var = f * (1 - f) * np.linalg.inv(normal)[1, 1] + float(grad @ cov @ grad)
     inside = np.clip(coef[1], 0.0, None)
     return inside / max(inside.sum(), 1e-300), f * (1 - f) / max(var, 1e-300)
+
+
+def pooled_profiles(*, levels: list[tuple[np.ndarray, float]], species: int) -> np.ndarray:
+    """(k,) several objects' profile levels (:func:`profile_levels`) pooled, as a sum of atoms whose binomial count
+    would be as certain as the pool: what an unmixed object's inside level is shrunk toward (:func:`chosen_pools`).
+
+    A profile level's worth moves with its own error: a fitted interface that comes out narrow by chance reads the
+    inside level low (the profile reaches its plateau sooner) and, its inside less extrapolated, states it more
+    certain (spheres of 2.0 and 2.6 nm under a 1.0 nm interface at 55 / 5 at.%, redrawn ions: correlation of the
+    error with the worth -0.7 and -0.9, RMS error over the stated one 1.29 and 1.21). Pooled by those worths alone the
+    pool states itself too certain, and leans toward the draws that read low. The objects then scatter about their
+    pool by more than their worths allow, and that excess is measured: the levels are pooled as a random-effects mean
+    (DerSimonian & Laird, *Controlled Clinical Trials* 7, 177, 1986), each weighed by ``1 / (var_i + tau^2)``
+    (``var_i = f (1 - f) / worth_i`` at the pooled fraction ``f``), ``tau^2`` the between-object variance beyond the
+    stated ones, ``(Q - (m - 1)) / (sum w - sum w^2 / sum w)`` from Cochran's ``Q = sum w_i (f_i - f)^2`` about the
+    worths' mean ``f`` (``w_i = 1 / var_i``; 0 where ``Q <= m - 1``), and the pool is worth
+    ``f (1 - f) sum_i 1 / (var_i + tau^2)`` atoms. A single object, or objects that agree within their errors, pool
+    as before (the worths' sum). The two spheres at 41 / 2.7 at.%, 180 redraws: the pool's error over its stated
+    error, RMS, 1.28 pooled by the worths, 1.06 so (tests/test_curved_levels.py).
+
+    Parameters
+    ----------
+    levels : list of ((k,) float64, float)
+        Each object's profile fractions and their worth in atoms (> 0), at least one.
+    species : int
+        Index of the measured species.
+
+    Returns
+    -------
+    (k,) float64
+        The pooled fractions times the pool's worth in atoms.
+    """
+    f, worth = np.array([lv[species] for lv, _ in levels]), np.array([worth for _, worth in levels])
+    # each level's variance at the pooled fraction: without excess scatter the pool is the worths' (atoms) mean
+    mean = float(worth @ f) / worth.sum()
+    var = max(mean * (1 - mean), 1e-12) / worth
+    w = 1.0 / var
+    tau2 = max(float(w @ (f - mean) ** 2) - (len(f) - 1), 0.0) / (w.sum() - float(w @ w) / w.sum()) \
+        if len(f) > 1 else 0.0
+    weight = 1.0 / (var + tau2)
+    inside = sum(wi * lv for wi, (lv, _) in zip(weight, levels)) / weight.sum()
+    return inside * max(mean * (1 - mean), 1e-12) * weight.sum()
 
 
 PROFILE_SE = 1.0

@@ -104,8 +104,9 @@ from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
 from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
-                                      levels_from_sums, object_shapes, plateau_sums, plateaus, profile_better,
-                                      profile_levels, short_of_plateau, unmixed_sums, unmixing_shift, window_labels)
+                                      levels_from_sums, object_shapes, plateau_sums, plateaus, pooled_profiles,
+                                      profile_better, profile_levels, short_of_plateau, unmixed_sums, unmixing_shift,
+                                      window_labels)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -797,8 +798,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         The share of its inside level at which each object's placement takes its crossing
         (:func:`~apt_filters.refine.levels.crossing_share`; 1 but for the objects whose level is their profile's).
     shared : (k,) float64
-        Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) times its worth in
-        atoms, summed: the pool an unmixed object's inside level is shrunk toward.
+        Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) pooled, times the
+        pool's worth in atoms (:func:`~apt_filters.refine.levels.pooled_profiles`): what an unmixed object's inside
+        level is shrunk toward.
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -919,14 +921,13 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             return kept[0]
 
     # the objects are independent (their profiles' special functions release the GIL): every core busy
-    # the pool of the model's levels: every closed object's profile level by its worth in atoms
-    shared = np.zeros(len(held[0].atoms.elements))
+    profiles = []
     for c, result in zip(objects, per_item(level_of, objects)):
         if result is None:
             continue
         unmixing, inside, share[c], level = result
-        if level is not None:
-            shared += level[0] * level[1]
+        if level is not None and level[1] > 0:
+            profiles.append(level)
         if unmixing is not None:
             chosen[c], balls[c] = True, True
             mixed[c], weight[c], worth[c] = unmixing.mixed, unmixing.weight, unmixing.worth
@@ -935,6 +936,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     out = unmixed_sums(sums, mixed, weight, worth)
     for c, inside in profiled.items():
         out[c, 0] = inside
+    # the pool of the model's levels: every closed object's profile level, their scatter beyond their stated errors
+    # counted (a level's worth moves with its own error)
+    shared = pooled_profiles(levels=profiles, species=k) if profiles else np.zeros(len(held[0].atoms.elements))
     return out, chosen, balls, share, shared
 
 
