@@ -2,8 +2,8 @@
 
 A first try that fails the check (:mod:`apt_filters.remesh.verify`) usually misses in a few places only: the
 bumpy tilted sheet's 10,714 output faces had 37 input faces and 8 output faces beyond the tolerance, at
-kinks of noise creases and needles of the refined surface, and its open rim a quarter edge off at two
-turns. Remeshing the whole component again for them cost a whole try each time (three retries there).
+kinks of noise creases and needles of the refined surface, and its open rim half an edge off at an ear.
+Remeshing the whole component again for them cost a whole try each time (three retries there).
 :func:`mend` instead puts an output vertex at each farthest miss and leaves every other face as it was:
 
 - an input point ``p`` farther than ``MEND_FRACTION`` of the tolerance from the output: a vertex at ``p``,
@@ -15,13 +15,20 @@ turns. Remeshing the whole component again for them cost a whole try each time (
 
 A point is inserted by splitting the output face that holds it in three, or the edge it lies near in two
 faces on each side (one on the rim), or by moving the corner it lies near; each keeps the Euler
-characteristic and the boundary loops as they were, so topology holds by construction. The split faces'
-edges are then flipped to Delaunay (flat edges only, those of the mended faces only), and the whole is
-measured again, ``MEND_ROUNDS`` times at most. The caller checks the result (:func:`verify.check_components`)
-and, where it still fails, remeshes the component again as before.
+characteristic and the boundary loops as they were, so topology holds by construction. No change is made
+where a face would fold, lose its area or cross another face; where a rim split cannot be made, an ear of the
+rim is dropped instead (:func:`_drop_ear`). The split faces' edges are then flipped to Delaunay (flat edges
+only, those of the mended faces only), and the whole is measured again, ``MEND_ROUNDS`` times at most. The
+caller checks the result (:func:`verify.check_components`) and, where it still fails, remeshes the component
+again as before.
+
+Cost: per round, the check's distances of the components mended (:func:`verify.farthest`), an engine over the
+output for the input's misses, and per change a scan of the faces (a few hundred changes at most).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +40,7 @@ from apt_filters.remesh.verify import farthest
 # Misses over this fraction of the tolerance are mended: a margin under the tolerance itself, so that the points
 # inserted near one miss do not leave its neighbours just over it.
 MEND_FRACTION = 0.8
-MEND_ROUNDS = 4
+MEND_ROUNDS = 8
 # Where the point to insert lies within this share of a face's barycentric span of an edge (a corner), the edge
 # is split (the corner moved) instead of the face: a split there makes a sliver.
 EDGE_SHARE, CORNER_SHARE = 0.2, 0.8
@@ -43,9 +50,22 @@ DELAUNAY_PASSES = 3
 FLAT_SHARE = 0.01
 
 
+@dataclass
+class Mended:
+    """:func:`mend`'s result. ``result``'s vertices keep their order and come first, new ones after them, but for
+    the tips of dropped ears (left out); ``result``'s faces keep their index (a split face keeps one piece there,
+    its other pieces come after them) but for dropped ears (left out)."""
+
+    vertices: np.ndarray  # (v', 3) nm
+    faces: np.ndarray  # (f', 3)
+    component: np.ndarray  # (f',) input component of each face
+    parent: np.ndarray  # (f',) the face of ``result`` each face is (a piece of)
+    origin: np.ndarray  # (v',) the vertex of ``result`` each vertex is (perhaps moved), -1 for a new one
+    done: bool  # no miss over ``MEND_FRACTION`` of the tolerance left (measured as the check does)
+
+
 def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_component: np.ndarray,
-         components: np.ndarray, *, edge: float, tolerance: float,
-         surface: SurfaceDistance) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+         components: np.ndarray, *, edge: float, tolerance: float, surface: SurfaceDistance) -> Mended:
     """Insert output vertices where ``result`` misses ``source`` in the input components ``components``.
 
     Parameters
@@ -65,10 +85,9 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
 
     Returns
     -------
-    vertices (v', 3), faces (f', 3), component (f',), parent (f',), mended
-        The mended mesh, the input component of each face, the face of ``result`` each face is (a piece
-        of), and whether no miss over ``MEND_FRACTION`` of the tolerance is left (measured as the check does). The first ``result.n_vertices`` vertices are ``result``'s, moved only where a corner was moved to
-        a miss; new ones follow; faces of ``result`` keep their index (a split face keeps one piece there).
+    Mended
+        The mended mesh, its faces' components and parents, the vertex of ``result`` each vertex is, and
+        whether no miss is left.
     """
     tol = tolerance * edge
     limit = MEND_FRACTION * tol
@@ -88,10 +107,18 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
             return ~(local[a] & local[b])
 
         for k in range(DELAUNAY_PASSES):
-            faces, flipped = optimize.delaunay_pass(vertices, faces, fixed, seed=k)
-            if flipped == 0:
-                break
-    return vertices, faces, component, parent, not len(to)
+            flipped_faces, flipped = optimize.delaunay_pass(vertices, faces, fixed, seed=k)
+            changed = (flipped_faces != faces).any(axis=1)
+            if flipped == 0 or crossing(vertices, flipped_faces[changed], flipped_faces[~changed], edge).any():
+                break  # a pass whose flips would cross a face is left out whole
+            faces = flipped_faces
+    origin = np.r_[np.arange(result.n_vertices), np.full(len(vertices) - result.n_vertices, -1)]
+    used = np.zeros(len(vertices), bool)
+    used[faces.ravel()] = True
+    if not used.all():  # the tips of dropped ears
+        index = np.cumsum(used) - 1
+        vertices, origin, faces = vertices[used], origin[used], index[faces]
+    return Mended(vertices, faces, component, parent, origin, not len(to))
 
 
 def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.ndarray, limit: float, edge: float,
@@ -196,8 +223,9 @@ def _insert(vertices, faces, component, parent, where, to, edge):
     faces would fold or lose their area (a point on the line of two rim vertices) is left. Returns the mesh, its
     faces' components and parents, and the faces changed."""
     face, weights = where
-    vertices, faces = list(vertices), [faces]
+    vertices, faces = vertices.copy(), [faces]
     component, parent, touched = [component], [parent], [np.zeros(len(faces[0]), bool)]
+    gone = []
     for f, w, x in zip(face, weights, to):
         if len(faces) > 1:  # the pieces of the last split are faces for the next
             faces, component = [np.vstack(faces)], [np.concatenate(component)]
@@ -210,7 +238,7 @@ def _insert(vertices, faces, component, parent, where, to, edge):
             _move(vertices, now, seen, tri[int(np.argmax(w))], x, edge)
             continue
         n = len(vertices)
-        vertices.append(x)
+        other = None
         if w.min() >= EDGE_SHARE:  # split the face in three
             a, b, c = tri
             changed, rows = [f], [(a, b, n)]
@@ -221,7 +249,6 @@ def _insert(vertices, faces, component, parent, where, to, edge):
             other = np.flatnonzero((now == p).any(axis=1) & (now == q).any(axis=1))
             other = other[other != f]
             if seen[other].any():
-                vertices.pop()
                 continue
             changed, rows, pieces = [f], [(p, n, r)], [(f, (n, q, r))]
             for g in other:  # q -> p -> s in g
@@ -229,45 +256,107 @@ def _insert(vertices, faces, component, parent, where, to, edge):
                 changed.append(g), rows.append((q, n, s)), pieces.append((g, (n, p, s)))
         new = np.array(rows + [piece for _, piece in pieces], np.int64)
         of = np.array(changed + [g for g, _ in pieces])
-        if not _fine(vertices, new, _normals(vertices, now[of]), edge):
-            vertices.pop()
+        grown = np.vstack([vertices, x[None]])
+        if not _fine(grown, new, _normals(vertices, now[of]), edge, now, of):
             # a split that would fold (a rim's chord across a turn of the input's rim, the point beyond the
-            # face's third corner): the nearest corner goes there instead, where its faces allow
-            _move(vertices, now, seen, tri[int(np.argmax(w))], x, edge)
+            # face's third corner): the nearest corner goes there instead, where its faces allow; else an ear
+            # on the rim (a face whose corner has no other face, jutting out past the input's rim) is dropped
+            if not _move(vertices, now, seen, tri[int(np.argmax(w))], x, edge) and other is not None \
+                    and not len(other):
+                _drop_ear(now, seen, gone, f, (p, q))
             continue
+        vertices = grown
         now[changed] = rows
         seen[changed] = True
         faces.append(new[len(rows):])
         component.append(component[0][of[len(rows):]])
         parent.append(parent[0][of[len(rows):]])
         touched.append(np.ones(len(pieces), bool))
-    return (np.array(vertices), np.vstack(faces), np.concatenate(component), np.concatenate(parent),
-            np.concatenate(touched))
+    keep = np.ones(sum(len(f) for f in faces), bool)
+    keep[gone] = False
+    return (vertices, np.vstack(faces)[keep], np.concatenate(component)[keep],
+            np.concatenate(parent)[keep], np.concatenate(touched)[keep])
 
 
-def _move(vertices: list, faces: np.ndarray, seen: np.ndarray, v: int, x: np.ndarray, edge: float) -> None:
+def _drop_ear(faces: np.ndarray, seen: np.ndarray, gone: list, f: int, rim: tuple) -> None:
+    """Drop face ``f`` (into ``gone``, its neighbour marked ``seen``) where one of the ends of its rim edge ``rim``
+    has no other face and its third edge has a face on the other side: the rim then runs along that edge, and
+    the Euler characteristic (one vertex, two edges and a face fewer) and the boundary loops stay."""
+    tri = faces[f]
+    for tip in rim:
+        ring = np.flatnonzero((faces == tip).any(axis=1))
+        if len(ring) != 1:
+            continue
+        a, b = (v for v in tri if v != tip)
+        across = np.flatnonzero((faces == a).any(axis=1) & (faces == b).any(axis=1))
+        across = across[across != f]
+        if len(across) == 1 and not seen[across].any():
+            gone.append(f)
+            seen[f] = seen[across] = True
+            return
+
+
+def _move(vertices: np.ndarray, faces: np.ndarray, seen: np.ndarray, v: int, x: np.ndarray, edge: float) -> bool:
     """Move vertex ``v`` to ``x`` unless a face round it changed this round (``seen``, marked if moved) or would
-    fold or lose its area."""
+    fold or lose its area; whether it moved."""
     ring = np.flatnonzero((faces == v).any(axis=1))
     if seen[ring].any():
-        return
+        return False
     before = _normals(vertices, faces[ring])
-    old, vertices[v] = vertices[v], x
-    if _fine(vertices, faces[ring], before, edge):
+    old = vertices[v].copy()
+    vertices[v] = x
+    if _fine(vertices, faces[ring], before, edge, faces, ring):
         seen[ring] = True
-    else:
-        vertices[v] = old
+        return True
+    vertices[v] = old
+    return False
 
 
-def _normals(vertices: list, tris: np.ndarray) -> np.ndarray:
-    """(k, 3) area-weighted normals (twice the area) of the triangles ``tris`` over the vertex list ``vertices``."""
-    p = np.array([[vertices[i] for i in t] for t in tris])
+def _normals(vertices: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(k, 3) area-weighted normals (twice the area) of the triangles ``tris`` over ``vertices``."""
+    p = vertices[tris]
     return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
 
 
-def _fine(vertices: list, tris: np.ndarray, reference: np.ndarray, edge: float) -> bool:
-    """Whether every triangle of ``tris`` has area (over ``FLAT_SHARE`` of the target edge squared) and faces
-    the way its face before did (``reference`` (k, 3) normals)."""
+def _fine(vertices: np.ndarray, tris: np.ndarray, reference: np.ndarray, edge: float, faces: np.ndarray,
+          replaced: np.ndarray) -> bool:
+    """Whether every triangle of ``tris`` has area (over ``FLAT_SHARE`` of the target edge squared), faces the
+    way its face before did (``reference`` (k, 3) normals) and crosses no face of ``faces`` but ``replaced``
+    (:func:`crossing`; a bump folded over itself: a point inserted under its fold)."""
     n = _normals(vertices, tris)
     area = 0.5 * np.linalg.norm(n, axis=1)
-    return bool((area > FLAT_SHARE * edge ** 2).all() and (np.einsum("ij,ij->i", n, reference) > 0).all())
+    if not ((area > FLAT_SHARE * edge ** 2).all() and (np.einsum("ij,ij->i", n, reference) > 0).all()):
+        return False
+    others = np.ones(len(faces), bool)
+    others[replaced] = False
+    return not crossing(vertices, tris, faces[others], edge).any()
+
+
+def crossing(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray, edge: float) -> np.ndarray:
+    """(k,) bool: triangles ``tris`` (k, 3) that cross a face of ``faces`` sharing no edge with them, as
+    :func:`apt_filters.core.checks.self_intersecting_faces` counts it (both shrunk by 1e-6 about their centroids:
+    a shared corner is no crossing); faces farther than a few edges ``edge`` (nm) are not looked at."""
+    from apt_filters.core.checks import triangles_intersect
+
+    def shrunk(t):
+        p = vertices[t]
+        c = p.mean(axis=1)
+        return c[:, None] + (1 - 1e-6) * (p - c[:, None]), c
+
+    if not len(tris):
+        return np.zeros(0, bool)
+    a, ca = shrunk(tris)
+    # faces whose centroid is within a few edges of a triangle's: those that can reach it (faces are about an
+    # edge long)
+    from scipy.spatial import cKDTree
+
+    reach = np.linalg.norm(a - ca[:, None], axis=2).max() + 2.0 * edge
+    pairs = cKDTree(ca).sparse_distance_matrix(cKDTree(vertices[faces].mean(axis=1)), reach, output_type="ndarray")
+    i, j = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    b = shrunk(faces[j])[0]
+    faces, j = faces[j], np.arange(len(j))
+    apart = (tris[i, :, None] == faces[j, None, :]).sum(axis=(1, 2)) < 2
+    i, j = i[apart], j[apart]
+    out = np.zeros(len(tris), bool)
+    out[i[triangles_intersect(a[i], b[j])]] = True
+    return out

@@ -181,7 +181,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     verify : bool
         Check every input component against its remesh (:func:`apt_filters.remesh.verify.check_components`:
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
-        a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
+        a quarter of the edge, area within 1 %); mend each component off in distances only where it missed
+        (:func:`apt_filters.remesh.mend.mend`: vertices inserted there, every other face kept), and remesh each
+        component that still fails again, on its own,
         finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
         ``RETRIES`` times; not one off in area alone, which that does not mend), and give back the input's
         own faces of each one that still fails.
@@ -733,24 +735,25 @@ def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
 
 
 def _mend(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, components: np.ndarray,
-          edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray]:
+          edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray, bool]:
     """:func:`apt_filters.remesh.mend.mend` of ``out``'s ``components`` (input component ids) where they miss
     ``mesh``, with scalars: a new or moved vertex's interpolated from ``mesh``, a face's from the face it is a
     piece of. Returns the mesh, its faces' input components and whether no miss is left (:func:`mend`'s)."""
     from apt_filters.remesh.mend import mend
 
-    vertices, faces, kept, parent, done = mend(mesh, out, component, out_component, components, edge=edge,
-                                               tolerance=check.HAUSDORFF_FRACTION, surface=surface)
-    mended = TriMesh(vertices, faces, {}, {k: np.asarray(v)[parent] for k, v in out.face_scalars.items()})
+    m = mend(mesh, out, component, out_component, components, edge=edge, tolerance=check.HAUSDORFF_FRACTION,
+             surface=surface)
+    mended = TriMesh(m.vertices, m.faces, {}, {k: np.asarray(v)[m.parent] for k, v in out.face_scalars.items()})
     if out.vertex_scalars:
-        changed = np.r_[(vertices[:out.n_vertices] != out.vertices).any(axis=1),
-                        np.ones(len(vertices) - out.n_vertices, bool)]
-        at = _vertex_scalars(mesh, vertices[changed], edge, surface)
+        old = m.origin >= 0
+        changed = ~old
+        changed[old] = (m.vertices[old] != out.vertices[m.origin[old]]).any(axis=1)
+        at = _vertex_scalars(mesh, m.vertices[changed], edge, surface)
         for name, values in out.vertex_scalars.items():
-            values = np.r_[np.asarray(values, np.float64), np.zeros(len(vertices) - out.n_vertices)]
+            values = np.asarray(values, np.float64)[np.maximum(m.origin, 0)]
             values[changed] = at[name]
             mended.vertex_scalars[name] = values
-    return mended, kept, done
+    return mended, m.component, m.done
 
 
 def _vertex_scalars(source: TriMesh, points: np.ndarray, edge: float, surface: SurfaceDistance) -> dict:
