@@ -437,3 +437,29 @@ def test_an_input_spike_the_output_misses_is_inserted_exactly():
     other = owner == 1
     assert np.array_equal(faces[:out.n_faces][other], out.faces[other]) and (component[out.n_faces:] == 0).all()
     assert np.array_equal(parent[:out.n_faces], np.arange(out.n_faces))
+
+
+def test_a_rim_vertex_pulled_off_the_rim_is_mended():
+    """An output rim vertex of an open sphere pulled 0.5 edge up off the input's rim and surface: the check fails
+    (out->in and rim), the mend brings it back within the tolerance with the Euler characteristic and boundary
+    loops kept, and the faces 2 edges away stay as they were."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh.mend import mend
+
+    mesh = shapes.open_sphere(radius=4.0, cut=1.5)
+    out = remesh(mesh, edge_length=EDGE).mesh
+    comp, owner = mesh.face_components(), np.zeros(out.n_faces, np.int64)
+    assert verify.check_components(mesh, out, comp, owner, edge=EDGE)[0].ok
+    rim = np.unique(out.boundary_edges())
+    v = rim[np.argmax(out.vertices[rim, 2])]
+    pulled = out.copy()
+    pulled.vertices[v, 2] += 0.5 * EDGE
+    before = verify.check_components(mesh, pulled, comp, owner, edge=EDGE)[0]
+    assert not before.ok and before.rim > 0.25 * EDGE
+    m = mend(mesh, pulled, comp, owner, np.array([0]), edge=EDGE, tolerance=0.25, surface=SurfaceDistance(mesh))
+    after = verify.check_components(mesh, TriMesh(m.vertices, m.faces), comp, m.component, edge=EDGE)[0]
+    assert m.done and after.ok, after.reasons
+    assert (after.euler_out, after.loops_out) == (before.euler_out, before.loops_out)
+    away = np.linalg.norm(out.vertices - out.vertices[v], axis=1) > 2 * EDGE
+    same = away[out.faces].all(axis=1)
+    assert np.array_equal(m.faces[:out.n_faces][same], out.faces[same]) and same.mean() > 0.8

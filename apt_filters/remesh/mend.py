@@ -61,7 +61,7 @@ class Mended:
     component: np.ndarray  # (f',) input component of each face
     parent: np.ndarray  # (f',) the face of ``result`` each face is (a piece of)
     origin: np.ndarray  # (v',) the vertex of ``result`` each vertex is (perhaps moved), -1 for a new one
-    done: bool  # no miss over ``MEND_FRACTION`` of the tolerance left (measured as the check does)
+    done: bool  # no miss over the tolerance left (measured as the check does)
 
 
 def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_component: np.ndarray,
@@ -95,8 +95,8 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
     component, parent = result_component.copy(), np.arange(result.n_faces)
     in_mask = np.isin(source_component, components)
     for round_ in range(MEND_ROUNDS + 1):
-        where, to = _misses(source, TriMesh(vertices, faces), in_mask, np.isin(component, components), limit, edge,
-                            surface)
+        where, to, gap = _misses(source, TriMesh(vertices, faces), in_mask, np.isin(component, components), limit,
+                                 edge, surface)
         if not len(to) or round_ == MEND_ROUNDS:
             break
         vertices, faces, component, parent, touched = _insert(vertices, faces, component, parent, where, to, edge)
@@ -118,13 +118,13 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
     if not used.all():  # the tips of dropped ears
         index = np.cumsum(used) - 1
         vertices, origin, faces = vertices[used], origin[used], index[faces]
-    return Mended(vertices, faces, component, parent, origin, not len(to))
+    return Mended(vertices, faces, component, parent, origin, not (gap > tol).any())
 
 
 def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.ndarray, limit: float, edge: float,
             surface: SurfaceDistance) -> tuple[tuple, np.ndarray]:
     """Where to put an output vertex and where: ((m,) output face, (m, 3) its barycentric weights of the point
-    to split at), (m, 3) the point on the input the vertex goes to; the farthest miss of each output face first."""
+    to split at), (m, 3) the point on the input the vertex goes to, and (m,) the miss (nm); the farthest first."""
     face, weights, to, gap = [], [], [], []
     # input points far from the output: the farthest probe of each input face that misses
     d = farthest(source, out, np.where(in_mask, np.arange(source.n_faces), -1), source.n_faces, limit,
@@ -149,7 +149,7 @@ def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.nda
     if rim is not None:
         face.append(rim[0]), weights.append(rim[1]), to.append(rim[2]), gap.append(rim[3])
     if not face:
-        return (np.empty(0, np.int64), np.empty((0, 3))), np.empty((0, 3))
+        return (np.empty(0, np.int64), np.empty((0, 3))), np.empty((0, 3)), np.empty(0)
     face, weights, to, gap = np.concatenate(face), np.vstack(weights), np.vstack(to), np.concatenate(gap)
     keep = gap > limit
     order = np.flatnonzero(keep)[np.argsort(-gap[keep], kind="stable")]
@@ -162,7 +162,7 @@ def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.nda
         if alone[i]:
             alone[j] = False
     order = order[alone]
-    return (face[order], weights[order]), to[order]
+    return (face[order], weights[order]), to[order], gap[order]
 
 
 def _probes(mesh: TriMesh, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
