@@ -301,9 +301,9 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
                                      int(loops_in[c]), int(loops_out[c]),
                                      float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons,
                                      mendable=not (len(reasons) == 1 and abs(change) > area_tolerance),
-                                     distances_only=pieces[c] == 1 and not mixed[c] and chi_out[c] == chi_in[c]
-                                     and loops_out[c] == loops_in[c] and not degenerate[c]
-                                     and abs(change) <= area_tolerance))
+                                     distances_only=bool(pieces[c] == 1 and not mixed[c] and chi_out[c] == chi_in[c]
+                                                         and loops_out[c] == loops_in[c] and not degenerate[c]
+                                                         and abs(change) <= area_tolerance)))
     return checks
 
 
