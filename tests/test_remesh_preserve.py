@@ -413,9 +413,10 @@ def test_a_local_miss_is_mended_in_place_without_another_try(monkeypatch):
 
 
 def test_an_input_spike_the_output_misses_is_inserted_exactly():
-    """An input vertex pulled 0.5 edge out of its sphere (a needle of a refined surface) after the remesh: the
+    """An input vertex pulled 0.35 edge out of its sphere (a needle of a refined surface) after the remesh: the
     mend puts an output vertex on its tip, the check then passes, and the other sphere's faces and every vertex
-    of the remesh farther than 2 edges from the tip stay as they were."""
+    of the remesh farther than 2 edges from the tip stay as they were. (At 0.5 edge the tip's faces would have
+    angles under the mend's floor: that one is left to a whole retry.)"""
     from apt_filters.core.distance import SurfaceDistance, mesh_distance
     from apt_filters.remesh.mend import mend
 
@@ -425,7 +426,7 @@ def test_an_input_spike_the_output_misses_is_inserted_exactly():
     owner = comp[SurfaceDistance(mesh).closest(out.vertices[out.faces].mean(axis=1))[1]]
     tip = mesh.faces[comp == 0][0, 0]
     spiked = mesh.copy()
-    spiked.vertices[tip] += 0.5 * EDGE * mesh.vertex_normals()[tip]
+    spiked.vertices[tip] += 0.35 * EDGE * mesh.vertex_normals()[tip]
     assert not verify.check_components(spiked, out, comp, owner, edge=EDGE)[0].ok
     m = mend(spiked, out, comp, owner, np.array([0]), edge=EDGE, tolerance=0.25, surface=SurfaceDistance(spiked))
     vertices, faces, component, parent = m.vertices, m.faces, m.component, m.parent
