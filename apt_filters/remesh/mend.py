@@ -16,7 +16,7 @@ Remeshing the whole component again for them cost a whole try each time (three r
 A point is inserted by splitting the output face that holds it in three, or the edge it lies near in two
 faces on each side (one on the rim), or by moving the corner it lies near; each keeps the Euler
 characteristic and the boundary loops as they were, so topology holds by construction. No change is made
-where a face would fold, lose its area or cross another face; where a rim split cannot be made, an ear of the
+where a face would fold, lose its area, get an angle under ``ANGLE_FLOOR`` or cross another face; where a rim split cannot be made, an ear of the
 rim is dropped instead (:func:`_drop_ear`). The split faces' edges are then flipped to Delaunay (flat edges
 only, those of the mended faces only), and the whole is measured again, ``MEND_ROUNDS`` times at most. The
 caller checks the result (:func:`verify.check_components`) and, where it still fails, remeshes the component
@@ -128,8 +128,8 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
             faces = flipped_faces
     origin = np.r_[np.arange(result.n_vertices), np.full(len(vertices) - result.n_vertices, -1)]
     if near.any():
-        # the splits' small angles (the demo's smallest angle 22.8 -> 3.4 degrees) raised by moving their other
-        # corners; kept only where it leaves no miss over the tolerance that was not there
+        # the splits' small angles raised by moving the other corners of the faces changed; kept only where that
+        # leaves no more misses over the tolerance
         placed = origin < 0  # new, or moved onto a miss: they stay
         placed[:result.n_vertices] = (vertices[:result.n_vertices] != result.vertices).any(axis=1)
         smoothed = _relax_around(vertices, faces, near & ~placed, edge, surface)
