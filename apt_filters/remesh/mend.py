@@ -16,11 +16,11 @@ Remeshing the whole component again for them cost a whole try each time (three r
 A point is inserted by splitting the output face that holds it in three, or the edge it lies near in two
 faces on each side (one on the rim), or by moving the corner it lies near; each keeps the Euler
 characteristic and the boundary loops as they were, so topology holds by construction. No change is made
-where a face would fold, lose its area, get an angle under ``ANGLE_FLOOR`` or cross another face; where a rim split cannot be made, an ear of the
-rim is dropped instead (:func:`_drop_ear`). The split faces' edges are then flipped to Delaunay (flat edges
-only, those of the mended faces only), and the whole is measured again, ``MEND_ROUNDS`` times at most. The
-caller checks the result (:func:`verify.check_components`) and, where it still fails, remeshes the component
-again as before.
+where a face would fold, lose its area, get an angle under ``ANGLE_FLOOR`` or cross another face; where a
+rim split cannot be made, an ear of the rim is dropped instead (:func:`_drop_ear`). The split faces' edges
+are then flipped to Delaunay (flat edges only, those of the mended faces only), and the whole is measured
+again, ``MEND_ROUNDS`` times at most. The caller checks the result (:func:`verify.check_components`) and,
+where it still fails, remeshes the component again as before.
 
 Cost: per round, the check's distances of the components mended (:func:`verify.farthest`), an engine over the
 output for the input's misses, and per change a scan of the faces (a few hundred changes at most).
