@@ -181,7 +181,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     verify : bool
         Check every input component against its remesh (:func:`apt_filters.remesh.verify.check_components`:
         Euler characteristic, boundary loops, open rims, two-sided Hausdorff distance within
-        a quarter of the edge, area within 1 %); remesh each component that fails again, on its own,
+        a quarter of the edge, area within 1 %); mend each component off in distances only where it missed
+        (:func:`apt_filters.remesh.mend.mend`: vertices inserted there, every other face kept), and remesh each
+        component that still fails again, on its own,
         finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
         ``RETRIES`` times; not one off in area alone, which that does not mend), and give back the input's
         own faces of each one that still fails.
@@ -213,11 +215,23 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     # remeshed again: the failed components but those off in area alone (triangles of the target edge that
     # flatten bumps of their own size; a finer remesh where points were missed leaves that as it is)
     retry = failed & np.array([c.mendable for c in checks], bool)
-    out = result.mesh
+    out, kept = result.mesh, out_component
+    local = retry & np.array([c.distances_only for c in checks], bool)
+    if local.any():
+        # first mended where they missed, faces elsewhere as they were: a retry remeshes a whole component again
+        mended, mended_component, done = _mend(mesh, result.mesh, component, out_component, np.flatnonzero(local),
+                                               edge, surface)
+        if done:  # no miss left by its own measure: checked in full, and kept where it passes
+            out, kept = mended, mended_component
+            for c in check.check_components(mesh, out, component, kept, edge=edge, source_surface=surface):
+                if local[c.component] and c.ok:
+                    checks[c.component] = c
+                    failed[c.component] = retry[c.component] = False
     if failed.any():
+        # the remesh's faces of the components remeshed again, which missed() measures
         last_out_mask = (out_component < 0) | retry[np.maximum(out_component, 0)]
-        out = check.keep_input(mesh, out, component, out_component, failed)
-        out_component = check.kept_component(component, out_component, failed)
+        out = check.keep_input(mesh, out, component, kept, failed)
+    out_component = check.kept_component(component, kept, failed) if failed.any() else kept
     if retry.any():
         # the failed components again, on their own, finer where the last remesh missed and with another seed:
         # a miss the density did not foresee (a kink of a feature curve, a spike of the refined surface) or a
@@ -720,15 +734,43 @@ def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
     return out, where
 
 
+def _mend(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, components: np.ndarray,
+          edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray, bool]:
+    """:func:`apt_filters.remesh.mend.mend` of ``out``'s ``components`` (input component ids) where they miss
+    ``mesh``, with scalars: a new or moved vertex's interpolated from ``mesh``, a face's from the face it is a
+    piece of. Returns the mesh, its faces' input components and whether no miss is left (:func:`mend`'s)."""
+    from apt_filters.remesh.mend import mend
+
+    m = mend(mesh, out, component, out_component, components, edge=edge, tolerance=check.HAUSDORFF_FRACTION,
+             surface=surface)
+    mended = TriMesh(m.vertices, m.faces, {}, {k: np.asarray(v)[m.parent] for k, v in out.face_scalars.items()})
+    if out.vertex_scalars:
+        old = m.origin >= 0
+        changed = ~old
+        changed[old] = (m.vertices[old] != out.vertices[m.origin[old]]).any(axis=1)
+        at = _vertex_scalars(mesh, m.vertices[changed], edge, surface)
+        for name, values in out.vertex_scalars.items():
+            values = np.asarray(values, np.float64)[np.maximum(m.origin, 0)]
+            values[changed] = at[name]
+            mended.vertex_scalars[name] = values
+    return mended, m.component, m.done
+
+
+def _vertex_scalars(source: TriMesh, points: np.ndarray, edge: float, surface: SurfaceDistance) -> dict:
+    """``source``'s vertex scalars interpolated at ``points`` (n, 3) nm (``surface``: its closest-point engine)."""
+    _, face, weights = surface.closest(points, edge)
+    corners = source.faces[face]
+    return {name: np.einsum("nk,nk->n", weights, np.asarray(values, np.float64)[corners])
+            for name, values in source.vertex_scalars.items()}
+
+
 def _transfer_scalars(source: TriMesh, target: TriMesh, edge: float, surface: SurfaceDistance) -> TriMesh:
     """Interpolate ``source``'s vertex scalars at ``target``'s vertices; face scalars from the nearest face
     (``surface``: ``source``'s closest-point engine)."""
     if not source.vertex_scalars and not source.face_scalars:
         return target
-    _, face, weights = surface.closest(target.vertices, edge)
-    corners = source.faces[face]
-    for name, values in source.vertex_scalars.items():
-        target.vertex_scalars[name] = np.einsum("nk,nk->n", weights, np.asarray(values, np.float64)[corners])
+    if source.vertex_scalars:
+        target.vertex_scalars.update(_vertex_scalars(source, target.vertices, edge, surface))
     if source.face_scalars:
         nearest = surface.closest(target.vertices[target.faces].mean(axis=1), edge)[1]
         for name, values in source.face_scalars.items():

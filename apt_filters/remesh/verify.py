@@ -53,6 +53,10 @@ class ComponentCheck:
     reasons: list = field(default_factory=list)
     # False where only the area is off: remeshing again finer where points were missed does not mend it
     mendable: bool = True
+    # True where only distances (Hausdorff, rim) are off, not the pieces, Euler characteristic, boundary loops,
+    # faces' areas or the area (a remesh flattening bumps of its own size): vertices inserted where it missed
+    # can mend that (apt_filters.remesh.mend)
+    distances_only: bool = True
 
     @property
     def ok(self) -> bool:
@@ -296,7 +300,10 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
         checks.append(ComponentCheck(c, int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
                                      int(loops_in[c]), int(loops_out[c]),
                                      float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons,
-                                     mendable=not (len(reasons) == 1 and abs(change) > area_tolerance)))
+                                     mendable=not (len(reasons) == 1 and abs(change) > area_tolerance),
+                                     distances_only=bool(pieces[c] == 1 and not mixed[c] and chi_out[c] == chi_in[c]
+                                                         and loops_out[c] == loops_in[c] and not degenerate[c]
+                                                         and abs(change) <= area_tolerance)))
     return checks
 
 
