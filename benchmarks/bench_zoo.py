@@ -14,7 +14,8 @@ species' two phases (all ranged species in the denominator):
               refinement, clean chain, remesh).
 
 Per true object: volume and area errors with their counting sigma (the Cramér-Rao floor of
-:func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one), mean and
+:func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one; for an object cut by
+the edge, of its part compared, from the ions there), mean and
 Hausdorff distance to the true surface, and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
 the proxigram over the range its fitted width asks for, :func:`~apt_filters.analysis.width.fitted_proxigram`, and
 per object the segregant's Krakauer-Seidman excess, :func:`~apt_filters.analysis.excess.interfacial_excess`, and
@@ -116,12 +117,24 @@ def truths(sp, species: str) -> dict:
     k_iso = everything.elements.index(species)
     pos = sp.ions.positions
     bounded = [i for i, f in enumerate(sp.truth["features"]) if f["bounded"]]
+    marker = None if seg is None else everything.atoms[:, k_seg]
     floors = {}
-    if bounded:
-        fl = counting_floor([sp.feature_sdf(i) for i in bounded], [spec.features[i].shape.level_area for i in bounded],
-                            [sp.truth["features"][i]["volume_nm3"] for i in bounded], pos, atoms,
-                            marker=None if seg is None else everything.atoms[:, k_seg])
-        floors = dict(zip(bounded, fl))
+    whole = [i for i in bounded if not spec.features[i].shape.cut]
+    if whole:
+        fl = counting_floor([sp.feature_sdf(i) for i in whole], [spec.features[i].shape.level_area for i in whole],
+                            [sp.truth["features"][i]["volume_nm3"] for i in whole], pos, atoms, marker=marker)
+        floors |= dict(zip(whole, fl))
+    # an object cut by the edge is compared inside the box shrunk by MARGIN (_edge_error): its floor is that part's,
+    # from the ions there (the whole object's stated a 6.8 nm³ lens's volume error as a 76 nm³ object's, 1.1 %
+    # for 12.7 %)
+    cut = [i for i in bounded if spec.features[i].shape.cut]
+    if cut:
+        inner = [spec.features[i].shape.moved_in(MARGIN) for i in cut]
+        there = _interior(sp, cut[0], pos)
+        fl = counting_floor([sp.feature_sdf(i) for i in cut], [s.level_area for s in inner],
+                            [s.volume() for s in inner], pos[there], atoms[there],
+                            marker=None if marker is None else marker[there])
+        floors |= dict(zip(cut, fl))
     out = {}
     for i, tf in enumerate(sp.truth["features"]):
         inside = np.array([tf["composition_inside"].get(e, 0.0) for e in everything.elements])
