@@ -632,13 +632,15 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     shell = _shell(p, p.half_width, p.plateau_window[1] if fixed is None else np.inf)
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
+    beyond = _beyond_rim(vertices, faces, near, reach, p.distance, shell)
     it = 0
     for it in range(1, p.iterations + 1):
         normals = vertex_normals(vertices, faces)
         for _ in range(p.normal_smoothing):
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        band = near.cover(vertices, reach).band(vertices, normals, reach, p.distance, shell)
+        band = _tangent_beyond(near.cover(vertices, reach).band(vertices, normals, reach, p.distance, shell),
+                               beyond, near, vertices, normals)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
@@ -709,6 +711,42 @@ def _shell(p: RefineParams, profile: float, outer: float) -> tuple[float, float]
 def _reach(p: RefineParams) -> float:
     """nm from the surface within which the iterations use ions (profiles and plateau windows)."""
     return max(p.plateau_window[1], p.half_width) + 1.0
+
+
+def _beyond_rim(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reach: float, distance: str,
+                shell) -> np.ndarray:
+    """(len(near.rows),) bool: the ions beyond the rim of an open object of the surface ``vertices``
+    (:func:`~apt_filters.refine.levels.within_rim`), found once against the placement's start (the rim moves
+    little; found at every iteration the query cost an open interface's refinement 3.5 times its CPU)."""
+    mesh = TriMesh(vertices, faces)
+    if not len(mesh.boundary_edges()):
+        return np.zeros(0, dtype=bool)
+    band = near.cover(vertices, reach).band(vertices, vertex_normals(vertices, faces), reach, distance, shell)
+    beyond = np.zeros(len(near.rows), dtype=bool)
+    beyond[band.index] = True
+    beyond[within_rim(band, near, mesh, reach).index] = False
+    return beyond
+
+
+def _tangent_beyond(band: Band, beyond: np.ndarray, near: NearIons, vertices: np.ndarray,
+                    normals: np.ndarray) -> Band:
+    """``band`` with the ions ``beyond`` the rim (:func:`_beyond_rim`) at their offset along their vertex's normal.
+
+    Their distance to the mesh is mostly lateral, to the rim edge (an ion 1 nm beyond the rim and on the interface
+    counts 1 nm deep), and its side that of the rim's tangent plane: on a cap cut by the specimen edge the matrix
+    between that plane and the sphere beyond the rim entered the inside of the rim vertices' profiles and pulled the
+    cap inward. The normal offset puts them where the interface, continued flat past the rim, has them: exact on a
+    flat interface, whose rim keeps its ions (left out, they roughened open interfaces' rims); on a cap of radius
+    ``R`` the matrix so placed lies within ``L^2 / 2R`` inside at ``L`` beyond the rim instead of ``L``."""
+    if not beyond.any():
+        return band
+    out = np.zeros(len(band.index), dtype=bool)
+    held = band.index < len(beyond)  # the ions added since (cover) lie near faces that moved, not beyond
+    out[held] = beyond[band.index[held]]
+    d = band.distance.copy()
+    v = band.vertex[out]
+    d[out] = np.einsum("ij,ij->i", near.positions[band.index[out]] - vertices[v], normals[v])
+    return Band(band.index, band.vertex, d)
 
 
 def _against(near: NearIons, vertices: np.ndarray, radius: float) -> NearIons:
