@@ -640,7 +640,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
         band = _tangent_beyond(near.cover(vertices, reach).band(vertices, normals, reach, p.distance, shell),
-                               beyond, near, vertices, normals)
+                               beyond, near, vertices, normals, adj)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
@@ -729,23 +729,31 @@ def _beyond_rim(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reach: 
 
 
 def _tangent_beyond(band: Band, beyond: np.ndarray, near: NearIons, vertices: np.ndarray,
-                    normals: np.ndarray) -> Band:
-    """``band`` with the ions ``beyond`` the rim (:func:`_beyond_rim`) at their offset along their vertex's normal.
+                    normals: np.ndarray, adj: csr_matrix) -> Band:
+    """``band`` with the ions ``beyond`` the rim (:func:`_beyond_rim`) at their offset from the surface continued
+    past the rim: the paraboloid through their vertex with its normal and mean curvature.
 
     Their distance to the mesh is mostly lateral, to the rim edge (an ion 1 nm beyond the rim and on the interface
-    counts 1 nm deep), and its side that of the rim's tangent plane: on a cap cut by the specimen edge the matrix
-    between that plane and the sphere beyond the rim entered the inside of the rim vertices' profiles and pulled the
-    cap inward. The normal offset puts them where the interface, continued flat past the rim, has them: exact on a
-    flat interface, whose rim keeps its ions (left out, they roughened open interfaces' rims); on a cap of radius
-    ``R`` the matrix so placed lies within ``L^2 / 2R`` inside at ``L`` beyond the rim instead of ``L``."""
+    counts 1 nm deep), its side that of the rim's tangent plane: on a cap cut by the specimen edge the matrix
+    between that plane and the sphere beyond the rim entered the inside of the rim vertices' profiles. The offset
+    ``z + kappa * rho^2 / 2`` (``z`` along the normal, ``rho`` lateral from the vertex, ``kappa`` the mean of the
+    normal curvatures along the vertex's edges, ``(n_u - n_v) . (u - v) / |u - v|^2``) is exact on a flat
+    interface, whose rim keeps its ions (left out, they roughened open interfaces' rims), and on a sphere to second
+    order."""
     if not beyond.any():
         return band
     out = np.zeros(len(band.index), dtype=bool)
     held = band.index < len(beyond)  # the ions added since (cover) lie near faces that moved, not beyond
     out[held] = beyond[band.index[held]]
-    d = band.distance.copy()
+    edges = adj.tocoo()
+    step = vertices[edges.col] - vertices[edges.row]
+    bend = np.einsum("ij,ij->i", normals[edges.col] - normals[edges.row], step) / np.einsum("ij,ij->i", step, step)
+    kappa = np.bincount(edges.row, bend, len(vertices)) / np.maximum(np.bincount(edges.row, None, len(vertices)), 1)
     v = band.vertex[out]
-    d[out] = np.einsum("ij,ij->i", near.positions[band.index[out]] - vertices[v], normals[v])
+    x = near.positions[band.index[out]] - vertices[v]
+    z = np.einsum("ij,ij->i", x, normals[v])
+    d = band.distance.copy()
+    d[out] = z + 0.5 * kappa[v] * (np.einsum("ij,ij->i", x, x) - z ** 2)
     return Band(band.index, band.vertex, d)
 
 
