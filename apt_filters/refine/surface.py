@@ -717,11 +717,16 @@ def _beyond_rim(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reach: 
                 shell) -> np.ndarray:
     """(len(near.rows),) bool: the ions beyond the rim of an open object of the surface ``vertices``
     (:func:`~apt_filters.refine.levels.within_rim`), found once against the placement's start (the rim moves
-    little; found at every iteration the query cost an open interface's refinement 3.5 times its CPU)."""
+    little; found at every iteration the query cost an open interface's refinement 3.5 times its CPU), among the
+    ions whose nearest vertex is on the rim (an ion beyond it is nearest an end of the boundary edge it is beyond)."""
     mesh = TriMesh(vertices, faces)
-    if not len(mesh.boundary_edges()):
+    rim = mesh.boundary_edges()
+    if not len(rim):
         return np.zeros(0, dtype=bool)
+    on_rim = np.zeros(len(vertices), dtype=bool)
+    on_rim[rim.ravel()] = True
     band = near.cover(vertices, reach).band(vertices, vertex_normals(vertices, faces), reach, distance, shell)
+    band = Band(*(a[on_rim[band.vertex]] for a in (band.index, band.vertex, band.distance)))
     beyond = np.zeros(len(near.rows), dtype=bool)
     beyond[band.index] = True
     beyond[within_rim(band, near, mesh, reach).index] = False
