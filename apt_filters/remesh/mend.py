@@ -31,7 +31,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from apt_filters.core.checks import triangles_intersect
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import optimize
@@ -209,8 +211,6 @@ def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.nda
     order = np.flatnonzero(keep)[np.argsort(-gap[keep], kind="stable")]
     # one point for misses nearer each other than a quarter edge (a vertex probe is every face's round it; the
     # rim's samples are an eighth edge apart): two vertices put at one point make a face without area
-    from scipy.spatial import cKDTree
-
     alone = np.ones(len(order), bool)
     for i, j in sorted(cKDTree(to[order]).query_pairs(0.25 * edge)):
         if alone[i]:
@@ -232,8 +232,6 @@ def _rim_misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np
     """The rim's misses as :func:`_misses` gives them and their gaps (nm), or None: input rim points (every
     edge/8, as the check samples them) over ``limit`` from the output's rim, each inserted at the closest
     output rim point, and output rim points as far from the input's, each moved to the closest input rim point."""
-    from scipy.spatial import cKDTree
-
     r_in, f_in, _ = _rim_samples(source, edge / 8, in_mask)
     r_out, f_out, w_out = _rim_samples(out, edge / 8, out_mask)
     if not len(r_in) or not len(r_out):
@@ -405,8 +403,6 @@ def crossing(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray, edge: fl
     """(k,) bool: triangles ``tris`` (k, 3) that cross a face of ``faces`` sharing no edge with them, as
     :func:`apt_filters.core.checks.self_intersecting_faces` counts it (both shrunk by 1e-6 about their centroids:
     a shared corner is no crossing); faces farther than a few edges ``edge`` (nm) are not looked at."""
-    from apt_filters.core.checks import triangles_intersect
-
     def shrunk(t):
         p = vertices[t]
         c = p.mean(axis=1)
@@ -417,8 +413,6 @@ def crossing(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray, edge: fl
     a, ca = shrunk(tris)
     # faces whose centroid is within a few edges of a triangle's: those that can reach it (faces are about an
     # edge long)
-    from scipy.spatial import cKDTree
-
     reach = np.linalg.norm(a - ca[:, None], axis=2).max() + 2.0 * edge
     pairs = cKDTree(ca).sparse_distance_matrix(cKDTree(vertices[faces].mean(axis=1)), reach, output_type="ndarray")
     i, j = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)

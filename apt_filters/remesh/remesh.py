@@ -13,6 +13,7 @@ from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh, vertex_normals
 from apt_filters.remesh import cvt, extract, features as feat, optimize, repair, verify as check
+from apt_filters.remesh.mend import mend
 from apt_filters.remesh.sampling import refine
 
 
@@ -739,8 +740,6 @@ def _mend(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.
     """:func:`apt_filters.remesh.mend.mend` of ``out``'s ``components`` (input component ids) where they miss
     ``mesh``, with scalars: a new or moved vertex's interpolated from ``mesh``, a face's from the face it is a
     piece of. Returns the mesh, its faces' input components and whether no miss is left (:func:`mend`'s)."""
-    from apt_filters.remesh.mend import mend
-
     m = mend(mesh, out, component, out_component, components, edge=edge, tolerance=check.HAUSDORFF_FRACTION,
              surface=surface)
     mended = TriMesh(m.vertices, m.faces, {}, {k: np.asarray(v)[m.parent] for k, v in out.face_scalars.items()})
