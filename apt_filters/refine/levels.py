@@ -767,7 +767,7 @@ def unmixing_weight(*, w: np.ndarray, n: np.ndarray, mixed: np.ndarray, mixed_co
     not if the ball holds, but is noisier (its counts amplified by ``1 / (g_in - g_out)``, the shares ``g`` carrying
     their own error). ``B`` has the smaller mean squared error where the estimated gain ``G = D^2 - var D - var B +
     var W`` (``D = B - W``; ``D^2 - var D`` estimates ``b^2`` without bias) is positive; taken whole there and not
-    at all elsewhere (main until session 28), the choice selects the draws whose shift is large by chance, and over
+    at all elsewhere (a hard choice), the choice selects the draws whose shift is large by chance, and over
     redrawn ions its level lies off by more than the error it states (a winner's curse; a small sphere unmixed 3 of
     its standard errors above the truth). Here the windows are moved by ``lambda = G / D^2`` clipped to [0, 1]:
     the share of the shift's square that is estimated bias less the noise the unmixing adds (with ``var B = var W``
@@ -777,7 +777,7 @@ def unmixing_weight(*, w: np.ndarray, n: np.ndarray, mixed: np.ndarray, mixed_co
     ``d lambda / d D = 2 (1 - lambda) / D`` inside (0, 1)) beside the counts' and the shares': each window's moved
     level is worth ``f (1 - f) / var`` atoms (``f`` its fraction). The MSE-optimal weight with ``b^2`` plugged in,
     ``1 - (var D + var B - var W) / (2 D^2)``, is positive where the hard choice kept the windows, and on dev rod
-    10039 it unmixed a rod main keeps (weight 0.44, volume +2.3 -> -20.2 %).
+    10039 it unmixed a rod the hard choice keeps (weight 0.44, volume +2.3 -> -20.2 %).
 
     Parameters
     ----------
