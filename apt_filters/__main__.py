@@ -1,5 +1,3 @@
-import sys
+from apt_filters.cli.main import run
 
-from apt_filters.cli.main import main
-
-sys.exit(main())
+run()

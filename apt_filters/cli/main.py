@@ -10,7 +10,7 @@ number out of range) are one line too.
 
 SIGTERM and SIGHUP end a command the way Ctrl-C does: the exception unwinds every ``with``
 block, so staged output folders and temporary files are removed, and the exit status is
-128 + the signal number. A reader that closes the pipe early (``apt-filters info --json | head``)
+128 + the signal number. The process then ends at once (:func:`run`). A reader that closes the pipe early (``apt-filters info --json | head``)
 ends the command quietly with status 141, as SIGPIPE ends a C program.
 """
 
@@ -25,7 +25,7 @@ import sys
 
 from apt_filters import __version__
 from apt_filters.cli.options import check_output
-from apt_filters.core.atomic import raise_on_signal, unraisable_hook
+from apt_filters.core.atomic import raise_on_signal, received_interrupt, unraisable_hook
 from apt_filters.core.errors import AptFiltersError, readable
 
 SIGPIPE_STATUS = 128 + 13
@@ -71,7 +71,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     check_output(args)
-    previous = {signum: signal.signal(signum, raise_on_signal) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    # Ctrl-C too, where it is live (a shell's background job ignores it, and must go on doing so): recorded,
+    # it still ends the run when a callback swallowed its exception
+    caught = (signal.SIGTERM, signal.SIGHUP) + ((signal.SIGINT,) if signal.getsignal(signal.SIGINT)
+                                                 is signal.default_int_handler else ())
+    previous = {signum: signal.signal(signum, raise_on_signal) for signum in caught}
     previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable_hook
     try:
         status = int(args.func(args) or 0)
@@ -84,8 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         # Point stdout at /dev/null so that the interpreter's own flush at exit stays quiet.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return SIGPIPE_STATUS
-    except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
+    except (KeyboardInterrupt, Exception) as exc:
+        interrupt = _interrupt_behind(exc)
+        if interrupt is None:
+            raise
+        signum = getattr(interrupt, "signum", signal.SIGINT)
         _say(f"apt-filters {args.command}: interrupted ({signal.Signals(signum).name})")
         return 128 + signum
     finally:
@@ -94,5 +101,41 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signum, handler)
 
 
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt that ended the command with ``exc``, if any.
+
+    A signal handler's exception raised while a compiled kernel is called comes back wrapped (numba's
+    dispatcher: "SystemError: ... returned a result with an exception set", the interrupt its cause);
+    one swallowed by a callback leaves what it stopped to fail in its own words (numba's compiler:
+    "no compiled object yet"), the signal recorded.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return received_interrupt()
+
+
+def run() -> None:
+    """The ``apt-filters`` command: :func:`main`, its status the process's exit status.
+
+    A command ended by a signal exits at once when its clean-up is done, without the interpreter's
+    finalization: the signal can stop a library halfway (an import, a kernel's compilation, a pool's
+    threads), and finalizing that state crashed the process after its clean-up (SIGSEGV or "double
+    free" in ~1 of 100 runs stopped by SIGTERM under load), so it ended on a crash, not 128 + signal.
+    """
+    status = main()
+    if status > 128:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except OSError:  # a closed pipe or terminal: nothing left to tell
+                pass
+        os._exit(status)
+    sys.exit(status)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    run()

@@ -97,15 +97,21 @@ def raise_on_signal(signum, frame) -> None:
     raise Interrupted(signum)
 
 
-def raise_if_interrupted() -> None:
-    """Raise :class:`Interrupted` again if a termination signal arrived.
+def received_interrupt() -> Interrupted | None:
+    """The last termination signal this process received, as the :class:`Interrupted` it raised; None if none.
 
     A handler's exception can be swallowed where Python cannot propagate it (a ctypes callback,
-    e.g. numba's compiled-code cache, prints "Exception ignored" and carries on), so the steps of a
-    run and the commit of an output folder ask here before going on.
+    e.g. numba's compiled-code cache, prints "Exception ignored" and carries on), and what was
+    stopped can then fail in its own words ("no compiled object yet"): the signal is the cause.
     """
+    return Interrupted(_received[-1]) if _received else None
+
+
+def raise_if_interrupted() -> None:
+    """Raise :class:`Interrupted` again if a termination signal arrived (see :func:`received_interrupt`):
+    the steps of a run and the commit of an output folder ask here before going on."""
     if _received:
-        raise Interrupted(_received[-1])
+        raise received_interrupt()
 
 
 def unraisable_hook(unraisable) -> None:
