@@ -120,7 +120,11 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     ring_start, ring = vertex_rings(o_faces, len(o_vertices))
     used = np.unique(o_faces)
     o_tree = cKDTree(o_vertices[used])
-    start = used[o_tree.query(v)[1]]  # a vertex of other near each vertex of mesh
+    # only the probes of the faces measured: the mend measures again only where it changed the output
+    measured = group >= 0
+    ids_of = [np.unique(faces[measured]), np.unique(face_edge[measured]), np.flatnonzero(measured)]
+    start = np.zeros(len(v), np.int64)
+    start[ids_of[0]] = used[o_tree.query(v[ids_of[0]])[1]]  # a vertex of other near each vertex of mesh
 
     def probes(kind, ids):
         if kind == 0:
@@ -130,9 +134,10 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         return v[faces[ids]].mean(axis=1), start[faces[ids, 0]]
 
     def walked(kind, n):
-        d = np.empty(n)
-        for first in range(0, n, chunk):
-            ids = np.arange(first, min(first + chunk, n))
+        d = np.zeros(n)
+        todo = ids_of[kind]
+        for first in range(0, len(todo), chunk):
+            ids = todo[first:first + chunk]
             points, s = probes(kind, ids)
             d[ids] = np.linalg.norm(points - walk_closest(o_vertices, o_faces, neighbour, ring_start, ring, s,
                                                           points)[2], axis=1)
