@@ -222,7 +222,8 @@ def _rim_points(mesh: TriMesh, spacing: float) -> tuple[np.ndarray, np.ndarray]:
 def check_components(source: TriMesh, result: TriMesh, source_component: np.ndarray,
                      result_component: np.ndarray, *, edge: float,
                      hausdorff_fraction: float = HAUSDORFF_FRACTION,
-                     area_tolerance: float = AREA_TOLERANCE, source_surface=None) -> list[ComponentCheck]:
+                     area_tolerance: float = AREA_TOLERANCE, source_surface=None,
+                     only: np.ndarray | None = None) -> list[ComponentCheck]:
     """Compare every input component with the output faces that stand for it.
 
     Parameters
@@ -237,11 +238,13 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
         Target edge length (nm); the distance tolerance is ``hausdorff_fraction * edge``.
     source_surface : SurfaceDistance, optional
         ``source``'s closest-point engine (:mod:`apt_filters.core.distance`), built if not given.
+    only : (k,) bool, optional
+        The components to check (the mended ones, after a mend that changed nothing else); all by default.
 
     Returns
     -------
     list of ComponentCheck
-        One per input component, in order; ``reasons`` says what failed.
+        One per input component checked, in order; ``reasons`` says what failed.
     """
     k = int(source_component.max()) + 1 if len(source_component) else 0
     tol = hausdorff_fraction * edge
@@ -254,8 +257,11 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     mixed = np.zeros(k, bool)
     mixed[pairs[real & shared, 1] - 1] = True
     chunk = chunk_length(source.n_faces)  # probes per distance query: temporaries in proportion to the input
-    d_in = farthest(source, result, source_component, k, tol, chunk)
-    d_out = farthest(result, source, result_component, k, tol, chunk, surface=source_surface)
+    only = np.ones(k, bool) if only is None else np.asarray(only, bool)
+    # the distances of the components checked only: the farthest probes' searches are most of a check
+    d_in = farthest(source, result, np.where(only[source_component], source_component, -1), k, tol, chunk)
+    d_out = farthest(result, source, np.where(only[np.maximum(result_component, 0)], result_component, -1), k, tol,
+                     chunk, surface=source_surface)
     rim = np.zeros(k)
     r_in, rf_in = _rim_points(source, edge / 8)
     r_out, rf_out = _rim_points(result, edge / 8) if result.n_faces else (np.empty((0, 3)), np.empty(0, np.int64))
@@ -285,7 +291,7 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     chi_in, loops_in = euler_and_loops(source, source_component, k)
     chi_out, loops_out = euler_and_loops(result, result_component, k)
     checks = []
-    for c in range(k):
+    for c in np.flatnonzero(only):
         change = area_out[c] / area_in[c] - 1.0 if area_in[c] > 0 else 0.0
         reasons = []
         if pieces[c] != 1 or mixed[c]:
@@ -302,7 +308,7 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
             reasons.append(f"faces without area: {degenerate[c]}")
         if abs(change) > area_tolerance:
             reasons.append(f"area {100 * change:+.2f} %")
-        checks.append(ComponentCheck(c, int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
+        checks.append(ComponentCheck(int(c), int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
                                      int(loops_in[c]), int(loops_out[c]),
                                      float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons,
                                      mendable=not (len(reasons) == 1 and abs(change) > area_tolerance),
