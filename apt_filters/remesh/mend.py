@@ -22,7 +22,8 @@ are then flipped to Delaunay (flat edges only, those of the mended faces only), 
 again, ``MEND_ROUNDS`` times at most. The caller checks the result (:func:`verify.check_components`) and,
 where it still fails, remeshes the component again as before.
 
-Cost: per round, the check's distances of the components mended (:func:`verify.farthest`), an engine over the
+Cost: per round, the check's distances (:func:`verify.farthest`) of the faces the last round can have made miss
+(:func:`_changed`; all of the components mended in the first), an engine over the
 output for the input's misses, and per change a scan of the faces (a few hundred changes at most).
 """
 
