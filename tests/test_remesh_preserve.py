@@ -464,3 +464,78 @@ def test_a_rim_vertex_pulled_off_the_rim_is_mended():
     away = np.linalg.norm(out.vertices - out.vertices[v], axis=1) > 2 * EDGE
     same = away[out.faces].all(axis=1)
     assert np.array_equal(m.faces[:out.n_faces][same], out.faces[same]) and same.mean() > 0.8
+
+
+def _two_spheres_remeshed():
+    """Two 2-voxel spheres, their remesh (unchecked), the input's components and the one each output face is of."""
+    from apt_filters.core.distance import SurfaceDistance
+
+    mesh = shapes.small_spheres(count=2)
+    out = remesh(mesh, edge_length=EDGE, verify=False).mesh
+    comp = mesh.face_components()
+    owner = comp[SurfaceDistance(mesh).closest(out.vertices[out.faces].mean(axis=1))[1]]
+    return mesh, out, comp, owner
+
+
+def test_the_mend_measures_again_only_where_it_changed_the_output():
+    """A mend round changes a few faces; the next round measures only the faces that can miss now
+    (``mend._changed``) and must find exactly the misses a measure of everything finds. The remesh of a sphere
+    (no miss) is changed three ways a round can change it: a vertex moved 0.4 edge out (its faces, and the input
+    under them, miss), a face split in three at a point 0.4 edge in (new faces), a face dropped (rows after it
+    shift; the input under it and its neighbour is farther than the tolerance from what is left)."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh.mend import MEND_FRACTION, _changed, _misses
+
+    mesh, before, comp, owner = _two_spheres_remeshed()
+    surface, limit = SurfaceDistance(mesh), MEND_FRACTION * 0.25 * EDGE
+    in_mask, out_mask = comp == 0, owner == 0
+    first = _misses(mesh, before, in_mask, out_mask, limit, EDGE, surface)
+    assert not len(first[1]) and not first[3][0].any() and not first[3][1].any()
+    mine = np.flatnonzero(out_mask)
+    centre = before.vertices[before.faces[mine]].mean(axis=1)
+    # three places on sphere 0 far apart: the faces farthest along x, -x and y
+    moved_face, split_face, dropped_face = mine[np.argmax(centre[:, 0])], mine[np.argmin(centre[:, 0])], \
+        mine[np.argmax(centre[:, 1])]
+    vertices = before.vertices.copy()
+    v = before.faces[moved_face, 0]
+    normals = before.vertex_normals()
+    vertices[v] += 0.4 * EDGE * normals[v]
+    a, b, c = before.faces[split_face]
+    point = before.vertices[[a, b, c]].mean(axis=0)
+    point -= 0.4 * EDGE * before.face_normals()[split_face]
+    n = len(vertices)
+    vertices = np.vstack([vertices, point])
+    faces = before.faces.copy()
+    faces[split_face] = (a, b, n)
+    faces = np.vstack([faces, [(b, c, n), (c, a, n)]])
+    # and its neighbour across an edge: a hole of two faces, whose middle is over the tolerance from its rim
+    shared = (np.isin(before.faces[mine], before.faces[dropped_face])).sum(axis=1) == 2
+    keep = np.ones(len(faces), bool)
+    keep[[dropped_face, mine[np.flatnonzero(shared)[0]]]] = False
+    after = TriMesh(vertices, faces[keep])
+    after_mask = np.r_[out_mask, True, True][keep]
+    full = _misses(mesh, after, in_mask, after_mask, limit, EDGE, surface)
+    local = _misses(mesh, after, in_mask, after_mask, limit, EDGE, surface,
+                    _changed(mesh, before, after, first[3], limit))
+    assert len(full[1]) >= 3
+    # the misses of all three places are found, and nothing else
+    for place in (vertices[v], point, before.vertices[before.faces[dropped_face]].mean(axis=0)):
+        assert (np.linalg.norm(full[1] - place, axis=1) < EDGE).any()
+    for x, y in zip((*full[0], full[1], full[2], *full[3]), (*local[0], local[1], local[2], *local[3])):
+        assert np.array_equal(x, y)
+
+
+def test_a_check_of_some_components_is_that_of_all_for_them():
+    """``check_components(..., only=)`` measures the components asked for only (the mended ones), and finds for
+    them what a check of all finds, field by field; an output vertex of sphere 1 pushed 0.4 edge out makes its
+    check fail."""
+    mesh, out, comp, owner = _two_spheres_remeshed()
+    vertices = out.vertices.copy()
+    v = out.faces[owner == 1][0, 0]
+    vertices[v] += 0.4 * EDGE * out.vertex_normals()[v]
+    pushed = TriMesh(vertices, out.faces)
+    everything = verify.check_components(mesh, pushed, comp, owner, edge=EDGE)
+    assert everything[0].ok and not everything[1].ok
+    for only in ([False, True], [True, False]):
+        some = verify.check_components(mesh, pushed, comp, owner, edge=EDGE, only=np.array(only))
+        assert some == [everything[int(np.flatnonzero(only)[0])]]

@@ -22,7 +22,8 @@ are then flipped to Delaunay (flat edges only, those of the mended faces only), 
 again, ``MEND_ROUNDS`` times at most. The caller checks the result (:func:`verify.check_components`) and,
 where it still fails, remeshes the component again as before.
 
-Cost: per round, the check's distances of the components mended (:func:`verify.farthest`), an engine over the
+Cost: per round, the check's distances (:func:`verify.farthest`) of the faces the last round can have made miss
+(:func:`_changed`; all of the components mended in the first), an engine over the
 output for the input's misses, and per change a scan of the faces (a few hundred changes at most).
 """
 
@@ -106,24 +107,33 @@ def mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_
     least = _smallest_angle(result.vertices, result.faces[mine]) if mine.any() else np.inf
     # no change makes an angle under the first of ANGLE_FLOORS, or under the smallest the remesh has there where
     # that is less; where misses are left so, the mend starts again from the remesh at the next
+    in_mask = np.isin(source_component, components)
+    # the first try's misses, measured once for every floor
+    first = _misses(source, result, in_mask, mine, MEND_FRACTION * tol, edge, surface)
     for floor in sorted({min(np.radians(f), least) for f in ANGLE_FLOORS}, reverse=True):
-        mended = _mend(source, result, source_component, result_component, components, edge, tol, surface, floor)
+        mended = _mend(source, result, in_mask, result_component, components, edge, tol, surface, floor, first)
         if mended.done:
             break
     return mended
 
 
-def _mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result_component: np.ndarray,
-          components: np.ndarray, edge: float, tol: float, surface: SurfaceDistance, floor: float) -> Mended:
-    """:func:`mend` with no change making an angle under ``floor`` (radians); ``tol`` the tolerance (nm)."""
+def _mend(source: TriMesh, result: TriMesh, in_mask: np.ndarray, result_component: np.ndarray,
+          components: np.ndarray, edge: float, tol: float, surface: SurfaceDistance, floor: float,
+          first: tuple) -> Mended:
+    """:func:`mend` with no change making an angle under ``floor`` (radians); ``tol`` the tolerance (nm);
+    ``in_mask`` (f_in,) the input faces of ``components``; ``first``: :func:`_misses` of ``result``."""
     limit = MEND_FRACTION * tol
     vertices, faces = result.vertices.copy(), result.faces.copy()
     component, parent = result_component.copy(), np.arange(result.n_faces)
-    in_mask = np.isin(source_component, components)
     near = np.zeros(len(vertices), bool)  # corners of the faces changed in any round
+    measured = result
+    where, to, gap, missing = first
     for round_ in range(MEND_ROUNDS + 1):
-        where, to, gap = _misses(source, TriMesh(vertices, faces), in_mask, np.isin(component, components), limit,
-                                 edge, surface)
+        if round_:
+            now = TriMesh(vertices, faces.copy())  # _insert changes its faces in place
+            where, to, gap, missing = _misses(source, now, in_mask, np.isin(component, components), limit, edge,
+                                              surface, _changed(source, measured, now, missing, limit))
+            measured = now
         if not len(to) or round_ == MEND_ROUNDS:
             break
         vertices, faces, component, parent, touched = _insert(vertices, faces, component, parent, where, to, edge,
@@ -149,9 +159,10 @@ def _mend(source: TriMesh, result: TriMesh, source_component: np.ndarray, result
         # leaves no more misses over the tolerance
         placed = origin < 0  # new, or moved onto a miss: they stay
         placed[:result.n_vertices] = (vertices[:result.n_vertices] != result.vertices).any(axis=1)
-        smoothed = _relax_around(vertices, faces, near & ~placed, edge, surface)
-        after = _misses(source, TriMesh(smoothed, faces), in_mask, np.isin(component, components), limit, edge,
-                        surface)[2]
+        smoothed = TriMesh(_relax_around(vertices, faces, near & ~placed, edge, surface), faces)
+        after = _misses(source, smoothed, in_mask, np.isin(component, components), limit, edge, surface,
+                        _changed(source, measured, smoothed, missing, limit))[2]
+        smoothed = smoothed.vertices
         if (after > tol).sum() <= (gap > tol).sum():
             vertices, gap = smoothed, after
     used = np.zeros(len(vertices), bool)
@@ -178,23 +189,29 @@ def _relax_around(vertices: np.ndarray, faces: np.ndarray, free: np.ndarray, edg
 
 
 def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.ndarray, limit: float, edge: float,
-            surface: SurfaceDistance) -> tuple[tuple, np.ndarray]:
+            surface: SurfaceDistance, measure: tuple | None = None) -> tuple:
     """Where to put an output vertex and where: ((m,) output face, (m, 3) its barycentric weights of the point
-    to split at), (m, 3) the point on the input the vertex goes to, and (m,) the miss (nm); the farthest first."""
+    to split at), (m, 3) the point on the input the vertex goes to, and (m,) the miss (nm), the farthest first;
+    then ((f_in,), (f_out,)) bool, the faces of either that miss. ``measure``: ((f_in,), (f_out,)) bool, the
+    faces to measure, where no other can miss (:func:`_changed`); by default all of ``in_mask``, ``out_mask``."""
     face, weights, to, gap = [], [], [], []
+    measure_in, measure_out = (in_mask, out_mask) if measure is None else (in_mask & measure[0],
+                                                                           out_mask & measure[1])
     # input points far from the output: the farthest probe of each input face that misses
-    d = farthest(source, out, np.where(in_mask, np.arange(source.n_faces), -1), source.n_faces, limit,
+    d = farthest(source, out, np.where(measure_in, np.arange(source.n_faces), -1), source.n_faces, limit,
                  floor=limit)
-    p = _probes(source, np.flatnonzero(d > limit))[0].reshape(-1, 3)
+    missing = (d > limit, None)
+    p = _probes(source, np.flatnonzero(missing[0]))[0].reshape(-1, 3)
     if len(p):
         y, f, w = SurfaceDistance(out).closest(p, edge)
         own = out_mask[f]  # an input point whose closest output face is another component's is not this one's miss
         face.append(f[own]), weights.append(w[own]), to.append(p[own])
         gap.append(np.linalg.norm(p - y, axis=1)[own])
     # output points far from the input
-    d = farthest(out, source, np.where(out_mask, np.arange(out.n_faces), -1), out.n_faces, limit, surface=surface,
-                 floor=limit)
-    far = np.flatnonzero(d > limit)
+    d = farthest(out, source, np.where(measure_out, np.arange(out.n_faces), -1), out.n_faces, limit,
+                 surface=surface, floor=limit)
+    missing = (missing[0], d > limit)
+    far = np.flatnonzero(missing[1])
     q, w = _probes(out, far)
     if len(q):
         x = surface.closest(q.reshape(-1, 3), edge)[0]
@@ -205,7 +222,7 @@ def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.nda
     if rim is not None:
         face.append(rim[0]), weights.append(rim[1]), to.append(rim[2]), gap.append(rim[3])
     if not face:
-        return (np.empty(0, np.int64), np.empty((0, 3))), np.empty((0, 3)), np.empty(0)
+        return (np.empty(0, np.int64), np.empty((0, 3))), np.empty((0, 3)), np.empty(0), missing
     face, weights, to, gap = np.concatenate(face), np.vstack(weights), np.vstack(to), np.concatenate(gap)
     keep = gap > limit
     order = np.flatnonzero(keep)[np.argsort(-gap[keep], kind="stable")]
@@ -216,7 +233,44 @@ def _misses(source: TriMesh, out: TriMesh, in_mask: np.ndarray, out_mask: np.nda
         if alone[i]:
             alone[j] = False
     order = order[alone]
-    return (face[order], weights[order]), to[order], gap[order]
+    return (face[order], weights[order]), to[order], gap[order], missing
+
+
+def _changed(source: TriMesh, before: TriMesh, after: TriMesh, missing: tuple, limit: float) -> tuple:
+    """((f_in,), (f_out,)) bool: the faces of ``source`` and of ``after`` that can miss by over ``limit`` (nm) in
+    ``after`` where ``before`` (the same vertex ids, more of them, faces changed, added or dropped) missed only
+    at the faces ``missing`` (:func:`_misses`'): those, the faces of ``after`` not in ``before`` (or with a
+    corner moved), and the input faces within reach of a face of ``before`` no longer there. An output face kept
+    as it was is as far from the input as before; an input point whose closest output face is kept is no
+    farther from the output than before (faces were only added round it), and one whose closest face went is
+    within ``limit`` plus that face's longest edge of one of its corners."""
+    moved = np.zeros(after.n_vertices, bool)
+    n = before.n_vertices
+    moved[n:] = True
+    moved[:n] = (after.vertices[:n] != before.vertices).any(axis=1)
+
+    def rows(faces):
+        return np.ascontiguousarray(faces, np.int64).view(np.dtype((np.void, 24))).ravel()
+
+    kept_after = np.isin(rows(after.faces), rows(before.faces)) & ~moved[after.faces].any(axis=1)
+    gone = ~np.isin(rows(before.faces), rows(after.faces[kept_after]))
+    out = ~kept_after | np.isin(rows(after.faces), rows(before.faces[missing[1]]))
+    inside = missing[0].copy()
+    if gone.any():
+        corners = before.vertices[before.faces[gone]]
+        longest = max(float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max()),
+                      float(_longest_edge(source)))
+        reached = cKDTree(source.vertices).query_ball_point(corners.reshape(-1, 3), limit + longest)
+        near = np.zeros(source.n_vertices, bool)
+        near[np.concatenate([np.asarray(r, np.int64) for r in reached] or [np.empty(0, np.int64)])] = True
+        inside |= near[source.faces].any(axis=1)
+    return inside, out
+
+
+def _longest_edge(mesh: TriMesh) -> float:
+    """The longest edge of ``mesh`` (nm)."""
+    ends = mesh.topology.edge_vertices
+    return float(np.linalg.norm(mesh.vertices[ends[:, 0]] - mesh.vertices[ends[:, 1]], axis=1).max(initial=0.0))
 
 
 def _probes(mesh: TriMesh, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -414,8 +468,11 @@ def crossing(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray, edge: fl
     # faces whose centroid is within a few edges of a triangle's: those that can reach it (faces are about an
     # edge long)
     reach = np.linalg.norm(a - ca[:, None], axis=2).max() + 2.0 * edge
-    pairs = cKDTree(ca).sparse_distance_matrix(cKDTree(vertices[faces].mean(axis=1)), reach, output_type="ndarray")
-    i, j = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    # a tree over the centroids within the triangles' box grown by the reach, not over all faces (one a change)
+    centroid = vertices[faces].mean(axis=1)
+    box = np.flatnonzero(((centroid >= ca.min(axis=0) - reach) & (centroid <= ca.max(axis=0) + reach)).all(axis=1))
+    pairs = cKDTree(ca).sparse_distance_matrix(cKDTree(centroid[box]), reach, output_type="ndarray")
+    i, j = pairs["i"].astype(np.int64), box[pairs["j"].astype(np.int64)]
     b = shrunk(faces[j])[0]
     faces, j = faces[j], np.arange(len(j))
     apart = (tris[i, :, None] == faces[j, None, :]).sum(axis=(1, 2)) < 2

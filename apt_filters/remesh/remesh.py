@@ -224,8 +224,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
                                                edge, surface)
         if done:  # no miss left by its own measure: checked in full, and kept where it passes
             out, kept = mended, mended_component
-            for c in check.check_components(mesh, out, component, kept, edge=edge, source_surface=surface):
-                if local[c.component] and c.ok:
+            for c in check.check_components(mesh, out, component, kept, edge=edge, source_surface=surface,
+                                            only=local):
+                if c.ok:
                     checks[c.component] = c
                     failed[c.component] = retry[c.component] = False
     if failed.any():

@@ -120,7 +120,11 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     ring_start, ring = vertex_rings(o_faces, len(o_vertices))
     used = np.unique(o_faces)
     o_tree = cKDTree(o_vertices[used])
-    start = used[o_tree.query(v)[1]]  # a vertex of other near each vertex of mesh
+    # only the probes of the faces measured: the mend measures again only where it changed the output
+    measured = group >= 0
+    ids_of = [np.unique(faces[measured]), np.unique(face_edge[measured]), np.flatnonzero(measured)]
+    start = np.zeros(len(v), np.int64)
+    start[ids_of[0]] = used[o_tree.query(v[ids_of[0]])[1]]  # a vertex of other near each vertex of mesh
 
     def probes(kind, ids):
         if kind == 0:
@@ -130,9 +134,10 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         return v[faces[ids]].mean(axis=1), start[faces[ids, 0]]
 
     def walked(kind, n):
-        d = np.empty(n)
-        for first in range(0, n, chunk):
-            ids = np.arange(first, min(first + chunk, n))
+        d = np.zeros(n)
+        todo = ids_of[kind]
+        for first in range(0, len(todo), chunk):
+            ids = todo[first:first + chunk]
             points, s = probes(kind, ids)
             d[ids] = np.linalg.norm(points - walk_closest(o_vertices, o_faces, neighbour, ring_start, ring, s,
                                                           points)[2], axis=1)
@@ -217,7 +222,8 @@ def _rim_points(mesh: TriMesh, spacing: float) -> tuple[np.ndarray, np.ndarray]:
 def check_components(source: TriMesh, result: TriMesh, source_component: np.ndarray,
                      result_component: np.ndarray, *, edge: float,
                      hausdorff_fraction: float = HAUSDORFF_FRACTION,
-                     area_tolerance: float = AREA_TOLERANCE, source_surface=None) -> list[ComponentCheck]:
+                     area_tolerance: float = AREA_TOLERANCE, source_surface=None,
+                     only: np.ndarray | None = None) -> list[ComponentCheck]:
     """Compare every input component with the output faces that stand for it.
 
     Parameters
@@ -232,11 +238,13 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
         Target edge length (nm); the distance tolerance is ``hausdorff_fraction * edge``.
     source_surface : SurfaceDistance, optional
         ``source``'s closest-point engine (:mod:`apt_filters.core.distance`), built if not given.
+    only : (k,) bool, optional
+        The components to check (the mended ones, after a mend that changed nothing else); all by default.
 
     Returns
     -------
     list of ComponentCheck
-        One per input component, in order; ``reasons`` says what failed.
+        One per input component checked, in order; ``reasons`` says what failed.
     """
     k = int(source_component.max()) + 1 if len(source_component) else 0
     tol = hausdorff_fraction * edge
@@ -249,8 +257,11 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     mixed = np.zeros(k, bool)
     mixed[pairs[real & shared, 1] - 1] = True
     chunk = chunk_length(source.n_faces)  # probes per distance query: temporaries in proportion to the input
-    d_in = farthest(source, result, source_component, k, tol, chunk)
-    d_out = farthest(result, source, result_component, k, tol, chunk, surface=source_surface)
+    only = np.ones(k, bool) if only is None else np.asarray(only, bool)
+    # the distances of the components checked only: the farthest probes' searches are most of a check
+    d_in = farthest(source, result, np.where(only[source_component], source_component, -1), k, tol, chunk)
+    d_out = farthest(result, source, np.where(only[np.maximum(result_component, 0)], result_component, -1), k, tol,
+                     chunk, surface=source_surface)
     rim = np.zeros(k)
     r_in, rf_in = _rim_points(source, edge / 8)
     r_out, rf_out = _rim_points(result, edge / 8) if result.n_faces else (np.empty((0, 3)), np.empty(0, np.int64))
@@ -280,7 +291,7 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     chi_in, loops_in = euler_and_loops(source, source_component, k)
     chi_out, loops_out = euler_and_loops(result, result_component, k)
     checks = []
-    for c in range(k):
+    for c in np.flatnonzero(only):
         change = area_out[c] / area_in[c] - 1.0 if area_in[c] > 0 else 0.0
         reasons = []
         if pieces[c] != 1 or mixed[c]:
@@ -297,7 +308,7 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
             reasons.append(f"faces without area: {degenerate[c]}")
         if abs(change) > area_tolerance:
             reasons.append(f"area {100 * change:+.2f} %")
-        checks.append(ComponentCheck(c, int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
+        checks.append(ComponentCheck(int(c), int(faces_in[c]), int(faces_out[c]), int(chi_in[c]), int(chi_out[c]),
                                      int(loops_in[c]), int(loops_out[c]),
                                      float(d_out[c]), float(d_in[c]), float(rim[c]), float(change), reasons,
                                      mendable=not (len(reasons) == 1 and abs(change) > area_tolerance),
