@@ -85,6 +85,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse import csr_matrix, diags
+from scipy.spatial import cKDTree
 
 from apt_filters.core.checks import folded_pairs, self_intersecting_faces
 from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normals
@@ -779,8 +780,6 @@ def _rim_paraboloids(vertices: np.ndarray, normals: np.ndarray, components: np.n
     The fit reads the slope and the curvature from the positions around the vertex, not from normals averaged
     over its faces, which at a rim lie on one side of it. A degenerate neighbourhood (collinear, or none) gets the
     least-norm solution: no tilt or bend it does not show."""
-    from scipy.spatial import cKDTree
-
     n = normals[at]
     # a tangent: the normal crossed with the axis it is least aligned with
     t1 = np.cross(n, np.eye(3)[np.argmin(np.abs(n), axis=1)])
