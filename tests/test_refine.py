@@ -201,6 +201,21 @@ def test_contrast_weights_score_higher_inside():
     assert contrast_weights(inside, outside, ["Al", "Cr", "Ni"], "Al", "species").tolist() == [1, 0, 0]
 
 
+def test_the_whole_placements_narrow_band_places_the_surface_bit_for_bit_as_the_wide_one(monkeypatch):
+    from apt_filters.refine import surface
+
+    sp = generate(preset("small"), seed=3)
+    start = speckless_start(sp)
+    params = RefineParams(iterations=6, select_modes=False, curved_levels=False, facets=False, marker=False, blur=None)
+    placed = []
+    for narrow in (True, False):
+        if not narrow:  # the ions of the profiles looked for within the band's whole reach
+            monkeypatch.setattr(surface, "profile_reach", lambda vertices, faces, half_width: np.inf)
+        result = refine_surface(start, sp.ions, sp.ranges, "Al", NO_B, params)
+        placed.append((result.mesh.vertices, result.widths, result.offset_errors))
+    assert all(np.array_equal(a, b) for a, b in zip(*placed))
+
+
 # --- against the truth of the `small` specimen (cube 6 nm rotated, sphere 3 nm, B shell) ---------------
 
 @pytest.fixture(scope="module")

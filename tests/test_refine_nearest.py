@@ -12,7 +12,7 @@ from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold
-from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled
+from apt_filters.refine.band import NearIons, Pairs, adjacency, pooled, profile_reach
 from apt_filters.refine.nearest import descend
 from apt_filters.refine.surface import umbrella
 from apt_filters.voxel import ConcentrationBasis
@@ -188,6 +188,29 @@ def test_band_shell_keeps_every_bin_window_and_side_of_the_exact_distances():
     # both bands from one pass: each what its own pass gives
     for one, alone in zip(near.bands(moved, normals, 4.0, shell=(lo, hi)), (shell, exact)):
         assert all(np.array_equal(getattr(one, f), getattr(alone, f)) for f in ("index", "vertex", "distance"))
+
+
+def test_a_band_at_the_profile_reach_holds_every_ion_of_the_profiles_as_the_wide_band_has_it():
+    mesh = _blob()
+    near, _ = _near_uniform_al(mesh, 6, 9, 120_000, 5.0)
+    half_width, shell = 1.5, (1.5, np.inf)  # the whole placement's band: levels fixed, only the profiles count
+    for scale in (1.03, 0.97):
+        moved = mesh.vertices * scale
+        normals = vertex_normals(moved, mesh.faces)
+        reach = profile_reach(moved, mesh.faces, half_width)
+        wide, narrow = near.band(moved, normals, 4.0, shell=shell), near.band(moved, normals, reach, shell=shell)
+        inside = np.isin(wide.index, narrow.index)
+        # a part of the wide band, each ion as the wide band has it, in the same order
+        assert np.array_equal(narrow.index, wide.index[inside])
+        assert np.array_equal(narrow.vertex, wide.vertex[inside])
+        assert np.array_equal(narrow.distance, wide.distance[inside])
+        # holding every ion of the profiles, and far fewer of the others
+        assert np.all(inside[np.abs(wide.distance) < half_width])
+        assert len(narrow.index) < 0.7 * len(wide.index)
+        # the fan's extent matters: at half_width alone some ions of the profiles are lost
+        short = near.band(moved, normals, half_width, shell=shell)
+        assert np.count_nonzero(np.abs(short.distance) < half_width) < np.count_nonzero(np.abs(wide.distance)
+                                                                                        < half_width)
 
 
 def test_taken_ions_get_what_they_get_among_all():

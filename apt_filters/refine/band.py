@@ -579,6 +579,24 @@ def _vertex_d2(points, vertex, vertices, d2):
             vertices[v, 2] - points[i, 2]) ** 2
 
 
+def profile_reach(vertices: np.ndarray, faces: np.ndarray, half_width: float) -> float:
+    """nm from its nearest vertex within which every ion lies whose :meth:`NearIons.band` distance (``"mesh"``) is
+    under ``half_width`` (at most :data:`EXACT`): ``half_width`` plus the mesh's longest edge.
+
+    An ion's distance to the faces around its vertex ``v`` is its distance to their closest point ``c``, and ``c``
+    lies within the fan's longest edge of ``v`` (the distance to ``v`` is convex over a face, largest at a corner),
+    so the ion lies within that distance plus the edge of ``v``; an ion farther than :data:`EXACT` from the vertex's
+    tangent plane, which keeps its offset along the normal, and one the shell spares (beyond its ``lo``) lie beyond
+    ``half_width`` anyway. A band at this reach holds every ion of one at a larger reach whose distance is under
+    ``half_width``, with the same distance, in the same order. The margin is far above the rounding of the squared
+    distances."""
+    if half_width > EXACT:
+        raise ValueError(f"half_width {half_width:g} nm beyond EXACT ({EXACT:g} nm): tangent offsets are not bounded")
+    corners = vertices[faces]
+    edge = np.sqrt(np.max(((corners - np.roll(corners, 1, axis=1)) ** 2).sum(axis=2), initial=0.0))
+    return (half_width + edge) * (1.0 + 1e-9) + 1e-9
+
+
 def _same(vertices: np.ndarray, other: np.ndarray | None) -> bool:
     """Whether two vertex arrays are the same bit for bit."""
     if other is None or vertices.shape != other.shape or vertices.dtype != np.float64 or other.dtype != np.float64:

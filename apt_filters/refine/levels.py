@@ -319,9 +319,14 @@ def per_object_iso(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     return np.array([lv.iso for lv in object_levels(mesh, ions, ranges, species, basis, window, prior)])
 
 
-_WIDTH_NODES = np.linspace(-6.0, 6.0, 241)
-"""Standard normal nodes over which :func:`ball_profile` averages the interface's own width (0.05 apart: with the
-blur floored at a tenth of the width, the average of the nodes' blurred steps is smooth in the offset and width)."""
+_WIDTH_NODES = np.linspace(-6.0, 6.0, 161)
+"""Standard normal nodes over which :func:`ball_profile` averages the interface's own width (0.075 apart: with the
+blur floored at a tenth of the width, the average of the nodes' blurred steps is smooth in the offset and width).
+Against 1921 nodes the profile is off by at most 1e-5 on the quick preset's 76 calls (241 nodes: 9e-7), and by at
+most 3.6e-4 where the fits may call it (blur at least a fifth of the width, radius at least the width; 241 nodes
+2.0e-4): at a slab whose radius is about its width (its nodes' shrunk radius reaches 0 inside the Gaussian's bulk,
+a kink the equally spaced nodes straddle) under a sharp blur, an order below the counting error of such a thin
+object's windows. 0.78 of the CPU of 241 nodes (the node sums are most of it)."""
 
 
 def ball_profile(d: np.ndarray, *, radius: float, dims: float, width: float, blur: float) -> np.ndarray:

@@ -92,7 +92,8 @@ from apt_filters.core.mesh import TriMesh, face_normals, topology, vertex_normal
 from apt_filters.core.threads import on_threads, per_item, serial_blas
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import RangeTable
-from apt_filters.refine.band import Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled
+from apt_filters.refine.band import (EXACT, Band, NearIons, Pairs, adjacency, binned, normal_weight, pooled,
+                                    profile_reach)
 from apt_filters.refine.blur import BlurEstimate, blur_shift, lateral_blur, peak_blur, smoothed_normals
 from apt_filters.refine.composition import ObjectScores, object_scores
 from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelection, apply_modes, basis_size,
@@ -634,14 +635,20 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
     beyond = _beyond_rim(vertices, faces, near, reach, p.distance, shell)
+    # with the levels fixed only the profiles' ions count (binned within half_width): the band leaves out the ions
+    # that cannot be among them (profile_reach), which most of it are; the profiles are the same bit for bit. Not
+    # past an open object's rim (the ions beyond it take offsets of their own, _tangent_beyond)
+    narrow = fixed is not None and p.distance == "mesh" and p.half_width <= EXACT and not beyond.any()
     it = 0
     for it in range(1, p.iterations + 1):
         normals = vertex_normals(vertices, faces)
         for _ in range(p.normal_smoothing):
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        band = _tangent_beyond(near.cover(vertices, reach).band(vertices, normals, reach, p.distance, shell),
-                               beyond, near, vertices, normals, components, reach)
+        within = profile_reach(vertices, faces, p.half_width) if narrow else reach
+        band = _tangent_beyond(near.cover(vertices, reach).band(vertices, normals, min(within, reach), p.distance,
+                                                                shell), beyond, near, vertices, normals, components,
+                               reach)
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
         levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
@@ -905,8 +912,8 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         # on a copy of the first half's ions: a band reassigns the ions it is drawn from, and the later stages
         # must find the halves' ions as the windows' model found them
         near = fits[0].near.subset(np.arange(len(fits[0].near.rows)), fits[0].vertices)
-        estimate = _estimate_blur(near, fits[0].vertices, fits[0].normals, components, scores, p.half_width,
-                                  p.distance)
+        estimate = _estimate_blur(near, near.band(fits[0].vertices, fits[0].normals, p.half_width, p.distance),
+                                  fits[0].normals, components, scores, p.half_width)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     sigma = float(np.sqrt((2 * blur[0] ** 2 + blur[1] ** 2) / 3)) if blur else 0.0
     k = held[0].atoms.elements.index(species)
@@ -1034,41 +1041,39 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     return out, chosen, balls, share, shared
 
 
-def _normalised(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
-                scores: ObjectScores, half_width: float,
-                distance: str) -> tuple[np.ndarray, Band, np.ndarray, np.ndarray]:
-    """The ions within ``half_width`` of a surface with a usable object: (which of the band, the band, their
-    normalised scores ``u`` (0 outside, 1 inside) and atoms)."""
-    band = near.band(vertices, normals, half_width, distance)
+def _normalised(near: NearIons, band: Band, components: np.ndarray,
+                scores: ObjectScores) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ions of ``band`` (of ``near``, within the profiles' ``half_width`` of a surface) with a usable object:
+    (which of the band, their normalised scores ``u`` (0 outside, 1 inside) and atoms)."""
     comp = components[band.vertex]
     use = scores.usable[comp] & (np.abs(scores.inside - scores.outside)[comp] > 0)
     score, total = scores.fraction(near.atoms.atoms[band.index[use]], comp[use])
     keep = np.flatnonzero(use)[total > 0]
     comp, score, total = comp[keep], score[total > 0], total[total > 0]
     u = (score / total - scores.outside[comp]) / (scores.inside - scores.outside)[comp]
-    return keep, band, u, total
+    return keep, u, total
 
 
-def _estimate_blur(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
-                   scores: ObjectScores, half_width: float, distance: str) -> BlurEstimate | None:
-    """:func:`~apt_filters.refine.blur.lateral_blur` from the ions ``near`` a surface."""
-    keep, band, u, total = _normalised(near, vertices, normals, components, scores, half_width, distance)
+def _estimate_blur(near: NearIons, band: Band, normals: np.ndarray, components: np.ndarray, scores: ObjectScores,
+                   half_width: float) -> BlurEstimate | None:
+    """:func:`~apt_filters.refine.blur.lateral_blur` from the ions ``near`` a surface (``band``: those within
+    ``half_width`` of it, ``normals`` its vertices')."""
+    keep, u, total = _normalised(near, band, components, scores)
     nz = normals[band.vertex[keep], 2]
     return lateral_blur(band.distance[keep], u, total, nz ** 2, half_width=half_width)
 
 
-def _segregant(near: NearIons, basis: ConcentrationBasis, vertices: np.ndarray, normals: np.ndarray,
-               components: np.ndarray, scores: ObjectScores, step_errors: np.ndarray, half_width: float,
-               distance: str, blur: bool, marker: bool) -> tuple[BlurEstimate | None, MarkerOffsets | None]:
+def _segregant(near: NearIons, band: Band, basis: ConcentrationBasis, normals: np.ndarray, components: np.ndarray,
+               scores: ObjectScores, step_errors: np.ndarray, half_width: float, blur: bool,
+               marker: bool) -> tuple[BlurEstimate | None, MarkerOffsets | None]:
     """The ranged species left out of ``basis`` (segregants, by the basis's own account) around the objects with
     both plateaus: the blur from their pooled peak's width (:func:`~apt_filters.refine.blur.peak_blur`, if
     ``blur``; None without a peak) and each object's peak centre combined with its step (:func:`marker_offsets`,
     if ``marker``); (None, None) without such species. ``near``: the ions near the surface, with all their
-    species."""
+    species; ``band``: those of them within ``half_width`` of it."""
     left_out = [e for e in basis.exclude if e in near.everything.elements]
     if not left_out or not (blur or marker):
         return None, None
-    band = near.band(vertices, normals, half_width, distance)
     use = scores.usable[components[band.vertex]]
     atoms = near.everything.atoms[band.index[use]].astype(np.float64)
     mark = atoms[:, [near.everything.elements.index(e) for e in left_out]].sum(axis=1)
@@ -1087,8 +1092,8 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
     a corner's few do not). Where that fit fails (its planes no longer close the object, or one turned away), the
     object's ``spare`` facets (component -> the faces its halves found that ``found`` lacks,
     :func:`~apt_filters.refine.facets.missed`) are added and the fit tried again, kept where it holds."""
-    keep, band, u, total = _normalised(placed.near, placed.vertices, placed.normals, components, scores,
-                                       half_width, distance)
+    band = placed.near.band(placed.vertices, placed.normals, half_width, distance)
+    keep, u, total = _normalised(placed.near, band, components, scores)
     vertex = band.vertex[keep]
     comp = components[vertex]
 
@@ -1118,10 +1123,10 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
     return [f for part in per_item(fitted, objects) for f in part]
 
 
-def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
-                   levels: list[ObjectLevels], scores: ObjectScores, widths: np.ndarray, half_width: float,
-                   distance: str) -> np.ndarray:
-    """(c,) nm: counting-statistics standard error of each object's mean offset (``RefineResult.offset_errors``).
+def _offset_errors(near: NearIons, band: Band, components: np.ndarray, levels: list[ObjectLevels],
+                   scores: ObjectScores, widths: np.ndarray) -> np.ndarray:
+    """(c,) nm: counting-statistics standard error of each object's mean offset (``RefineResult.offset_errors``)
+    from the ions of ``band`` (of ``near``, within the profiles' ``half_width`` of the surface).
 
     The score profile of an object is ``m(d) = s_out + (s_in - s_out) Phi(-d / w)`` (its plateaus and
     width); an atom at ``d`` carries ``m'(d)^2 / var(d)`` of information on a shift of the whole surface,
@@ -1132,7 +1137,6 @@ def _offset_errors(near: NearIons, vertices: np.ndarray, normals: np.ndarray, co
     from scipy.special import erfc
 
     n_comp = len(levels)
-    band = near.band(vertices, normals, half_width, distance)
     comp = components[band.vertex]
     total = near.atoms.atoms[band.index].sum(axis=1).astype(np.float64)
     out = np.full(n_comp, np.nan)
@@ -1420,13 +1424,13 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
     along = smoothed_normals(finished, faces, p.normal_smoothing)
     ions_near = placed.near.cover(finished, p.half_width + 1.0)
-    errors = _offset_errors(ions_near, finished, along, components, placed.levels, scores, placed.widths,
-                            p.half_width, p.distance)
-    estimate, marks = _segregant(ions_near, basis, finished, along, components, scores, errors, p.half_width,
-                                 p.distance, auto, p.marker)
+    # one band of the finished shape for its offset errors, the segregant's peak and the step's blur
+    profiles = ions_near.band(finished, along, p.half_width, p.distance)
+    errors = _offset_errors(ions_near, profiles, components, placed.levels, scores, placed.widths)
+    estimate, marks = _segregant(ions_near, profiles, basis, along, components, scores, errors, p.half_width, auto,
+                                 p.marker)
     if auto:
-        estimate = estimate or _estimate_blur(ions_near, finished, along, components, scores, p.half_width,
-                                              p.distance)
+        estimate = estimate or _estimate_blur(ions_near, profiles, along, components, scores, p.half_width)
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
     before = vertices
