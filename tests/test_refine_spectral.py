@@ -711,3 +711,29 @@ def test_a_sharp_box_drawn_from_the_profile_keeps_sharp_edges_and_the_planes_giv
     signed, u = _profile_box_ions(seed, 8000, 0.0)
     shift, rounding = edge_rounding(signed, u, np.ones(len(u)), 0.15)
     assert rounding == 0.0 and np.all(shift == 0.0), (shift, rounding)
+
+
+def test_a_slabs_side_is_placed_by_its_ions_against_its_faces_whatever_level_they_were_scored_by():
+    from apt_filters.refine.facets import Facet, Side, slab_fit
+    from apt_filters.synth import Cylinder
+
+    # a plate of radius 5 nm and 2.5 nm thick whose composition steps over the signed distance to it (an error
+    # function of sigma 0.3 nm), its ions blurred by 0.3 nm; its faces given where they are, its side started
+    # 0.15 nm out (where the refinement's equator stood on dev plate 10038), the scores read with the inside level
+    # right and 6 % low: the side comes back to the truth (measured within 0.02 nm), the level's common part
+    # cancelling against the faces'
+    plate = Cylinder((0.2, -0.3, 0.1), 5.0, 2.5, rotation=33)
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-8.0, 8.0, (1000000, 3))
+    p = p[np.abs(plate.sdf(p)) < 2.5]
+    hit = rng.random(len(p)) < 0.1 + 0.6 * 0.5 * erfc(plate.sdf(p) / (np.sqrt(2) * 0.3))
+    p = p + rng.normal(0.0, 0.3, p.shape)
+    keep = np.abs(plate.sdf(p)) < 1.5
+    p, u = p[keep], ((hit - 0.1) / 0.6)[keep]
+    axis, none = plate.rotation[:, 2], np.zeros(1, dtype=np.int64)
+    faces = tuple(Facet(0, s * axis, s * axis @ plate.center + 1.25, none, none, 50.0, 0.0) for s in (1.0, -1.0))
+    side = Side(plate.center, axis, plate.rotation[:, 0], plate.rotation[:, 1], np.full(64, 5.15))
+    for level in (1.0, 1.06):
+        fitted, rounding = slab_fit(faces, side, p, level * u, np.ones(len(p)), np.hypot(0.3, 0.3))
+        assert abs(fitted.radii.mean() - 5.0) < 0.03, (level, fitted.radii.mean())
+        assert rounding == 0.0

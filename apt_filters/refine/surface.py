@@ -100,7 +100,7 @@ from apt_filters.refine.crossval import (CANDIDATES, ONE_SE, SCORED, ModeSelecti
                                         cross_validated_lengths, cross_validated_modes, object_harmonics,
                                         open_low_pass, open_start)
 from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, facet_frames, facet_steps, find_facets,
-                                      fit_to_ions, judged, missed)
+                                      fit_to_ions, judged, missed, slab_fit, slab_pair, slab_side)
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
@@ -1105,8 +1105,24 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         return fit_to_ions(facets, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[facets[0].component]))
 
+    def slabbed(mine: list, pair: tuple) -> list:
+        """A slab's two facets with its side and rims placed by its ions (:func:`~apt_filters.refine.facets.slab_fit`;
+        its other facets lie on that side, which takes their place), the facets as given where its side does not go
+        round it."""
+        own = components == pair[0].component
+        side = slab_side(pair, placed.vertices[own], placed.normals[own])
+        if side is None:
+            return mine
+        sel = np.flatnonzero(comp == pair[0].component)
+        side, rounding = slab_fit(pair, side, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
+                                  float(placed.widths[pair[0].component]))
+        return [replace(f, side=side, rounding=rounding) for f in pair]
+
     def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
+        pair = slab_pair(mine)
+        if pair is not None:
+            return slabbed(mine, pair)
         if not closes(mine):
             return mine
         out = fit(mine)
@@ -1196,7 +1212,8 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
     """
 
     if lift is not None:
-        found = [replace(f, offset=f.offset + lift[f.component]) for f in found]
+        found = [replace(f, offset=f.offset + lift[f.component],
+                         side=f.side.moved(lift[f.component]) if f.side is not None else None) for f in found]
         lift = np.where(components >= 0, lift[np.maximum(components, 0)], 0.0)
     frames = facet_frames(found)  # what the planes alone fix of the edges and corners: once for every surface
 
