@@ -387,13 +387,14 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
         on_facet[f.core] = True
     if flatten > 0:
         for f in facets:
-            if f.rounding > 0:  # its cores go onto the rounded polyhedron with the rest of it (below)
+            if f.rounding > 0 and f.side is None:  # its cores go onto the rounded polyhedron with the rest (below)
                 continue
             k = normals[f.core] @ f.normal
             step[f.core] = flatten * (f.offset - vertices[f.core] @ f.normal) / np.maximum(k, 0.5)
     for c in sorted({f.component for f in facets}):
         mine = [f for f in facets if f.component == c]
-        if mine[0].rounding > 0:
+        pair = [f for f in mine if f.side is not None]  # a slab's (:func:`slab_fit`): its rims below
+        if mine[0].rounding > 0 and len(pair) != 2:
             # every vertex of a rounded object onto its rounded polyhedron, cores, rims and what stands outside the
             # planes alike: its model is a surface everywhere, and the rims' rules below are the sharp edges'
             # (those outside the planes went onto the sharp planes' envelope, those outside some only stayed:
@@ -404,7 +405,6 @@ def facet_steps(vertices: np.ndarray, faces: np.ndarray, facets: list[Facet], re
                                      normals[idx] @ plane_n.T, mine[0].rounding, max_move)
             continue
         idx = np.flatnonzero((components == c) & ~on_facet)
-        pair = [f for f in mine if f.side is not None]
         if len(pair) == 2 and len(idx):  # a slab's rims: onto its two planes and its side (:func:`slab_fit`)
             step[idx] = _slab_steps(vertices[idx], normals[idx], pair, min_cos, max_move)
             continue
