@@ -211,7 +211,9 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                 near = None
         record.raw_area = mesh.area()
         s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
-                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
+                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else "")
+                     + (f"; delocalization x{scale.factor:.2f} for its noise" if record.noise_scale
+                        and scale.factor > 1.0 else ""))
     if config.refine.enabled and surface.species:
         with step("refine") as s:
             r = config.refine
