@@ -179,8 +179,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     from apt_filters.refine.segregants import segregant_ions
     from apt_filters.refine.thin import add_thin_objects
     from apt_filters.remesh import remesh
-    from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
-    from apt_filters.voxel.noise import noise_scale
+    from apt_filters.voxel import ConcentrationBasis
+    from apt_filters.voxel.noise import noise_limited_fields
 
     config = PipelineConfig() if config is None else config
     basis = ConcentrationBasis(tuple(config.voxel.exclude), config.voxel.include_unranged) if basis is None else basis
@@ -199,13 +199,10 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             near = None  # another mesh: the speck test selects its own ions
         if surface.species and fields.kernel == "gaussian":
             # a wide low-contrast interface is drawn at the delocalization its noise allows (voxel.noise)
-            scale = noise_scale(fields, mask, ions, ranges, surface.species, surface.iso, basis=surface_basis)
+            fields, mask, scale = noise_limited_fields(fields, mask, ions, ranges, surface.species, surface.iso,
+                                                       basis=surface_basis)
             record.noise_scale = dataclasses.asdict(scale)
             if scale.factor > 1.0:
-                fields = voxelize(ions, ranges, kernel=fields.kernel, voxel=fields.grid.voxel, species=fields.kind,
-                                  delocalization=tuple(scale.factor * d for d in fields.delocalization),
-                                  basis=fields.basis, efficiency=fields.efficiency)
-                mask = inside_mask(fields).dense()
                 mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
                                        basis=surface_basis)
                 near = None
