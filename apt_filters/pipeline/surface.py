@@ -80,6 +80,9 @@ class SurfaceRecord:
     ----------
     raw_area : float
         Area of the contoured surface, nm².
+    noise_scale : dict or None
+        The growth of the delocalization the surface's noise asked for (:class:`~apt_filters.voxel.noise.NoiseScale`;
+        None for a density surface or a kernel other than gaussian).
     refine : dict or None
         Specks removed and the refinement's figures (None where the surface was not refined).
     remesh : dict or None
@@ -94,6 +97,7 @@ class SurfaceRecord:
     """
 
     raw_area: float = 0.0
+    noise_scale: dict | None = None
     refine: dict | None = None
     remesh: dict | None = None
     warnings: list[str] = field(default_factory=list)
@@ -101,7 +105,8 @@ class SurfaceRecord:
     refined: object = None
 
     def as_dict(self, mesh: TriMesh) -> dict:
-        return {"raw_area_nm2": self.raw_area, "refine": self.refine, "remesh": self.remesh, "faces": mesh.n_faces,
+        return {"raw_area_nm2": self.raw_area, "noise_scale": self.noise_scale, "refine": self.refine,
+                "remesh": self.remesh, "faces": mesh.n_faces,
                 "vertices": mesh.n_vertices, "area_nm2": mesh.area(), "boundary_edges": len(mesh.boundary_edges())}
 
 
@@ -175,6 +180,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     from apt_filters.refine.thin import add_thin_objects
     from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis
+    from apt_filters.voxel.noise import noise_limited_fields
 
     config = PipelineConfig() if config is None else config
     basis = ConcentrationBasis(tuple(config.voxel.exclude), config.voxel.include_unranged) if basis is None else basis
@@ -191,9 +197,20 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
             mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
                                    basis=surface_basis)
             near = None  # another mesh: the speck test selects its own ions
+        if surface.species and fields.kernel == "gaussian":
+            # a wide low-contrast interface is drawn at the delocalization its noise allows (voxel.noise)
+            fields, mask, scale = noise_limited_fields(fields, mask, ions, ranges, surface.species, surface.iso,
+                                                       basis=surface_basis)
+            record.noise_scale = dataclasses.asdict(scale)
+            if scale.factor > 1.0:
+                mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
+                                       basis=surface_basis)
+                near = None
         record.raw_area = mesh.area()
         s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
-                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else ""))
+                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else "")
+                     + (f"; delocalization x{scale.factor:.2f} for its noise" if record.noise_scale
+                        and scale.factor > 1.0 else ""))
     if config.refine.enabled and surface.species:
         with step("refine") as s:
             r = config.refine
