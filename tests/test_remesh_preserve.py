@@ -539,3 +539,15 @@ def test_a_check_of_some_components_is_that_of_all_for_them():
     for only in ([False, True], [True, False]):
         some = verify.check_components(mesh, pushed, comp, owner, edge=EDGE, only=np.array(only))
         assert some == [everything[int(np.flatnonzero(only)[0])]]
+
+
+def test_a_rim_pinched_at_a_vertex_counts_as_two_loops():
+    """Was: a wide interface's disc came out of the remesher with its rim touching itself at one vertex (a
+    non-manifold vertex; Euler characteristic 1 as the disc's) and passed the check, which counted the boundary's
+    connected pieces (one): two triangles sharing a corner are a disc's Euler characteristic with two rims."""
+    square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    disc = TriMesh(square, np.array([[0, 1, 2], [0, 2, 3]]))
+    pinched = TriMesh(np.vstack([square, [[2.0, 1, 0], [2, 2, 0]]]), np.array([[0, 1, 2], [2, 4, 5]]))
+    for mesh, loops in ((disc, 1), (pinched, 2)):
+        chi, counted = verify.euler_and_loops(mesh, np.zeros(mesh.n_faces, np.int64), 1)
+        assert (int(chi[0]), int(counted[0])) == (1, loops)

@@ -66,8 +66,10 @@ class ComponentCheck:
 def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(k,) Euler characteristic V - E + F and (k,) number of boundary loops of each face group.
 
-    ``component`` (f,) assigns every face to a group 0 .. k-1 (-1: left out). Boundary loops are
-    the connected pieces of the boundary-edge graph (:attr:`Topology.boundary_pieces`).
+    ``component`` (f,) assigns every face to a group 0 .. k-1 (-1: left out). Boundary loops are the
+    circles of the boundary-edge graph (:attr:`Topology.boundary_loops`): a rim that touches itself at a vertex
+    counts two, so an output pinched there (a non-manifold vertex, Euler characteristic unchanged: a wide
+    interface's disc came out so) fails the check, where its connected pieces (one) passed it.
     """
     chi, loops = np.zeros(k, np.int64), np.zeros(k, np.int64)
     order = np.argsort(component, kind="stable")
@@ -78,7 +80,7 @@ def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.nd
         faces = mesh.faces[part]
         topo = topology(faces, mesh.n_vertices)
         chi[j] = len(np.unique(faces)) - len(topo.edge_vertices) + len(faces)
-        loops[j] = topo.boundary_pieces[0]
+        loops[j] = topo.boundary_loops
     return chi, loops
 
 
