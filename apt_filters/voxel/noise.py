@@ -98,11 +98,7 @@ def noise_scale(fields, mask: np.ndarray, ions, ranges, species: str, iso: float
     from apt_filters.voxel.fields import voxelize
 
     c = fields.concentration(species, basis).dense()
-    halves = np.random.default_rng(seed).random(len(ions)) < 0.5
-    parts = [voxelize(ions.subset(np.flatnonzero(h)), ranges, grid=fields.grid, kernel=fields.kernel,
-                      delocalization=fields.delocalization, species=fields.kind, basis=fields.basis
-                      ).concentration(species, basis).dense() for h in (halves, ~halves)]
-    valid = mask & np.isfinite(c) & np.isfinite(parts[0]) & np.isfinite(parts[1])
+    valid = mask & np.isfinite(c)
     sigma = np.asarray(fields.delocalization) / 3.0 / fields.grid.voxel  # voxels
     locator = gaussian_filter(np.where(valid, c, iso), sigma * np.sqrt(3.0))  # variances add: twice the kernel
     above = locator > iso
@@ -120,7 +116,13 @@ def noise_scale(fields, mask: np.ndarray, ions, ranges, species: str, iso: float
     open_at_edge = set(np.unique(layers[binary_dilation(~mask, iterations=2)]).tolist())
     across = [k + 1 for k, box in enumerate(find_objects(layers))
               if k + 1 in open_at_edge and sum(s.stop - s.start >= e / 2 for s, e in zip(box, extent)) >= 2]
-    near = np.isin(layers, across)
+    if not across:  # closed objects only: the halves are not voxelized (two passes over the ions saved)
+        return NoiseScale(1.0, float("inf"), float("nan"), 0)
+    halves = np.random.default_rng(seed).random(len(ions)) < 0.5
+    parts = [voxelize(ions.subset(np.flatnonzero(h)), ranges, grid=fields.grid, kernel=fields.kernel,
+                      delocalization=fields.delocalization, species=fields.kind, basis=fields.basis
+                      ).concentration(species, basis).dense() for h in (halves, ~halves)]
+    near = np.isin(layers, across) & np.isfinite(parts[0]) & np.isfinite(parts[1])
     n = int(near.sum())
     if n < 2:
         return NoiseScale(1.0, float("inf"), float("nan"), n)
