@@ -117,6 +117,19 @@ def test_a_window_counted_nearer_is_short_of_its_plateau_only_where_the_fitted_s
                                                             "plateaus": [sharp]}]}) if "counted from" in w]
 
 
+def test_a_surface_contoured_at_a_grown_delocalization_says_so_and_why():
+    grown = {"factor": 1.97, "ratio": 3.41, "needed": 3.33, "voxels": 1100, "limited": False}
+    words = warnings_in_words({"surfaces": [{"label": "Mg 10 %", "mesh": {"noise_scale": grown}, "summary": []}]})
+    assert any(w.startswith("Mg 10 %: contoured at 1.97× the delocalization") and "3.33" in w and "folds." not in w
+               for w in words), words
+    limited = warnings_in_words({"surfaces": [{"label": "Mg 10 %", "summary": [],
+                                               "mesh": {"noise_scale": grown | {"factor": 2.0, "limited": True}}}]})
+    assert any("may hold folds" in w for w in limited), limited
+    kept = {"factor": 1.0, "ratio": 12.0, "needed": 3.3, "voxels": 900, "limited": False}
+    assert not [w for w in warnings_in_words({"surfaces": [{"label": "Mg 10 %", "mesh": {"noise_scale": kept},
+                                                            "summary": []}]}) if "delocalization" in w]
+
+
 def test_summary_keeps_interior_and_edge_objects_apart_and_pools_them_as_all_objects():
     counts = np.zeros((3, 6, 2), np.int64)
     counts[:, :3] = [100, 0]

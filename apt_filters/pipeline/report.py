@@ -234,6 +234,15 @@ def warnings_in_words(report: dict) -> list[str]:
             out.append(f"{label}: {n} of {test.get('components_tested', n)} pieces removed before refinement as "
                        f"specks: their ions differ across them no more than noise does at this iso-value "
                        f"(family-wise p > {test.get('alpha', 0.001):g}); not in the tables.")
+        grown = mesh.get("noise_scale") or {}
+        if grown.get("factor", 1.0) > 1.0:
+            out.append(f"{label}: contoured at {grown['factor']:.2f}× the delocalization: at the one given, this "
+                       "interface's counting noise outran its gradient and its contour folded into handles and "
+                       f"tunnels (gradient-to-noise ratio {grown['ratio']:.2f} at the grown kernel, "
+                       f"{grown['needed']:.2f} keeps one sheet over its {grown['voxels']} voxels); the composition, "
+                       "proxigram and excess are counted from the ions as always."
+                       + (" Still short at the largest growth: the surface may hold folds." if grown.get("limited")
+                          else ""))
         if mesh.get("objects_dropped"):
             out.append(f"{label}: {mesh['objects_dropped']} object(s) enclosing no ion left out of the tables.")
         thin = mesh.get("objects_without_excess") or []
