@@ -210,6 +210,26 @@ def test_excess_of_a_flat_gaussian_shell_is_analytic():
     assert gamma == pytest.approx(85.0 * 0.05 * 0.4 * math.sqrt(2 * math.pi) * 0.9 * (1 + 0.4**2 / 9), rel=1e-6)
 
 
+def test_an_open_interfaces_undefined_excess_is_written_as_null_with_its_reason(tmp_path):
+    """Was: write_specimen of a curved interface across the specimen (the zoo's `curved` family) wrote the ions,
+    range file and meshes and then failed on truth.json: its excess per area is not defined (NaN)."""
+    from apt_filters.synth.implicit import SphereInterface
+
+    comp, inside = {"Al": 0.9, "Mg": 0.09, "Si": 0.01}, {"Al": 0.85, "Mg": 0.14, "Si": 0.01}
+    box = Box((24.0, 24.0, 40.0))  # the zoo's draw 10072, at a tenth of its efficiency
+    spec = SpecimenSpec(box, comp, (Feature(SphereInterface(box, (11.0, -9.5, -54.45), 40.07, convex=True), inside,
+                                            2.15, (Segregation("Si", 0.047, 0.35, 0.18),), "curved interface"),),
+                        efficiency=0.04)
+    write_specimen(tmp_path, spec, seed=1, keep_ions=False)
+
+    def refuse(word):
+        raise ValueError(word)
+
+    truth = json.loads((tmp_path / "truth.json").read_text(), parse_constant=refuse)  # strict JSON
+    excess = truth["features"][0]["excess"]["Si"]
+    assert excess["atoms_per_nm2"] is None and excess["atoms_per_nm2_null"] == "NaN: not defined"
+
+
 def test_truth_volumes_and_areas_match_monte_carlo_and_meshes(small):
     specimen, _ = small
     rng = np.random.default_rng(8)

@@ -15,7 +15,6 @@ plus 17 bytes per ion kept in memory (positions, m/z, species) when ``keep_ions`
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from apt_filters.core import jsontext
 from apt_filters.core.atomic import atomic_output, atomic_write_text
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
@@ -256,7 +256,7 @@ def write_specimen(outdir: str | os.PathLike, spec: model.SpecimenSpec, seed: in
     for feature, mesh in zip(result.truth["features"], result.meshes):
         write_ply(mesh, out / feature["mesh"]["file"], quality=None, cmap=None, overwrite=overwrite)
     result.truth["files"] = {"pos": names[0], "rrng": names[1], "meshes": names[3:]}
-    atomic_write_text(out / "truth.json", json.dumps(result.truth, indent=1, allow_nan=False) + "\n", overwrite)
+    atomic_write_text(out / "truth.json", jsontext.dumps(result.truth, indent=1) + "\n", overwrite)
     return result
 
 
