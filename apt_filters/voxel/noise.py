@@ -31,6 +31,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import binary_dilation, find_objects, gaussian_filter, label
+from scipy.stats import norm
+
+from apt_filters.voxel.fields import voxelize
+from apt_filters.voxel.mask import inside_mask
 
 GROWTH = 1.5
 """Exponent of ``R``'s growth with the delocalization a step assumes (module docstring)."""
@@ -92,11 +97,6 @@ def noise_scale(fields, mask: np.ndarray, ions, ranges, species: str, iso: float
     seed : int
         Of the random split (the result is reproducible).
     """
-    from scipy.ndimage import binary_dilation, find_objects, gaussian_filter, label
-    from scipy.stats import norm
-
-    from apt_filters.voxel.fields import voxelize
-
     c = fields.concentration(species, basis).dense()
     valid = mask & np.isfinite(c)
     sigma = np.asarray(fields.delocalization) / 3.0 / fields.grid.voxel  # voxels
@@ -145,9 +145,6 @@ def noise_limited_fields(fields, mask: np.ndarray, ions, ranges, species: str, i
     Parameters are those of :func:`noise_scale`; the returned mask is :func:`~apt_filters.voxel.inside_mask` of
     the returned fields (dense).
     """
-    from apt_filters.voxel.fields import voxelize
-    from apt_filters.voxel.mask import inside_mask
-
     given, total = fields.delocalization, 1.0
     for step in range(STEPS + 1):
         scale = noise_scale(fields, mask, ions, ranges, species, iso, basis=basis)
