@@ -551,3 +551,50 @@ def test_a_rim_pinched_at_a_vertex_counts_as_two_loops():
     for mesh, loops in ((disc, 1), (pinched, 2)):
         chi, counted = verify.euler_and_loops(mesh, np.zeros(mesh.n_faces, np.int64), 1)
         assert (int(chi[0]), int(counted[0])) == (1, loops)
+
+
+
+@pytest.mark.parametrize("rounds", [7, 8])
+def test_a_mend_that_goes_round_a_cycle_skips_it_to_the_same_end(monkeypatch, rounds):
+    """A mend whose rounds go round a cycle (the zoo cuboid's moved one corner back and forth between two misses,
+    4-5 rounds at each floor) skips the whole cycles left (``mend._digest`` of each round's mesh and misses) and
+    ends exactly where running every round ends: vertices, faces, components, parents, origins and done, with
+    fewer rounds measured, for an odd and an even number of rounds. Here each round moves one output vertex of a
+    sphere 0.4 edge out where it is in, and in where it is out (its misses measured as the mend measures them)."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh import mend as module
+
+    mesh, out, comp, owner = _two_spheres_remeshed()
+    v = out.faces[owner == 0][0, 0]
+    normal, base = out.vertex_normals()[v], out.vertices[v].copy()
+    measured = []
+    measure = module._misses
+
+    def counted(*args, **kwargs):
+        measured.append(1)
+        return measure(*args, **kwargs)
+
+    def toggle(vertices, faces, component, parent, where, to, edge, floor):
+        vertices = vertices.copy()
+        outward = np.dot(vertices[v] - base, normal) > 0
+        vertices[v] = base + (-0.4 if outward else 0.4) * EDGE * normal
+        return vertices, faces.copy(), component, parent, (faces == v).any(axis=1)
+
+    def mended():
+        measured.clear()
+        m = module.mend(mesh, out, comp, owner, np.array([0]), edge=EDGE, tolerance=0.25,
+                        surface=SurfaceDistance(mesh))
+        return m, len(measured)
+
+    monkeypatch.setattr(module, "MEND_ROUNDS", rounds)
+    monkeypatch.setattr(module, "_misses", counted)
+    monkeypatch.setattr(module, "_insert", toggle)
+    out = out.copy()
+    out.vertices[v] += 0.4 * EDGE * normal  # a first try that misses there
+    skipped, fewer = mended()
+    unique = iter(range(1 << 30))
+    monkeypatch.setattr(module, "_digest", lambda *arrays: next(unique))  # no state is ever met again
+    whole, every = mended()
+    assert fewer < every
+    for field in ("vertices", "faces", "component", "parent", "origin", "done"):
+        assert np.array_equal(getattr(skipped, field), getattr(whole, field)), field
