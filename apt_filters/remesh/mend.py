@@ -19,12 +19,13 @@ characteristic and the boundary loops as they were, so topology holds by constru
 where a face would fold, lose its area, get an angle under ``ANGLE_FLOORS`` or cross another face; where a
 rim split cannot be made, an ear of the rim is dropped instead (:func:`_drop_ear`). The split faces' edges
 are then flipped to Delaunay (flat edges only, those of the mended faces only), and the whole is measured
-again, ``MEND_ROUNDS`` times at most. The caller checks the result (:func:`verify.check_components`) and,
-where it still fails, remeshes the component again as before.
+again, ``MEND_ROUNDS`` times at most; a mend that comes back to an earlier round's mesh and misses ends at
+that cycle's state with the fewest misses over the tolerance. The caller checks the result
+(:func:`verify.check_components`) and, where it still fails, remeshes the component again as before.
 
 Cost: per round, the check's distances (:func:`verify.farthest`) of the faces the last round can have made miss
 (:func:`_changed`; all of the components mended in the first; none once a round comes back to an earlier
-round's mesh and misses: the cycles left are skipped), an engine over the
+round's mesh and misses: the mend ends in that cycle), an engine over the
 output for the input's misses, and per change a scan of the faces (a few hundred changes at most).
 """
 
