@@ -149,12 +149,11 @@ def _mend(source: TriMesh, result: TriMesh, in_mask: np.ndarray, result_componen
             # it ends at the cycle's state with the fewest misses over the tolerance, the one the last round would
             # have reached where none has fewer (the zoo cuboid's ended at 1 miss of 0.144 nm, its other state had
             # none, and it was remeshed again whole)
-            first = states[state]
-            period = round_ - first
-            at = first + (MEND_ROUNDS - first) % period
-            best = min(range(first, round_), key=lambda r: (over[r], r != at))
+            begin = states[state]
+            at = begin + (MEND_ROUNDS - begin) % (round_ - begin)
+            best = min(range(begin, round_), key=lambda r: (over[r], r != at))
             states.clear()
-            last = round_ + best - first
+            last = round_ + best - begin
             if round_ == last:
                 break
         states[state] = round_
