@@ -551,3 +551,74 @@ def test_a_rim_pinched_at_a_vertex_counts_as_two_loops():
     for mesh, loops in ((disc, 1), (pinched, 2)):
         chi, counted = verify.euler_and_loops(mesh, np.zeros(mesh.n_faces, np.int64), 1)
         assert (int(chi[0]), int(counted[0])) == (1, loops)
+
+
+
+
+def _toggling_mend(monkeypatch, rounds: int, heights: tuple):
+    """A mend of two spheres' remesh whose rounds go round a cycle: one output vertex of sphere 0, pushed
+    ``heights[1]`` edge out of its sphere, is moved by each round to ``heights[0]`` edge out where it is at
+    ``heights[1]``, and back (its misses measured as the mend measures them), ``rounds`` rounds at most. Returns a
+    call that mends and gives the result and the number of measures, the vertex and where it is at each height."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh import mend as module
+
+    mesh, out, comp, owner = _two_spheres_remeshed()
+    v = out.faces[owner == 0][0, 0]
+    normal, base = out.vertex_normals()[v], out.vertices[v].copy()
+    at = [base + h * EDGE * normal for h in heights]
+    measured = []
+    measure = module._misses
+
+    def counted(*args, **kwargs):
+        measured.append(1)
+        return measure(*args, **kwargs)
+
+    def toggle(vertices, faces, component, parent, where, to, edge, floor):
+        vertices = vertices.copy()
+        vertices[v] = at[0] if np.array_equal(vertices[v], at[1]) else at[1]
+        return vertices, faces.copy(), component, parent, (faces == v).any(axis=1)
+
+    monkeypatch.setattr(module, "MEND_ROUNDS", rounds)
+    monkeypatch.setattr(module, "_misses", counted)
+    monkeypatch.setattr(module, "_insert", toggle)
+    out = out.copy()
+    out.vertices[v] = at[1]
+
+    def mended():
+        measured.clear()
+        m = module.mend(mesh, out, comp, owner, np.array([0]), edge=EDGE, tolerance=0.25,
+                        surface=SurfaceDistance(mesh))
+        return m, len(measured)
+
+    return mended, v, at
+
+
+@pytest.mark.parametrize("rounds", [7, 8])
+def test_a_mend_that_goes_round_a_cycle_skips_it_to_the_same_end(monkeypatch, rounds):
+    """A mend whose rounds go round a cycle (the zoo cuboid's moved one corner back and forth between two misses)
+    skips the whole cycles left (``mend._digest`` of each round's mesh and misses) and, where its states have as
+    many misses over the tolerance (a vertex 0.22 and 0.4 edge out: one each), ends exactly where running every
+    round ends: vertices, faces, components, parents, origins and done, with fewer rounds measured, for an odd
+    and an even number of rounds."""
+    from apt_filters.remesh import mend as module
+
+    mended, _, _ = _toggling_mend(monkeypatch, rounds, (0.22, 0.4))
+    skipped, fewer = mended()
+    unique = iter(range(1 << 30))
+    monkeypatch.setattr(module, "_digest", lambda *arrays: next(unique))  # no state is ever met again
+    whole, every = mended()
+    assert fewer < every
+    for field in ("vertices", "faces", "component", "parent", "origin", "done"):
+        assert np.array_equal(getattr(skipped, field), getattr(whole, field)), field
+
+
+@pytest.mark.parametrize("rounds", [7, 8])
+def test_a_mend_that_goes_round_a_cycle_ends_at_its_state_with_fewest_misses(monkeypatch, rounds):
+    """A cycle of rounds between a vertex 0.2 edge out (a miss of 0.124 nm: over the mend's 0.1, under the
+    check's 0.125) and 0.4 edge out (a miss of 0.223 nm): the mend ends at 0.2 edge whichever state the last
+    round would have reached, with no miss over the tolerance (main ended at 0.4 after an even number of rounds,
+    not done, and the component was remeshed again whole: the zoo cuboid's mend so, at both floors)."""
+    mended, v, at = _toggling_mend(monkeypatch, rounds, (0.2, 0.4))
+    m, _ = mended()
+    assert m.done and np.array_equal(m.vertices[v], at[0])
