@@ -421,6 +421,28 @@ def test_the_closest_face_is_the_rules_whatever_the_order_of_the_search():
     assert len(_signed_in_cells.signatures) == 1
 
 
+def test_an_engine_built_for_a_reach_has_coarser_cells_and_finds_the_same_distances():
+    """With ``reach`` the grid's cells are at least half of it and each home one cell (a quarter less CPU for the
+    ions within 3-4 nm of a remeshed surface); every selected row, distance, face and rim flag is the one the
+    engine of the default grid (twice the median edge, homes of two cells) finds, bit for bit."""
+    from apt_filters.core.distance import _REACH_CELL, SurfaceDistance
+    from apt_filters.core.nearby import select_near
+    from tests.proxigram_specimens import icosphere
+
+    mesh = icosphere(4.0, 4)  # edges about 0.3 nm: the default cell is far below the reach's
+    reach = 3.0
+    engine, plain = SurfaceDistance(mesh, reach=reach), SurfaceDistance(mesh)
+    assert engine.grid.cell >= reach * _REACH_CELL > 2 * plain.grid.cell and (engine.home, plain.home) == (1, 2)
+    rng = np.random.default_rng(5)
+    positions = rng.uniform(-8, 8, size=(40_000, 3)).astype(np.float32)
+    for distances in (True, 2.0):
+        a = select_near(positions, engine, reach, distances=distances)
+        b = select_near(positions, plain, reach, distances=distances)
+        assert len(a.rows) > 10_000 and np.array_equal(a.rows, b.rows)
+        assert np.array_equal(a.distance, b.distance, equal_nan=True) and np.array_equal(a.face, b.face)
+        assert np.array_equal(a.on_boundary, b.on_boundary)
+
+
 def test_reach_grid_leaves_the_cells_within_the_inner_distance_unmeasured():
     """A shell (3, 4] nm as the segregant search asks: coarse cells proved nearer than 3 nm are :data:`CORE` (their
     fine centres not measured, every ion of them searched, as each is nearer than 3 nm); the selection keeps the
