@@ -453,6 +453,29 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
 
 
+def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interface():
+    from apt_filters.refine.facets import edge_rounding
+
+    # exact truth: a 4.1 x 4.7 x 3.9 nm cube under an interface as wide as a third of it (error function of the
+    # distance to the cube, sigma 0.8 nm, then a 0.25 nm blur): the profile's planes fitted from their true places
+    # stay there. The interface's offset is one draw for every plane, so the planes other than an ion's nearest two
+    # take only the blur's share off it; with steps of the whole width each (main) the inside read 1-4 % low and
+    # the planes moved out by 0.046-0.057 nm on average (seeds 0-2; measured here 0.003-0.015)
+    for seed in (0, 1):
+        box = Cuboid((0.3, -0.2, 0.1), (4.1, 4.7, 3.9), rotation=27)
+        rng = np.random.default_rng(seed)
+        p = rng.uniform(-6.0, 6.0, (150000, 3))
+        hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
+        p = p + rng.normal(0.0, 0.25, p.shape)
+        keep = np.abs(box.sdf(p)) < 2.5
+        p, u = p[keep], ((hit - 0.05) / 0.85)[keep]
+        normals = np.array([s * box.rotation.T[k] for k in range(3) for s in (1, -1)])
+        offsets = normals @ box.center + np.repeat(np.array(box.size) / 2, 2)
+        shift, rounding = edge_rounding(p @ normals.T - offsets, u, np.ones(len(u)), float(np.hypot(0.8, 0.25)))
+        assert rounding == 0.0
+        assert abs(shift.mean()) < 0.025 and np.abs(shift).max() < 0.06, (seed, shift)
+
+
 def test_rounding_fits_stop_when_a_parameter_held_at_its_bound_stops_them_moving(monkeypatch):
     import itertools
 
@@ -474,7 +497,9 @@ def test_rounding_fits_stop_when_a_parameter_held_at_its_bound_stops_them_moving
     shift, rounding = facets.edge_rounding(signed, u, np.ones(len(u)), 0.3)
     assert rounding == 0.0 and np.all(shift == 0.0)  # sharp: the planes as given
     share_fit = next(list(g) for free, g in itertools.groupby(calls, key=lambda c: c[0]) if free[1])
-    assert share_fit[-1][1] == 1.0 and len(share_fit) <= 6, share_fit  # measured 5 (main: 10)
+    # at its bound, or within 0.01 of it where the ions' misfit is flat there (the other planes' steps are blurred
+    # by the blur's share alone, so near 1 the share barely changes the model: measured 0.992 in 6 evaluations)
+    assert share_fit[-1][1] >= 0.99 and len(share_fit) <= 6, share_fit  # measured 5 at 1.0 before that (main: 10)
 
 
 def _differences(signed, shift, rounding, share, width, h=1e-6):
