@@ -12,6 +12,7 @@ from apt_filters.analysis.objects import ions_in_objects, object_table
 from apt_filters.analysis.proxigram import compute_proxigram
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.hull import SpecimenHull
+from apt_filters.core.nearby import select_near
 from apt_filters.pipeline.surface import analysis_ions, contour_surface
 from apt_filters.synth import generate, preset
 from apt_filters.voxel import inside_mask, voxelize
@@ -56,3 +57,23 @@ def test_ions_in_objects_covers_every_ion_the_table_counts(specimen):
     only = object_table(mesh, sp.ions.subset(kept), sp.ranges, specimen=SpecimenHull.from_points(sp.ions.positions))
     assert [o.n_ions for o in only.objects] == [o.n_ions for o in table.objects]
     assert kept.mean() < 0.5  # the objects' voxels, not the specimen
+
+
+def test_the_lean_selection_keeps_the_full_selections_ions_and_distances(specimen, tmp_path):
+    """analysis_ions keeps no rows nor float64 positions: the table and the distances the analyses read are the
+    full selection's, bit for bit, also read chunk by chunk from a memory map."""
+    sp, mesh = specimen
+    near, measured = analysis_ions(sp.ions, mesh, reach=3.0)
+    full = select_near(sp.ions.positions, mesh, 3.0, also=ions_in_objects(mesh), carry=(sp.ions.mz,))
+    assert near.positions.dtype == np.float32 and np.array_equal(near.positions, sp.ions.positions[full.rows])
+    assert np.array_equal(near.mz, full.carried[0])
+    mapped = np.memmap(tmp_path / "xyz", np.float32, "w+", shape=sp.ions.positions.shape)
+    mapped[:] = sp.ions.positions
+    chunked = select_near(mapped, mesh, 3.0, chunk=4096, also=ions_in_objects(mesh), carry=(mapped,), lean=True)
+    for lean in (measured, chunked):
+        assert lean.rows is None and lean.positions is None and lean.face.dtype == np.int32
+        for name in ("distance", "face", "on_boundary"):
+            assert np.array_equal(getattr(lean, name), getattr(full, name), equal_nan=True)
+    assert np.array_equal(chunked.carried[0], near.positions)
+    with pytest.raises(ValueError, match="lean"):
+        measured.within(mesh, 2.0)

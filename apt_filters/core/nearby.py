@@ -35,14 +35,14 @@ class NearSurface:
     Attributes
     ----------
     rows : (b,) int64
-        Rows of the ions in the table they were selected from, increasing.
+        Rows of the ions in the table they were selected from, increasing (None when selected ``lean``).
     positions : (b, 3) float64
-        Their positions, nm.
+        Their positions, nm (None when selected ``lean``).
     distance : (b,) float32
         Signed distance to the mesh they were selected against (nm, positive along the normals,
         :mod:`apt_filters.core.distance`).
     face : (b,) int64
-        Triangle holding each ion's closest point.
+        Triangle holding each ion's closest point (int32 when selected ``lean``).
     reach : float
         Selection distance, nm.
     anchor : (n, 3) float64
@@ -55,8 +55,8 @@ class NearSurface:
         surface, so its side is no phase's (False where no distance was searched).
     """
 
-    rows: np.ndarray
-    positions: np.ndarray
+    rows: np.ndarray | None
+    positions: np.ndarray | None
     distance: np.ndarray
     face: np.ndarray
     reach: float
@@ -85,6 +85,8 @@ class NearSurface:
 
         Raises ``ValueError`` when the selection cannot vouch for completeness (:meth:`covers`).
         """
+        if self.positions is None:
+            raise ValueError("a lean selection keeps no positions to measure again")
         if not self.covers(mesh, reach, moved):
             raise ValueError(f"ions were selected within {self.reach:g} nm; {reach:g} nm of a surface moved by "
                              f"{self.moved(mesh.vertices) if moved is None else moved:g} nm needs a new selection")
@@ -255,7 +257,7 @@ def _classify(points, origin, cell, state, coarse, fine, reach, inner, eps, out,
 
 def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: float,
                 chunk: int = CHUNK, *, also: Callable[[np.ndarray], np.ndarray] | None = None,
-                carry: tuple[np.ndarray, ...] = (), distances: bool | float = True) -> NearSurface:
+                carry: tuple[np.ndarray, ...] = (), distances: bool | float = True, lean: bool = False) -> NearSurface:
     """The rows of ``positions`` within ``reach`` nm of a mesh, in one streamed pass.
 
     Parameters
@@ -282,11 +284,17 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         grid proves between ``x`` and ``reach`` get only their side (distance +-inf, face -1). The rows
         are the same in every case; in every case the ions the grid proves farther than ``reach`` are not
         searched.
+    lean : bool
+        Keep only what a pass over the selection with its measured distances reads (the proxigram's): distance,
+        face (int32) and rim flag, not the rows nor the positions as float64 (carry the table's own positions to
+        keep them in their dtype). :attr:`NearSurface.rows` and :attr:`NearSurface.positions` are then None, and
+        :meth:`NearSurface.within` cannot be asked.
 
     Returns
     -------
     NearSurface
-        Memory: 48 bytes per selected ion, and those of the carried columns.
+        Memory: 45 bytes per selected ion (9 when ``lean``), and those of the carried columns; while the result is
+        joined, one column's chunks beside it.
     """
     engine = mesh if isinstance(mesh, SurfaceDistance) else SurfaceDistance(mesh, reach=reach)
     closed = engine.mesh.n_faces > 0 and not engine.topology.boundary_vertex.any()
@@ -298,7 +306,7 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
     grid = ReachGrid.of(engine, reach, inner=exact if side_only else 0.0, cell=ION_CELL if unsearched else FAR_CELL) \
         if engine.mesh.n_faces else None
     rows, points, dist, face = [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros(0, np.float32)], \
-        [np.zeros(0, np.int64)]
+        [np.zeros(0, np.int32 if lean else np.int64)]
     rim = [np.zeros(0, bool)]
     carried = [[np.zeros((0, *np.shape(c)[1:]), np.asarray(c[:0]).dtype)] for c in carry]
     for start in range(0, len(positions), chunk):
@@ -323,13 +331,23 @@ def select_near(positions: np.ndarray, mesh: TriMesh | SurfaceDistance, reach: f
         near = within | (np.abs(d) <= reach)
         held = np.flatnonzero(near if extra is None else near | extra[look])
         keep, d, f, r = look[held], d[held], f[held], r[held]
-        rows.append(start + keep)
-        points.append(part[keep].astype(np.float64))
+        if not lean:
+            rows.append(start + keep)
+            points.append(part[keep].astype(np.float64))
         dist.append(d)
-        face.append(f)
+        face.append(f.astype(np.int32) if lean else f)
         rim.append(r)
         for column, out in zip(carry, carried):
             out.append(np.asarray(column[start:start + chunk])[keep])
-    return NearSurface(np.concatenate(rows), np.concatenate(points), np.concatenate(dist), np.concatenate(face),
-                       float(reach), engine.mesh.vertices.copy(), tuple(np.concatenate(c) for c in carried),
-                       np.concatenate(rim))
+    # column by column, each column's chunks let go once joined: the peak is the result and one column's chunks
+    rows, points = (None, None) if lean else (_joined(rows), _joined(points))
+    dist, face, rim = _joined(dist), _joined(face), _joined(rim)
+    return NearSurface(rows, points, dist, face, float(reach), engine.mesh.vertices.copy(),
+                       tuple(_joined(c) for c in carried), rim)
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """The arrays of ``parts`` concatenated; ``parts`` is emptied, so that they are freed as soon as joined."""
+    out = np.concatenate(parts)
+    parts.clear()
+    return out

@@ -171,7 +171,7 @@ def _ranged_near(ions: IonTable, ranges: RangeTable, lo: np.ndarray, hi: np.ndar
         mask = maximum_filter(mask, size=2 * int(np.ceil(reach / cell)) + 1)
     kept, kinds = [], []
     for start in range(0, len(ions), _ION_CHUNK):
-        pos = np.asarray(ions.positions[start:start + _ION_CHUNK], dtype=np.float64)
+        pos = np.asarray(ions.positions[start:start + _ION_CHUNK])  # float32 compares and shifts as its float64
         species = ranges.ion_index(ions.mz[start:start + _ION_CHUNK])
         keep = np.flatnonzero((species >= 0) & np.all((pos >= lo) & (pos <= hi), axis=1))
         if mask is not None:
@@ -179,7 +179,8 @@ def _ranged_near(ions: IonTable, ranges: RangeTable, lo: np.ndarray, hi: np.ndar
             keep = keep[mask[tuple(cells.T)]]
         kept.append(pos[keep])
         kinds.append(species[keep])
-    return np.concatenate(kept), np.concatenate(kinds)
+    # the kept chunks stay in the table's float32 until joined: 12 bytes per kept ion fewer at the peak
+    return np.concatenate(kept, dtype=np.float64), np.concatenate(kinds)
 
 
 def scene_species(species: str, summary: list[dict]) -> str:
