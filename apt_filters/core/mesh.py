@@ -324,8 +324,8 @@ def topology(faces: np.ndarray, n_vertices: int) -> Topology:
 def face_normals(vertices: np.ndarray, faces: np.ndarray, normalize: bool = True) -> np.ndarray:
     """(m, 3) normals ``cross(v1 - v0, v2 - v0)`` of ``faces`` (m, 3) over ``vertices`` (n, 3): unit length
     (zero for degenerate faces), or with ``normalize=False`` twice the face area."""
-    v = vertices[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    v = vertices[faces[:, 0]]  # the corners one at a time: no (m, 3, 3) copy
+    n = np.cross(vertices[faces[:, 1]] - v, vertices[faces[:, 2]] - v)
     if normalize:
         length = np.linalg.norm(n, axis=1, keepdims=True)
         n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)

@@ -68,8 +68,8 @@ def _twins(faces, start, ring):
 
 
 def _face_normals(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    p = v[tri]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    p = v[tri[:, 0]]  # the corners one at a time: no (f, 3, 3) copy
+    n = np.cross(v[tri[:, 1]] - p, v[tri[:, 2]] - p)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
@@ -342,7 +342,8 @@ def _flat_rings(vertices: np.ndarray, faces: np.ndarray, bend: float) -> np.ndar
                      for k in range(3)], 1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
     least = np.ones(len(vertices))
-    np.minimum.at(least, faces.ravel(), np.einsum("ij,ij->i", np.repeat(n, 3, axis=0), mean[faces.ravel()]))
+    for k in range(3):  # corner by corner: the (3f, 3) copies of the normals and means were 144 bytes a face
+        np.minimum.at(least, faces[:, k], np.einsum("ij,ij->i", n, mean[faces[:, k]]))
     return least > np.cos(np.radians(bend))
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.checks import non_manifold_vertices
-from apt_filters.core.mesh import TriMesh, topology
+from apt_filters.core.mesh import Topology, TriMesh, topology
 from apt_filters.remesh._arrays import unique_rows
 from apt_filters.remesh.extract import triangulate_polygon
 
@@ -50,7 +50,9 @@ def trim_overfull_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def boundary_loops(faces: np.ndarray) -> list[list[int]]:
     """Boundary loops as vertex lists, following the boundary half-edges (a -> b) of the faces."""
     nxt = {}
-    for a, b in topology(faces, int(faces.max()) + 1).boundary_half_edges.tolist():
+    # not cached: the hole fill's faces change every round, and a cached table lived as long as they did (through
+    # the next round's trim of over-full edges: 630 bytes per input face of a thin plate's remesh, at its peak)
+    for a, b in Topology.of(faces, int(faces.max()) + 1).boundary_half_edges.tolist():
         nxt.setdefault(a, []).append(b)
     loops, seen = [], set()
     for a in list(nxt):
@@ -268,4 +270,7 @@ def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pin
         if filled.shape == faces.shape and np.array_equal(filled, faces):
             break
         faces = filled
-    return orient_coherently(vertices, fill_rim_notches(restore_rim(vertices, faces, on_boundary), on_boundary))
+    # the faces before the rim's triangles let go first: with their topology (cached while they live) they were
+    # 1,000 bytes per input face of a thin plate's remesh, held through the re-orientation at its peak
+    faces = fill_rim_notches(restore_rim(vertices, faces, on_boundary), on_boundary)
+    return orient_coherently(vertices, faces)

@@ -1,0 +1,66 @@
+"""The remesher's per-face temporaries (issue #24, peak memory per input face): the forms that hold less are the
+same numbers, bit for bit, as the (f, 3, 3) forms they replace, and hold less (``tracemalloc``: numpy's own
+allocations, the same on every machine)."""
+
+import tracemalloc
+
+import numpy as np
+
+from apt_filters.core import mesh as core_mesh
+from apt_filters.core.mesh import face_normals
+from apt_filters.remesh import features as feat, optimize, repair
+from tests import remesh_shapes as shapes
+
+
+def _traced(fn, *args):
+    """``fn(*args)`` and the bytes its allocations peaked at (run once before, so that nothing is loaded then)."""
+    fn(*args)
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        out = fn(*args)
+        return out, tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+
+
+def test_corner_by_corner_normals_and_flat_rings_are_the_corner_arrays_own():
+    """Face normals and the flat-ring test taken corner by corner equal the (f, 3, 3) forms bit for bit on a bumpy
+    open sheet, at under 180 bytes per face (those forms: 200 and 216)."""
+    mesh = shapes.bumpy(shapes.tilted_sheet(), 0.25)
+    v, f = mesh.vertices, mesh.faces
+    p = v[f]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    unit = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+    normals, peak = _traced(face_normals, v, f, False)
+    assert np.array_equal(normals, cross) and peak < 180 * len(f), peak / len(f)
+    normals, peak = _traced(optimize._face_normals, v, f)
+    assert np.array_equal(normals, unit) and peak < 180 * len(f), peak / len(f)
+    area = np.linalg.norm(cross, axis=1)
+    mean = np.stack([np.bincount(f.ravel(), np.repeat(unit[:, k] * area, 3), minlength=len(v)) for k in range(3)], 1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    least = np.ones(len(v))
+    np.minimum.at(least, f.ravel(), np.einsum("ij,ij->i", np.repeat(unit, 3, axis=0), mean[f.ravel()]))
+    for bend in (5.0, 20.0):
+        flat, peak = _traced(optimize._flat_rings, v, f, bend)
+        assert np.array_equal(flat, least > np.cos(np.radians(bend))) and peak < 180 * len(f), peak / len(f)
+        assert 0 < flat.sum() < len(v)
+
+
+def test_apexes_hold_no_corner_copies():
+    """The cone apexes of the box-sphere-plate (24 at 17°, as the (f, 3, 3) form found) at under 420 bytes per
+    face (that form: 492)."""
+    mesh = shapes.box_minus_sphere_plate(0.5)
+    apex, peak = _traced(feat._apexes, mesh, 0.3, 0.01, np.zeros(mesh.n_vertices, bool))
+    assert apex.sum() == 24 and peak < 420 * mesh.n_faces, peak / mesh.n_faces
+
+
+def test_boundary_loops_leave_no_topology_cached():
+    """The hole fill's loops: the faces' edge tables go when the loops are found (cached, they lived as long as
+    the faces did, through the next round's trim), and the loops are the rim's."""
+    mesh = shapes.tilted_sheet()
+    faces = np.array(mesh.faces)
+    loops = repair.boundary_loops(faces)
+    assert not any(entry[0]() is faces for entry in core_mesh._cache)
+    rim = np.unique(mesh.topology.boundary_half_edges)
+    assert sorted(v for loop in loops for v in loop) == sorted(rim.tolist())
