@@ -26,7 +26,10 @@ Method
    the 16 cubes of gamma-prime seeds 1-8 they were tilted by 4.1° on average (up to 14°, a 6 nm cube's
    face, which put its corner 0.9 nm out). Each face alone fixes its tilt only to ~5° (the scores of its
    ~2000 core ions, bootstrapped); the joint fit adds the edges' ions, and the pairing each face's
-   opposite one, which is what brought the tilts to 2.0° on average (4.1° at most).
+   opposite one, which is what brought the tilts to 2.0° on average (4.1° at most). Where the fit fails (a plane
+   turned away, or the planes no longer close), the planes the ions do not support by the information criterion
+   are left out one at a time and the rest refitted: a small cube's half found a 7th patch at a corner or edge,
+   whose plane turned by 44-50° and failed the whole fit (dev cuboid 30024 and 30037's ion redraws).
 2. **Rims.** A vertex outside every facet moves along its normal onto the envelope of the
    facets' planes near it (within ``reach`` nm): inside all of them (a convex rim) to where its ray
    first leaves their intersection, outside all of them (a concave fillet) to where it enters their
@@ -792,9 +795,10 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
         where its ions show one (:func:`edge_rounding`; vertex sets unchanged; ``rms`` as fitted to the
         vertices); the facets as given if there are too few ions, or if the fit has found something
         else: a plane turned by more than twice ``cap`` from its start, or planes that no longer close
-        (:func:`closes`). A plane may turn further than ``cap``: the narrow faces of a thin lath, found
-        where the normals crowd on the ridge from one broad face to the other, start 15-25° off theirs and
-        turned by 17-30° (held-out `lath` seed 10007).
+        (:func:`closes`), unless leaving out planes the ions do not support (:func:`_unsupported`) makes the
+        fit of the rest hold: then the rest, refitted (fewer facets than given). A plane may turn further than
+        ``cap``: the narrow faces of a thin lath, found where the normals crowd on the ridge from one broad face
+        to the other, start 15-25° off theirs and turned by 17-30° (held-out `lath` seed 10007).
     """
     m = len(facets)
     if len(positions) < min_ions * m:
