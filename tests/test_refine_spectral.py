@@ -453,6 +453,18 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
 
 
+def _small_cube_ions(box, seed):
+    """Ions of ``box`` under an interface as wide as a third of a 4 nm cube: contrast 0.05 -> 0.90 along an error
+    function of the distance to it (sigma 0.8 nm), positions blurred by 0.25 nm; those within 2.5 nm of its surface
+    and their normalised scores."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-6.0, 6.0, (150000, 3))
+    hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
+    p = p + rng.normal(0.0, 0.25, p.shape)
+    keep = np.abs(box.sdf(p)) < 2.5
+    return p[keep], ((hit - 0.05) / 0.85)[keep]
+
+
 def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interface():
     from apt_filters.refine.facets import edge_rounding
 
@@ -463,12 +475,7 @@ def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interfac
     # the planes moved out by 0.046-0.057 nm on average (seeds 0-2; measured here 0.003-0.015)
     for seed in (0, 1):
         box = Cuboid((0.3, -0.2, 0.1), (4.1, 4.7, 3.9), rotation=27)
-        rng = np.random.default_rng(seed)
-        p = rng.uniform(-6.0, 6.0, (150000, 3))
-        hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
-        p = p + rng.normal(0.0, 0.25, p.shape)
-        keep = np.abs(box.sdf(p)) < 2.5
-        p, u = p[keep], ((hit - 0.05) / 0.85)[keep]
+        p, u = _small_cube_ions(box, seed)
         normals = np.array([s * box.rotation.T[k] for k in range(3) for s in (1, -1)])
         offsets = normals @ box.center + np.repeat(np.array(box.size) / 2, 2)
         shift, rounding = edge_rounding(p @ normals.T - offsets, u, np.ones(len(u)), float(np.hypot(0.8, 0.25)))
@@ -491,12 +498,7 @@ def test_a_stray_corner_plane_the_ions_do_not_support_is_left_out_of_a_small_cub
     corner = box.center + (axes[0] * 4.1 + axes[1] * 4.7 - axes[2] * 3.9) / 2
     stray = Facet(0, n, float(n @ corner - 0.3), none, none, 1.7, 0.1)
     for seed in (1, 3):
-        rng = np.random.default_rng(seed)
-        p = rng.uniform(-6.0, 6.0, (150000, 3))
-        hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
-        p = p + rng.normal(0.0, 0.25, p.shape)
-        keep = np.abs(box.sdf(p)) < 2.5
-        p, u = p[keep], ((hit - 0.05) / 0.85)[keep]
+        p, u = _small_cube_ions(box, seed)
         faces = _tilted_faces(box, np.random.default_rng(100 + seed), tilt=5.0, shift=0.1)
         fitted = fit_to_ions(faces + [stray], p, u, np.ones(len(p)), float(np.hypot(0.8, 0.25)))
         six = fit_to_ions(faces, p, u, np.ones(len(p)), float(np.hypot(0.8, 0.25)))
