@@ -453,6 +453,18 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
 
 
+def _small_cube_ions(box, seed):
+    """Ions of ``box`` under an interface as wide as a third of a 4 nm cube: contrast 0.05 -> 0.90 along an error
+    function of the distance to it (sigma 0.8 nm), positions blurred by 0.25 nm; those within 2.5 nm of its surface
+    and their normalised scores."""
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-6.0, 6.0, (150000, 3))
+    hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
+    p = p + rng.normal(0.0, 0.25, p.shape)
+    keep = np.abs(box.sdf(p)) < 2.5
+    return p[keep], ((hit - 0.05) / 0.85)[keep]
+
+
 def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interface():
     from apt_filters.refine.facets import edge_rounding
 
@@ -463,17 +475,38 @@ def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interfac
     # the planes moved out by 0.046-0.057 nm on average (seeds 0-2; measured here 0.003-0.015)
     for seed in (0, 1):
         box = Cuboid((0.3, -0.2, 0.1), (4.1, 4.7, 3.9), rotation=27)
-        rng = np.random.default_rng(seed)
-        p = rng.uniform(-6.0, 6.0, (150000, 3))
-        hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
-        p = p + rng.normal(0.0, 0.25, p.shape)
-        keep = np.abs(box.sdf(p)) < 2.5
-        p, u = p[keep], ((hit - 0.05) / 0.85)[keep]
+        p, u = _small_cube_ions(box, seed)
         normals = np.array([s * box.rotation.T[k] for k in range(3) for s in (1, -1)])
         offsets = normals @ box.center + np.repeat(np.array(box.size) / 2, 2)
         shift, rounding = edge_rounding(p @ normals.T - offsets, u, np.ones(len(u)), float(np.hypot(0.8, 0.25)))
         assert rounding == 0.0
         assert abs(shift.mean()) < 0.025 and np.abs(shift).max() < 0.06, (seed, shift)
+
+
+def test_a_stray_corner_plane_the_ions_do_not_support_is_left_out_of_a_small_cubes_fit():
+    from apt_filters.refine.facets import Facet, fit_to_ions
+
+    # exact truth: the small cube above under its wide interface, its six faces given 5° and up to 0.1 nm off, and a
+    # seventh plane cutting one corner by 0.3 nm, 55° from its three faces (a half of dev cuboid 30024's 4 nm cube
+    # found a 1.7 nm² patch there, 52° from every true face). The seven planes' joint fit turns the stray one by
+    # more than 40°, so on main the fit failed and the object kept the planes fitted to its vertices; the ions do
+    # not support that plane (the misfit without it is no worse), so it is left out and the six are fitted
+    none = np.zeros(1, dtype=np.int64)
+    box = Cuboid((0.3, -0.2, 0.1), (4.1, 4.7, 3.9), rotation=27)
+    axes = box.rotation.T
+    n = (axes[0] + axes[1] - axes[2]) / np.sqrt(3)
+    corner = box.center + (axes[0] * 4.1 + axes[1] * 4.7 - axes[2] * 3.9) / 2
+    stray = Facet(0, n, float(n @ corner - 0.3), none, none, 1.7, 0.1)
+    for seed in (1, 3):
+        p, u = _small_cube_ions(box, seed)
+        faces = _tilted_faces(box, np.random.default_rng(100 + seed), tilt=5.0, shift=0.1)
+        fitted = fit_to_ions(faces + [stray], p, u, np.ones(len(p)), float(np.hypot(0.8, 0.25)))
+        six = fit_to_ions(faces, p, u, np.ones(len(p)), float(np.hypot(0.8, 0.25)))
+        assert len(fitted) == 6 and all(f.vertices is g.vertices for f, g in zip(fitted, faces)), seed
+        assert np.allclose([f.normal for f in fitted], [f.normal for f in six])
+        assert np.allclose([f.offset for f in fitted], [f.offset for f in six])
+        tilt, offset = _plane_errors(box, fitted)
+        assert tilt.max() < 8.0 and np.abs(offset).max() < 0.07, (seed, tilt, offset)  # measured 7.4°/5.7°, 0.052
 
 
 def test_rounding_fits_stop_when_a_parameter_held_at_its_bound_stops_them_moving(monkeypatch):
