@@ -1,0 +1,30 @@
+"""Pairing measured parts with true objects (:func:`apt_filters.truth.match_objects`), on exact shapes."""
+
+import numpy as np
+
+from apt_filters.synth.shapes import Cylinder, Sphere
+from apt_filters.truth import match_objects
+
+DISC = Cylinder([0.0, 0.0, 0.0], 5.0, 1.6)  # a thin disc, 1.6 nm thick (dev zoo thin 30004's kind)
+
+
+def test_a_disc_measured_thick_is_paired_with_its_truth_not_a_speck_on_its_face():
+    """The measured disc's faces stand 0.5 nm out (mean |sdf| of its vertices 0.42 nm); a speck of radius 0.5 nm
+    sits on the true top face, its vertices on average nearer the true surface (0.31 nm). Nearness pairs the disc's
+    truth with the speck; the disc holds nearly all the truth's volume, the speck under 1 %."""
+    sdf = DISC.sdf
+    measured = Cylinder([0.0, 0.0, 0.0], 5.0, 2.6).mesh(0.2)
+    speck = Sphere([1.0, -2.0, 0.8], 0.5).mesh(0.1)
+    near = [np.abs(sdf(p.vertices)).mean() for p in (measured, speck)]
+    assert near[1] < near[0] < 1.5, near  # the case: the speck is the nearer, both within reach
+    assert match_objects([speck, measured], [sdf]) == [1]
+    assert match_objects([measured, speck], [sdf]) == [0]
+
+
+def test_parts_out_of_reach_match_nothing_and_each_object_gets_its_own():
+    """A sphere 3 nm beside the disc is out of reach of the disc and the disc out of reach of it; each true object
+    is paired with the part on it, and a true object with no part near it with nothing."""
+    far = Sphere([0.0, 0.0, 4.0], 1.0)
+    lost = Sphere([20.0, 0.0, 0.0], 1.0)
+    parts = [Sphere([0.0, 0.0, 4.1], 1.1).mesh(0.1), DISC.mesh(0.2)]
+    assert match_objects(parts, [DISC.sdf, far.sdf, lost.sdf]) == [1, 0, None]
