@@ -28,3 +28,21 @@ def test_parts_out_of_reach_match_nothing_and_each_object_gets_its_own():
     lost = Sphere([20.0, 0.0, 0.0], 1.0)
     parts = [Sphere([0.0, 0.0, 4.1], 1.1).mesh(0.1), DISC.mesh(0.2)]
     assert match_objects(parts, [DISC.sdf, far.sdf, lost.sdf]) == [1, 0, None]
+
+
+def test_a_part_with_nothing_inside_the_compared_region_gives_undefined_distances_not_an_error():
+    """A cut object's surface found only in the margin left out of the comparison (fresh edge draw 10101's AP-style
+    sliver): the part's side of the distances is NaN, the truth's side is how far the part stands off."""
+    from apt_filters.truth import surface_error_within
+
+    ball = Sphere([0.0, 0.0, 0.0], 2.0)
+    inside = ball.mesh(0.2)
+    part = Sphere([5.0, 0.0, 0.0], 0.5).mesh(0.1)  # wholly at x > 4, outside the region x < 3
+
+    def region(p):
+        return p[:, 0] - 3.0
+
+    err = surface_error_within(part, ball.sdf, inside, region, inside.area())
+    assert np.isnan(err.mesh_to_true_mean) and np.isnan(err.mean_distance)
+    assert 4.0 < err.hausdorff < 7.5 and err.true_to_mesh_mean > 2.5  # the truth's points 2.5-7 nm from the part
+    assert err.area == 0.0
