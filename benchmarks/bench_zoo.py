@@ -341,7 +341,7 @@ def summary_rows(rows: dict) -> list[tuple[str, str, str, str, str]]:
     def figures(p):
         found = [r for r in rows[p] if r["bounded"] and r["found"]]
         closed = sum(r["bounded"] for r in rows[p])
-        d = float(np.mean([r["mean"] for r in found])) if found else np.nan
+        d = float(np.nanmean([r["mean"] for r in found])) if found else np.nan
         return sum(_within(r, "volume") for r in found), sum(_within(r, "area") for r in found), closed, d
 
     (v_ours, a_ours, n, d_ours), (v_peer, a_peer, _, d_peer) = figures("defaults"), figures("AP")
