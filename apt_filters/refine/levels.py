@@ -954,6 +954,41 @@ def profile_levels(distance: np.ndarray, atoms: np.ndarray, species: int, fit: B
     return inside / max(inside.sum(), 1e-300), f * (1 - f) / max(var, 1e-300)
 
 
+def split_worth(level: tuple[np.ndarray, float], halves: list, species: int) -> tuple[np.ndarray, float]:
+    """An object's profile level (:func:`profile_levels`) with its worth no greater than its two cross-fit halves'
+    disagreement allows.
+
+    The level read from all the ions is, to first order, the mean of the two levels each half's ions read alone
+    (each under its own fit), so ``(P_A - P_B)^2 / 4`` is an unbiased one-draw estimate of its variance that owes
+    nothing to the delta method. Where the fit's interface is poorly fixed (low contrast: offset and width trade off,
+    the level moves steeply and non-linearly with the width) the stated worth is the curse :func:`pooled_profiles`
+    measures, a fit that comes out narrow by chance reading the level low and stating it certain (dev cuboid 31113's
+    first cube, Ti 6.8 points of contrast: a fitted width 0.12 nm, ``P`` 15.6 at.% stated worth 6015 atoms, sd
+    0.0047, against a true 17.7 and a window's 17.1; its halves read 16.6 and 19.0 at.%, sd 0.012 by their spread).
+    The variance is the larger of the two; the level's worth is ``f (1 - f)`` over it.
+
+    Parameters
+    ----------
+    level : ((k,) float64, float)
+        The profile's fractions and their worth in atoms.
+    halves : [level or None, level or None]
+        The same profile level read on each half's ions alone (None where a half has no fit: the worth as stated).
+    species : int
+        Index of the measured species.
+
+    Returns
+    -------
+    ((k,) float64, float)
+        ``level`` with its worth checked.
+    """
+    inside, worth = level
+    if any(h is None for h in halves):
+        return level
+    f = float(np.clip(inside[species], 1e-6, 1 - 1e-6))
+    spread = 0.25 * (halves[0][0][species] - halves[1][0][species]) ** 2
+    return inside, min(worth, f * (1 - f) / max(spread, 1e-300))
+
+
 def pooled_profiles(*, levels: list[tuple[np.ndarray, float]], species: int) -> np.ndarray:
     """(k,) several objects' profile levels (:func:`profile_levels`) pooled, as a sum of atoms whose binomial count
     would be as certain as the pool: what an unmixed object's inside level is shrunk toward (:func:`chosen_pools`).
