@@ -550,8 +550,9 @@ def test_a_profile_level_its_halves_do_not_support_is_not_taken_over_a_low_contr
     exact truth: the spec's compositions and shapes). The first cube's ball fit on all its ions came out 0.12 nm wide,
     its profile level 15.6 at.% stated worth 6015 atoms (sd 0.47 points) against a true 17.65 and a window reading
     17.1 from 1103 atoms; taken, the cube came out V +18.5 %, A +19.0 % (counting sigma 5.4 / 3.2). Read on each
-    cross-fit half alone the same level is 16.6 and 19.0 at.%: its spread says sd 1.2 points
-    (:func:`~apt_filters.refine.levels.split_worth`), and the window, the simpler model, is kept."""
+    cross-fit half alone the same level is worth 3369 and 23 atoms, less together than the whole claims, and reads
+    16.6 and 19.0 at.%: its spread says sd 1.2 points (:func:`~apt_filters.refine.levels.split_worth`), and the
+    window, the simpler model, is kept."""
     from apt_filters.core.mesh import split_components
     from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
     from apt_filters.pipeline.surface import finished_surface
