@@ -107,8 +107,8 @@ from apt_filters.refine.untangle import unfold, untangle
 from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
                                       levels_from_sums, object_shapes, plateau_sums, plateaus, pooled_profiles,
-                                      profile_better, profile_levels, short_of_plateau, unmixed_sums, unmixing_shift,
-                                      window_labels, within_rim)
+                                      profile_better, profile_levels, short_of_plateau, split_worth, unmixed_sums,
+                                      unmixing_shift, window_labels, within_rim)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -876,7 +876,9 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     low contrast) unmixes by shares it does not know (weight 0), and taken whole the unmixed levels would follow
     the draws whose shift is noise. An object of weight 0 takes its inside level from its whole fitted profile
     (:func:`~apt_filters.refine.levels.profile_levels`) where that is expected nearer the truth than its shrunk
-    window's (:func:`~apt_filters.refine.levels.profile_better`): a thin object, whose
+    window's (:func:`~apt_filters.refine.levels.profile_better`; the profile level's worth no greater than the
+    spread of the same level read on each half's ions allows, :func:`~apt_filters.refine.levels.split_worth`): a
+    thin object, whose
     inside window holds a few atoms of its axis and whose level is then the pool's. Where two or more objects are
     closed they are also fitted together (shared levels, :func:`~apt_filters.refine.levels.fit_balls`): an object
     whose own ball is refused is put to the same tests with the joint ball, and one whose own profile level is
@@ -981,6 +983,23 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
                                             dims=dims[c], width=max(model.width, 0.02), blur=sigma),
                                weights=total[deep]) if total[deep].sum() > 0 else 1.0)
 
+        def halves_of(route: int) -> list:
+            """The route's profile level (its own ball's, 0, or the joint balls', 1) on each cross-fit half's ions
+            alone, each under that half's own fit (None where a half has none): what :func:`split_worth` checks the
+            level's worth against."""
+            out = []
+            for h in (0, 1):
+                if route == 0:
+                    sel = mine[half[mine] == h]
+                    own = fit_ball(distance[sel], part[sel], total[sel], **ball)
+                    out.append(None if own is None else profile_levels(distance[sel], atoms[sel], k, own, **ball))
+                else:
+                    sel = np.flatnonzero(some & (half == h))
+                    out.append(profile_levels(distance[sel], atoms[sel], k, joint[h], radius=radius, dims=dims,
+                                              blur=sigma, half_width=p.plateau_window[1], group=comp[sel])
+                               if c in joint[h] else None)
+            return out
+
         # its own profile's level, else the level of every closed object's profile fitted together (shared levels),
         # offered only where its window falls short of its plateau by more than its own counting error: a window
         # at its plateau keeps its level (a level change within its error still moves the surface and what is read
@@ -990,9 +1009,10 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         if offered and short_of_plateau(sums[c, 0], joint[2][c], inside_share(joint[2][c]), k) and \
                 together() is not None:
             routes.append((together(), joint[2][c]))
-        for taken, model in routes:
+        for route, (taken, model) in enumerate(routes):
             g_in = inside_share(model)
-            if taken is not None and profile_better(taken, model, sums[c, 0], pools[c, 0], g_in, k, p.plateau_prior):
+            if taken is not None and profile_better(split_worth(taken, halves_of(route), k), model, sums[c, 0],
+                                                    pools[c, 0], g_in, k, p.plateau_prior):
                 return None, taken[0] * taken[1], crossing_share(
                     distance[mine], total[mine], model, radius=radius[c], dims=dims[c], blur=sigma,
                     lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + model.offset, 1e-3),
