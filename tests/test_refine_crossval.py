@@ -14,7 +14,8 @@ from apt_filters.refine import RefineParams, refine_surface
 from apt_filters.refine.band import NearIons, adjacency
 from apt_filters.refine.composition import ObjectScores, ion_atoms
 from apt_filters.truth import counting_floor, match_objects, surface_error
-from apt_filters.refine.crossval import CANDIDATES, SCORED, basis_size, cross_validated_modes, object_harmonics
+from apt_filters.refine.crossval import (CANDIDATES, SCORED, HeldOutLoss, basis_size, cross_validated_modes,
+                                         object_harmonics)
 from apt_filters.refine.spectral import low_pass
 from apt_filters.refine.facets import find_facets
 from apt_filters.refine.surface import _finisher, _low_passed, _unclosed, umbrella
@@ -175,6 +176,33 @@ def test_facets_must_pass_the_held_out_test_as_they_stand_and_at_fitted_sizes():
     as_it_stands = _judged(sp, rod, cube, 0.0, 1.05, 0.6, inside)
     assert by_size == (False, True)
     assert not as_it_stands[0]
+
+
+def test_the_sized_test_sizes_only_each_objects_best_candidates_with_and_without_facets(monkeypatch):
+    """The facets' second test compares, per faceted object, its best candidate with facets and its best without
+    them as they stand (over both halves), each moved to the size the placing half's ions fit it to: one size fit
+    for each of the two per half (4 in all; 24 when every candidate was sized), and the same verdicts on the
+    rod-and-cube specimen of the test above (the rod's wrongly sized prism rejected at fitted sizes, the cube's
+    true faces kept)."""
+    sized = []
+    fitted_shift = HeldOutLoss.fitted_shift
+
+    def counted(self, distance, only, n_comp, iterations=20):
+        shift = fitted_shift(self, distance, only, n_comp, iterations)
+        sized.append(shift)
+        return shift
+
+    monkeypatch.setattr(HeldOutLoss, "fitted_shift", counted)
+    radius, length, size, inside = 1.5, 8.0, 4.5, 0.5
+    rod, cube = Cylinder((-3.5, 0.0, -10.0), radius, length), Cuboid((3.5, 0.0, -10.0), (size,) * 3)
+    phase = {"Ni": 0.945 - inside, "Al": inside, "Cr": 0.05, "B": 0.005}
+    spec = SpecimenSpec(Box((16.0, 16.0, 20.0)), GAMMA, (Feature(rod, phase, 0.2, (), "rod"),
+                                                         Feature(cube, phase, 0.2, (), "cube")),
+                        efficiency=0.5, name="rod and cube")
+    assert _judged(generate(spec, seed=4), rod, cube, 0.25, 0.95, 0.0, inside) == (False, True)
+    assert len(sized) == 4
+    # the smooth candidates (the second of each half) lie 0.25 nm inside the truth: sized, both move out
+    assert np.all(sized[1] > 0.1) and np.all(sized[3] > 0.1), sized
 
 
 def test_a_low_passed_shape_that_folds_is_relaxed_in_place_not_held_at_the_rough_placement():
