@@ -79,9 +79,9 @@ class ModeSelection:
         with and without them; dropped where its best candidate without them has a held-out loss lower by more
         than one standard error than its best with them, either as the candidates stand or with these two first
         moved by the offset that fits each to the placing half's ions (:meth:`HeldOutLoss.fitted_shift`: the
-        facets' planes are fitted so; this second test judges their shape, not the smooth surface's size). Facets that do
-        not close their object (``unclosed``) are kept only where both tests prefer them by a margin that grows
-        with their planes (:func:`~apt_filters.refine.facets.unclosed_margin`).
+        facets' planes are fitted so; this second test judges their shape, not the smooth surface's size).
+        Facets that do not close their object (``unclosed``) are kept only where both tests prefer them by a margin
+        that grows with their planes (:func:`~apt_filters.refine.facets.unclosed_margin`).
     lengths : dict[int, float]
         Open object -> its smoothing length, nm (:func:`cross_validated_lengths`; 0: as it is).
     """
