@@ -29,9 +29,11 @@ or 9, the cubes 4 (9 of 16) to 36, their edges and corners then rebuilt by the f
 distance to the truth is 0.08-0.13 nm with the selection (0.15-0.20 without) and their area errors within
 their volume's (+2-8 % without; benchmarks/results_refine.md).
 
-Cost: per half, one eigensolve per eligible object and one finish and band per candidate; memory: the
-held-out ions within 3 nm of the surface (as :class:`~apt_filters.refine.band.NearIons`) and ``n x 47``
-float64 of harmonics per object.
+Cost: per half, one eigensolve per eligible object, one finish and band per candidate (with and without
+facets) and, for the facets' test at fitted sizes, two more finishes, bands and size fits (each faceted object's
+best candidates with and without facets); memory: the held-out ions within 3 nm of the surface (as
+:class:`~apt_filters.refine.band.NearIons`), the scored ones of both halves kept for the second pass, and
+``n x 47`` float64 of harmonics per object and half.
 """
 
 from __future__ import annotations
@@ -75,11 +77,11 @@ class ModeSelection:
     facets : dict[int, bool]
         Component -> whether its facets are kept: every object with facets on either half's surface, tried
         with and without them; dropped where its best candidate without them has a held-out loss lower by more
-        than one standard error than its best with them, either as the candidates stand or with each first moved
-        by the offset that fits it to the placing half's ions (:meth:`HeldOutLoss.fitted_shift`: the facets'
-        planes are fitted so; this second test judges their shape, not the smooth surface's size). Facets that do
-        not close their object (``unclosed``) are kept only where both tests prefer them by a margin that grows
-        with their planes (:func:`~apt_filters.refine.facets.unclosed_margin`).
+        than one standard error than its best with them, either as the candidates stand or with these two first
+        moved by the offset that fits each to the placing half's ions (:meth:`HeldOutLoss.fitted_shift`: the
+        facets' planes are fitted so; this second test judges their shape, not the smooth surface's size).
+        Facets that do not close their object (``unclosed``) are kept only where both tests prefer them by a margin
+        that grows with their planes (:func:`~apt_filters.refine.facets.unclosed_margin`).
     lengths : dict[int, float]
         Open object -> its smoothing length, nm (:func:`cross_validated_lengths`; 0: as it is).
     """
@@ -159,53 +161,54 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     n_comp = len(scores.usable)
     plain = list(candidates) + [0]
     half = len(plain)
-    # each candidate finished with the facets, then without them (the second set only where there are facets); then
-    # both again with each faceted object's size fitted to the ions of the half that placed it (the facets' test)
+    # each candidate finished with the facets, then without them (the second set only where there are facets)
     columns = [(k, True) for k in plain] + [(k, False) for k in plain]
-    m = 2 * len(columns)
+    m = len(columns)
     faceted = np.zeros(n_comp, dtype=bool)
     faceted[list(faceted_objects)] = True
     # per object: sums and the Gram matrix of the per-ion losses, for the losses and their differences' errors
     sums, gram, count = np.zeros((n_comp, m)), np.zeros((n_comp, m, m)), np.zeros(n_comp)
     missing = np.zeros((n_comp, m), dtype=bool)
     top = basis_size(max(candidates))
+    folds = []
     for k, fit in enumerate(fits):
         bases = object_harmonics(fit, faces, components, objects, top)
         finish = {True: finisher(k, True), False: finisher(k, False)}
         comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
-        # the candidates without facets and the sized ones are read for the faceted objects alone (the others'
-        # ions score 0 there); the sizes from the ions of this half (those of ``held_out[k]`` near this surface)
+        # the candidates without facets are read for the faceted objects alone (the others' ions score 0 there)
         faceted_ions = np.flatnonzero(faceted[comp])
-        if faceted.any():
-            own_comp, own = held_out_loss(fit, faces, components, objects, held_out[k], scores, widths)
-            own_ions = np.flatnonzero(faceted[own_comp])
         per_ion = np.empty((len(comp), m))
         for j, (modes, with_facets) in enumerate(columns):
             trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
-            missing[np.ix_([c for c in objects if c not in trial and modes], [j, j + len(columns)])] = True
-            if not faceted.any():
-                missing[:, len(columns):] = True
-                if not with_facets:
-                    missing[:, j] = True
-                    continue
-                per_ion[:, j] = loss(finish[True](apply_modes(fit, bases, trial))[0])
+            missing[np.ix_([c for c in objects if c not in trial and modes], [j])] = True
+            if not with_facets and not faceted.any():
+                missing[:, j] = True
                 continue
             candidate = finish[with_facets](apply_modes(fit, bases, trial))[0]
-            if with_facets:
-                distance = loss.distances(candidate)
-                per_ion[:, j] = loss.at(distance)
-                distance = distance[faceted_ions]
-            else:
-                distance = loss.distances(candidate, faceted_ions)
-                per_ion[:, j] = loss.at(distance, faceted_ions)
-            shift = own.fitted_shift(own.distances(candidate, own_ions), own_ions, n_comp)
-            per_ion[:, j + len(columns)] = loss.at(distance, faceted_ions, shift)
+            per_ion[:, j] = loss(candidate) if with_facets else loss(candidate, faceted_ions)
         _accumulate(per_ion, comp, objects, sums, gram, count)
+        folds.append((fit, bases, finish, comp, loss, faceted_ions))
     missing[~faceted, half:] = True
+    loss_of = np.where(missing, np.inf, sums)
+    # the facets' second test, at fitted sizes: each faceted object's best candidate with its facets and its best
+    # without them (as they stand, over both folds), each first moved by the offset that fits it to the ions of the
+    # half that placed it; columns 0 and 1 of ``sized`` (the objects' other candidates are never compared)
+    best = {c: (int(np.argmin(loss_of[c, :half])), half + int(np.argmin(loss_of[c, half:]))) for c in objects}
+    sized_sums, sized_gram = np.zeros((n_comp, 2)), np.zeros((n_comp, 2, 2))
+    for k, (fit, bases, finish, comp, loss, faceted_ions) in enumerate(folds if faceted.any() else []):
+        own_comp, own = held_out_loss(fit, faces, components, objects, held_out[k], scores, widths)
+        own_ions = np.flatnonzero(faceted[own_comp])
+        per_ion = np.zeros((len(comp), 2))
+        for side, with_facets in enumerate((True, False)):
+            trial = {c: plain[best[c][side] % half] for c in objects if faceted[c]}
+            candidate = finish[with_facets](apply_modes(fit, bases, trial))[0]
+            shift = own.fitted_shift(own.distances(candidate, own_ions), own_ions, n_comp)
+            per_ion[:, side] = loss.at(loss.distances(candidate, faceted_ions), faceted_ions, shift)
+        _accumulate(per_ion, comp, objects, sized_sums, sized_gram, np.zeros(n_comp))
     losses = np.full((n_comp, half), np.nan)
     chosen, keep_facets = {}, {}
     for c in objects:
-        loss = np.where(missing[c], np.inf, sums[c])
+        loss = loss_of[c]
         # facets are a prior on the shape, found by a rule: dropped where the held-out ions prefer the best
         # candidate without them to the best with them by more than one standard error of the difference, as
         # the candidates stand (the surfaces the whole would have) or with each sized to the placing half's ions
@@ -225,7 +228,8 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         # more chances to fit its noise (unclosed_margin: a capsule's eight strips won by 1.85 and 1.21 SE)
         with_facets = True
         if faceted[c]:
-            gains = [_facets_gain(loss, gram[c], sums[c], count[c], start, half) for start in (0, 2 * half)]
+            gains = [_difference(gram[c], sums[c], count[c], *best[c]),
+                     _difference(sized_gram[c], sized_sums[c], count[c], 0, 1)]
             with_facets = bool(np.isfinite(loss[:half]).any()) and (
                 all(diff > unclosed_margin(unclosed[c], ONE_SE) * se for diff, se in gains) if c in (unclosed or {})
                 else not any(diff < -ONE_SE * se for diff, se in gains))
@@ -237,13 +241,10 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     return ModeSelection(chosen, tuple(candidates), losses, keep_facets)
 
 
-def _facets_gain(loss: np.ndarray, gram: np.ndarray, sums: np.ndarray, count: float, start: int, half: int
-                 ) -> tuple[float, float]:
-    """How much lower (atoms; negative: higher) the held-out loss of the best of the ``half`` candidates with facets
-    (columns ``start`` on) is than that of the best without them (``start + half`` on), and the standard error of
-    that difference (arguments as :func:`smoothest_within_one_se`'s)."""
-    jw = start + int(np.argmin(loss[start:start + half]))
-    jn = start + half + int(np.argmin(loss[start + half:start + 2 * half]))
+def _difference(gram: np.ndarray, sums: np.ndarray, count: float, jw: int, jn: int) -> tuple[float, float]:
+    """How much lower (atoms; negative: higher) the held-out loss of candidate ``jw`` (the best with facets) is than
+    that of ``jn`` (the best without them), and the standard error of that difference (arguments as
+    :func:`smoothest_within_one_se`'s)."""
     diff = sums[jn] - sums[jw]
     se = np.sqrt(max(gram[jw, jw] + gram[jn, jn] - 2 * gram[jw, jn] - diff ** 2 / max(count, 1.0), 0.0))
     return float(diff), float(se)
