@@ -1105,14 +1105,13 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         return fit_to_ions(facets, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                            float(placed.widths[facets[0].component]))
 
-    def slabbed(mine: list, pair: tuple) -> list:
+    def slabbed(pair: tuple, own: np.ndarray) -> list | None:
         """A slab's two facets with its side and rims placed by its ions (:func:`~apt_filters.refine.facets.slab_fit`;
-        its other facets lie on that side, which takes their place), the facets as given where its side does not go
-        round it."""
-        own = components == pair[0].component
+        its other facets lie on that side, which takes their place); None where its side does not go round it
+        (``own``: its vertices)."""
         side = slab_side(pair, placed.vertices[own], placed.normals[own])
         if side is None:
-            return mine
+            return None
         sel = np.flatnonzero(comp == pair[0].component)
         side, rounding = slab_fit(pair, side, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                                   float(placed.widths[pair[0].component]))
@@ -1120,9 +1119,11 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
 
     def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
-        pair = slab_pair(mine)
-        if pair is not None:
-            return slabbed(mine, pair)
+        own = components == c
+        pair = slab_pair(mine, placed.vertices[own], placed.normals[own])
+        slab = slabbed(pair, own) if pair is not None else None
+        if slab is not None:
+            return slab
         if not closes(mine):
             return mine
         out = fit(mine)
@@ -1291,12 +1292,15 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     return guarded_move(vertices, faces, target - vertices, pairs)
 
 
-def _unclosed(found: list[Facet]) -> dict[int, int]:
-    """The objects with facets ``found`` that they do not close (:func:`closes`), each with its number of facets."""
+def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray) -> dict[int, int]:
+    """The objects with facets ``found`` that they do not close (:func:`closes`), or that make a slab of them
+    (:func:`~apt_filters.refine.facets.slab_pair` of the surface ``vertices`` (n, 3), unit ``normals`` (n, 3), each
+    vertex's object ``components`` (n,)), each with its number of facets: no polyhedron is refitted to their ions."""
     per = {}
     for f in found:
         per.setdefault(f.component, []).append(f)
-    return {c: len(mine) for c, mine in per.items() if not closes(mine)}
+    return {c: len(mine) for c, mine in per.items()
+            if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1409,7 +1413,8 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found},
-                                          unclosed=_unclosed(whole_facets))
+                                          unclosed=_unclosed(whole_facets, placed.vertices, placed.normals,
+                                                            components))
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
