@@ -71,7 +71,9 @@ Method
    side, :func:`edge_rounding`), and every vertex off the facets' cores moves along its normal onto that prism (onto
    its fillets where the ions show the rims rounded), one row of vertices onto each rim (step 3). The slab's other
    facets lie on its side, which takes their place. Dev 10038: rims -0.14 / -0.18 -> 0.00 nm, V -2.1 / -5.4 ->
-   +0.1 / +1.0 %, A -6.6 / -11.3 -> +0.1 / +0.3 %.
+   +0.1 / +1.0 %, A -6.6 / -11.3 -> +0.1 / +0.3 %. A thin object its facets close is a slab all the same where
+   its side does not crowd at the other facets (:func:`slab_pair`): strips on a disc's round side and rounded rims
+   closed it in a square prism that the held-out ions refused (dev plates 31002, 31003, 31009: A -6 to -13 %).
 
 A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
 the specimen edge is not a polyhedron). :func:`~apt_filters.refine.surface.refine_surface` lets the facets be
