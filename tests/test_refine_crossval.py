@@ -225,7 +225,8 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
     rough = vertices + np.random.default_rng(0).normal(0.0, 0.3, len(vertices))[:, None] * vertex_normals(vertices,
                                                                                                            faces)
     found = find_facets(rough, faces)
-    assert len(found) == 2 and _unclosed(found) == {0: 2}
+    unclosed = _unclosed(found, rough, vertex_normals(rough, faces), topo.vertex_components)
+    assert len(found) == 2 and unclosed == {0: 2}
     faceted = _finisher(found, faces, topo.face_pairs, None)(vertices)[0]
     true_volume = sp.truth["features"][0]["volume_nm3"]
     assert abs(TriMesh(vertices, faces).signed_volume() / true_volume - 1) < 0.01
@@ -238,7 +239,7 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
     selection = cross_validated_modes([vertices, vertices], faces, topo.vertex_components, [0], held, scores,
                                       np.full(1, 0.45),
                                       lambda k, kept: _finisher(found if kept else [], faces, topo.face_pairs, None),
-                                      faceted_objects={0}, unclosed=_unclosed(found))
+                                      faceted_objects={0}, unclosed=unclosed)
     assert selection.facets == {0: False}
 
 
