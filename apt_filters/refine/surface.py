@@ -1292,6 +1292,26 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     return guarded_move(vertices, faces, target - vertices, pairs)
 
 
+def _slabs_unflattened(vertices: np.ndarray, placed: np.ndarray, faces: np.ndarray, components: np.ndarray,
+                       found: list[Facet]) -> np.ndarray:
+    """The low-passed ``vertices`` (n, 3), each slab of ``found`` (facets with a side) whose low-pass holds under half
+    of its placed volume (``placed`` (n, 3)) back where the placement left it (``components`` (n,): each vertex's
+    object).
+
+    A slab's finish moves every vertex onto its prism along the vertex's normal, from where the low-pass left it.
+    The few modes chosen with a slab can press a thin plate through itself: seen 10080's 2.25 nm plate at 4 modes
+    kept 9 % of its volume, no ray met its prism from the right side, the fold guard held 660 moves back and the
+    plate came out V -24 %, A +26 %; finished from its placement, V +4 %, A +3 %."""
+    slabs = sorted({f.component for f in found if f.side is not None})
+    face_object = components[faces[:, 0]]
+    out = vertices.copy()
+    for c in slabs:
+        mine = faces[face_object == c]
+        if TriMesh(vertices, mine).signed_volume() < 0.5 * TriMesh(placed, mine).signed_volume():
+            out[components == c] = placed[components == c]
+    return out
+
+
 def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray) -> dict[int, int]:
     """The objects with facets ``found`` that they do not close (:func:`closes`), or that make a slab of them
     (:func:`~apt_filters.refine.facets.slab_pair` of the surface ``vertices`` (n, 3), unit ``normals`` (n, 3), each
@@ -1441,6 +1461,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
                            selection.facets if selection is not None else None, half_facets,
                            unjudged=selection is None, found=whole_facets)
+    vertices = _slabs_unflattened(vertices, placed.vertices, faces, components, found)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
     finished = _finisher(found, faces, pairs, None)(vertices)[0]
