@@ -795,3 +795,33 @@ def test_a_slabs_side_is_placed_by_its_ions_against_its_faces_whatever_level_the
         fitted, rounding = slab_fit(faces, side, p, level * u, np.ones(len(p)), np.hypot(0.3, 0.3))
         assert abs(fitted.radii.mean() - 5.0) < 0.03, (level, fitted.radii.mean())
         assert rounding == 0.0
+
+
+def test_a_disc_closed_by_strips_on_its_round_side_is_a_slab_and_a_lath_stays_a_prism():
+    # exact truth: a disc (R 5 nm, 2.5 nm thick) whose two faces and four strips of its side close it (dev plate
+    # 31003's halves: the held-out ions refused their square prism and the plates kept rounded rims, A -6 %) is a
+    # slab; a lath (3 x 7 x 11 nm: thin, its side crowds at its four faces) and a rounded cuboid (6 nm, r 1.5: its
+    # side spreads, but it is not thin) with the same six directions are polyhedra
+    from apt_filters.core.mesh import vertex_normals
+    from apt_filters.refine.facets import Facet, closes, slab_pair
+    from apt_filters.synth import Cylinder
+    from apt_filters.synth.zoo import RoundedCuboid
+
+    none = np.zeros(1, dtype=np.int64)
+    axes = np.array([(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)], dtype=float)
+    rng = np.random.default_rng(3)
+    for shape, half, slab in ((Cylinder((0.0, 0.0, 0.0), 5.0, 2.5, rotation=7), (1.25, 5.0, 5.0), True),
+                              (Cuboid((0.0, 0.0, 0.0), (7.0, 11.0, 3.0), rotation=7), (1.5, 3.5, 5.5), False),
+                              (RoundedCuboid((0.0, 0.0, 0.0), (6.0, 6.0, 6.0), 1.5, rotation=7), (3.0, 3.0, 3.0),
+                               False)):
+        mesh = shape.mesh(0.1)
+        normals = vertex_normals(mesh.vertices, mesh.faces)
+        tilted = axes + rng.normal(0.0, 0.05, axes.shape)  # ~3° off, as found
+        tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
+        facets = [Facet(0, shape.rotation @ n, half[k // 2], none, none, a, 0.0)
+                  for k, (n, a) in enumerate(zip(tilted, (60.0, 60.0, 5.0, 4.0, 5.0, 3.0)))]
+        assert closes(facets)
+        pair = slab_pair(facets, vertices=mesh.vertices, normals=normals)
+        assert (pair is not None) == slab, shape.kind
+        if slab:
+            assert {id(f) for f in pair} == {id(facets[0]), id(facets[1])}

@@ -71,7 +71,9 @@ Method
    side, :func:`edge_rounding`), and every vertex off the facets' cores moves along its normal onto that prism (onto
    its fillets where the ions show the rims rounded), one row of vertices onto each rim (step 3). The slab's other
    facets lie on its side, which takes their place. Dev 10038: rims -0.14 / -0.18 -> 0.00 nm, V -2.1 / -5.4 ->
-   +0.1 / +1.0 %, A -6.6 / -11.3 -> +0.1 / +0.3 %.
+   +0.1 / +1.0 %, A -6.6 / -11.3 -> +0.1 / +0.3 %. A thin object its facets close is a slab all the same where
+   its side does not crowd at the other facets (:func:`slab_pair`): strips on a disc's round side and rounded rims
+   closed it in a square prism that the held-out ions refused (dev plates 31002, 31003, 31009: A -6 to -13 %).
 
 A sphere has no facet and is left exactly as it is, and so is every open surface (an interface that meets
 the specimen edge is not a polyhedron). :func:`~apt_filters.refine.surface.refine_surface` lets the facets be
@@ -909,14 +911,50 @@ def _unsupported(more: tuple, fewer: tuple, ions: int) -> bool:
     return bool((fewer[2] - more[2]) / variance < (more[3] - fewer[3]) * np.log(ions))
 
 
-def slab_pair(facets: list[Facet], cap: float = 20.0) -> tuple[Facet, Facet] | None:
-    """Of one object's facets that do not close it (:func:`closes`), the two opposite ones (normals opposite to
-    within ``cap`` degrees) of the largest area: a slab's faces (a plate's two flats), whose side is not a facet;
-    None where there are none, or where the facets close the object (a polyhedron, :func:`fit_to_ions`)."""
-    if closes(facets):
-        return None
+def slab_pair(facets: list[Facet], vertices: np.ndarray, normals: np.ndarray, cap: float = 20.0,
+              steep: float = 0.5) -> tuple[Facet, Facet] | None:
+    """Of one object's facets, the two opposite ones (normals opposite to within ``cap`` degrees) of the largest
+    area: a slab's faces (a plate's two flats), whose side is not a facet; None where there are none, or where the
+    facets close the object as a polyhedron (:func:`fit_to_ions`).
+
+    Facets that close the object are a slab's all the same where the object is thin (the pair's planes closer than
+    its side's median distance from their axis, as a plate's 2-3 nm to its 4-7 nm radius; a cuboid's, however
+    rounded, are not) and its side does not crowd at the other facets' directions round the axis
+    (:func:`_round_side`: the object's vertices ``vertices`` (n, 3), unit ``normals`` (n, 3); a lath's four sides
+    do). A disc's side and rims, radial all round and rounded by the refinement, offer their noise a strip in every
+    direction: four strips of 2-7 nm² (on the side, or 24-36° up its rounded rims) closed the discs of dev plates
+    31003 (R 5.0 / 5.9 nm) and 31009 (R 4.1 nm) on a half, whose prisms, square where the discs are round, the
+    held-out ions refused (-2.5 / -7.8 / -4.3 SE), so the plates kept the rims the refinement rounded (A -6.3 /
+    -6.3 / -13.5 %)."""
     pairs = [(a, b) for a, b in itertools.combinations(facets, 2) if a.normal @ -b.normal > np.cos(np.radians(cap))]
-    return max(pairs, key=lambda ab: ab[0].area + ab[1].area, default=None)
+    pair = max(pairs, key=lambda ab: ab[0].area + ab[1].area, default=None)
+    if pair is None or not closes(facets):
+        return pair
+    axis = pair[0].normal - pair[1].normal
+    axis /= np.linalg.norm(axis)
+    strips = np.array([f.normal for f in facets if f is not pair[0] and f is not pair[1]])
+    side = np.abs(normals @ axis) < steep
+    centre = vertices[side].mean(axis=0)
+    radial = vertices[side] - centre
+    radial -= np.outer(radial @ axis, axis)
+    thickness = sum(f.offset - f.normal @ centre for f in pair)  # the planes' distances from the centre
+    if thickness > np.median(np.linalg.norm(radial, axis=1)):  # thick: a polyhedron
+        return None
+    return pair if _round_side(axis, strips, normals[side], cap / 2) else None
+
+
+def _round_side(axis: np.ndarray, strips: np.ndarray, side: np.ndarray, within: float) -> bool:
+    """Whether a slab's side (the unit normals ``side`` (m, 3) of its vertices off its faces) is round about
+    ``axis`` (3,) rather than the prism of its other facets (unit normals ``strips`` (k, 3)): its share of vertices
+    whose normal's direction round the axis lies within ``within`` degrees of a strip's is under twice a round
+    side's, ``k 2 within / 360``. A prism's side normals crowd at its faces' (a lath's four sides hold most of its
+    side), a disc's are spread evenly (its strips' cones hold their angular share)."""
+    def around(n: np.ndarray) -> np.ndarray:  # directions in the midplane
+        n = n - np.outer(n @ axis, axis)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+    crowded = (around(side) @ around(strips).T).max(axis=1) > np.cos(np.radians(within))
+    return bool(np.mean(crowded) < 2 * len(strips) * 2 * within / 360)
 
 
 def slab_side(pair: tuple[Facet, Facet], vertices: np.ndarray, normals: np.ndarray, spacing: float = 0.5,
