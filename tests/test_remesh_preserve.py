@@ -622,3 +622,22 @@ def test_a_mend_that_goes_round_a_cycle_ends_at_its_state_with_fewest_misses(mon
     mended, v, at = _toggling_mend(monkeypatch, rounds, (0.2, 0.4))
     m, _ = mended()
     assert m.done and np.array_equal(m.vertices[v], at[0])
+
+
+def test_the_mends_closest_points_from_its_local_engine_are_the_whole_outputs():
+    """The mend finds the output's closest point to each input point it missed in an engine over the output faces
+    within reach of those points only (the miss plus the longest edge): the same points, faces and weights as an
+    engine over the whole output, for points up to ``far`` off it (near one of eight spheres: the local engine's
+    face ids are mapped back to the output's)."""
+    from apt_filters.core.distance import SurfaceDistance
+    from apt_filters.remesh import mend
+
+    out = remesh(shapes.small_spheres(), edge_length=EDGE, verify=False).mesh
+    rng = np.random.default_rng(2)
+    last = np.flatnonzero(out.face_components() == out.face_components().max())  # one sphere: a part of the output
+    at = out.vertices[out.faces[rng.choice(last, 40)]].mean(axis=1)
+    points = at + rng.normal(scale=0.1, size=at.shape)
+    far = float(np.abs(SurfaceDistance(out).query(points).distance).max())
+    local = mend._closest_near(out, points, far, EDGE)
+    whole = SurfaceDistance(out).closest(points, EDGE)
+    assert all(np.array_equal(a, b) for a, b in zip(local, whole))

@@ -349,7 +349,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
     # the centring needs only the cells of the samples it visits (flips keep the face count): the per-sample
     # labels (4 bytes a sample, 256 per input face at 64 samples a face) go before the optimisation's peak
     stride = optimize.centring_stride(samples.n_samples, len(faces))
-    vertex_of = np.full(len(gens.positions), -1, np.int64)
+    vertex_of = np.full(len(gens.positions), -1, np.int32)  # int32 as the labels: held through the optimisation
     vertex_of[used] = np.arange(len(used))
     start = vertex_of[labels[::stride]]
     del labels
