@@ -313,7 +313,8 @@ def test_quality_sweep_projects_a_bounded_part_of_a_batch_at_a_time():
 
     def sweep(trace=False):
         vertices = out.vertices.copy()
-        s = optimize._Sweep(vertices, np.ascontiguousarray(out.faces, np.int64), project, 10.0, np.radians(33.0))
+        s = optimize._Sweep(vertices, np.ascontiguousarray(out.faces, np.int64), project, 10.0, np.radians(33.0),
+                            projected=3)
         if trace:
             tracemalloc.start()
         try:
@@ -641,3 +642,67 @@ def test_the_mends_closest_points_from_its_local_engine_are_the_whole_outputs():
     local = mend._closest_near(out, points, far, EDGE)
     whole = SurfaceDistance(out).closest(points, EDGE)
     assert all(np.array_equal(a, b) for a, b in zip(local, whole))
+
+
+def _jittered_sphere(n=600, seed=5):
+    """A unit sphere triangulated from ``n`` Fibonacci points (outward faces), its vertices jittered on it."""
+    from scipy.spatial import ConvexHull
+
+    k = np.arange(n) + 0.5
+    z, phi = 1 - 2 * k / n, np.pi * (1 + 5**0.5) * k
+    points = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
+    faces = ConvexHull(points).simplices
+    p = points[faces]
+    outward = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p.mean(axis=1)) > 0
+    faces = np.where(outward[:, None], faces, faces[:, ::-1])
+    jittered = points + 0.02 * np.random.default_rng(seed).standard_normal(points.shape)
+    return jittered / np.linalg.norm(jittered, axis=1, keepdims=True), faces
+
+
+def test_quality_sweep_projects_only_each_vertex_best_few_candidates():
+    """The mean-shape sweep (improve_quality) scores its candidates where they stand and projects only each
+    vertex's three best winners: on a unit sphere (exact projection p / |p|), every call of the projection gets
+    at most three points per vertex (all candidates: 6 steps of 7 points for valence 6), every vertex ends on
+    the sphere, and the mean Q rises."""
+    from apt_filters.contour.metrics import face_quality
+    from apt_filters.remesh import optimize
+
+    jittered, faces = _jittered_sphere()
+    n = len(jittered)
+    calls = []
+
+    def project(q, ids):
+        calls.append(ids.copy())
+        return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+    out = optimize.improve_quality(jittered, faces, np.ones(n, bool), project)
+    assert calls and max(np.bincount(ids).max() for ids in calls if len(ids)) <= 3
+    assert sum(len(ids) for ids in calls) < 3 * 3 * n  # at most three points per vertex tried, 3 sweeps
+    assert (out != jittered).any(axis=1).sum() > n / 2
+    assert np.allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
+    assert face_quality(TriMesh(out, faces))[1].mean() > face_quality(TriMesh(jittered, faces))[1].mean() + 0.01
+
+
+def test_quality_sweep_winners_are_the_best_candidates_that_would_move_the_vertex():
+    """``_winners``: each vertex's ``count`` best candidates as they stand, best first, are those that
+    :func:`_choose` would move it to, ranked by their full ring scores (every candidate scored alone)."""
+    from apt_filters.remesh import optimize
+
+    vertices, faces = _jittered_sphere(200, seed=2)
+    faces = np.ascontiguousarray(faces, np.int64)
+    start, ring_of = optimize.vertex_rings(faces, len(vertices))
+    batch = np.arange(0, len(vertices), 7)
+    ptr, cands = optimize._candidates(vertices, faces, start, ring_of, batch, optimize.QUALITY_STEPS)
+    floor, cos_turn = np.radians(33.0), np.cos(np.radians(10.0))
+    pick = optimize._winners(vertices, faces, start, ring_of, batch, ptr, cands, cos_turn, floor, 3)
+    losers = 0
+    for b, v in enumerate(batch):
+        old, now, least = optimize._present(vertices, faces, start, ring_of, v, floor)
+        scores = np.array([optimize._ring_score(vertices, faces, start, ring_of, v, cands[c], old, cos_turn, least)[0]
+                           for c in range(ptr[b], ptr[b + 1])])
+        wins = np.flatnonzero(scores > now + 1e-4 * (start[v + 1] - start[v]))
+        losers += len(scores) - len(wins)
+        best = ptr[b] + wins[np.argsort(-scores[wins], kind="stable")][:3]
+        assert np.array_equal(pick[b][pick[b] >= 0], best)
+        assert (pick[b][len(best):] == -1).all()
+    assert (pick[:, 2] >= 0).all() and losers > len(batch)  # three winners each, and candidates left out
