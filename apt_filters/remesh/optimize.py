@@ -324,9 +324,9 @@ def improve_quality(vertices: np.ndarray, faces: np.ndarray, movable: np.ndarray
     ring has moved), up to ``rounds`` sweeps over all movable vertices; ``moved`` as there. The candidates are
     scored where they stand (on the chords to the ring's neighbours: in a flat ring within a sagitta of the
     surface) and only each vertex's ``projected`` best winners are projected, scored again and the best kept if it
-    still wins: projecting all 42 was half of this pass's CPU, and projecting only the best one lowered the bumpy
-    gyroid's smallest angle from 6.2-7.9° to 4.8-6.2° over seeds 0-3 (a winner that loses once projected left the
-    vertex where it was).
+    still wins: projecting all 42 was half of this pass's CPU, and projecting only the best one (a winner that
+    loses once projected left the vertex where it was) gave the bumpy gyroid's component back on 6 of seeds 0-19
+    against 2 projecting all and 1 projecting three.
     """
     out = np.ascontiguousarray(vertices, np.float64).copy()
     faces = np.ascontiguousarray(faces, np.int64)
