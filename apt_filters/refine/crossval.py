@@ -204,7 +204,7 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
             candidate = finish[with_facets](apply_modes(fit, bases, trial))[0]
             shift = own.fitted_shift(own.distances(candidate, own_ions), own_ions, n_comp)
             per_ion[:, side] = loss.at(loss.distances(candidate, faceted_ions), faceted_ions, shift)
-        _accumulate(per_ion, comp, objects, sized_sums, sized_gram, np.zeros(n_comp))
+        _accumulate(per_ion, comp, objects, sized_sums, sized_gram)
     losses = np.full((n_comp, half), np.nan)
     chosen, keep_facets = {}, {}
     for c in objects:
@@ -382,13 +382,15 @@ def _normal_sums(comp, a, above, half_contrast, erfc_x, contrast, exp_x, density
 
 
 def _accumulate(per_ion: np.ndarray, comp: np.ndarray, objects, sums: np.ndarray, gram: np.ndarray,
-                count: np.ndarray) -> None:
-    """Adds each object's per-ion losses (ions x candidates) to its sums, Gram matrix and ion count."""
+                count: np.ndarray | None = None) -> None:
+    """Adds each object's per-ion losses (ions x candidates) to its sums, Gram matrix and ion count (``count``;
+    None where the ions were counted already, as for a second pass over the same ions)."""
     for c in objects:
         mine = per_ion[comp == c]
         sums[c] += mine.sum(axis=0)
         gram[c] += mine.T @ mine
-        count[c] += len(mine)
+        if count is not None:
+            count[c] += len(mine)
 
 
 def smoothest_within_one_se(loss: np.ndarray, gram: np.ndarray, sums: np.ndarray, count: float) -> int:
