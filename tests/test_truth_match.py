@@ -1,6 +1,7 @@
 """Pairing measured parts with true objects (:func:`apt_filters.truth.match_objects`), on exact shapes."""
 
 import numpy as np
+import pytest
 
 from apt_filters.synth.shapes import Cylinder, Sphere
 from apt_filters.truth import match_objects
@@ -46,3 +47,32 @@ def test_a_part_with_nothing_inside_the_compared_region_gives_undefined_distance
     assert np.isnan(err.mesh_to_true_mean) and np.isnan(err.mean_distance)
     assert 4.0 < err.hausdorff < 7.5 and err.true_to_mesh_mean > 2.5  # the truth's points 2.5-7 nm from the part
     assert err.area == 0.0
+
+
+def test_run_truth_rows_pair_a_rod_cut_by_the_specimen_edge_with_its_measured_half():
+    """``apt-filters run --truth`` pairs objects as the benchmarks do (shared volume), not by centroid: a rod
+    (radius 1, 10 nm long) cut in half by the specimen edge is measured as its half, whose centroid lies 2.5 nm from
+    the rod's centre, beyond the rod's depth (1 nm) that a centroid pairing allowed; a speck stands beside it."""
+    from types import SimpleNamespace
+
+    from apt_filters.analysis.objects import object_table
+    from apt_filters.core.mesh import merge
+    from apt_filters.synth.shapes import Capsule
+    from apt_filters.truth.specimen import compare_with_truth
+
+    rod = Cylinder([0.0, 0.0, 0.0], 1.0, 10.0)
+    half = Cylinder([0.0, 0.0, 2.5], 1.0, 5.0).mesh(0.1)
+    speck = Sphere([0.0, 1.6, -1.0], 0.4).mesh(0.1)
+    mesh = merge([speck, half])
+    objects = object_table(mesh).rows()
+    truth = {"features": [
+        {"name": "rod", "bounded": True, "shape": rod.params(), "volume_nm3": rod.volume(), "area_nm2": 1.0,
+         "depth_nm": rod.depth()},
+        {"name": "lost", "bounded": True, "shape": Capsule([9.0, 0.0, 0.0], 1.0, 4.0).params(),
+         "volume_nm3": 1.0, "area_nm2": 1.0, "depth_nm": 1.0}]}
+    result = SimpleNamespace(label="Cu", mesh=mesh, objects=objects, excess=[])
+    rows = {r["feature"]: r for r in compare_with_truth([result], truth)}
+    halved = max(objects, key=lambda o: o["volume"])
+    assert rows["rod"]["object_id"] == halved["object_id"]
+    assert rows["rod"]["volume_ratio"] == pytest.approx(0.5, abs=0.01)
+    assert rows["lost"]["object_id"] is None and "volume_ratio" not in rows["lost"]

@@ -495,6 +495,12 @@ class _Part:
     status: str
 
 
+def object_surfaces(mesh: TriMesh, *, cap_open: bool = True) -> dict[int, TriMesh]:
+    """Each object of ``mesh`` (nm, outward normals) by its id in :func:`object_table`: its surface, closed by its
+    caps where ``cap_open`` and it is cut by the specimen edge (the surface its volume is measured on)."""
+    return {p.object_id: p.closed for p in _objects(mesh, cap_open)}
+
+
 def _objects(mesh: TriMesh, cap_open: bool) -> list[_Part]:
     """The objects of ``mesh``, in increasing id: the face scalar ``object_id`` if given, else the components
     (the same numbering as the proxigram and excess)."""

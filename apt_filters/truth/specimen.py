@@ -1,7 +1,8 @@
 """Comparison of a run's objects and excess with a synthetic specimen's ground truth.
 
-Each bounded feature of ``truth.json`` is matched to the object whose centroid lies
-nearest its centre (within the feature's depth); volume, area and excess are compared.
+Each bounded feature of ``truth.json`` is matched to the run's object that shares the most volume with its shape
+rebuilt from the file (:func:`~apt_filters.truth.match_objects`, as the benchmarks pair them); volume, area and
+excess are compared.
 With the ions, each segregant's excess is also counted from them against the feature's true
 surface and true plateaus (:func:`~apt_filters.truth.counted_truth`): the specimen's ions
 are one draw of its model, and that count is what they hold, which no method can know better.
@@ -21,14 +22,26 @@ from apt_filters.truth.counting import CountedTruth, counted_truth
 from apt_filters.voxel import ConcentrationBasis
 
 
-def _match(objects: list[dict], center: np.ndarray, radius: float) -> dict | None:
-    best, best_d = None, radius
-    for obj in objects:
-        c = np.array([obj["centroid_x"], obj["centroid_y"], obj["centroid_z"]], dtype=float)
-        d = float(np.linalg.norm(c - center))
-        if d < best_d:
-            best, best_d = obj, d
-    return best
+def _paired(result, truth: dict) -> list[tuple[dict, dict | None]]:
+    """(feature, object) for each bounded feature of ``truth`` whose shape truth.json can rebuild: the object of
+    ``result`` (a pipeline ``SurfaceResult``) that shares the most volume with it, or None (none within reach)."""
+    from apt_filters.analysis.objects import object_surfaces
+    from apt_filters.truth.surface import match_objects
+
+    features, sdfs = [], []
+    for feature in truth["features"]:
+        try:
+            shape = shape_from_params(feature["shape"]) if feature.get("bounded") else None
+        except AptFiltersError:  # a custom shape: nothing to pair it by
+            shape = None
+        if shape is not None:
+            features.append(feature)
+            sdfs.append(shape.sdf)
+    listed = {obj["object_id"]: obj for obj in result.objects}
+    surfaces = object_surfaces(result.mesh) if listed and result.mesh.n_faces else {}
+    ids = [i for i in surfaces if i in listed]  # an object dropped for holding no ion is not paired
+    match = match_objects([surfaces[i] for i in ids], sdfs)
+    return [(f, None if m is None else listed[ids[m]]) for f, m in zip(features, match)]
 
 
 def _ratio(measured, true) -> float | None:
@@ -102,11 +115,7 @@ def compare_with_truth(results: list, truth: dict, counted: dict | None = None) 
     rows = []
     for res in results:
         excess = {(e["solute"], e["object_id"]): e for e in res.excess}
-        for feature in truth["features"]:
-            shape = feature["shape"]
-            if not feature.get("bounded") or "center" not in shape:
-                continue
-            obj = _match(res.objects, np.asarray(shape["center"], float), float(feature["depth_nm"]))
+        for feature, obj in _paired(res, truth):
             row = {"surface": res.label, "feature": feature["name"],
                    "true_volume_nm3": feature["volume_nm3"], "true_area_nm2": feature["area_nm2"],
                    "object_id": None if obj is None else obj["object_id"]}
