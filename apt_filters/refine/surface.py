@@ -503,9 +503,10 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray) -> t
     folds = folded(after)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
-    # the faces that may offend, and the pairs that hold them: every one at first; after a halving only the faces
-    # it changed and their pairs' other faces (any other face offended before, so a vertex of it was shortened and
-    # it changed, or stands still and offends no more, or is unchanged and in unchanged pairs: does not offend)
+    # the faces that may turn over and the pairs that may newly fold: every one at first; after a halving only the
+    # faces it changed and the pairs holding one of them. Any other turned face or new fold was there before the
+    # halving with the same normals: its faces offended, so a vertex of each was shortened (and then it changed)
+    # or all of them stand still (and they offend no more)
     some, held = np.arange(len(faces)), np.arange(len(pairs))
     attempt = 0
     while True:
@@ -519,13 +520,11 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray) -> t
         scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
         moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
         # only the faces around the shortened steps change, and the pairs holding one of them
-        around = topo.faces_around(verts)
-        after[around] = face_normals(moved, faces[around])
-        turned[around] = np.einsum("ij,ij->i", before[around], after[around]) < 0.0
-        both = topo.pairs_of(around)
-        folds[both] = folded(after, both)
-        some = np.union1d(around, pairs[both].ravel())
+        some = topo.faces_around(verts)
+        after[some] = face_normals(moved, faces[some])
+        turned[some] = np.einsum("ij,ij->i", before[some], after[some]) < 0.0
         held = topo.pairs_of(some)
+        folds[held] = folded(after, held)
         attempt += 1
 
 
