@@ -127,6 +127,10 @@ class Topology:
         non-manifold.
     face_pairs : (p, 2) int64
         The two faces of each edge used by exactly two faces, in edge order (lower face first).
+    edge_pair : (e,) int64
+        Each edge's row of ``face_pairs``, -1 where it has none (:meth:`pairs_of`).
+    vertex_corners : (indptr, corner) int64
+        CSR of the faces around each vertex (:meth:`faces_around`).
     components : (m,) int64
         Connected component of each face (faces sharing a vertex), numbered in the order of
         each component's first face: the one numbering every step uses.
