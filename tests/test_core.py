@@ -153,6 +153,23 @@ def test_topology_of_a_cube_a_holed_cube_and_a_torus():
         top.components[0] = 5  # shared by every caller: read-only
 
 
+def test_faces_around_vertices_and_pairs_of_faces_against_brute_force():
+    from tests.meshlab_shapes import torus
+
+    holed = TriMesh(torus().vertices, torus().faces[3:])  # boundary edges: faces with fewer than three pairs
+    top = holed.topology
+    rng = np.random.default_rng(2)
+    for size in (1, 5, 40):
+        verts = rng.choice(holed.n_vertices, size, replace=False)
+        assert np.array_equal(top.faces_around(verts), np.flatnonzero(np.isin(holed.faces, verts).any(axis=1)))
+        faces = rng.choice(len(holed.faces), size, replace=False)
+        want = np.flatnonzero(np.isin(top.face_pairs, faces).any(axis=1))
+        assert np.array_equal(top.pairs_of(faces), want)
+    indptr, corner = top.vertex_corners
+    slots = holed.faces.T.ravel()
+    assert all(np.array_equal(corner[indptr[v]:indptr[v + 1]], np.flatnonzero(slots == v)) for v in range(20))
+
+
 def test_topology_cache_lets_go_of_faces_nobody_else_holds():
     import weakref
 

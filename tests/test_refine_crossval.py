@@ -209,8 +209,7 @@ def test_a_low_passed_shape_that_folds_is_relaxed_in_place_not_held_at_the_rough
     moved = target[v] + 1.8 * (target[j] - target[v])
     target[v] = radius * moved / np.linalg.norm(moved)
     assert len(folded_pairs(target, faces)) > 0
-    topo = topology(faces, sphere.n_vertices)
-    out, held = _low_passed(placed, target, faces, topo.face_pairs, umbrella(adjacency(faces, sphere.n_vertices)))
+    out, held = _low_passed(placed, target, faces, umbrella(adjacency(faces, sphere.n_vertices)))
     assert len(folded_pairs(out, faces)) == 0
     assert held == 0
     off = np.abs(np.linalg.norm(out, axis=1) - radius)
@@ -242,7 +241,7 @@ def test_a_slab_its_low_pass_pressed_through_itself_is_finished_from_its_placeme
     def pressed(scale):
         return plate.center + (local * squash + scale * local * (1 - squash)) @ plate.rotation.T
 
-    finish = _finisher(found, faces, topo.face_pairs, None)
+    finish = _finisher(found, faces, None)
     kept = _slabs_unflattened(pressed(-0.1), vertices, faces, topo.vertex_components, found)
     assert np.array_equal(kept, vertices)
     thinned = pressed(0.85)
@@ -273,7 +272,7 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
     found = find_facets(rough, faces)
     unclosed = _unclosed(found, rough, vertex_normals(rough, faces), topo.vertex_components)
     assert len(found) == 2 and unclosed == {0: 2}
-    faceted = _finisher(found, faces, topo.face_pairs, None)(vertices)[0]
+    faceted = _finisher(found, faces, None)(vertices)[0]
     true_volume = sp.truth["features"][0]["volume_nm3"]
     assert abs(TriMesh(vertices, faces).signed_volume() / true_volume - 1) < 0.01
     assert abs(TriMesh(faceted, faces).signed_volume() / true_volume - 1) > 0.1
@@ -284,7 +283,7 @@ def test_facets_that_do_not_close_their_object_must_win_the_held_out_test_not_me
     scores = ObjectScores(np.ones(1, bool), weights, np.full(1, inside / 0.995), np.full(1, 0.10 / 0.995))
     selection = cross_validated_modes([vertices, vertices], faces, topo.vertex_components, [0], held, scores,
                                       np.full(1, 0.45),
-                                      lambda k, kept: _finisher(found if kept else [], faces, topo.face_pairs, None),
+                                      lambda k, kept: _finisher(found if kept else [], faces, None),
                                       faceted_objects={0}, unclosed=unclosed)
     assert selection.facets == {0: False}
 

@@ -2,6 +2,7 @@
 brute force."""
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from apt_filters.core.mesh import topology, vertex_normals
@@ -227,16 +228,68 @@ def test_taken_ions_get_what_they_get_among_all():
         assert np.array_equal(mine.vertex, whole.vertex[inside]) and np.array_equal(mine.distance, whole.distance[inside])
 
 
-def test_pairs_csr_is_scipys_canonical_matrix():
-    from scipy.sparse import csr_matrix
+def test_pairs_csr_is_scipys_canonical_upper_triangle():
+    from scipy.sparse import csr_matrix, triu
 
-    from apt_filters.refine.band import _symmetric_csr
+    from apt_filters.refine.band import _upper_csr
 
     v = np.random.default_rng(8).random((3000, 3)) * 8
     ij = cKDTree(v).query_pairs(1.1, output_type="ndarray")
     m = csr_matrix((np.ones(2 * len(ij)), (np.r_[ij[:, 0], ij[:, 1]], np.r_[ij[:, 1], ij[:, 0]])), shape=(3000, 3000))
-    indptr, indices = _symmetric_csr(ij.astype(np.int64), 3000)
+    m = triu(m).tocsr()
+    m.sort_indices()
+    flipped = ij[:, ::-1].copy()
+    flipped[::2] = ij[::2]  # either order of a pair's vertices
+    indptr, indices = _upper_csr(flipped.astype(np.int64), 3000)
     assert np.array_equal(indptr, m.indptr) and np.array_equal(indices, m.indices)
+
+
+@njit
+def _pooled_row_by_row(profiles, vertices, normals, radius, power):
+    """The oracle of :func:`pooled` (compiled, so that exp and pow are numba's): every vertex's full row of the other
+    vertices, in ascending order, each pair's weight measured from that row's side."""
+    n, k = profiles.shape
+    out = profiles.copy()
+    inv = 2.0 / (radius * radius)
+    for i in range(n):
+        for j in range(n):
+            r2 = ((vertices[i, 0] - vertices[j, 0]) ** 2 + (vertices[i, 1] - vertices[j, 1]) ** 2
+                  + (vertices[i, 2] - vertices[j, 2]) ** 2)
+            if j != i and r2 <= radius * radius:
+                c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+                w = np.exp(-r2 * inv) * max(c, 0.0) ** power
+                for col in range(k):
+                    out[i, col] += w * profiles[j, col]
+    return out
+
+
+def test_pooled_sums_each_row_in_ascending_order_bit_for_bit():
+    # each pair's weight found once and added to both of its rows: the bits of a pass over every full row
+    mesh = _blob()
+    n = mesh.n_vertices
+    normals = vertex_normals(mesh.vertices, mesh.faces)
+    comps = np.zeros(n, dtype=np.int64)
+    profiles = np.random.default_rng(5).random((n, 4))
+    got = pooled(profiles, mesh.vertices, normals, Pairs.find(mesh.vertices, comps, 0.9), 8.0)
+    want = _pooled_row_by_row(profiles, mesh.vertices, normals, 0.9, 8.0)
+    assert np.array_equal(got.view(np.uint64), want.view(np.uint64))
+
+
+def test_binned_sums_each_bin_in_the_ions_order_as_bincount_does():
+    from apt_filters.refine.band import binned
+
+    rng = np.random.default_rng(6)
+    b, n, half_width, bin_width = 50_000, 300, 1.5, 0.25
+    vertex = rng.integers(0, n, b)
+    distance = rng.uniform(-2.0, 2.0, b)  # a quarter outside the bins
+    distance[:5] = [-1.5, 1.5, -1.5 - 1e-12, 1.25, 0.0]  # the edges: first bin in, last edge out
+    weights = (rng.normal(size=b), rng.random(b) * 1e3)
+    got = binned(vertex, distance, weights, n, half_width, bin_width)
+    at = np.floor((distance + half_width) / bin_width).astype(np.int64)
+    ok = (at >= 0) & (at < 12)
+    for w, g in zip(weights, got):
+        want = np.bincount(vertex[ok] * 12 + at[ok], weights=w[ok], minlength=n * 12).reshape(n, 12)
+        assert g.shape == (n, 12) and np.array_equal(g.view(np.uint64), want.view(np.uint64))
 
 
 def test_subset_on_the_assigned_mesh_skips_the_walk_with_the_walks_result():

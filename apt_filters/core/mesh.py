@@ -127,6 +127,10 @@ class Topology:
         non-manifold.
     face_pairs : (p, 2) int64
         The two faces of each edge used by exactly two faces, in edge order (lower face first).
+    edge_pair : (e,) int64
+        Each edge's row of ``face_pairs``, -1 where it has none (:meth:`pairs_of`).
+    vertex_corners : (indptr, corner) int64
+        CSR of the faces around each vertex (:meth:`faces_around`).
     components : (m,) int64
         Connected component of each face (faces sharing a vertex), numbered in the order of
         each component's first face: the one numbering every step uses.
@@ -187,6 +191,38 @@ class Topology:
         order = np.argsort(inverse[two], kind="stable")
         pairs = np.repeat(np.arange(len(self._faces), dtype=np.int64), 3)[two][order].reshape(-1, 2)
         return _frozen(pairs)[0]
+
+    @functools.cached_property
+    def edge_pair(self) -> np.ndarray:
+        """(e,) int64 the row of :attr:`face_pairs` of each edge, -1 where the edge is not used by exactly two
+        faces: the pairs holding a face are ``edge_pair[face_edge[f]]`` (those >= 0)."""
+        out = np.full(len(self.edge_faces), -1, dtype=np.int64)
+        out[self.edge_faces == 2] = np.arange(len(self.face_pairs), dtype=np.int64)
+        return _frozen(out)[0]
+
+    @functools.cached_property
+    def vertex_corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """(indptr (n + 1,), corner (3m,)) int64 CSR of the faces around each vertex: ``corner[indptr[v]:
+        indptr[v + 1]]`` are the slots ``k`` of ``faces.T.ravel()`` that hold ``v`` (face ``k % m``, as corner
+        ``k // m``), in slot order."""
+        slots = self._faces.T.ravel()
+        corner = np.argsort(slots, kind="stable")
+        indptr = np.zeros(self._n_vertices + 1, dtype=np.int64)
+        np.cumsum(np.bincount(slots, minlength=self._n_vertices), out=indptr[1:])
+        return _frozen(indptr, corner.astype(np.int64))
+
+    def faces_around(self, vertices: np.ndarray) -> np.ndarray:
+        """(k,) int64 sorted: the faces that use any of ``vertices`` (int indices)."""
+        indptr, corner = self.vertex_corners
+        start, count = indptr[vertices], indptr[vertices + 1] - indptr[vertices]
+        # each vertex's run of slots, concatenated: start of its run plus the position within it
+        at = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+        return np.unique(corner[at] % max(len(self._faces), 1))
+
+    def pairs_of(self, faces: np.ndarray) -> np.ndarray:
+        """(k,) int64 sorted: the rows of :attr:`face_pairs` that hold any of ``faces`` (int indices)."""
+        pair = self.edge_pair[self.face_edge[faces]].ravel()
+        return np.unique(pair[pair >= 0])
 
     @functools.cached_property
     def _components(self) -> tuple[np.ndarray, int]:

@@ -26,7 +26,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
-from apt_filters.core.mesh import TriMesh, face_normals
+from apt_filters.core.mesh import TriMesh, face_normals, topology
 from apt_filters.core.nearby import select_near
 from apt_filters.core.triangle import closest_on_triangle
 from apt_filters.io.ions import IonTable
@@ -62,7 +62,8 @@ def normal_weight(normals: np.ndarray, i: np.ndarray, j: np.ndarray, power: floa
 
 @dataclass
 class Pairs:
-    """Neighbours of each vertex in its own component within ``radius`` nm (CSR), kept while the mesh moves little.
+    """Neighbours of each vertex in its own component within ``radius`` nm, kept while the mesh moves little: each
+    pair once, under its lower vertex (CSR: row ``i`` holds the ``j > i``, ascending).
 
     Found by a KD-tree at ``radius + slack`` and found again (:meth:`update`) only when a vertex
     has moved more than ``slack / 2`` since: no pair within ``radius`` is missed.
@@ -78,7 +79,7 @@ class Pairs:
     def find(cls, vertices: np.ndarray, components: np.ndarray, radius: float, slack: float = 0.6) -> "Pairs":
         ij = cKDTree(vertices).query_pairs(radius + slack, output_type="ndarray")
         ij = ij[components[ij[:, 0]] == components[ij[:, 1]]]
-        indptr, indices = _symmetric_csr(ij.astype(np.int64), len(vertices))
+        indptr, indices = _upper_csr(ij.astype(np.int64), len(vertices))
         return cls(indptr, indices, vertices.copy(), radius, slack)
 
     def update(self, vertices: np.ndarray, components: np.ndarray) -> "Pairs":
@@ -88,43 +89,49 @@ class Pairs:
         return Pairs.find(vertices, components, self.radius, self.slack)
 
 
-def _symmetric_csr(ij: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(indptr, indices) int64 of the (n, n) symmetric 0/1 matrix with the pairs ``ij`` (p, 2) int64 (each once,
-    i != j): each row's columns sorted, as scipy's canonical CSR of the same matrix."""
-    # both directions of every pair as one key row * n + column (< n**2, far inside int64 for any mesh), sorted:
-    # rows in order, each row's columns sorted. numpy's sort, not a compiled kernel: the kernel's cold compile
+def _upper_csr(ij: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices) int64 of the (n, n) upper triangle of the symmetric 0/1 matrix with the pairs ``ij`` (p, 2)
+    int64 (each once, i != j, either order): each row's columns (all above it) sorted, as scipy's canonical CSR of the
+    same matrix."""
+    # each pair as one key row * n + column with the lower vertex as row (< n**2, far inside int64 for any mesh),
+    # sorted: rows in order, each row's columns sorted. numpy's sort, not a compiled kernel: the kernel's cold compile
     # (~5 s CPU, numba's quicksort inside a parallel loop) cost more than this takes on any mesh here
-    keys = np.concatenate([ij[:, 0] * n + ij[:, 1], ij[:, 1] * n + ij[:, 0]])
+    keys = np.minimum(ij[:, 0], ij[:, 1]) * n + np.maximum(ij[:, 0], ij[:, 1])
     keys.sort()
     indptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(keys // n, minlength=n), out=indptr[1:])
     return indptr, keys % n
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _pool(vertices, normals, indptr, indices, radius, power, profiles, out):
     inv = 2.0 / (radius * radius)  # exp(-r² / 2 sigma²) with sigma = radius / 2
-    for i in prange(vertices.shape[0]):
-        # element by element: a row copy would compile numba's shape-check error path and its string formatting
-        # (~4 s CPU in every cold process, st30)
+    # element by element: a row copy would compile numba's shape-check error path and its string formatting
+    # (~4 s CPU in every cold process, st30)
+    for i in range(vertices.shape[0]):
         for col in range(profiles.shape[1]):
             out[i, col] = profiles[i, col]
+    # each pair's weight once, added to both of its rows (the same bits either way round: the differences only change
+    # sign, the products commute). Row i gets its neighbours j < i while the rows before it are visited and then its
+    # own j > i: every row sums them in ascending order of j, as a pass over its full row would
+    for i in range(vertices.shape[0]):
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
             r2 = ((vertices[i, 0] - vertices[j, 0]) ** 2 + (vertices[i, 1] - vertices[j, 1]) ** 2
                   + (vertices[i, 2] - vertices[j, 2]) ** 2)
-            c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
             if r2 <= radius * radius:
-                # one weight per pair, column by column (no temporary row)
+                c = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
                 w = np.exp(-r2 * inv) * (1.0 if power == 0.0 else max(c, 0.0) ** power)
                 for col in range(profiles.shape[1]):
                     out[i, col] += w * profiles[j, col]
+                    out[j, col] += w * profiles[i, col]
 
 
 def pooled(profiles: np.ndarray, vertices: np.ndarray, normals: np.ndarray, pairs: Pairs,
            normal_power: float) -> np.ndarray:
     """(n, k) each vertex's row of ``profiles`` (n, k) plus its neighbours' (``pairs`` within
-    ``pairs.radius``) weighted by exp(-r²/2σ²) (σ = radius/2) × :func:`normal_weight`."""
+    ``pairs.radius``) weighted by exp(-r²/2σ²) (σ = radius/2) × :func:`normal_weight`, in ascending order of the
+    neighbour."""
     if pairs.radius <= 0:
         return profiles.copy()
     out = np.empty_like(profiles, dtype=np.float64)
@@ -390,13 +397,10 @@ class Fan:
 
     @classmethod
     def of(cls, faces: np.ndarray, n_vertices: int) -> "Fan":
-        corner = faces.T.ravel()
-        order = np.argsort(corner, kind="stable")
-        indptr = np.zeros(n_vertices + 1, dtype=np.int64)
-        np.cumsum(np.bincount(corner, minlength=n_vertices), out=indptr[1:])
+        indptr, order = topology(faces, n_vertices).vertex_corners
         a, b = np.roll(faces, -1, axis=1).T.ravel(), np.roll(faces, -2, axis=1).T.ravel()
-        face = np.tile(np.arange(len(faces), dtype=np.int64), 3)
-        return cls(indptr, a[order].astype(np.int64), b[order].astype(np.int64), face[order])
+        # a copy of the cache's read-only indptr: the kernels are compiled for writeable arrays
+        return cls(indptr.copy(), a[order].astype(np.int64), b[order].astype(np.int64), order % max(len(faces), 1))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -612,10 +616,23 @@ def _largest_move(vertices: np.ndarray, before: np.ndarray) -> float:
 def binned(vertex: np.ndarray, distance: np.ndarray, weights: tuple[np.ndarray, ...], n_vertices: int,
            half_width: float, bin_width: float) -> list[np.ndarray]:
     """For each of ``weights`` (b,): the (n_vertices, n_bins) sum of it per vertex and distance bin over
-    [-half_width, half_width) (the ions' bins found once for all of them)."""
+    [-half_width, half_width) (bin ``floor((distance + half_width) / bin_width)``), each bin summed in the order of
+    the ions, as ``np.bincount`` sums it."""
     n_bins = int(round(2 * half_width / bin_width))
-    b = np.floor((distance + half_width) / bin_width).astype(np.int64)
-    ok = (b >= 0) & (b < n_bins)
-    key = vertex[ok] * n_bins + b[ok]
-    return [np.bincount(key, weights=w[ok], minlength=n_vertices * n_bins).reshape(n_vertices, n_bins)
-            for w in weights]
+    out = np.zeros((len(weights), n_vertices * n_bins))
+    _binned(np.ascontiguousarray(vertex, dtype=np.int64), np.ascontiguousarray(distance, dtype=np.float64),
+            np.ascontiguousarray(np.stack(weights) if weights else np.zeros((0, len(vertex))), dtype=np.float64),
+            float(half_width), float(bin_width), n_bins, out)
+    return [row.reshape(n_vertices, n_bins) for row in out]
+
+
+@njit(cache=True, nogil=True)
+def _binned(vertex, distance, weights, half_width, bin_width, n_bins, out):
+    """:func:`binned`'s sums: one pass over the ions for every weight (``weights`` (w, b), ``out`` (w, n * n_bins))."""
+    for i in range(vertex.shape[0]):
+        b = np.int64(np.floor((distance[i] + half_width) / bin_width))
+        if b < 0 or b >= n_bins:
+            continue
+        key = vertex[i] * n_bins + b
+        for w in range(weights.shape[0]):
+            out[w, key] += weights[w, i]

@@ -476,17 +476,18 @@ def creases(adj: csr_matrix, normals: np.ndarray, angle: float) -> np.ndarray:
     return lowest < np.cos(np.radians(angle))
 
 
-def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
-                 pairs: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, int]:
     """``vertices + step`` where that folds nothing; offending vertices' steps halved, then cancelled.
 
     A face is offending when its normal would turn by more than 90° or it would form a folded
     pair (:data:`FOLD_ANGLE`) that the input did not have. After :data:`GUARD_HALVINGS` halvings
     the vertices of offending faces stop (step 0) until none is left: faces whose vertices all
     stand still are unchanged, so the loop ends with no new fold. Returns the new vertices and
-    how many vertices had their step shortened. ``pairs``: :attr:`~apt_filters.core.mesh.Topology.face_pairs` of ``faces``, if known.
+    how many vertices had their step shortened. The faces' edge-adjacent pairs and the faces around each vertex
+    come from the :func:`~apt_filters.core.mesh.topology` cache of ``faces``.
     """
-    pairs = topology(faces, len(vertices)).face_pairs if pairs is None else pairs
+    topo = topology(faces, len(vertices))
+    pairs = topo.face_pairs
     limit = np.cos(np.radians(FOLD_ANGLE))
 
     def folded(normals: np.ndarray, some: slice | np.ndarray = slice(None)) -> np.ndarray:
@@ -502,26 +503,28 @@ def guarded_move(vertices: np.ndarray, faces: np.ndarray, step: np.ndarray,
     folds = folded(after)
     scale = np.ones(len(vertices))
     touched = np.zeros(len(vertices), dtype=bool)
+    # the faces that may turn over and the pairs that may newly fold: every one at first; after a halving only the
+    # faces it changed and the pairs holding one of them. Any other turned face or new fold was there before the
+    # halving with the same normals: its faces offended, so a vertex of each was shortened (and then it changed)
+    # or all of them stand still (and they offend no more)
+    some, held = np.arange(len(faces)), np.arange(len(pairs))
     attempt = 0
     while True:
-        bad = turned.copy()
-        bad[pairs[folds & ~existing].ravel()] = True
-        bad &= (scale[faces] > 0).any(axis=1)
-        if not bad.any():
+        new_folds = held[folds[held] & ~existing[held]]
+        bad = np.union1d(some[turned[some]], pairs[new_folds].ravel())
+        bad = bad[(scale[faces[bad]] > 0).any(axis=1)]
+        if not len(bad):
             return moved, int(touched.sum())
         verts = np.unique(faces[bad])
         touched[verts] = True
         scale[verts] = scale[verts] * 0.5 if attempt < GUARD_HALVINGS else 0.0
         moved[verts] = vertices[verts] + scale[verts, None] * step[verts]
         # only the faces around the shortened steps change, and the pairs holding one of them
-        changed = np.zeros(len(vertices), dtype=bool)
-        changed[verts] = True
-        hit = changed[faces].any(axis=1)
-        around = np.flatnonzero(hit)
-        after[around] = face_normals(moved, faces[around])
-        turned[around] = np.einsum("ij,ij->i", before[around], after[around]) < 0.0
-        both = np.flatnonzero(hit[pairs[:, 0]] | hit[pairs[:, 1]])
-        folds[both] = folded(after, both)
+        some = topo.faces_around(verts)
+        after[some] = face_normals(moved, faces[some])
+        turned[some] = np.einsum("ij,ij->i", before[some], after[some]) < 0.0
+        held = topo.pairs_of(some)
+        folds[held] = folded(after, held)
         attempt += 1
 
 
@@ -603,14 +606,13 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
         mesh = subdivide(mesh)
     vertices, faces = mesh.vertices.astype(np.float64).copy(), mesh.faces
     plain = umbrella(adjacency(faces, len(vertices)))
-    pairs = topology(faces, len(vertices)).face_pairs
     # the fold guard keeps the folds it is given: none may be left in the start
     vertices, _ = unfold(vertices, faces, plain)
     for _ in range(relax_start):
         nn = vertex_normals(vertices, faces)
         lap = plain @ vertices - vertices
         lap -= np.einsum("ij,ij->i", lap, nn)[:, None] * nn
-        vertices, _ = guarded_move(vertices, faces, 0.5 * lap, pairs)
+        vertices, _ = guarded_move(vertices, faces, 0.5 * lap)
     return mesh, vertices, plain
 
 
@@ -624,8 +626,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     one search serves every run from the same start)."""
     vertices = vertices.copy()
     n = len(vertices)
-    topo = topology(faces, n)
-    components, pairs = topo.vertex_components, topo.face_pairs
+    components = topology(faces, n).vertex_components
     n_comp = int(components.max()) + 1 if n else 0
     adj = adjacency(faces, n)
     plain = umbrella(adj)
@@ -687,7 +688,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
         offset = np.where(crease, at_crease, offset)
         # full steps first, then Robbins-Monro averaging of the noisy estimates
         gain = min(1.0, p.full_steps / it)
-        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals, pairs)
+        new, g = guarded_move(vertices, faces, gain * offset[:, None] * normals)
         step = np.einsum("ij,ij->i", new - vertices, normals)
         guarded += g
         vertices = new
@@ -695,7 +696,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
             normals = vertex_normals(vertices, faces)
             lap = plain @ vertices - vertices
             lap -= np.einsum("ij,ij->i", lap, normals)[:, None] * normals
-            vertices, g = guarded_move(vertices, faces, p.tangential * np.where(ok[:, None], lap, 0.0), pairs)
+            vertices, g = guarded_move(vertices, faces, p.tangential * np.where(ok[:, None], lap, 0.0))
             guarded += g
         history.append(float(np.abs(step).max()) if n else 0.0)
         if history[-1] < p.tolerance * gain:
@@ -1218,7 +1219,7 @@ def _level_offset_errors(levels: list[ObjectLevels], scores: ObjectScores, width
     return out
 
 
-def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tuple[float, float] | None,
+def _finisher(found: list[Facet], faces: np.ndarray, blur: tuple[float, float] | None,
               lift: np.ndarray | None = None, components: np.ndarray | None = None):
     """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
     of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened, the vertices
@@ -1244,14 +1245,14 @@ def _finisher(found: list[Facet], faces: np.ndarray, pairs: np.ndarray, blur: tu
             shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0))
             if lift is not None:
                 shift = shift + lift
-            vertices, g = guarded_move(vertices, faces, shift[:, None] * along, pairs)
+            vertices, g = guarded_move(vertices, faces, shift[:, None] * along)
             guarded += g
         sharpened, corrected, between = 0, vertices, time.perf_counter()
         if found:
             step, along = facet_steps(vertices, faces, found)
-            vertices, g = guarded_move(vertices, faces, step[:, None] * along, pairs)
+            vertices, g = guarded_move(vertices, faces, step[:, None] * along)
             corners = edge_and_corner_steps(vertices, faces, found, frames=frames)
-            vertices, g2 = guarded_move(vertices, faces, corners, pairs)
+            vertices, g2 = guarded_move(vertices, faces, corners)
             guarded += g + g2
             sharpened = int(np.count_nonzero(step) + np.count_nonzero(corners.any(axis=1)))
         return vertices, len(found), sharpened, guarded, corrected, between
@@ -1288,7 +1289,7 @@ def _placed_facets(placed: _Placed, faces: np.ndarray, components: np.ndarray, s
             if found else [])
 
 
-def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pairs: np.ndarray,
+def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray,
                 plain: csr_matrix) -> tuple[np.ndarray, int]:
     """The low-passed shape ``target`` (n, 3) of the placed ``vertices`` (n, 3), and how many vertices the fold
     guard had to hold back (0 unless it still folds once unfolded).
@@ -1301,15 +1302,14 @@ def _low_passed(vertices: np.ndarray, target: np.ndarray, faces: np.ndarray, pai
     vertex of a face the move would turn: that held them where the placement had them, rough and inflated
     (held-out ``plate`` 10010's second plate, 4.2 points of contrast: 23 folded pairs on its 9-mode shape, 540
     of its 2,046 vertices held back, its area 234 -> 383 nm² against a true 261; unfolded: 189 vertices moved,
-    262 nm²). Only folds that this leaves go to the guard. ``pairs``: the faces' edge-adjacent pairs;
-    ``plain``: the umbrella operator.
+    262 nm²). Only folds that this leaves go to the guard. ``plain``: the umbrella operator.
     """
     if not len(folded_pairs(target, faces, FOLD_ANGLE)):
         return target, 0
     target, _ = unfold(target, faces, plain, original=vertices)
     if not len(folded_pairs(target, faces, FOLD_ANGLE)):
         return target, 0
-    return guarded_move(vertices, faces, target - vertices, pairs)
+    return guarded_move(vertices, faces, target - vertices)
 
 
 def _slabs_unflattened(vertices: np.ndarray, placed: np.ndarray, faces: np.ndarray, components: np.ndarray,
@@ -1344,7 +1344,7 @@ def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, com
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
-                  pairs: np.ndarray, components: np.ndarray, low_pass) -> np.ndarray:
+                  components: np.ndarray, low_pass) -> np.ndarray:
     """(c, 2) standard errors of the faceted objects' volumes and areas from the two halves' surfaces, each
     low-passed (``low_pass(vertices)``) and finished with its own facets as the whole is
     (``RefineResult.shape_errors``); NaN elsewhere."""
@@ -1356,7 +1356,7 @@ def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dic
     sizes = np.zeros((2, len(objects), 2))
     for k, fit in enumerate(fits):
         found = [f for f in half_facets[k] if keep.get(f.component, True)]
-        vertices = _finisher(found, faces, pairs, None)(low_pass(fit.vertices))[0]
+        vertices = _finisher(found, faces, None)(low_pass(fit.vertices))[0]
         for i, c in enumerate(objects):
             part = TriMesh(vertices, faces[face_object == c])
             sizes[k, i] = part.signed_volume(), part.area()
@@ -1403,8 +1403,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     n = len(start)
     stages = [StageReport.between("prepare", mesh.vertices.astype(np.float64), start, clock, p.relax_start,
                                   f"{p.subdivisions} subdivision(s), {n:,} vertices")]
-    topo = topology(faces, n)
-    components, pairs = topo.vertex_components, topo.face_pairs
+    components = topology(faces, n).vertex_components
     rimmed = np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])
     if p.select_modes:  # open surfaces: no noise of the start shared by the halves' surfaces (open_start)
         start = open_start(start, faces, components, rimmed, p.smoothing)
@@ -1450,7 +1449,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         whole_facets = _found_facets(placed.vertices, faces, p.facets, half_facets)
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
-                                          lambda k, kept: _finisher(half_facets[k] if kept else [], faces, pairs,
+                                          lambda k, kept: _finisher(half_facets[k] if kept else [], faces,
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found},
                                           unclosed=_unclosed(whole_facets, placed.vertices, placed.normals,
@@ -1458,10 +1457,10 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
-        shape_errors = _half_spreads(fits, half_facets, selection.facets, faces, pairs, components,
+        shape_errors = _half_spreads(fits, half_facets, selection.facets, faces, components,
                                      lambda v: apply_modes(v, bases, kept) if kept else v)
         if kept:
-            vertices, g = _low_passed(vertices, apply_modes(vertices, bases, kept), faces, pairs, plain)
+            vertices, g = _low_passed(vertices, apply_modes(vertices, bases, kept), faces, plain)
             guarded += g
         stages.append(StageReport.between("modes", placed.vertices, vertices, clock, 0,
                                           f"{len(kept)} of {len(objects)} closed objects low-passed"))
@@ -1470,7 +1469,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         clock, before = time.perf_counter(), vertices
         lengths = cross_validated_lengths([f.vertices for f in fits], faces, components, opened, held, scores,
                                           placed.widths)
-        vertices, g = _low_passed(vertices, open_low_pass(vertices, faces, components, lengths), faces, pairs, plain)
+        vertices, g = _low_passed(vertices, open_low_pass(vertices, faces, components, lengths), faces, plain)
         guarded += g
         selection = selection or ModeSelection({}, CANDIDATES, np.full((len(closed), len(CANDIDATES) + 1), np.nan))
         selection.lengths = lengths
@@ -1484,7 +1483,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     vertices = _slabs_unflattened(vertices, placed.vertices, faces, components, found)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
-    finished = _finisher(found, faces, pairs, None)(vertices)[0]
+    finished = _finisher(found, faces, None)(vertices)[0]
     along = smoothed_normals(finished, faces, p.normal_smoothing)
     ions_near = placed.near.cover(finished, p.half_width + 1.0)
     # one band of the finished shape for its offset errors, the segregant's peak and the step's blur
@@ -1497,7 +1496,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
     before = vertices
-    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, pairs, blur, lift,
+    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, blur, lift,
                                                                      components)(vertices)
     guarded += g
     # the facets' time from where the blur's correction ended; the blur's from the facets' finding on
