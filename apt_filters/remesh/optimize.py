@@ -197,7 +197,12 @@ def flip_caps(vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, max_a
             break
         edge, rings = _interior_edges(faces, len(vertices))
         a, b, c, d, f1, f2 = edge
-        at_c, at_d = _angle(vertices, c, a, b), _angle(vertices, d, a, b)
+        # the angles only where a cap can be, at a pinned apex over a pinned edge: over every interior edge they
+        # were half of this call's CPU where caps are found (bumpy gyroid: 0.21 -> 0.10 s a remesh)
+        near = np.flatnonzero(pinned[a] & pinned[b] & (pinned[c] | pinned[d]))
+        at_c, at_d = np.zeros(len(a)), np.zeros(len(a))
+        at_c[near] = _angle(vertices, c[near], a[near], b[near])
+        at_d[near] = _angle(vertices, d[near], a[near], b[near])
         cap = pinned[a] & pinned[b] & ((pinned[c] & (at_c > limit)) | (pinned[d] & (at_d > limit)))
         # the new faces (c, a, d) and (d, b, c) split the other face at the apex: they keep its normal
         other = np.where(at_c > at_d, f2, f1)
