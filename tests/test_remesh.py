@@ -509,7 +509,8 @@ def test_candidate_choice_is_that_of_scoring_every_candidate_in_full(floor, max_
     ptr, cands = optimize._candidates(vertices, faces, start, ring_of, batch, optimize.QUALITY_STEPS)
     cos_turn, low = np.cos(np.radians(max_turn)), np.radians(floor) if floor >= 0 else -1.0
     out = vertices.copy()
-    went = optimize._choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, low)
+    went = optimize._choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, low,
+                            optimize._rings(out, faces, start, ring_of, batch, low))
     expect, moved = vertices.copy(), []
     for b, v in enumerate(batch):
         ring = ring_of[start[v]:start[v + 1]]
