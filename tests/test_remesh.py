@@ -183,6 +183,43 @@ def test_cell_bordered_by_two_cells_is_dissolved():
                                                      non_manifold_edges=0, non_manifold_vertices=0)
 
 
+def test_voronoi_fans_are_the_label_runs_round_each_meeting_vertex():
+    # the extraction's compiled fans (its table holds each refined face with the vertex's corner in it) against
+    # walking every meeting vertex's faces in Python: faces (v, x, y) in ascending id, from the one no face ends
+    # at (an open fan) or else the first, each followed by the face that starts where it ends; runs of one label
+    # (cyclically) are one corner. A sphere labelled by 60 even sites, every refined vertex in order
+    samples = refine(shapes.sphere(3.0), 0.2)
+    faces = samples.corners()
+    k = np.arange(60) + 0.5
+    z, phi = 1 - 2 * k / 60, np.pi * (3 - np.sqrt(5)) * k
+    sites = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
+    labels = cKDTree(3.0 * sites).query(samples.points())[1].astype(np.int32)
+    counts, corners = extract._voronoi_fans(samples.lattice.args(), labels, samples.n_vertices)
+    order = np.argsort(faces.ravel(), kind="stable")  # (face, corner) pairs by vertex, faces ascending
+    bounds = np.searchsorted(faces.ravel()[order], np.arange(samples.n_vertices + 1))
+    expect_counts, expect = [], []
+    for v in range(samples.n_vertices):
+        around = order[bounds[v]:bounds[v + 1]] // 3
+        if len(set(labels[around].tolist())) < 3:
+            continue
+        corner = [int(np.flatnonzero(faces[f] == v)[0]) for f in around]
+        nxt = [faces[f, (c + 1) % 3] for f, c in zip(around, corner)]
+        prv = [faces[f, (c + 2) % 3] for f, c in zip(around, corner)]
+        first = next((j for j in range(len(around)) if nxt[j] not in prv), 0)
+        walk = [first]
+        while len(walk) < len(around):
+            succ = next((i for i in range(len(around)) if nxt[i] == prv[walk[-1]]), -1)
+            if succ < 0 or succ == first:
+                break
+            walk.append(succ)
+        run = [int(labels[around[j]]) for j in walk]
+        fan = [label for j, label in enumerate(run) if label != run[j - 1]]
+        expect_counts.append(len(fan))
+        expect += fan
+    assert len(expect_counts) > 100  # a test of many meeting vertices
+    assert counts.tolist() == expect_counts and corners.tolist() == expect
+
+
 def test_two_cells_flapped_on_an_edge_are_lone():
     # a retry of the bumpy gyroid: two small cells (0.07 nm apart) side by side on the border of two others
     # made a flap of two faces on the edge between those two; each of the pair has three neighbours but two
@@ -509,7 +546,8 @@ def test_candidate_choice_is_that_of_scoring_every_candidate_in_full(floor, max_
     ptr, cands = optimize._candidates(vertices, faces, start, ring_of, batch, optimize.QUALITY_STEPS)
     cos_turn, low = np.cos(np.radians(max_turn)), np.radians(floor) if floor >= 0 else -1.0
     out = vertices.copy()
-    went = optimize._choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, low)
+    went = optimize._choose(out, faces, start, ring_of, batch, ptr, cands, cos_turn, low,
+                            optimize._rings(out, faces, start, ring_of, batch, low))
     expect, moved = vertices.copy(), []
     for b, v in enumerate(batch):
         ring = ring_of[start[v]:start[v + 1]]
@@ -528,3 +566,27 @@ def test_candidate_choice_is_that_of_scoring_every_candidate_in_full(floor, max_
     assert len(moved) > 0.2 * len(batch)  # a test of moves, not of none
     assert np.flatnonzero(went).tolist() == moved
     assert np.array_equal(out, expect)
+
+
+@pytest.mark.parametrize("floor", [-1.0, 33.0])
+def test_sweep_rings_are_each_ring_as_it_is(floor):
+    # _rings, computed once per part of a batch for _winners and _choose: each vertex's ring's unit face normals
+    # (bit for bit those of numpy's cross product), rows past its ring zero, its score and floor as scoring the
+    # ring in full gives them, on a jittered sheet
+    sheet = shapes.tilted_sheet()
+    vertices = sheet.vertices + np.random.default_rng(6).normal(scale=0.15, size=sheet.vertices.shape)
+    faces = np.ascontiguousarray(sheet.faces, np.int64)
+    start, ring_of = optimize.vertex_rings(faces, len(vertices))
+    batch = np.flatnonzero(np.diff(start) > 0)[::3]
+    low = np.radians(floor) if floor >= 0 else -1.0
+    normals, now, least = optimize._rings(vertices, faces, start, ring_of, batch, low)
+    assert normals.shape == (len(batch), np.diff(start)[batch].max(), 3)
+    for b, v in enumerate(batch):
+        ring = ring_of[start[v]:start[v + 1]]
+        tri = vertices[faces[ring]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        old = n / np.maximum(np.sqrt((n**2).sum(axis=1)), 1e-300)[:, None]
+        assert np.array_equal(normals[b, :len(ring)], old) and not normals[b, len(ring):].any()
+        score, smallest = _full_ring_score(vertices, faces, ring, v, vertices[v], old, -2.0, -1.0 if low < 0 else 0.0)
+        assert now[b] == pytest.approx(score, rel=1e-12)
+        assert least[b] == (pytest.approx(min(low, smallest), rel=1e-12) if low >= 0 else low)

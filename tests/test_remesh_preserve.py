@@ -694,10 +694,12 @@ def test_quality_sweep_winners_are_the_best_candidates_that_would_move_the_verte
     batch = np.arange(0, len(vertices), 7)
     ptr, cands = optimize._candidates(vertices, faces, start, ring_of, batch, optimize.QUALITY_STEPS)
     floor, cos_turn = np.radians(33.0), np.cos(np.radians(10.0))
-    pick = optimize._winners(vertices, faces, start, ring_of, batch, ptr, cands, cos_turn, floor, 3)
+    pick = optimize._winners(vertices, faces, start, ring_of, batch, ptr, cands, cos_turn, floor, 3,
+                             optimize._rings(vertices, faces, start, ring_of, batch, floor))
     losers = 0
     for b, v in enumerate(batch):
-        old, now, least = optimize._present(vertices, faces, start, ring_of, v, floor)
+        normals, now, least = (x[0] for x in optimize._rings(vertices, faces, start, ring_of, np.array([v]), floor))
+        old = normals[:start[v + 1] - start[v]]
         scores = np.array([optimize._ring_score(vertices, faces, start, ring_of, v, cands[c], old, cos_turn, least)[0]
                            for c in range(ptr[b], ptr[b + 1])])
         wins = np.flatnonzero(scores > now + 1e-4 * (start[v + 1] - start[v]))

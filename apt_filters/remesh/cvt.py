@@ -511,10 +511,15 @@ def _lloyd_pass(lattice, face_weight, group, labels, positions, slot_ptr, slot_g
     moment = np.zeros((n, 3))
     energy = 0.0
     point = np.empty(3)
+    last_c, last_g, row = -1, -1, -1
     for i in range(len(labels)):
         sample_point(vertices, faces, centroid, i, point)
         c = labels[i]
-        row = _row_of(c, group[i], slot_ptr, slot_group, slot_row)
+        # a sample's row (its previous generator's, in its group) looked up once a run: an input face's samples
+        # mostly share both (looked up for every sample, the search was a third of this pass's CPU)
+        if c != last_c or group[i] != last_g:
+            last_c, last_g = c, group[i]
+            row = _row_of(c, last_g, slot_ptr, slot_group, slot_row)
         best, arg = np.inf, c
         for j in range(table.shape[1]):
             g = table[row, j]

@@ -76,7 +76,8 @@ class Lattice:
                 self.n, self.n_inner, self.n_input_edges)
 
 
-@njit(nogil=True, cache=True)
+# inlined: called per corner of every refined face round a Voronoi vertex, a call cost more than its few reads
+@njit(nogil=True, cache=True, inline="always")
 def point_id(vertices, faces, face_edge, forward, point, n, n_inner, n_edges, f, j):
     """Refined vertex id of lattice point ``j`` of input face ``f`` (the fields of :class:`Lattice`, unpacked:
     the compiled kernels unpack them once, not per point)."""
