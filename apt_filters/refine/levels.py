@@ -1202,8 +1202,8 @@ def held_out_gain(distance: np.ndarray, part: np.ndarray, total: np.ndarray, win
     half_width : float, nm
         Reach of the profile fit each side.
     fits : (BallFit, BallFit), optional
-        The ball fitted on each half (e.g. with the other objects of its phase, :func:`fit_balls`); None: fitted
-        here on this object's ions.
+        The ball fitted on each half (e.g. with the other objects of its phase, :func:`fit_balls`, or its own
+        :func:`fit_ball` of that half's ions, None where it has none); None: fitted here on this object's ions.
 
     Returns
     -------
