@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.special
 
-from apt_filters.refine.levels import _WIDTH_NODES, ball_profile
+from apt_filters.refine.levels import _WIDTH_NODES, _on_grid, ball_profile
 
 BOUND = 1e-12
 """Largest difference allowed from the oracle (ball_profile's docstring): nine orders below the counting error of
@@ -81,3 +81,18 @@ def test_the_profile_takes_no_noncentral_distribution_function_per_node(monkeypa
     monkeypatch.setattr(scipy.special, "chndtr", refused)
     g = ball_profile(np.linspace(-3.0, 3.0, 61), radius=1.5, dims=2.4, width=0.4, blur=0.25)
     assert np.all(np.diff(g) <= 0) and g[0] > 0.9 and g[-1] < 1e-3
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_grid_reading_is_numpys_interpolation_bit_for_bit(seed):
+    # the oracle is np.interp itself: every case it has (left of the grid, right of it, at its end, at a node,
+    # between nodes, NaN) on the grids ball_profile builds (0.01 nm from a radius that is no multiple of it)
+    rng = np.random.default_rng(seed)
+    start = rng.uniform(0.0, 4.0)
+    xp = np.arange(start, start + rng.uniform(0.05, 7.0), 0.01)
+    fp = np.clip(np.cumsum(rng.normal(0.0, 0.05, len(xp))), 0.0, 1.0)
+    fp[rng.integers(0, len(xp), 5)] = fp[0]  # flat stretches
+    x = np.concatenate([rng.uniform(xp[0] - 0.5, xp[-1] + 0.5, 20_000), xp, xp[rng.integers(0, len(xp), 50)],
+                        np.nextafter(xp, np.inf), np.nextafter(xp, -np.inf), [np.nan, xp[0], xp[-1]]])
+    rng.shuffle(x)
+    assert _on_grid(x, xp, fp).tobytes() == np.interp(x, xp, fp).tobytes()

@@ -83,6 +83,17 @@ def test_held_out_ions_choose_the_ball_where_the_windows_do_not_reach_the_platea
     assert gain > 3 * se, (gain, se)
 
 
+def test_the_held_out_gain_from_each_halfs_own_fit_is_the_gain_it_fits_itself(ions):
+    # the cross-fitted levels fit each half's ball once and pass it in (fits=): the same gain, bit for bit
+    d, iso = ions
+    half, window = _halves_and_windows(d)
+    total = np.ones_like(iso)
+    ball = dict(radius=SURFACE, dims=3.0, blur=BLUR, half_width=WINDOW[1])
+    own = [fit_ball(d[half == h], iso[half == h], total[half == h], **ball) for h in (0, 1)]
+    assert held_out_gain(d, iso, total, window, half, fits=own, **ball) == \
+        held_out_gain(d, iso, total, window, half, **ball)
+
+
 def test_the_ball_of_a_sphere_and_of_a_rod():
     from skimage.measure import marching_cubes
     from apt_filters.core.mesh import topology

@@ -954,7 +954,11 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         if radius[c] <= 0 or not len(mine):
             return None
         ball = dict(radius=radius[c], dims=dims[c], blur=sigma, half_width=p.plateau_window[1])
-        gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], **ball)
+        # each half's own ball, fitted once: the held-out gain's two folds and the profile level's halves
+        # (halves_of) read the same fits of the same ions
+        own = [fit_ball(distance[sel], part[sel], total[sel], **ball)
+               for sel in (mine[half[mine] == h] for h in (0, 1))]
+        gain = held_out_gain(distance[mine], part[mine], total[mine], window[mine], half[mine], fits=own, **ball)
         fit = fit_ball(distance[mine], part[mine], total[mine], **ball)
         if fit is None:
             return None
@@ -1002,8 +1006,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             for h in (0, 1):
                 if route == 0:
                     sel = mine[half[mine] == h]
-                    own = fit_ball(distance[sel], part[sel], total[sel], **ball)
-                    out.append(None if own is None else profile_levels(distance[sel], atoms[sel], k, own, **ball))
+                    out.append(None if own[h] is None else profile_levels(distance[sel], atoms[sel], k, own[h], **ball))
                 else:
                     sel = np.flatnonzero(some & (half == h))
                     out.append(profile_levels(distance[sel], atoms[sel], k, joint[h], radius=radius, dims=dims,
