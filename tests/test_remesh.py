@@ -11,10 +11,10 @@ from apt_filters.core.checks import self_intersecting_faces
 from apt_filters.core.deps import open3d
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh import cvt, extract, features as feat, optimize, quality, remesh, repair
+from apt_filters.remesh import cvt, extract, features as feat, optimize, quality, remesh, repair, sampling
 from apt_filters.remesh.remesh import curve_slivers, pin_corners
 from apt_filters.core.distance import SurfaceDistance
-from apt_filters.remesh.sampling import refine
+from apt_filters.remesh.sampling import refine, split
 from tests import remesh_shapes as shapes
 
 SHAPES = ["sphere", "torus", "capped_cylinder", "open_sphere", "rotated_box", "box_minus_sphere"]
@@ -457,6 +457,33 @@ def test_lattice_refinement_is_conforming_and_exact(max_edge):
     assert np.allclose(centre, mesh.vertices[mesh.faces].mean(axis=1))
     lengths = np.linalg.norm(fine.vertices[fine.faces] - fine.vertices[np.roll(fine.faces, 1, axis=1)], axis=2)
     assert np.quantile(lengths, 0.9) < max_edge
+
+
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_lattice_ids_are_one_per_exact_refined_point(n):
+    # the refined vertex ids made face by face (lattice_ids; corners() of refined faces in any order) against the
+    # refined points themselves, exact: integer input vertices, so n times lattice point (p, q) of a face (a, b, c)
+    # is (n - p - q)·a + p·b + q·c in integers. One id per point and one point per id, input vertices keep their
+    # ids; an open patch whose shared edges run both ways and whose rim edges have one face
+    vertices = np.array([[0, 0, 0], [3, 0, 1], [1, 4, 0], [5, 3, 2], [-2, 3, 1], [2, -3, 2]])
+    faces = np.array([[0, 1, 2], [1, 3, 2], [0, 2, 4], [0, 5, 1]])
+    samples = split(TriMesh(vertices.astype(float), faces), n)
+    lattice, per_face = samples.lattice, samples.per_face
+    ids, key_of, keys = np.empty(len(lattice.point), np.int64), {}, []
+    for f in range(len(faces)):
+        sampling.lattice_ids(lattice.args(), f, ids)
+        a, b, c = vertices[faces[f]]
+        keys.append([tuple((n - p - q) * a + p * b + q * c) for p, q in sampling._lattice(n)[0].tolist()])
+        for v, key in zip(ids.tolist(), keys[-1]):
+            assert key_of.setdefault(v, key) == key
+    assert sorted(key_of) == list(range(samples.n_vertices))
+    id_of = {key: v for v, key in key_of.items()}
+    assert len(id_of) == samples.n_vertices
+    assert all(id_of[tuple(n * vertices[v])] == v for v in range(len(vertices)))
+    expect = np.array([[id_of[keys[i // per_face][k]] for k in lattice.pattern[i % per_face]]
+                       for i in range(samples.n_samples)])
+    order = np.r_[np.random.default_rng(0).permutation(samples.n_samples), np.arange(samples.n_samples)]
+    assert np.array_equal(samples.corners(order), expect[order])
 
 
 def test_interior_edges_and_absent_edges_match_their_definition():

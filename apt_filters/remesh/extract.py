@@ -18,7 +18,7 @@ from numba import njit
 from apt_filters.contour.metrics import face_quality
 from apt_filters.core.errors import AptFiltersError
 from apt_filters.core.mesh import TriMesh
-from apt_filters.remesh.sampling import Samples, point_id, lattice_ids
+from apt_filters.remesh.sampling import Samples, lattice_ids
 
 
 def triangulate_polygon(poly, positions: np.ndarray, pinned: np.ndarray, sliver=None) -> np.ndarray:
@@ -90,7 +90,7 @@ def _voronoi_fans(lattice, labels, n_vertices):
     Returns (k,) int64 counts of corners per Voronoi vertex, in vertex order, and the corners' labels
     concatenated.
     """
-    vertices, in_faces, face_edge, forward, point, pattern, _, n, n_inner, n_edges = lattice
+    pattern = lattice[5]
     per_face = len(pattern)
     ids = np.empty(len(lattice[4]), np.int64)  # refined vertex ids of one input face's lattice points
     seen = np.full((n_vertices, 2), -1, np.int32)  # the first two labels met at each vertex
@@ -150,6 +150,7 @@ def _voronoi_fans(lattice, labels, n_vertices):
     nxt = np.empty(widest, np.int64)  # x and y of the face (v, x, y), per face of the fan
     prv = np.empty(widest, np.int64)
     order = np.empty(widest, np.int64)
+    last = -1  # the input face whose lattice points' ids ``ids`` holds
     for v in range(n_vertices):
         r = seen[v, 0]
         if r < 0:
@@ -159,10 +160,11 @@ def _voronoi_fans(lattice, labels, n_vertices):
         for j in range(m):
             face, k = around[lo + j] // 3, around[lo + j] % 3
             f, p = face // per_face, face % per_face
-            nxt[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
-                              pattern[p, (k + 1) % 3])
-            prv[j] = point_id(vertices, in_faces, face_edge, forward, point, n, n_inner, n_edges, f,
-                              pattern[p, (k + 2) % 3])
+            if f != last:
+                lattice_ids(lattice, f, ids)
+                last = f
+            nxt[j] = ids[pattern[p, (k + 1) % 3]]
+            prv[j] = ids[pattern[p, (k + 2) % 3]]
         first = 0
         for j in range(m):  # an open fan starts at its face without a predecessor (no face ends at its x)
             has_pred = False

@@ -521,7 +521,9 @@ def _angle_at(ax, ay, az, bx, by, bz, cx, cy, cz):
     return np.arctan2(np.sqrt(nx * nx + ny * ny + nz * nz), ux * wx + uy * wy + uz * wz)
 
 
-@njit(cache=True)
+# inlined: called per candidate (millions a remesh), a compiled call cost _winners a third of its CPU (bumpy
+# gyroid: 0.41 -> 0.25 s)
+@njit(cache=True, inline="always")
 def _ring_score(out, faces, start, ring_of, v, point, old_normals, cos_turn, floor, bound=-np.inf):
     """Score of the ring of ``v`` with ``v`` at ``point``: its smallest angle (radians) where ``floor`` < 0,
     else the sum of its faces' Q (:func:`apt_filters.contour.metrics.face_quality`'s), -inf if an angle
