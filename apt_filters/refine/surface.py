@@ -50,7 +50,9 @@ After the iterations (each step can be switched off):
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
    dependence): the peak of the species left out of the basis where they peak at the surface (segregants:
-   a quarter of the scatter), else the score's step.
+   a quarter of the scatter), else the score's step. With it, always, the flat faces' sag: the vertices lie
+   on the interface and the faces between them ``(1/2) tr(C S)`` inside, ``C`` the faces' second moment
+   (:func:`~apt_filters.refine.blur.face_covariance`; 4-6 % of a thin rod's volume at its ~0.6 nm edges).
 7. The segregant's mark (:mod:`apt_filters.refine.marker`, ``marker``): where the species the basis leaves
    out peak at the surface, each object's peak centre is a second reading of where its interface lies,
    from ions the step never counted; combined with the step's by their errors (the layer's common offset
@@ -1253,13 +1255,11 @@ def _finisher(found: list[Facet], faces: np.ndarray, blur: tuple[float, float] |
     frames = facet_frames(found)  # what the planes alone fix of the edges and corners: once for every surface
 
     def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray, float]:
-        guarded = 0
-        if (blur is not None and any(blur)) or lift is not None:
-            shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0))
-            if lift is not None:
-                shift = shift + lift
-            vertices, g = guarded_move(vertices, faces, shift[:, None] * along)
-            guarded += g
+        # every surface: its flat faces' sag is undone whatever the blur
+        shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0), sag=True)
+        if lift is not None:
+            shift = shift + lift
+        vertices, guarded = guarded_move(vertices, faces, shift[:, None] * along)
         sharpened, corrected, between = 0, vertices, time.perf_counter()
         if found:
             step, along = facet_steps(vertices, faces, found)
