@@ -112,14 +112,13 @@ def face_covariance(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     p = vertices[faces]
     e = p[:, [1, 2, 0]] - p  # (m, 3 edges, 3)
-    cov = np.einsum("mki,mkj->mij", e, e) / 12
     area = 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1)
-    total = np.zeros((len(vertices), 3, 3))
-    weight = np.zeros(len(vertices))
-    for k in range(3):
-        np.add.at(total, faces[:, k], cov * area[:, None, None])
-        np.add.at(weight, faces[:, k], area)
-    return total / np.maximum(weight, 1e-300)[:, None, None]
+    weighted = (np.einsum("mki,mkj->mij", e, e) / 12 * area[:, None, None]).reshape(-1, 9)
+    n = len(vertices)
+    at = faces.T.ravel()  # each face once per corner
+    total = np.stack([np.bincount(at, np.tile(weighted[:, j], 3), n) for j in range(9)], axis=1)
+    weight = np.bincount(at, np.tile(area, 3), n)
+    return (total / np.maximum(weight, 1e-300)[:, None]).reshape(n, 3, 3)
 
 
 def blur_shift(mesh: TriMesh, blur: tuple[float, float], normal_smoothing: int = 2, *,
