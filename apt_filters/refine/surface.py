@@ -50,7 +50,10 @@ After the iterations (each step can be switched off):
    lies ``(1/2) tr(Sigma S)`` inside a convex surface, ~0.02 nm on a 3 nm sphere; each vertex moves
    out by that much. By default the lateral blur is read off the ions (the profile width's orientation
    dependence): the peak of the species left out of the basis where they peak at the surface (segregants:
-   a quarter of the scatter), else the score's step.
+   a quarter of the scatter), else the score's step. With it, on the final surface, blur or none, the flat
+   faces' sag: the vertices lie on the interface and the faces between them ``(1/2) tr(C S)`` inside, ``C`` the
+   faces' second moment (:func:`~apt_filters.refine.blur.face_covariance`; 4-6 % of a thin rod's volume at its
+   ~0.6 nm edges).
 7. The segregant's mark (:mod:`apt_filters.refine.marker`, ``marker``): where the species the basis leaves
    out peak at the surface, each object's peak centre is a second reading of where its interface lies,
    from ions the step never counted; combined with the step's by their errors (the layer's common offset
@@ -1233,13 +1236,16 @@ def _level_offset_errors(levels: list[ObjectLevels], scores: ObjectScores, width
 
 
 def _finisher(found: list[Facet], faces: np.ndarray, blur: tuple[float, float] | None,
-              lift: np.ndarray | None = None, components: np.ndarray | None = None):
+              lift: np.ndarray | None = None, components: np.ndarray | None = None, sag: bool = False):
     """What follows the iterations (and the low-pass): blur correction, then the facets ``found``, as a function
     of the vertices returning (vertices, facets, vertices sharpened, moves the fold guard shortened, the vertices
     after the blur correction and before the facets, the ``time.perf_counter()`` there).
 
     ``lift`` (c,) nm moves each object (``components``: of each vertex) out on top of the blur's shift, and its
-    facets' planes with it (the segregant's mark, :mod:`apt_filters.refine.marker`).
+    facets' planes with it (the segregant's mark, :mod:`apt_filters.refine.marker`). ``sag``: the flat faces' sag
+    is undone as well, blur or none (:func:`~apt_filters.refine.blur.blur_shift`); the final surface only: the
+    cross-validation's candidates and the shape the blur is read on are compared with ions at the vertices'
+    crossing, as before, and it would cost one more shape operator per candidate.
 
     The facets are found (:func:`_placed_facets`) on the surface as the iterations left it, not on its low-passed copy:
     its faces are flat where the copy's are curved, and planes fitted to curved faces tilted by up to 12°
@@ -1254,8 +1260,8 @@ def _finisher(found: list[Facet], faces: np.ndarray, blur: tuple[float, float] |
 
     def finish(vertices: np.ndarray) -> tuple[np.ndarray, int, int, int, np.ndarray, float]:
         guarded = 0
-        if (blur is not None and any(blur)) or lift is not None:
-            shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0))
+        if (blur is not None and any(blur)) or lift is not None or sag:
+            shift, along = blur_shift(TriMesh(vertices, faces), blur or (0.0, 0.0), sag=sag)
             if lift is not None:
                 shift = shift + lift
             vertices, g = guarded_move(vertices, faces, shift[:, None] * along)
@@ -1509,8 +1515,8 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         blur = (estimate.lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
     before = vertices
-    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, blur, lift,
-                                                                     components)(vertices)
+    vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, blur, lift, components,
+                                                                     sag=True)(vertices)
     guarded += g
     # the facets' time from where the blur's correction ended; the blur's from the facets' finding on
     stages.append(replace(StageReport.between(
