@@ -109,9 +109,9 @@ from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
 from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
-                                      levels_from_sums, object_shapes, plateau_sums, plateaus, pooled_profiles,
-                                      profile_better, profile_levels, short_of_plateau, split_worth, unmixed_sums,
-                                      unmixing_shift, window_labels, within_rim)
+                                      levels_from_sums, lobe_weights, object_shapes, plateau_sums, plateaus,
+                                      pooled_profiles, profile_better, profile_levels, short_of_plateau, split_worth,
+                                      unmixed_sums, unmixing_shift, window_labels, within_rim)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -830,7 +830,7 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels.
     # Both from one pass over each half's ions
     curved = p.curved_levels and closed.any()
-    sums, bands = 0.0, []
+    sums, bands, windows_of = 0.0, [], []
     for k in (0, 1):
         other = fits[1 - k]
         args = (other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
@@ -841,8 +841,10 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         band = within_rim(band, held[k], TriMesh(other.vertices, faces), reach)
         sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
         bands.append(exact)
+        windows_of.append(band)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     k = held[0].atoms.elements.index(species)
+    sums = _lobe_weighted(sums, windows_of, held, components, k, p.plateau_window)
     windows = agreeing_pools(sums, k, p.plateau_prior)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior, windows)
@@ -856,6 +858,31 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
         lv.inside = lv.outside + share[c] * (lv.inside - lv.outside)
         lv.iso = float(0.5 * (lv.inside + lv.outside)[held[0].atoms.elements.index(species)])
     return levels
+
+
+def _lobe_weighted(sums: np.ndarray, bands: list[Band], held: list[NearIons], components: np.ndarray, k: int,
+                   window: tuple[float, float]) -> np.ndarray:
+    """``sums`` (:func:`plateau_sums` of both halves' ``bands``) with each inside window ion counted at its
+    posterior of lying inside its object rather than in a lobe of matrix the surface holds (:func:`lobe_weights`,
+    the two halves' ions pooled into its cubes); ``sums`` itself where no object's window is shown to hold one."""
+    n_comp = len(sums)
+    inside = [(window_labels(band, components[band.vertex], n_comp, window) == 0) & (components[band.vertex] >= 0)
+              for band in bands]
+    total = sums[:, 1].sum(axis=1)
+    outside = np.divide(sums[:, 1, k], total, out=np.zeros(n_comp), where=total > 0)
+    weight = lobe_weights(positions=np.concatenate([h.positions[b.index[i]] for h, b, i in zip(held, bands, inside)]),
+                          atoms=np.concatenate([h.atoms.atoms[b.index[i]] for h, b, i in zip(held, bands, inside)]),
+                          objects=np.concatenate([components[b.vertex[i]] for b, i in zip(bands, inside)]),
+                          outside=outside, k=k, cell=window[1])
+    if np.all(weight == 1.0):
+        return sums
+    cut = np.cumsum([0] + [int(i.sum()) for i in inside])
+    weighted = 0.0
+    for h, (band, i) in enumerate(zip(bands, inside)):
+        per_ion = np.ones(len(band.index))
+        per_ion[i] = weight[cut[h]:cut[h + 1]]
+        weighted = weighted + plateau_sums(band, held[h].atoms, components, n_comp, window, per_ion)
+    return np.asarray(weighted).reshape(sums.shape)
 
 
 def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], bands: list[Band], sums: np.ndarray,
