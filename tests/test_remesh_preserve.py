@@ -417,8 +417,8 @@ def test_a_retry_that_misses_locally_is_mended_in_place_without_a_further_try(mo
     """A first try shrunk 0.93 times about its centre on one sphere (area and distances off: remeshed again) and a
     retry with one output vertex pushed 0.4 edge off that sphere (distances alone off): the retry is mended where
     it missed, as a first try is, so there is no third remesh, every component passes, and every face of the
-    retry away from the miss is kept bit for bit (main remeshed the whole component again at each of its
-    ``RETRIES`` tries, each pushed so, and gave the sphere back)."""
+    retry away from the miss is kept bit for bit (main remeshed the whole component again, each try pushed so:
+    four tries)."""
     import importlib
 
     module = importlib.import_module("apt_filters.remesh.remesh")
