@@ -413,6 +413,49 @@ def test_a_local_miss_is_mended_in_place_without_another_try(monkeypatch):
     assert np.array_equal(out.vertices[used], tried.vertices[used])
 
 
+def test_a_retry_that_misses_locally_is_mended_in_place_without_a_further_try(monkeypatch):
+    """A first try shrunk 0.93 times about its centre on one sphere (area and distances off: remeshed again) and a
+    retry with one output vertex pushed 0.4 edge off that sphere (distances alone off): the retry is mended where
+    it missed, as a first try is, so there is no third remesh, every component passes, and every face of the
+    retry away from the miss is kept bit for bit (main remeshed the whole component again, each try pushed so:
+    four tries)."""
+    import importlib
+
+    module = importlib.import_module("apt_filters.remesh.remesh")
+    mesh = shapes.small_spheres(count=2)
+    calls, retried = [], []
+    remesh_once = module._cvt_remesh
+
+    def spoilt(*args, **kwargs):
+        result, component, surface = remesh_once(*args, **kwargs)
+        out, vertices = result.mesh, result.mesh.vertices.copy()
+        ids = np.unique(out.faces[component == 0])
+        if kwargs.get("pins") is None:
+            centre = vertices[ids].mean(axis=0)
+            vertices[ids] = centre + 0.93 * (vertices[ids] - centre)
+        else:
+            v = ids[0]
+            vertices[v] += 0.4 * EDGE * out.vertex_normals()[v]
+        result.mesh = TriMesh(vertices, out.faces, out.vertex_scalars, out.face_scalars)
+        if kwargs.get("pins") is not None:
+            retried.append((result.mesh, v))
+        calls.append(1)
+        return result, component, surface
+
+    monkeypatch.setattr(module, "_cvt_remesh", spoilt)
+    result = remesh(mesh, edge_length=EDGE)
+    assert len(calls) == 2 and result.kept_input == 0 and all(c.ok for c in result.checks), result.checks
+    assert max(max(c.hausdorff_in_out, c.hausdorff_out_in) for c in result.checks) <= 0.25 * EDGE
+    assert_preserved(mesh, result.mesh)
+    (tried, v), = retried
+    away = np.linalg.norm(tried.vertices - tried.vertices[v], axis=1) > 2 * EDGE
+    same = tried.faces[away[tried.faces].all(axis=1)]
+    assert len(same) > 0.9 * tried.n_faces
+    kept = {tuple(np.round(tried.vertices[f], 12).ravel()) for f in same}
+    out = result.mesh
+    assert kept <= {tuple(np.round(out.vertices[f], 12).ravel()) for f in out.faces}
+
+
 def test_an_input_spike_the_output_misses_is_inserted_exactly():
     """An input vertex pulled 0.35 edge out of its sphere (a needle of a refined surface) after the remesh: the
     mend puts an output vertex on its tip, the check then passes, and the other sphere's faces and every vertex

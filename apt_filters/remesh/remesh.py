@@ -186,7 +186,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         (:func:`apt_filters.remesh.mend.mend`: vertices inserted there, every other face kept), and remesh each
         component that still fails again, on its own,
         finer where it missed and with the input vertices it missed pinned (:func:`missed`, at most
-        ``RETRIES`` times; not one off in area alone, which that does not mend), and give back the input's
+        ``RETRIES`` times, each try mended as the first; not one off in area alone, which that does not mend),
+        and give back the input's
         own faces of each one that still fails.
 
     Returns
@@ -216,19 +217,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
     # remeshed again: the failed components but those off in area alone (triangles of the target edge that
     # flatten bumps of their own size; a finer remesh where points were missed leaves that as it is)
     retry = failed & np.array([c.mendable for c in checks], bool)
-    out, kept = result.mesh, out_component
-    local = retry & np.array([c.distances_only for c in checks], bool)
-    if local.any():
-        # first mended where they missed, faces elsewhere as they were: a retry remeshes a whole component again
-        mended, mended_component, done = _mend(mesh, result.mesh, component, out_component, np.flatnonzero(local),
-                                               edge, surface)
-        if done:  # no miss left by its own measure: checked in full, and kept where it passes
-            out, kept = mended, mended_component
-            for c in check.check_components(mesh, out, component, kept, edge=edge, source_surface=surface,
-                                            only=local):
-                if c.ok:
-                    checks[c.component] = c
-                    failed[c.component] = retry[c.component] = False
+    out, kept = _mend_misses(mesh, result.mesh, component, out_component, checks, edge, surface)
+    failed = np.array([not c.ok for c in checks])
+    retry &= failed
     if failed.any():
         # the remesh's faces of the components remeshed again, which missed() measures
         last_out_mask = (out_component < 0) | retry[np.maximum(out_component, 0)]
@@ -254,16 +245,20 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
             part_component = part.face_components()
             original[part_component] = component[mask]
             passed = np.zeros(len(checks), bool)
-            for c in check.check_components(part, again.mesh, part_component, again_component, edge=edge,
-                                            source_surface=part_surface):
+            part_checks = check.check_components(part, again.mesh, part_component, again_component, edge=edge,
+                                                 source_surface=part_surface)
+            # mended where it missed before a further whole try, as the first try is
+            taken_mesh, taken_component = _mend_misses(part, again.mesh, part_component, again_component,
+                                                       part_checks, edge, part_surface)
+            for c in part_checks:
                 if c.ok:
                     passed[original[c.component]] = True
                     checks[original[c.component]] = replace(c, component=int(original[c.component]))
                 elif not c.mendable:
                     retry[original[c.component]] = False
             if passed.any():
-                taken = np.where(again_component >= 0, original[np.maximum(again_component, 0)], -1)
-                out = check.keep_input(again.mesh, out, taken, out_component, passed)
+                taken = np.where(taken_component >= 0, original[np.maximum(taken_component, 0)], -1)
+                out = check.keep_input(taken_mesh, out, taken, out_component, passed)
                 out_component = check.kept_component(taken, out_component, passed)
                 failed &= ~passed
                 retry &= ~passed
@@ -734,6 +729,26 @@ def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
         if closed[c]:
             where[i] = where[i] % length[c]
     return out, where
+
+
+def _mend_misses(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, checks: list,
+                 edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray]:
+    """``out`` (a remesh of ``mesh``) mended (:func:`_mend`) where components that fail only in distances missed,
+    faces elsewhere as they were: a retry remeshes a whole component again. Where the mend leaves no miss by its
+    own measure, the mended components are checked in full, and those that pass replace their entries of
+    ``checks`` (changed in place). Returns the mesh, mended or ``out``, and its faces' input components."""
+    local = np.array([not c.ok and c.mendable and c.distances_only for c in checks], bool)
+    if not local.any():
+        return out, out_component
+    mended, mended_component, done = _mend(mesh, out, component, out_component, np.flatnonzero(local), edge,
+                                           surface)
+    if not done:
+        return out, out_component
+    for c in check.check_components(mesh, mended, component, mended_component, edge=edge, source_surface=surface,
+                                    only=local):
+        if c.ok:
+            checks[c.component] = c
+    return mended, mended_component
 
 
 def _mend(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, components: np.ndarray,
