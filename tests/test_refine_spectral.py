@@ -462,12 +462,7 @@ def test_a_low_contrast_boxs_rounded_edges_are_read_at_a_blurs_share_and_a_sharp
     # fit fell back to a blur-only profile (share 1), where a rounded edge reads as a sharp one more blurred, and
     # refused the box's 1.2 nm radius (measured on main: 0 on both seeds)
     def ions(shape, seed):
-        rng = np.random.default_rng(seed)
-        p = rng.uniform(-6.0, 6.0, (150000, 3))
-        hit = rng.random(len(p)) < 0.10 + 0.12 * 0.5 * erfc(shape.sdf(p) / (np.sqrt(2) * 0.6))
-        p = p + rng.normal(0.0, 0.36, p.shape)
-        keep = np.abs(shape.sdf(p)) < 1.5
-        return p[keep], ((hit - 0.10) / 0.12)[keep]
+        return _small_cube_ions(shape, seed, fractions=(0.10, 0.22), interface=0.6, blur=0.36, reach=1.5)
 
     box = Cuboid((0.2, -0.1, 0.3), (7.0, 6.0, 5.0), rotation=27)
     rounded = RoundedCuboid(box.center, box.size, 1.2, rotation=27)
@@ -482,16 +477,17 @@ def test_a_low_contrast_boxs_rounded_edges_are_read_at_a_blurs_share_and_a_sharp
         assert fit_to_ions(start, p, u, np.ones(len(p)), width)[0].rounding == 0.0
 
 
-def _small_cube_ions(box, seed):
-    """Ions of ``box`` under an interface as wide as a third of a 4 nm cube: contrast 0.05 -> 0.90 along an error
-    function of the distance to it (sigma 0.8 nm), positions blurred by 0.25 nm; those within 2.5 nm of its surface
-    and their normalised scores."""
+def _small_cube_ions(box, seed, fractions=(0.05, 0.90), interface=0.8, blur=0.25, reach=2.5):
+    """Ions of ``box`` (by default under an interface as wide as a third of a 4 nm cube): the species' fraction
+    ``fractions`` (outside, inside) along an error function of the distance to it (sigma ``interface`` nm), positions
+    blurred by ``blur`` nm; those within ``reach`` nm of its surface and their normalised scores."""
+    low, high = fractions
     rng = np.random.default_rng(seed)
     p = rng.uniform(-6.0, 6.0, (150000, 3))
-    hit = rng.random(len(p)) < 0.05 + 0.85 * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * 0.8))
-    p = p + rng.normal(0.0, 0.25, p.shape)
-    keep = np.abs(box.sdf(p)) < 2.5
-    return p[keep], ((hit - 0.05) / 0.85)[keep]
+    hit = rng.random(len(p)) < low + (high - low) * 0.5 * erfc(box.sdf(p) / (np.sqrt(2) * interface))
+    p = p + rng.normal(0.0, blur, p.shape)
+    keep = np.abs(box.sdf(p)) < reach
+    return p[keep], ((hit - low) / (high - low))[keep]
 
 
 def test_a_small_cubes_planes_stay_where_its_ions_put_them_under_a_wide_interface():
