@@ -51,9 +51,9 @@ Method
    it, round outside an edge and half the contrast on it, and read as the former it moves the planes out (a
    3 nm lath's by 0.06-0.17 nm under a 0.6 nm interface). So the object's ions are fitted again by the
    interface's profile in the signed distance to the polyhedron, blurred (:func:`rounded_scores`, the blur's
-   share of the width fitted; where the ions do not fix it, a typical blur's), its edges rounded by a radius:
-   first sharp (offsets, share, width), then the radius at that share, kept where the misfit rises by more than
-   4 residual variances (two standard errors) with the edges sharp (offsets refitted alongside both). A rounded
+   share of the width a typical blur's), its edges rounded by a radius: first sharp (offsets, share, width: the
+   sharp edges' planes), then the radius at the typical share, kept where the misfit rises by more than 4
+   residual variances (two standard errors) with the edges sharp (offsets refitted alongside both). A rounded
    object's rims then go onto the fillets (step 2 against the planes moved in by the
    radius and grown by a ball of it) and its edge rows and corners onto the fillets' middles (step 3). A
    cuboid rounded by 0.7 nm had kept its facets and came out +8 % in area with sharp edges (dev `cuboid`
@@ -1431,13 +1431,14 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     edge more blurred or a rounded one less so, and sharp cuboids fitted both ways came out rounded (0.2-0.4 nm,
     area -7 %). The share is kept where the ions choose it over share 1 by the Bayesian information criterion
     (likelihood ratio above ``log(b)``); otherwise the width and offsets are those given (the blurred sharp
-    polyhedron, share 1), and the radius is fitted at the share of a typical reconstruction ``blur`` (nm;
-    ``(blur / width)^2``, 1 where ``blur >= width``), the offsets refitted at it: at share 1 a rounded edge under a
-    wide interface reads as a sharp edge more blurred (dev rounded draws of session 33 at 7-12 points of contrast:
-    every radius refused), while a radius fitted at a share off by x1.44 still shows (a box drawn under a 0.36 nm
-    blur, ``tests/test_refine_spectral.py``; ``docs/refine.md``). A radius is not one the ions show where the
-    misfit with the edges sharp (the same share and width, offsets refitted) rises by less than 4 residual
-    variances, two standard errors: the edges stay sharp, their offsets as the first fit has them.
+    polyhedron, share 1): the sharp edges' offsets. The radius is fitted at the share of a typical reconstruction
+    ``blur`` (nm; ``(blur / width)^2``, 1 where ``blur >= width``), the offsets refitted at it, not at the edges'
+    own share: at share 1 a rounded edge under a wide interface reads as a sharp edge more blurred (dev rounded
+    draws of session 33 at 7-12 points of contrast: every radius refused), and a share the edges choose takes
+    their rounding for blur (seen rounded 10120), while a radius fitted at a share off by x1.44 still shows (a box
+    drawn under a 0.36 nm blur, ``tests/test_refine_spectral.py``; ``docs/refine.md``). A radius is not one the
+    ions show where the misfit with the edges sharp (the same share and width, offsets refitted) rises by less
+    than 4 residual variances, two standard errors: the edges stay sharp, their offsets as the first fit has them.
 
     Returns
     -------
@@ -1521,14 +1522,16 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     offsets = np.r_[np.ones(m, dtype=bool), False, False, False]
     _, blurred, _ = fit(np.r_[np.zeros(m), 0.0, 1.0, width], offsets_and_width)
     ratio = (blurred - fitted) / (fitted / max(len(u) - m - 2, 1))
-    sharp_shift = shift
     if not ratio > np.log(len(u)):
-        sharp_shift, shift, share = np.zeros(m), np.zeros(m), 1.0
-        if blur < width:
-            share = (blur / width) ** 2
-            shift = fit(np.r_[np.zeros(m), 0.0, share, width], offsets)[0][:m]
+        shift = np.zeros(m)
     else:
         width = width_fitted
+    # the radius at a typical blur's share, not at the share the edges give: an emptier edge is a sharp one more
+    # blurred or a rounded one less so, and the edges' own share took the rounding for blur (seen rounded 10120: a
+    # fitted 0.31 where the truth is 0.16, radius 0.23 nm refused; at 0.3 nm's share 0.11 it reads 0.70 of 0.85)
+    sharp_shift, share = shift, min((blur / width) ** 2, 1.0)
+    shift, sharp_cost, _ = fit(np.r_[shift, 0.0, share, width], offsets)
+    shift = shift[:m]
     order = np.sort(signed - shift, axis=1)
     others = _other_steps(order, _others_width(width, share))
     alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, width, share) * others) ** 2)),
@@ -1540,7 +1543,6 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     # a likelihood ratio above 4 residual variances, not off its curvature at the fit: the radius enters as its
     # square, the misfit is flat about 0, and the curvature at a radius on that flat read held-out artefact 10004's
     # sharp cuboid as rounded by 0.82 nm at its true blur's share (the misfit there 1.1 variances below sharp)
-    sharp_cost = fit(np.r_[shift, 0.0, share, width], offsets)[1]
     if not (sharp_cost - cost) / (cost / max(len(u) - m - 1, 1)) > 4.0:
         return sharp_shift, 0.0
     return moved, rounding
