@@ -51,10 +51,9 @@ Method
    it, round outside an edge and half the contrast on it, and read as the former it moves the planes out (a
    3 nm lath's by 0.06-0.17 nm under a 0.6 nm interface). So the object's ions are fitted again by the
    interface's profile in the signed distance to the polyhedron, blurred (:func:`rounded_scores`, the blur's
-   share of the width a typical blur's), its edges rounded by a radius: first sharp (offsets, share, width: the
-   sharp edges' planes), then the radius at the typical share, kept where the misfit rises by more than 4
-   residual variances (two standard errors) with the edges sharp (offsets refitted alongside both). A rounded
-   object's rims then go onto the fillets (step 2 against the planes moved in by the
+   share of the width fitted), its edges rounded by a radius: first sharp (offsets, share, width), then the
+   radius at that share, kept where it stands two standard errors above 0 (with the offsets refitted
+   alongside). A rounded object's rims then go onto the fillets (step 2 against the planes moved in by the
    radius and grown by a ball of it) and its edge rows and corners onto the fillets' middles (step 3). A
    cuboid rounded by 0.7 nm had kept its facets and came out +8 % in area with sharp edges (dev `cuboid`
    seed 31 rebuilt with rounded edges); +1 % with them. The planes beyond an ion's nearest two take only the
@@ -1413,8 +1412,8 @@ LINE_SEARCH = 4
 minimum."""
 
 
-def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, blur: float = 0.3,
-                  iterations: int = 10, max_step: float = 0.2, tolerance: float = 1e-2) -> tuple[np.ndarray, float]:
+def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: float, iterations: int = 10,
+                  max_step: float = 0.2, tolerance: float = 1e-2) -> tuple[np.ndarray, float]:
     """How far an object's planes move out, and the radius (nm) of its rounded edges, as its ions show them.
 
     The ions' normalised scores ``u`` against the planes fitted by :func:`fit_to_ions` (``signed`` (b, m), nm) are
@@ -1430,15 +1429,9 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     edge's as a smaller radius. The share and the radius are not fitted together: an emptier edge is either a sharp
     edge more blurred or a rounded one less so, and sharp cuboids fitted both ways came out rounded (0.2-0.4 nm,
     area -7 %). The share is kept where the ions choose it over share 1 by the Bayesian information criterion
-    (likelihood ratio above ``log(b)``); otherwise the width and offsets are those given (the blurred sharp
-    polyhedron, share 1): the sharp edges' offsets. The radius is fitted at the share of a typical reconstruction
-    ``blur`` (nm; ``(blur / width)^2``, 1 where ``blur >= width``), the offsets refitted at it, not at the edges'
-    own share: at share 1 a rounded edge under a wide interface reads as a sharp edge more blurred (dev rounded
-    draws of session 33 at 7-12 points of contrast: every radius refused), and a share the edges choose takes
-    their rounding for blur (seen rounded 10120), while a radius fitted at a share off by x1.44 still shows (a box
-    drawn under a 0.36 nm blur, ``tests/test_refine_spectral.py``; ``docs/refine.md``). A radius is not one the
-    ions show where the misfit with the edges sharp (the same share and width, offsets refitted) rises by less
-    than 4 residual variances, two standard errors: the edges stay sharp, their offsets as the first fit has them.
+    (likelihood ratio above ``log(b)``); otherwise the share is 1 and the width and offsets are those given (the
+    blurred sharp polyhedron). A radius within two standard errors of 0, or whose standard error is not finite, is
+    not one the ions show: the edges stay sharp, their offsets as the first fit has them.
 
     Returns
     -------
@@ -1449,6 +1442,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     from scipy.optimize import minimize_scalar
 
     m = signed.shape[1]
+    root_w = np.sqrt(weight)
     deepest = float(np.max(-signed.max(axis=1), initial=0.0))  # the inner polyhedron must hold a point
 
     # the parameters (m offsets, radius, share, width) stay within these bounds
@@ -1519,30 +1513,24 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     # hardly tell share 0 from 1 (ratio -3 to +6.5 over its fits, 12,000-34,000 ions), the offsets move ~0.03 nm
     # per unit of share, and a share clamped at 0 moved every plane in (volume -1.5 %)
     offsets_and_width = np.r_[np.ones(m, dtype=bool), False, False, True]
-    offsets = np.r_[np.ones(m, dtype=bool), False, False, False]
     _, blurred, _ = fit(np.r_[np.zeros(m), 0.0, 1.0, width], offsets_and_width)
     ratio = (blurred - fitted) / (fitted / max(len(u) - m - 2, 1))
     if not ratio > np.log(len(u)):
-        shift = np.zeros(m)
+        shift, share = np.zeros(m), 1.0
     else:
         width = width_fitted
-    # the radius at a typical blur's share, not at the share the edges give: an emptier edge is a sharp one more
-    # blurred or a rounded one less so, and the edges' own share took the rounding for blur (seen rounded 10120: a
-    # fitted 0.31 where the truth is 0.16, radius 0.23 nm refused; at 0.3 nm's share 0.11 it reads 0.70 of 0.85)
-    sharp_shift, share = shift, min((blur / width) ** 2, 1.0)
-    shift, sharp_cost, _ = fit(np.r_[shift, 0.0, share, width], offsets)
-    shift = shift[:m]
     order = np.sort(signed - shift, axis=1)
     others = _other_steps(order, _others_width(width, share))
     alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, width, share) * others) ** 2)),
                             bounds=(0.0, deepest), method="bounded", options={"xatol": 1e-3})
     rounded = np.r_[np.ones(m, dtype=bool), True, False, False]
-    params, cost, _ = fit(np.r_[shift, float(alone.x), share, width], rounded)
+    params, cost, jac = fit(np.r_[shift, float(alone.x), share, width], rounded)
     moved, rounding = params[:m], float(params[m])
-    # two standard errors read off the misfit's rise to the sharp edges (offsets refitted, the same share and width),
-    # a likelihood ratio above 4 residual variances, not off its curvature at the fit: the radius enters as its
-    # square, the misfit is flat about 0, and the curvature at a radius on that flat read held-out artefact 10004's
-    # sharp cuboid as rounded by 0.82 nm at its true blur's share (the misfit there 1.1 variances below sharp)
-    if not (sharp_cost - cost) / (cost / max(len(u) - m - 1, 1)) > 4.0:
-        return sharp_shift, 0.0
+    # the radius's standard error from the Gauss-Newton normal matrix at the fit, scaled by the residuals' variance;
+    # one that is not finite (a singular normal matrix) shows no radius either
+    scaled = jac * root_w[:, None]
+    with np.errstate(invalid="ignore"):  # a negative diagonal (a singular matrix's rounding) gives NaN: refused
+        error = np.sqrt(cost / max(len(u) - m - 1, 1) * np.linalg.pinv(scaled.T @ scaled)[m, m])
+    if not rounding > 2 * error:
+        return shift, 0.0
     return moved, rounding
