@@ -77,10 +77,13 @@ def test_refinement_started_on_the_truth_keeps_cube_edges_with_the_mesh_distance
                              RefineParams(distance="tangent", facets=False)).mesh
     # measured: edges -0.028 nm in the start (marching cubes interpolates the SDF linearly across the
     # edge), -0.000 nm refined with the mesh distance, -0.024 nm with the tangent planes (the previous
-    # code); volumes -1.5 % and -4.0 % (the rest is the chamfer of faces that cut across the edges)
+    # code); volumes -1.5 % and -4.0 % (the rest is the chamfer of faces that cut across the edges). Since the
+    # flat faces' sag is undone on the final surface (refine.blur.face_covariance), which lifts the faces across
+    # the edges in both: +0.008 / -0.016 nm at the edges, volumes -1.1 % and -2.3 %
     assert abs(_edge_bias(cube, mesh)) < 0.015
     assert _edge_bias(cube, tangent) < _edge_bias(cube, mesh) - 0.015
-    assert mesh.signed_volume() / cube.volume() - 1 > -0.03 > tangent.signed_volume() / cube.volume() - 1
+    volume, tangent_volume = (m.signed_volume() / cube.volume() - 1 for m in (mesh, tangent))
+    assert volume > -0.015 and tangent_volume < volume - 0.01
 
 
 def test_contrast_weights_leave_out_elements_whose_plateaus_differ_only_by_noise():
