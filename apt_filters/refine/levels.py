@@ -140,17 +140,16 @@ def window_labels(band: Band, comp: np.ndarray, n_components: int, window=PLATEA
 
 @njit(cache=True, nogil=True)
 def _window_labels(distance, comp, starts, inner, outer, out):
-    """:func:`window_labels`' one pass; the outside window is tested first (it wins where both hold)."""
+    """:func:`window_labels`' one pass, without branches on the distances (they fall at random): outside where both
+    windows hold."""
     for i in range(distance.shape[0]):
-        d = distance[i]
-        if comp[i] < 0:
+        d, c = distance[i], comp[i]
+        if c < 0:
             out[i] = -1
-        elif inner <= d <= outer:
-            out[i] = 1
-        elif -outer <= d <= -starts[comp[i]]:
-            out[i] = 0
-        else:
-            out[i] = -1
+            continue
+        beyond = (inner <= d) & (d <= outer)
+        under = (-outer <= d) & (d <= -starts[c])
+        out[i] = np.int64(beyond | under) + np.int64(beyond) - 1
 
 
 def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) -> np.ndarray:
@@ -170,10 +169,12 @@ def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) 
 
 @njit(cache=True, nogil=True)
 def _deepest(distance, comp, depth):
-    """:func:`inside_inner`'s depths: ``depth`` (n_components,) raised to each object's ions' ``-distance``."""
+    """:func:`inside_inner`'s depths: ``depth`` (n_components, zeros) raised to each object's ions' ``-distance``
+    (only an ion inside, ``distance`` < 0, can exceed a depth that starts at 0)."""
     for i in range(distance.shape[0]):
-        if distance[i] < 0 and comp[i] >= 0 and -distance[i] > depth[comp[i]]:
-            depth[comp[i]] = -distance[i]
+        c = comp[i]
+        if c >= 0 and -distance[i] > depth[c]:
+            depth[c] = -distance[i]
 
 
 def lobe_weights(*, positions: np.ndarray, atoms: np.ndarray, objects: np.ndarray, outside: np.ndarray, k: int,
