@@ -100,32 +100,56 @@ def plateau_sums(band: Band, atoms: IonAtoms, components: np.ndarray, n_componen
     """(n_components, 2, k) atoms of each basis element in each object's inside (0) and outside (1) window.
 
     Sums, so that the windows of separate ion sets (e.g. the two halves of :func:`refine_surface`'s
-    cross-fit) add up before :func:`levels_from_sums`.
+    cross-fit) add up before :func:`levels_from_sums`. Each window's sum runs over its ions in the band's order, in
+    float64, as ``np.bincount`` sums it.
 
     An object with no ion ``window[0]`` deep (a rod or plate thinner than the delocalization, or a first contour
     that is a sliver of one) is measured from halfway to its deepest ion instead (:func:`inside_inner`).
     ``weight``: (b,) what each ion of ``band`` counts for (:func:`lobe_weights`); 1 each where not given.
     """
     comp = components[band.vertex]
-    window_of = window_labels(band, comp, n_components, window)
-    use = np.flatnonzero((window_of >= 0) & (comp >= 0))
-    a = atoms.atoms[band.index[use]].astype(np.float64)  # the windows' ions only (most of a band is in neither)
-    if weight is not None:
-        a *= weight[use, None]
-    key = 2 * comp[use] + window_of[use]
-    per = np.stack([np.bincount(key, weights=a[:, e], minlength=2 * n_components) for e in range(a.shape[1])],
-                   axis=1) if a.shape[1] else np.zeros((2 * n_components, 0))
-    return per.reshape(n_components, 2, a.shape[1])
+    out = np.zeros((n_components, 2, atoms.atoms.shape[1]))
+    _window_sums(np.ascontiguousarray(comp, dtype=np.int64), window_labels(band, comp, n_components, window),
+                 np.ascontiguousarray(band.index, dtype=np.int64), atoms.atoms,
+                 np.zeros(0) if weight is None else np.ascontiguousarray(weight, dtype=np.float64), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _window_sums(comp, window_of, index, atoms, weight, out):
+    """:func:`plateau_sums`' one pass over the band (``atoms`` (N, k) of every ion, ``weight`` (b,) or empty)."""
+    for i in range(comp.shape[0]):
+        side = window_of[i]
+        if side < 0:
+            continue
+        for e in range(atoms.shape[1]):
+            a = np.float64(atoms[index[i], e])
+            out[comp[i], side, e] += a * weight[i] if weight.shape[0] else a
 
 
 def window_labels(band: Band, comp: np.ndarray, n_components: int, window=PLATEAU_WINDOW) -> np.ndarray:
-    """(b,) each ion's plateau window: 0 inside, 1 outside, -1 neither (``comp``: each ion's object, -1 none)."""
+    """(b,) int64 each ion's plateau window: 0 inside, 1 outside, -1 neither or of no object (``comp``: each ion's
+    object, -1 none)."""
     inner, outer = window
-    window_of = np.full(len(comp), -1)
-    starts = inside_inner(band, comp, n_components, inner)
-    window_of[(band.distance <= -starts[np.maximum(comp, 0)]) & (band.distance >= -outer)] = 0
-    window_of[(band.distance >= inner) & (band.distance <= outer)] = 1
+    comp = np.ascontiguousarray(comp, dtype=np.int64)
+    window_of = np.empty(len(comp), dtype=np.int64)
+    _window_labels(np.ascontiguousarray(band.distance, dtype=np.float64), comp,
+                   inside_inner(band, comp, n_components, inner), float(inner), float(outer), window_of)
     return window_of
+
+
+@njit(cache=True, nogil=True)
+def _window_labels(distance, comp, starts, inner, outer, out):
+    """:func:`window_labels`' one pass, without branches on the distances (they fall at random): outside where both
+    windows hold."""
+    for i in range(distance.shape[0]):
+        d, c = distance[i], comp[i]
+        if c < 0:
+            out[i] = -1
+            continue
+        beyond = (inner <= d) & (d <= outer)
+        under = (-outer <= d) & (d <= -starts[c])
+        out[i] = np.int64(beyond | under) + np.int64(beyond) - 1
 
 
 def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) -> np.ndarray:
@@ -139,9 +163,18 @@ def inside_inner(band: Band, comp: np.ndarray, n_components: int, inner: float) 
     its interface, its ions reach ``inner`` again where it is that thick.
     """
     depth = np.zeros(n_components)
-    inside = (band.distance < 0) & (comp >= 0)
-    np.maximum.at(depth, comp[inside], -band.distance[inside])
+    _deepest(np.ascontiguousarray(band.distance, dtype=np.float64), np.ascontiguousarray(comp, dtype=np.int64), depth)
     return np.where(depth > inner, inner, 0.5 * depth)
+
+
+@njit(cache=True, nogil=True)
+def _deepest(distance, comp, depth):
+    """:func:`inside_inner`'s depths: ``depth`` (n_components, zeros) raised to each object's ions' ``-distance``
+    (only an ion inside, ``distance`` < 0, can exceed a depth that starts at 0)."""
+    for i in range(distance.shape[0]):
+        c = comp[i]
+        if c >= 0 and -distance[i] > depth[c]:
+            depth[c] = -distance[i]
 
 
 def lobe_weights(*, positions: np.ndarray, atoms: np.ndarray, objects: np.ndarray, outside: np.ndarray, k: int,
