@@ -68,3 +68,25 @@ def test_farthest_with_a_floor_is_exact_above_it():
     got = verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor)
     assert np.allclose(got, np.maximum(exact, floor), rtol=1e-6, atol=1e-6)
     assert (exact > floor).any() and (exact < floor).any()
+
+
+def test_farthest_gives_exact_vertex_distances_at_the_faces_above_the_floor():
+    """missed() pins each missing face's farthest corner by the distances farthest() measured: bit for bit the
+    exact search's (float32, as mesh_distance gives them) at every corner of a face above the floor, walked bounds
+    (never below the distance) at the other vertices measured, and nothing written at vertices of no face measured."""
+    from apt_filters.core.distance import mesh_distance
+
+    mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
+    other = shapes.bumpy(shapes.sphere(5.2), 0.3, seed=1)
+    each = np.arange(mesh.n_faces)
+    floor = float(np.median(_exact_farthest(mesh, other, each, mesh.n_faces)))
+    each[mesh.vertices[mesh.faces].mean(axis=1)[:, 2] > 3.0] = -1  # a cap left out
+    at = np.full(mesh.n_vertices, np.nan)
+    got = verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor, vertex_distance=at)
+    above = np.unique(mesh.faces[(each >= 0) & (got > floor)])
+    assert len(above) > 100
+    assert np.array_equal(at[above], mesh_distance(other, mesh.vertices[above]))
+    measured = np.unique(mesh.faces[each >= 0])
+    assert (at[measured] >= mesh_distance(other, mesh.vertices[measured]) - 1e-6).all()
+    unmeasured = np.setdiff1d(np.arange(mesh.n_vertices), measured)
+    assert len(unmeasured) and np.isnan(at[unmeasured]).all()

@@ -378,13 +378,12 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
     """
     from scipy.spatial import cKDTree
 
-    from apt_filters.core.distance import mesh_distance
-
     tol = tolerance * edge
     points, miss, far_faces = [], [], []
-    for a, b, sel, engine in ((mesh, out, mask, None), (out, mesh, out_mask, surface)):
+    corner_distance = np.zeros(mesh.n_vertices)  # exact at the corners of every face of mesh that misses
+    for a, b, sel, engine, at in ((mesh, out, mask, None, corner_distance), (out, mesh, out_mask, surface, None)):
         d = check.farthest(a, b, np.where(sel, np.arange(a.n_faces), -1), a.n_faces, tol, surface=engine,
-                           floor=0.5 * tol)
+                           floor=0.5 * tol, vertex_distance=at)
         far = d > 0.5 * tol  # where the factor below exceeds 1
         points.append(a.vertices[a.faces[far]].mean(axis=1))
         miss.append(d[far])
@@ -397,8 +396,7 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
         np.maximum.at(boost, np.concatenate(ids).astype(np.int64), np.repeat(2.0 * miss / tol, counts))
     corners = far_faces[0]
     if len(corners):
-        corners = corners[np.arange(len(corners)), mesh_distance(out, mesh.vertices[corners].reshape(-1, 3))
-                          .reshape(-1, 3).argmax(axis=1)]
+        corners = corners[np.arange(len(corners)), corner_distance[corners].argmax(axis=1)]
     return boost, unique(corners)
 
 

@@ -85,7 +85,7 @@ def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.nd
 
 
 def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: float, chunk: int = 1 << 14,
-             surface=None, floor: float = 0.0) -> np.ndarray:
+             surface=None, floor: float = 0.0, vertex_distance: np.ndarray | None = None) -> np.ndarray:
     """(k,) for each group of ``mesh``'s faces (``group`` (f,) in 0 .. k-1, -1 left out), the farthest
     distance (nm) of their vertices, edge midpoints and centroids from ``other`` (exact; searched within
     ``near`` nm first), or ``floor`` (nm) where that is farther: a group whose walked bounds (below) are all
@@ -93,7 +93,11 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     group, miss by more than half the tolerance: searched all, that was two thirds of the check's time). Each
     vertex and edge midpoint is measured once (not once per face around it: 7 probes per face became about 3),
     ``chunk`` points at a time; a face takes the largest of its own. ``surface``: ``other``'s
-    :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given.
+    :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given. ``vertex_distance`` (v,) float64,
+    optional, is filled with the distance (nm) of every vertex of the faces measured: exact where a face round it
+    was searched (every face of a group whose result exceeds ``floor`` was), its walked bound elsewhere
+    (:func:`apt_filters.remesh.remesh.missed` pins the farthest corner of each face that misses: measured
+    again, that was a third of its time).
 
     Every probe is first measured to the face of ``other`` reached by walking from the nearest vertex
     of ``other`` (:func:`apt_filters.remesh.walk.walk_closest`): an upper bound of its distance, and
@@ -203,6 +207,8 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         keep = keep[batch:]
         keep = keep[bound[keep] > out[group[keep]]]
         batch *= 2
+    if vertex_distance is not None:
+        vertex_distance[ids_of[0]] = exact[0][ids_of[0]]
     return out
 
 
