@@ -237,6 +237,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         for attempt in range(1, RETRIES + 1):
             more, corners = missed(part, last, mask=last_mask, out_mask=last_out_mask,
                                    edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface, walks=walks)
+            walks = (check.Walks(), check.Walks())  # this try's check's, the last ones let go before the remesh
             boost[last_used] *= more
             pins[last_used[corners]] = True
             mask = retry[component]
@@ -247,7 +248,6 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
             part_component = part.face_components()
             original[part_component] = component[mask]
             passed = np.zeros(len(checks), bool)
-            walks = (check.Walks(), check.Walks())
             part_checks = check.check_components(part, again.mesh, part_component, again_component, edge=edge,
                                                  source_surface=part_surface, walks=walks)
             # mended where it missed before a further whole try, as the first try is
