@@ -68,3 +68,55 @@ def test_farthest_with_a_floor_is_exact_above_it():
     got = verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor)
     assert np.allclose(got, np.maximum(exact, floor), rtol=1e-6, atol=1e-6)
     assert (exact > floor).any() and (exact < floor).any()
+
+
+def test_farthest_gives_exact_vertex_distances_at_the_faces_above_the_floor():
+    """missed() pins each missing face's farthest corner by the distances farthest() measured: bit for bit the
+    exact search's (float32, as mesh_distance gives them) at every corner of a face above the floor, walked bounds
+    (never below the distance) at the other vertices measured, and nothing written at vertices of no face measured."""
+    from apt_filters.core.distance import mesh_distance
+
+    mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
+    other = shapes.bumpy(shapes.sphere(5.2), 0.3, seed=1)
+    each = np.arange(mesh.n_faces)
+    floor = float(np.median(_exact_farthest(mesh, other, each, mesh.n_faces)))
+    each[mesh.vertices[mesh.faces].mean(axis=1)[:, 2] > 3.0] = -1  # a cap left out
+    at = np.full(mesh.n_vertices, np.nan)
+    got = verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor, vertex_distance=at)
+    above = np.unique(mesh.faces[(each >= 0) & (got > floor)])
+    assert len(above) > 100
+    assert np.array_equal(at[above], mesh_distance(other, mesh.vertices[above]))
+    measured = np.unique(mesh.faces[each >= 0])
+    assert (at[measured] >= mesh_distance(other, mesh.vertices[measured]) - 1e-6).all()
+    unmeasured = np.setdiff1d(np.arange(mesh.n_vertices), measured)
+    assert len(unmeasured) and np.isnan(at[unmeasured]).all()
+
+
+def test_farthest_takes_an_earlier_calls_walks_where_they_cover_the_faces_measured(monkeypatch):
+    """The check's walked bounds, taken again by missed(): a call on the same two meshes with the walks of a call
+    that measured all faces walks nothing and gives bit for bit what walking again gives; walks of other meshes, or
+    of fewer faces than are measured now, are not taken (the call walks, and fills them with its own)."""
+    import apt_filters.remesh.walk as walk
+
+    mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
+    other = shapes.bumpy(shapes.sphere(5.2), 0.3, seed=1)
+    each = np.arange(mesh.n_faces)
+    half = np.where(mesh.vertices[mesh.faces].mean(axis=1)[:, 0] > 0, each, -1)
+    floor = float(np.median(_exact_farthest(mesh, other, each, mesh.n_faces)))
+    fresh = [verify.farthest(mesh, other, g, mesh.n_faces, 0.1, floor=floor) for g in (each, half)]
+    walks = verify.Walks()
+    verify.farthest(mesh, other, half, mesh.n_faces, 0.1, walks=walks)
+    assert walks.mesh is mesh and walks.faces.sum() == (half >= 0).sum()
+    verify.farthest(mesh, other, each, mesh.n_faces, 0.1, walks=walks)  # more faces than walked: walks them all
+    assert walks.faces.all()
+    other_walks = verify.Walks()
+    verify.farthest(mesh, shapes.sphere(5.2), each, mesh.n_faces, 0.1, walks=other_walks)
+    calls = []
+    real = walk.walk_closest
+    monkeypatch.setattr(walk, "walk_closest", lambda *a: calls.append(1) or real(*a))
+    for g, want in zip((each, half), fresh):
+        assert np.array_equal(verify.farthest(mesh, other, g, mesh.n_faces, 0.1, floor=floor, walks=walks), want)
+    assert not calls
+    assert np.array_equal(verify.farthest(mesh, other, each, mesh.n_faces, 0.1, floor=floor, walks=other_walks),
+                          fresh[0])
+    assert calls and other_walks.other is other

@@ -212,7 +212,9 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         return result
     clock = time.perf_counter()
     component = mesh.face_components()
-    checks = check.check_components(mesh, result.mesh, component, out_component, edge=edge, source_surface=surface)
+    walks = (check.Walks(), check.Walks())  # the check's walked bounds, which missed() takes again
+    checks = check.check_components(mesh, result.mesh, component, out_component, edge=edge, source_surface=surface,
+                                    walks=walks)
     failed = np.array([not c.ok for c in checks])
     # remeshed again: the failed components but those off in area alone (triangles of the target edge that
     # flatten bumps of their own size; a finer remesh where points were missed leaves that as it is)
@@ -234,7 +236,8 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         last_used = np.arange(mesh.n_vertices)
         for attempt in range(1, RETRIES + 1):
             more, corners = missed(part, last, mask=last_mask, out_mask=last_out_mask,
-                                   edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface)
+                                   edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface, walks=walks)
+            walks = (check.Walks(), check.Walks())  # this try's check's, the last ones let go before the remesh
             boost[last_used] *= more
             pins[last_used[corners]] = True
             mask = retry[component]
@@ -246,7 +249,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
             original[part_component] = component[mask]
             passed = np.zeros(len(checks), bool)
             part_checks = check.check_components(part, again.mesh, part_component, again_component, edge=edge,
-                                                 source_surface=part_surface)
+                                                 source_surface=part_surface, walks=walks)
             # mended where it missed before a further whole try, as the first try is
             taken_mesh, taken_component = _mend_misses(part, again.mesh, part_component, again_component,
                                                        part_checks, edge, part_surface)
@@ -364,7 +367,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
 
 
 def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarray, edge: float,
-           tolerance: float, surface: SurfaceDistance) -> tuple[np.ndarray, np.ndarray]:
+           tolerance: float, surface: SurfaceDistance, walks: tuple = (None, None)) -> tuple[np.ndarray, np.ndarray]:
     """Where a remesh ``out`` of ``mesh`` missed it by d > ``tolerance``·L / 2 (L = ``edge``, nm): (v,) the factor by
     which edges shrink again at ``mesh``'s vertices within L of such a face, 2d / (``tolerance``·L), the shrink
     that brings a miss in proportion to the edge (a chord across a kink) to half the tolerance (a sagitta, in
@@ -374,17 +377,19 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
 
     Faces: those of ``mesh`` in ``mask`` (f,) measured to ``out`` and those of ``out`` in ``out_mask`` measured
     to ``mesh`` (``surface``, its closest-point engine), each by the farthest of its vertices, edge midpoints
-    and centroid (:func:`~apt_filters.remesh.verify.farthest`, the check's own measure).
+    and centroid (:func:`~apt_filters.remesh.verify.farthest`, the check's own measure). ``walks``: the check's
+    walked bounds of ``mesh`` from ``out`` and of ``out`` from ``mesh`` (:class:`~apt_filters.remesh.verify.Walks`),
+    taken where they cover the faces measured.
     """
     from scipy.spatial import cKDTree
 
-    from apt_filters.core.distance import mesh_distance
-
     tol = tolerance * edge
     points, miss, far_faces = [], [], []
-    for a, b, sel, engine in ((mesh, out, mask, None), (out, mesh, out_mask, surface)):
+    corner_distance = np.zeros(mesh.n_vertices)  # exact at the corners of every face of mesh that misses
+    for a, b, sel, engine, at, walked in ((mesh, out, mask, None, corner_distance, walks[0]),
+                                          (out, mesh, out_mask, surface, None, walks[1])):
         d = check.farthest(a, b, np.where(sel, np.arange(a.n_faces), -1), a.n_faces, tol, surface=engine,
-                           floor=0.5 * tol)
+                           floor=0.5 * tol, vertex_distance=at, walks=walked)
         far = d > 0.5 * tol  # where the factor below exceeds 1
         points.append(a.vertices[a.faces[far]].mean(axis=1))
         miss.append(d[far])
@@ -397,8 +402,7 @@ def missed(mesh: TriMesh, out: TriMesh, *, mask: np.ndarray, out_mask: np.ndarra
         np.maximum.at(boost, np.concatenate(ids).astype(np.int64), np.repeat(2.0 * miss / tol, counts))
     corners = far_faces[0]
     if len(corners):
-        corners = corners[np.arange(len(corners)), mesh_distance(out, mesh.vertices[corners].reshape(-1, 3))
-                          .reshape(-1, 3).argmax(axis=1)]
+        corners = corners[np.arange(len(corners)), corner_distance[corners].argmax(axis=1)]
     return boost, unique(corners)
 
 

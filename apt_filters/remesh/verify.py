@@ -63,6 +63,20 @@ class ComponentCheck:
         return not self.reasons
 
 
+@dataclass
+class Walks:
+    """:func:`farthest`'s walked bounds (nm) of ``mesh``'s vertices, edge midpoints and centroids from ``other``,
+    (v,), (e,) and (f,), those of the faces ``faces`` (f,) bool (0 elsewhere): kept by a caller that measures the
+    same two meshes again (the check, then :func:`apt_filters.remesh.remesh.missed` where a component is remeshed
+    again), so that no probe is walked twice. A bound depends on the two meshes and the probe alone. Empty until
+    a :func:`farthest` call fills it."""
+
+    mesh: TriMesh | None = None
+    other: TriMesh | None = None
+    faces: np.ndarray | None = None
+    bounds: list | None = None
+
+
 def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(k,) Euler characteristic V - E + F and (k,) number of boundary loops of each face group.
 
@@ -85,7 +99,8 @@ def euler_and_loops(mesh: TriMesh, component: np.ndarray, k: int) -> tuple[np.nd
 
 
 def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: float, chunk: int = 1 << 14,
-             surface=None, floor: float = 0.0) -> np.ndarray:
+             surface=None, floor: float = 0.0, vertex_distance: np.ndarray | None = None,
+             walks: Walks | None = None) -> np.ndarray:
     """(k,) for each group of ``mesh``'s faces (``group`` (f,) in 0 .. k-1, -1 left out), the farthest
     distance (nm) of their vertices, edge midpoints and centroids from ``other`` (exact; searched within
     ``near`` nm first), or ``floor`` (nm) where that is farther: a group whose walked bounds (below) are all
@@ -93,7 +108,12 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     group, miss by more than half the tolerance: searched all, that was two thirds of the check's time). Each
     vertex and edge midpoint is measured once (not once per face around it: 7 probes per face became about 3),
     ``chunk`` points at a time; a face takes the largest of its own. ``surface``: ``other``'s
-    :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given.
+    :class:`~apt_filters.core.distance.SurfaceDistance`, built if not given. ``vertex_distance`` (v,) float64,
+    optional, is filled with the distance (nm) of every vertex of the faces measured: exact where a face round it
+    was searched (every face of a group whose result exceeds ``floor`` was), its walked bound elsewhere
+    (:func:`apt_filters.remesh.remesh.missed` pins the farthest corner of each face that misses: measured
+    again, that was a third of its time). ``walks``: the bounds of an earlier call on the same two meshes that
+    walked every probe measured now, taken instead of walking again; otherwise filled with this call's.
 
     Every probe is first measured to the face of ``other`` reached by walking from the nearest vertex
     of ``other`` (:func:`apt_filters.remesh.walk.walk_closest`): an upper bound of its distance, and
@@ -118,34 +138,41 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
     ends, face_edge = top.edge_vertices, top.face_edge
     o_vertices = np.ascontiguousarray(other.vertices, np.float64)
     o_faces = np.ascontiguousarray(other.faces, np.int64)
-    neighbour = face_neighbours(o_faces, len(o_vertices))
-    ring_start, ring = vertex_rings(o_faces, len(o_vertices))
     used = np.unique(o_faces)
     o_tree = cKDTree(o_vertices[used])
     # only the probes of the faces measured: the mend measures again only where it changed the output
     measured = group >= 0
     ids_of = [np.unique(faces[measured]), np.unique(face_edge[measured]), np.flatnonzero(measured)]
-    start = np.zeros(len(v), np.int64)
-    start[ids_of[0]] = used[o_tree.query(v[ids_of[0]])[1]]  # a vertex of other near each vertex of mesh
 
     def probes(kind, ids):
         if kind == 0:
-            return np.ascontiguousarray(v[ids], np.float64), start[ids]
+            return np.ascontiguousarray(v[ids], np.float64)
         if kind == 1:
-            return 0.5 * (v[ends[ids, 0]] + v[ends[ids, 1]]), start[ends[ids, 0]]
-        return v[faces[ids]].mean(axis=1), start[faces[ids, 0]]
+            return 0.5 * (v[ends[ids, 0]] + v[ends[ids, 1]])
+        return v[faces[ids]].mean(axis=1)
 
-    def walked(kind, n):
-        d = np.zeros(n)
-        todo = ids_of[kind]
-        for first in range(0, len(todo), chunk):
-            ids = todo[first:first + chunk]
-            points, s = probes(kind, ids)
-            d[ids] = np.linalg.norm(points - walk_closest(o_vertices, o_faces, neighbour, ring_start, ring, s,
-                                                          points)[2], axis=1)
-        return d
+    if walks is not None and walks.mesh is mesh and walks.other is other and walks.faces[measured].all():
+        bounds = walks.bounds
+    else:
+        neighbour = face_neighbours(o_faces, len(o_vertices))
+        ring_start, ring = vertex_rings(o_faces, len(o_vertices))
+        start = np.zeros(len(v), np.int64)
+        start[ids_of[0]] = used[o_tree.query(v[ids_of[0]])[1]]  # a vertex of other near each vertex of mesh
+        corner = [lambda ids: ids, lambda ids: ends[ids, 0], lambda ids: faces[ids, 0]]  # a walk's start vertex
 
-    bounds = [walked(0, len(v)), walked(1, len(ends)), walked(2, len(faces))]
+        def walked(kind, n):
+            d = np.zeros(n)
+            todo = ids_of[kind]
+            for first in range(0, len(todo), chunk):
+                ids = todo[first:first + chunk]
+                points = probes(kind, ids)
+                d[ids] = np.linalg.norm(points - walk_closest(o_vertices, o_faces, neighbour, ring_start, ring,
+                                                              start[corner[kind](ids)], points)[2], axis=1)
+            return d
+
+        bounds = [walked(0, len(v)), walked(1, len(ends)), walked(2, len(faces))]
+        if walks is not None:
+            walks.mesh, walks.other, walks.faces, walks.bounds = mesh, other, measured, bounds
     exact = [b.copy() for b in bounds]
     surface = [surface]
     longest = np.zeros(len(o_faces))  # of each face of other
@@ -169,7 +196,7 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         level = [np.maximum(np.ceil(np.log2(np.maximum(bounds[kind][ids], near) / near)), 0) for kind, ids in sets]
         for j in np.unique(np.concatenate(level)):
             b = max(float(bounds[kind][ids[at == j]].max(initial=0.0)) for (kind, ids), at in zip(sets, level)) + pad
-            points = np.vstack([probes(kind, ids[at == j])[0] for (kind, ids), at in zip(sets, level)])
+            points = np.vstack([probes(kind, ids[at == j]) for (kind, ids), at in zip(sets, level)])
             step = max(chunk // 16, 256)  # tens of (probe, vertex) pairs of 24 bytes per probe
             for first in range(0, len(points), step):
                 pairs = cKDTree(points[first:first + step]).sparse_distance_matrix(o_tree, b + reach,
@@ -188,7 +215,7 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         for kind, ids in sets:
             for first in range(0, len(ids), chunk):
                 part = ids[first:first + chunk]
-                exact[kind][part] = np.abs(near_part.nearest(probes(kind, part)[0], near).distance.astype(np.float64))
+                exact[kind][part] = np.abs(near_part.nearest(probes(kind, part), near).distance.astype(np.float64))
 
     def worst(d, ids=slice(None)):
         return np.maximum(np.maximum(d[0][faces[ids]].max(axis=1), d[1][face_edge[ids]].max(axis=1)), d[2][ids])
@@ -203,6 +230,8 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         keep = keep[batch:]
         keep = keep[bound[keep] > out[group[keep]]]
         batch *= 2
+    if vertex_distance is not None:
+        vertex_distance[ids_of[0]] = exact[0][ids_of[0]]
     return out
 
 
@@ -225,7 +254,7 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
                      result_component: np.ndarray, *, edge: float,
                      hausdorff_fraction: float = HAUSDORFF_FRACTION,
                      area_tolerance: float = AREA_TOLERANCE, source_surface=None,
-                     only: np.ndarray | None = None) -> list[ComponentCheck]:
+                     only: np.ndarray | None = None, walks: tuple | None = None) -> list[ComponentCheck]:
     """Compare every input component with the output faces that stand for it.
 
     Parameters
@@ -242,6 +271,9 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
         ``source``'s closest-point engine (:mod:`apt_filters.core.distance`), built if not given.
     only : (k,) bool, optional
         The components to check (the mended ones, after a mend that changed nothing else); all by default.
+    walks : (Walks, Walks), optional
+        Filled with the walked bounds of ``source`` from ``result`` and of ``result`` from ``source``
+        (:class:`Walks`), for a caller that measures the two again.
 
     Returns
     -------
@@ -261,9 +293,11 @@ def check_components(source: TriMesh, result: TriMesh, source_component: np.ndar
     chunk = chunk_length(source.n_faces)  # probes per distance query: temporaries in proportion to the input
     only = np.ones(k, bool) if only is None else np.asarray(only, bool)
     # the distances of the components checked only: the farthest probes' searches are most of a check
-    d_in = farthest(source, result, np.where(only[source_component], source_component, -1), k, tol, chunk)
+    walks = (None, None) if walks is None else walks
+    d_in = farthest(source, result, np.where(only[source_component], source_component, -1), k, tol, chunk,
+                    walks=walks[0])
     d_out = farthest(result, source, np.where(only[np.maximum(result_component, 0)], result_component, -1), k, tol,
-                     chunk, surface=source_surface)
+                     chunk, surface=source_surface, walks=walks[1])
     rim = np.zeros(k)
     r_in, rf_in = _rim_points(source, edge / 8)
     r_out, rf_out = _rim_points(result, edge / 8) if result.n_faces else (np.empty((0, 3)), np.empty(0, np.int64))
