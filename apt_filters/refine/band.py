@@ -174,7 +174,8 @@ class NearIons:
     Attributes
     ----------
     rows : (b,) int64
-        Rows of these ions in the ion table.
+        Rows of these ions in the ion table: each selection's (:meth:`cover`'s) in the order of their nearest
+        vertices then, within a vertex, of the table (cache locality: a table's rows need not be in spatial order).
     positions : (b, 3) float64
     atoms : IonAtoms
         Basis atoms of these ions.
