@@ -174,7 +174,8 @@ class NearIons:
     Attributes
     ----------
     rows : (b,) int64
-        Rows of these ions in the ion table.
+        Rows of these ions in the ion table: each selection's (:meth:`cover`'s) in the order of their nearest
+        vertices then, within a vertex, of the table (cache locality: a table's rows need not be in spatial order).
     positions : (b, 3) float64
     atoms : IonAtoms
         Basis atoms of these ions.
@@ -264,7 +265,10 @@ class NearIons:
         # each walk to the nearest vertex starts at the nearest corner of the face holding the closest point
         start = _nearest_corner(positions, vertices, used[local.reshape(-1, 3)[near.face]])
         vertex, d2 = descend(positions, vertices, self.indptr, self.indices, start, EXACT, self.second)
-        keep = d2 <= self.radius * self.radius
+        # kept in the order of their vertices: every later pass over them (bands, walks, profiles) then reads each
+        # vertex's neighbourhood for a run of ions, not for ions scattered over the table
+        keep = np.flatnonzero(d2 <= self.radius * self.radius)
+        keep = keep[np.argsort(vertex[keep], kind="stable")]
         rows, positions, vertex = rows[keep], positions[keep], vertex[keep]
         everything = ion_atoms(IonTable(positions.astype(np.float32), ions.mz[rows]), ranges, ConcentrationBasis())
         self.rows = np.concatenate([self.rows, rows])
