@@ -172,7 +172,7 @@ def test_an_object_thinner_than_its_windows_takes_the_fitted_plateaus():
     assert windows.inner > half[2], "the slab is thinner than its windows"
     with pytest.raises(AptFiltersError, match="no ions in a plateau window"):
         interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer)
-    [ex] = interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer, fallback=windows.levels("B"))
+    [ex] = interfacial_excess(prox, "B", 1.0, windows.inner, windows.outer, fit=windows.fit_of("B"))
     true = density * peak * tau * np.sqrt(2 * np.pi)  # detected atoms per nm² of interface
     est = ex.integration
     assert abs(est.gamma_detected - true) < 2.5 * est.gamma_detected_error, (est.gamma_detected, true)
