@@ -180,10 +180,12 @@ def own_levels(s: np.ndarray, n: np.ndarray, total: np.ndarray, fit) -> tuple[np
     ``c(s) = c_out (1 - F(s)) + c_in F(s) + A g(s)``: F the pooled profile's fitted step, g its solute's
     Gaussian peak (centre and width as fitted; none where the peak was not significant), the levels and the
     peak's amplitude the object's own (linear in them: weighted least squares, reweighted twice by the
-    binomial variance ``c (1 - c) / N`` of the model's fractions). A thin object's deeper ions lie in the
-    peak's tail and short of its step's plateau: their mean is not the inside level (a 2.4 nm slab with a B
-    shell, sigma 0.3 nm: its deeper half's B fraction 0.017 for a plateau of 0.002, the excess 16 % low),
-    and the pooled fit's plateau is the pooled objects', undetermined where all of them are thin.
+    binomial variance ``c (1 - c) / N`` of the model's fractions). The covariance adds the pooled fit's error
+    of the peak's centre and width, carried by the levels' numerical gradient (for a profile that is the
+    pooled one, the fit's own errors of its plateaus). A thin object's deeper ions lie in the peak's tail and
+    short of its step's plateau: their mean is not the inside level (a 2.4 nm slab with a B shell, sigma
+    0.3 nm: its deeper half's B fraction 0.017 for a plateau of 0.002, the excess 16 % low), and the pooled
+    fit's plateau is the pooled objects', undetermined where all of them are thin.
 
     Parameters
     ----------
@@ -201,22 +203,34 @@ def own_levels(s: np.ndarray, n: np.ndarray, total: np.ndarray, fit) -> tuple[np
     cov : (2, 2) float
         Their covariance (the amplitude's marginalised); NaN where the profile cannot tell them apart.
     """
-    step, peak = fit.shapes(s)
+    s = np.asarray(s, dtype=np.float64)
     n, total = np.asarray(n, dtype=np.float64), np.asarray(total, dtype=np.float64)
-    design = np.stack([1 - step, step] + ([peak] if fit.peak > 0 else []), axis=1) * total[:, None]
+    step = fit.step_share(s)
     # a fraction is known to one ion of the profile at best: a model fraction of 0 would weigh its bins without end
     floor = 1.0 / max(total.sum(), 1.0)
-    c = np.full(len(s), n.sum() * floor)
-    for _ in range(3):
-        weight = 1.0 / np.maximum(total * c * (1 - c), floor)
-        info = design.T @ (design * weight[:, None])
-        try:
-            cov = np.linalg.inv(info)
-        except np.linalg.LinAlgError:
-            return np.full(2, np.nan), np.full((2, 2), np.nan)
-        p = cov @ (design.T @ (weight * n))
-        c = np.clip(design @ p / np.maximum(total, 1.0), floor, 1 - floor)
-    return p[:2], cov[:2, :2]
+
+    def solve(centre: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        columns = [1 - step, step] + ([np.exp(-0.5 * ((s - centre) / sigma) ** 2)] if fit.peak > 0 else [])
+        design = np.stack(columns, axis=1) * total[:, None]
+        c = np.full(len(s), n.sum() * floor)
+        for _ in range(3):
+            weight = 1.0 / np.maximum(total * c * (1 - c), floor)
+            try:
+                cov = np.linalg.inv(design.T @ (design * weight[:, None]))
+            except np.linalg.LinAlgError:
+                return np.full(2, np.nan), np.full((2, 2), np.nan)
+            p = cov @ (design.T @ (weight * n))
+            c = np.clip(design @ p / np.maximum(total, 1.0), floor, 1 - floor)
+        return p[:2], cov[:2, :2]
+
+    values, cov = solve(fit.peak_centre, fit.peak_sigma)
+    if fit.peak > 0:
+        h = 1e-4  # nm
+        grad = np.stack([(solve(fit.peak_centre + dc, fit.peak_sigma + ds)[0]
+                          - solve(fit.peak_centre - dc, fit.peak_sigma - ds)[0]) / (2 * h)
+                         for dc, ds in ((h, 0.0), (0.0, h))], axis=1)  # (2 levels, 2 shape parameters)
+        cov = cov + grad @ np.asarray(fit.peak_shape_cov) @ grad.T
+    return values, cov
 
 
 def _windows(centers: np.ndarray, inner: float, outer: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -100,6 +100,8 @@ class ProfileFit:
     peak, peak_error, peak_centre, peak_sigma : float
         Amplitude (fraction), position and width (nm) of a Gaussian peak on the step (NaN when the
         profile was fitted with a step only, 0 amplitude when no peak was significant).
+    peak_shape_cov : ((float, float), (float, float))
+        Covariance of ``(peak_centre, peak_sigma)``, nm² (empty when fitted with a step only).
     chi2_dof : float
         Reduced chi-square of the fit (errors are scaled by its root where above 1).
     reach : float
@@ -126,20 +128,16 @@ class ProfileFit:
     peak_sigma: float = math.nan
     chi2_dof: float = math.nan
     reach: float = math.nan
+    peak_shape_cov: tuple = ()
 
     def reached(self, s: float) -> float:
         """Share (0-1) of the step from the outside plateau to the inside one reached at ``s`` nm from the
         surface (positive inside), by the fitted split-normal shape."""
         return float(_split_cdf(s, self.mode, self.sigma_outside, self.sigma_inside))
 
-    def shapes(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The step's share reached (:meth:`reached`) and the peak's Gaussian (1 at its centre; 0 without a
-        significant peak) at distances ``s`` (nm, positive inside): the shapes :func:`apt_filters.analysis.excess.
-        own_levels` fits one object's levels with."""
-        s = np.asarray(s, dtype=np.float64)
-        peak = (np.exp(-0.5 * ((s - self.peak_centre) / self.peak_sigma) ** 2) if self.peak > 0
-                else np.zeros_like(s))
-        return _split_cdf(s, self.mode, self.sigma_outside, self.sigma_inside), peak
+    def step_share(self, s: np.ndarray) -> np.ndarray:
+        """:meth:`reached` at each of the distances ``s`` (nm, positive inside)."""
+        return _split_cdf(np.asarray(s, dtype=np.float64), self.mode, self.sigma_outside, self.sigma_inside)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -367,7 +365,8 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
         return replace(step, species=species, outside=float(p[0]), inside=float(p[1]), outside_error=float(err[0]),
                        inside_error=float(err[1]),
                        peak=float(p[2]) if significant else 0.0, peak_error=float(err[2]), peak_centre=float(p[3]),
-                       peak_sigma=float(p[4]), chi2_dof=chi2, reach=reach)
+                       peak_sigma=float(p[4]), chi2_dof=chi2, reach=reach,
+                       peak_shape_cov=tuple(map(tuple, cov[3:, 3:].tolist())))
 
     def figures(q):  # 10-90 % width and reach from (mode, sigma_out, sigma_in)
         at = _split_quantile(np.array([0.1, 0.9, tail, 1 - tail]), *q)
