@@ -343,8 +343,9 @@ def interfacial_excess(proxigram: Proxigram, solute: str, efficiency: float, inn
 
     ``outer`` defaults to the proxigram's range. An object shallower than ``inner`` (its depth by the rule
     of its reported inside plateau, :func:`apt_filters.analysis.width.inside_starts`: its inside window
-    starts nearer than ``inner / 2``) or with no ions in a plateau window (cut away by the edge exclusion) takes that side's level from its own
-    profile under the shapes of ``fit``, the solute's fit on the pooled profile (see
+    starts nearer than ``inner / 2``) or with no ions in a plateau window (cut away by the edge exclusion)
+    takes that side's level from its own profile under the shapes of ``fit``, the solute's fit on the pooled
+    profile (see
     :func:`excess_of_profile`); without one it has no measurable excess: an error, or left out of the list
     with ``skip_unmeasurable``.
     """
