@@ -212,7 +212,7 @@ def run_chemistry(mesh: TriMesh, ions: IonTable, ranges, species: str, solute: s
     gamma = {}
     if solute:
         for e in interfacial_excess(prox, solute, config.analysis.efficiency, windows.inner, windows.outer,
-                                    skip_unmeasurable=True, fallback=windows.levels(solute)):
+                                    skip_unmeasurable=True, fit=windows.fit_of(solute)):
             gamma[e.object_id] = e.cumulative.gamma_detected
     out = {}
     for k, obj in enumerate(list(prox.object_ids) + ([POOLED] if len(prox.object_ids) > 1 else [])):

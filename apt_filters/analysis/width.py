@@ -49,7 +49,6 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from apt_filters.analysis.excess import Level
 from apt_filters.analysis.proxigram import Proxigram, compute_proxigram
 from apt_filters.core.errors import AptFiltersError
 
@@ -101,6 +100,8 @@ class ProfileFit:
     peak, peak_error, peak_centre, peak_sigma : float
         Amplitude (fraction), position and width (nm) of a Gaussian peak on the step (NaN when the
         profile was fitted with a step only, 0 amplitude when no peak was significant).
+    peak_shape_cov : ((float, float), (float, float))
+        Covariance of ``(peak_centre, peak_sigma)``, nm² (empty when fitted with a step only).
     chi2_dof : float
         Reduced chi-square of the fit (errors are scaled by its root where above 1).
     reach : float
@@ -127,11 +128,16 @@ class ProfileFit:
     peak_sigma: float = math.nan
     chi2_dof: float = math.nan
     reach: float = math.nan
+    peak_shape_cov: tuple = ()
 
     def reached(self, s: float) -> float:
         """Share (0-1) of the step from the outside plateau to the inside one reached at ``s`` nm from the
         surface (positive inside), by the fitted split-normal shape."""
         return float(_split_cdf(s, self.mode, self.sigma_outside, self.sigma_inside))
+
+    def step_share(self, s: np.ndarray) -> np.ndarray:
+        """:meth:`reached` at each of the distances ``s`` (nm, positive inside)."""
+        return _split_cdf(np.asarray(s, dtype=np.float64), self.mode, self.sigma_outside, self.sigma_inside)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -181,13 +187,10 @@ class Windows:
     peaks: list[ProfileFit] = field(default_factory=list)
     note: str = ""
 
-    def levels(self, solute: str) -> tuple[Level, Level] | None:
-        """The solute's plateaus fitted on the surface's pooled profile, as (matrix, precipitate) levels for
-        objects too thin for their own windows (``n_ions`` 0: not counted in a window); None if not fitted."""
-        for p in self.peaks:
-            if p.species == solute:
-                return (Level(p.outside, p.outside_error, 0.0, 0), Level(p.inside, p.inside_error, 0.0, 0))
-        return None
+    def fit_of(self, solute: str) -> ProfileFit | None:
+        """The solute's fit on the surface's pooled profile, whose shapes give the levels of objects too thin for
+        their own windows (:func:`apt_filters.analysis.excess.own_levels`); None if not fitted."""
+        return next((p for p in self.peaks if p.species == solute), None)
 
     def describe(self) -> str:
         """One line: the windows, and the width and position they came from."""
@@ -318,34 +321,41 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
     edge = max(2, len(s) // 6)
     lo, hi = frac[:edge].mean(), frac[-edge:].mean()
     span = float(s[-1] - s[0])
+
+    def solve(model, starts, bounds):  # the maximum-likelihood parameters, their covariance and chi-square/dof
+        def deviance(p):  # binomial deviance residuals: their sum of squares is -2 log-likelihood + const
+            m = np.clip(model(p), 1e-12, 1 - 1e-12)
+            d = 2 * (xlogy(n, frac / m) + xlogy(total - n, (1 - frac) / (1 - m)))
+            return np.sign(frac - m) * np.sqrt(np.maximum(d, 0.0))
+
+        fits = [least_squares(deviance, p0, bounds=bounds, x_scale="jac", max_nfev=5000) for p0 in starts]
+        fit = min(fits, key=lambda f: (not f.success, f.cost))  # the maximum likelihood of those that converged
+        if not fit.success:
+            raise AptFiltersError(f"the {species} profile's step fit did not converge ({fit.message})")
+        chi2 = float(np.sum(fit.fun ** 2) / max(len(s) - len(fit.x), 1))
+        try:
+            return fit.x, np.linalg.inv(fit.jac.T @ fit.jac) * max(chi2, 1.0), chi2
+        except np.linalg.LinAlgError:
+            return fit.x, np.full((len(fit.x), len(fit.x)), np.nan), chi2
+
     if step is None:
-        def model(p):
-            return p[0] + (p[1] - p[0]) * _split_cdf(s, p[2], p[3], p[4])
-        p0 = [lo, hi, 0.0, max(0.1 * span, 0.2), max(0.1 * span, 0.2)]
-        bounds = ([-1, -1, s[0], 1e-3, 1e-3], [2, 2, s[-1], 2 * span, 2 * span])
+        p, cov, chi2 = solve(lambda p: p[0] + (p[1] - p[0]) * _split_cdf(s, p[2], p[3], p[4]),
+                             [[lo, hi, 0.0, max(0.1 * span, 0.2), max(0.1 * span, 0.2)]],
+                             ([-1, -1, s[0], 1e-3, 1e-3], [2, 2, s[-1], 2 * span, 2 * span]))
     else:
         shape = _split_cdf(s, step.mode, step.sigma_outside, step.sigma_inside)
-
-        def model(p):
-            return p[0] + (p[1] - p[0]) * shape + p[2] * np.exp(-0.5 * ((s - p[3]) / p[4]) ** 2)
+        # two starts: the deeper bins' mean as the inside plateau, the peak at the bin of the largest fraction
+        # above it; and no step, the peak at the bin of the most ions above the outside plateau. Where every
+        # object is thin its deeper bins lie in the peak's tail and hold few ions: from the first start alone
+        # the fit ended in a step to 0.56 with no peak (thin 10131's B: deviance 196 against 66 from the second)
+        near = np.abs(s - step.centre) < step.width + 1.0
         residual0 = frac - (lo + (hi - lo) * shape)
-        k = int(np.argmax(residual0 * (np.abs(s - step.centre) < step.width + 1.0)))
-        p0 = [lo, hi, max(residual0[k], 1e-6), s[k], max(0.25 * step.width, 0.1)]
-        bounds = ([-1, -1, -1, s[0], 0.02], [2, 2, 2, s[-1], span])
-    def deviance(p):  # binomial deviance residuals: their sum of squares is -2 log-likelihood + const
-        m = np.clip(model(p), 1e-12, 1 - 1e-12)
-        d = 2 * (xlogy(n, frac / m) + xlogy(total - n, (1 - frac) / (1 - m)))
-        return np.sign(frac - m) * np.sqrt(np.maximum(d, 0.0))
-
-    fit = least_squares(deviance, p0, bounds=bounds, x_scale="jac", max_nfev=5000)
-    if not fit.success:
-        raise AptFiltersError(f"the {species} profile's step fit did not converge ({fit.message})")
-    chi2 = float(np.sum(fit.fun ** 2) / max(len(s) - len(p0), 1))
-    try:
-        cov = np.linalg.inv(fit.jac.T @ fit.jac) * max(chi2, 1.0)
-    except np.linalg.LinAlgError:
-        cov = np.full((len(p0), len(p0)), np.nan)
-    p = fit.x
+        k = int(np.argmax(residual0 * near))
+        m = int(np.argmax((frac - lo) * total * near))
+        p, cov, chi2 = solve(lambda p: p[0] + (p[1] - p[0]) * shape + p[2] * np.exp(-0.5 * ((s - p[3]) / p[4]) ** 2),
+                             [[lo, hi, max(residual0[k], 1e-6), s[k], max(0.25 * step.width, 0.1)],
+                              [lo, lo, max(frac[m] - lo, 1e-6), s[m], max(0.25 * step.width, 0.1)]],
+                             ([-1, -1, -1, s[0], 0.02], [2, 2, 2, s[-1], span]))
     if step is not None:
         err = np.sqrt(np.maximum(np.diag(cov), 0.0))
         significant = p[2] > PEAK_SIGMAS * err[2]
@@ -355,18 +365,30 @@ def fit_profile(*, s: np.ndarray, n: np.ndarray, total: np.ndarray, species: str
         return replace(step, species=species, outside=float(p[0]), inside=float(p[1]), outside_error=float(err[0]),
                        inside_error=float(err[1]),
                        peak=float(p[2]) if significant else 0.0, peak_error=float(err[2]), peak_centre=float(p[3]),
-                       peak_sigma=float(p[4]), chi2_dof=chi2, reach=reach)
+                       peak_sigma=float(p[4]), chi2_dof=chi2, reach=reach,
+                       peak_shape_cov=tuple(map(tuple, cov[3:, 3:].tolist())))
 
     def figures(q):  # 10-90 % width and reach from (mode, sigma_out, sigma_in)
         at = _split_quantile(np.array([0.1, 0.9, tail, 1 - tail]), *q)
         return np.array([at[1] - at[0], max(-at[2], at[3], 0.0)])
 
-    value = figures(p[2:])
+    def width_of(p, cov):  # the figures and their variances
+        grad = np.stack([(figures(p[2:] + h) - figures(p[2:] - h)) / (2 * 1e-6)
+                         for h in 1e-6 * np.eye(3)], axis=1)  # (2 figures, 3 shape parameters)
+        return figures(p[2:]), np.einsum("ij,jk,ik->i", grad, cov[2:, 2:], grad)
+
+    value, var = width_of(p, cov)
+    if not np.sqrt(var[0]) < value[0]:
+        # the profile does not tell the two widths apart (a cut object's cap, less than a step deep inside: one
+        # side's width ran to 6.6 nm and its plateau to 2, the width 10.6 ± 2700 nm, for the same likelihood as
+        # one width's 2.1 ± 0.6 nm): one width for both sides
+        q, c4, chi2 = solve(lambda q: q[0] + (q[1] - q[0]) * _split_cdf(s, q[2], q[3], q[3]),
+                            [[lo, hi, 0.0, max(0.1 * span, 0.2)]], ([-1, -1, s[0], 1e-3], [2, 2, s[-1], 2 * span]))
+        tie = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [0, 0, 0, 1]], dtype=np.float64)
+        p, cov = tie @ q, tie @ c4 @ tie.T
+        value, var = width_of(p, cov)
     centre, centre_error = midpoint(s=s, n=n, total=total, outside=float(p[0]), inside=float(p[1]))
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    grad = np.stack([(figures(p[2:] + h) - figures(p[2:] - h)) / (2 * 1e-6)
-                     for h in 1e-6 * np.eye(3)], axis=1)  # (2 figures, 3 shape parameters)
-    var = np.einsum("ij,jk,ik->i", grad, cov[2:, 2:], grad)
     return ProfileFit(species, centre, centre_error, float(value[0]), float(np.sqrt(max(var[0], 0.0))),
                       float(p[2]), float(p[3]), float(p[4]), float(p[0]), float(p[1]), float(err[0]),
                       float(err[1]), chi2_dof=chi2, reach=float(value[1]))
@@ -492,6 +514,15 @@ def inside_windows(*, depth: np.ndarray, atoms: np.ndarray, inner: float,
     return starts
 
 
+def inside_starts(*, proxigram: Proxigram, inner: float, outer: float) -> np.ndarray:
+    """(k,) nm: where each of ``proxigram``'s objects' inside window starts, :func:`inside_windows` of its atoms
+    (all elements) within ``outer``: the one window both its inside plateau and its excess's inside level are
+    counted in."""
+    s = proxigram.centers
+    atoms = proxigram.species_counts("element").sum(axis=2) * (s <= outer)
+    return inside_windows(depth=s, atoms=atoms, inner=inner)
+
+
 def first_range(*, inner: float | None = None, outer: float | None = None) -> float:
     """Half range (nm) of the first proxigram :func:`fitted_proxigram` computes: the given ``outer``, else
     :data:`OUTER_FACTOR` × a given ``inner``, else :data:`FIRST_RANGE`."""
@@ -554,4 +585,5 @@ def fitted_proxigram(*, ions, ranges, mesh, species: str, solutes: list[str] = (
 
 
 __all__ = ["DEPTH_QUANTILE", "FIRST_RANGE", "MAX_RANGE", "OUTER_FACTOR", "ProfileFit", "TAIL", "TAIL_SIGMAS", "Windows",
-           "first_range", "fit_profile", "fitted_proxigram", "inside_windows", "midpoint", "plateau_windows"]
+           "first_range", "fit_profile", "fitted_proxigram", "inside_starts", "inside_windows", "midpoint",
+           "plateau_windows"]

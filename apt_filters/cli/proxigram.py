@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
                                      inner=args.inner, outer=outer, keep_edge=args.keep_edge, iso_value=args.iso)
     print(windows.describe())
     results = (interfacial_excess(prox, args.solute, efficiency, windows.inner, windows.outer,
-                                  fallback=windows.levels(args.solute)) if args.solute else [])
+                                  fit=windows.fit_of(args.solute)) if args.solute else [])
     pooled = prox.pooled()
     pooled.write_csv(out / "proxigram.csv", overwrite=args.force)
     prox.write_csv(out / "proxigram_objects.csv", overwrite=args.force)

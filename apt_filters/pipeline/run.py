@@ -262,11 +262,11 @@ def _surface(config: PipelineConfig, surface: SurfaceConfig, inputs: Inputs, vox
         for solute in solutes:
             res.excess += [dataclasses.asdict(e) for e in interfacial_excess(
                 prox, solute, config.analysis.efficiency, windows.inner, windows.outer, skip_unmeasurable=True,
-                fallback=windows.levels(solute))]
+                fit=windows.fit_of(solute))]
         res.proxigram, res.windows = prox, windows
         res.summary = surface_summary(objects=res.objects, proxigram=prox, solutes=solutes,
                                       efficiency=config.analysis.efficiency, inner=windows.inner,
-                                      outer=windows.outer, fallback={s: windows.levels(s) for s in solutes})
+                                      outer=windows.outer, fits={s: windows.fit_of(s) for s in solutes})
         res.plateaus = object_plateaus(prox, windows.inner, windows.outer, windows.step)
         # with no solute there is no excess to miss: no object is "too thin" for one
         measured = {e["object_id"] for e in res.excess}

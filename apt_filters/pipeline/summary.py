@@ -26,7 +26,7 @@ import numpy as np
 
 from apt_filters.analysis.excess import interfacial_excess
 from apt_filters.analysis.proxigram import Proxigram
-from apt_filters.analysis.width import ProfileFit, inside_windows
+from apt_filters.analysis.width import ProfileFit, inside_starts
 
 GROUPS = (("interior", "interior objects (closed)"),
           ("edge", "objects at the specimen edge (open)"),
@@ -47,14 +47,6 @@ def _fractions(n: np.ndarray, elements: list[str]) -> dict:
     err = np.sqrt(c * (1 - c) / total) if total > 0 else c
     return {"atoms": int(total), "fraction": {e: _finite_or_none(v) for e, v in zip(elements, c)},
             "error": {e: _finite_or_none(v) for e, v in zip(elements, err)}}
-
-
-def _inside_starts(proxigram: Proxigram, inner: float, outer: float) -> np.ndarray:
-    """(k,) nm: where each object's inside window starts (:func:`~apt_filters.analysis.width.inside_windows`
-    of its atoms within ``outer``)."""
-    s = proxigram.centers
-    atoms = proxigram.species_counts("element").sum(axis=2) * (s <= outer)
-    return inside_windows(depth=s, atoms=atoms, inner=inner)
 
 
 def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict[str, dict]:
@@ -82,7 +74,7 @@ def window_composition(proxigram: Proxigram, inner: float, outer: float) -> dict
     """
     counts = proxigram.species_counts("element")  # (k, b, s)
     s = proxigram.centers
-    starts = _inside_starts(proxigram, inner, outer)
+    starts = inside_starts(proxigram=proxigram, inner=inner, outer=outer)
     inside = (s >= starts[:, None]) & (s <= outer)
     out = {"inside": _fractions(counts[inside].sum(axis=0), proxigram.elements),
            "outside": _fractions(counts[:, (s <= -inner) & (s >= -outer)].sum(axis=(0, 1)), proxigram.elements)}
@@ -112,7 +104,7 @@ def object_plateaus(proxigram: Proxigram, inner: float, outer: float, step: Prof
     """
     counts = proxigram.species_counts("element")
     s = proxigram.centers
-    starts = _inside_starts(proxigram, inner, outer)
+    starts = inside_starts(proxigram=proxigram, inner=inner, outer=outer)
     out = []
     for o, f, c in zip(proxigram.object_ids, starts, counts):
         row = {"object_id": int(o), "from_nm": float(f), "to_nm": float(outer), "nearer": bool(f < inner),
@@ -126,7 +118,7 @@ def object_plateaus(proxigram: Proxigram, inner: float, outer: float, step: Prof
 
 
 def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[str], efficiency: float,
-                    inner: float = 1.0, outer: float | None = None, fallback: dict | None = None) -> list[dict]:
+                    inner: float = 1.0, outer: float | None = None, fits: dict | None = None) -> list[dict]:
     """One row per group of objects (see module doc): geometry, composition and excess.
 
     Parameters
@@ -142,9 +134,9 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
         Detection efficiency for the excess in atoms.
     inner, outer : float
         Plateau windows, nm; ``outer`` defaults to the proxigram's extent.
-    fallback : dict, optional
-        Solute -> (matrix, precipitate) levels for a group too thin for its windows
-        (:meth:`apt_filters.analysis.width.Windows.levels`).
+    fits : dict, optional
+        Solute -> its fit on the pooled profile, whose shapes give the levels of a group too thin for its
+        windows (:meth:`apt_filters.analysis.width.Windows.fit_of`, :func:`apt_filters.analysis.excess.own_levels`).
 
     Returns
     -------
@@ -180,7 +172,7 @@ def surface_summary(*, objects: list[dict], proxigram: Proxigram, solutes: list[
             row["composition"] = window_composition(profiles, inner, outer)
             for solute in solutes:
                 found = interfacial_excess(pooled, solute, efficiency, inner, outer, skip_unmeasurable=True,
-                                           fallback=(fallback or {}).get(solute))
+                                           fit=(fits or {}).get(solute))
                 est = found[0].cumulative if found else None
                 row["excess"][solute] = None if est is None else {
                     "gamma_atoms_nm2": _finite_or_none(est.gamma_atoms),
