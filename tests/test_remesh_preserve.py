@@ -668,6 +668,19 @@ def test_a_mend_that_goes_round_a_cycle_ends_at_its_state_with_fewest_misses(mon
     assert m.done and np.array_equal(m.vertices[v], at[0])
 
 
+def test_a_mend_stops_at_the_first_round_that_leaves_no_miss_over_the_tolerance(monkeypatch):
+    """A round that leaves misses over the mend's margin (MEND_FRACTION of the tolerance) but none over the
+    tolerance itself ends the mend: a vertex 0.4 edge out (0.223 nm, over the check's 0.125) moved by the first
+    round to 0.2 edge out (0.124 nm: over the mend's 0.1, under 0.125) is mended, done, after one round: three
+    measures (the first try's, that round's and the last smoothing's). Main went on to chase the margin: the next
+    round moved the vertex back, a cycle, ended at its best state after five measures (the demo's mend went on so
+    for 5 rounds to the state of its round 2)."""
+    mended, v, at = _toggling_mend(monkeypatch, 8, (0.2, 0.4))
+    m, measures = mended()
+    assert m.done and np.array_equal(m.vertices[v], at[0])
+    assert measures == 3
+
+
 def test_the_mends_closest_points_from_its_local_engine_are_the_whole_outputs():
     """The mend finds the output's closest point to each input point it missed in an engine over the output faces
     within reach of those points only (the miss plus the longest edge): the same points, faces and weights as an
