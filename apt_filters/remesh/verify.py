@@ -217,16 +217,20 @@ def farthest(mesh: TriMesh, other: TriMesh, group: np.ndarray, k: int, near: flo
         sets = ((0, np.unique(faces[face_ids])), (1, np.unique(face_edge[face_ids])), (2, face_ids))
         near_part = engine(sets)
         for kind, ids in sets:
-            # each class searched within its bounds' reach, which holds every closest point: searched within
-            # ``near`` only, the probes farther (the misses a mend asks about) were searched again without bound,
-            # whose plan (17 cells each way) was most of a small engine's cost (0.11 s of the bumpy sheet's mend)
-            level = classes(kind, ids)
-            for j in np.unique(level):
-                at = ids[level == j]
-                for first in range(0, len(at), chunk):
-                    part = at[first:first + chunk]
-                    exact[kind][part] = np.abs(near_part.nearest(probes(kind, part), near * 2.0 ** j + pad)
-                                               .distance.astype(np.float64))
+            for first in range(0, len(ids), chunk):
+                part = ids[first:first + chunk]
+                points = probes(kind, part)
+                found = near_part.query(points, max_distance=near)
+                d = np.abs(found.distance.astype(np.float64))
+                # the probes farther than ``near`` (the misses a mend asks about), each class within its bounds'
+                # reach, which holds every closest point: searched again without bound, their plan (17 cells each
+                # way) was most of a small engine's cost (0.11 s of the bumpy sheet's mend)
+                far = np.flatnonzero(found.face < 0)
+                level = classes(kind, part[far])
+                for j in np.unique(level):
+                    at = far[level == j]
+                    d[at] = np.abs(near_part.nearest(points[at], near * 2.0 ** j + pad).distance.astype(np.float64))
+                exact[kind][part] = d
 
     def worst(d, ids=slice(None)):
         return np.maximum(np.maximum(d[0][faces[ids]].max(axis=1), d[1][face_edge[ids]].max(axis=1)), d[2][ids])
