@@ -94,8 +94,8 @@ def test_farthest_gives_exact_vertex_distances_at_the_faces_above_the_floor():
 
 def test_farthest_searches_each_probe_within_its_walked_bound_never_without_bound(monkeypatch):
     """Probes farther than ``near`` (the misses a mend asks about: 0.2-0.3 nm of two spheres 0.2 nm apart, near
-    0.05) are searched within their class of walked bounds (near 2^j), never without bound (main searched them
-    within near, then again without bound: a plan of 17 cells each way per small engine), and every face's
+    0.05) are searched within near, then within their class of walked bounds (near 2^j), never without bound (main
+    searched them again without bound: a plan of 17 cells each way per small engine), and every face's
     result is bit for bit the exact search's where it is above the floor, the walked sphere's engine given or
     built per batch."""
     mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
