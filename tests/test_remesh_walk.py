@@ -92,6 +92,34 @@ def test_farthest_gives_exact_vertex_distances_at_the_faces_above_the_floor():
     assert len(unmeasured) and np.isnan(at[unmeasured]).all()
 
 
+def test_farthest_searches_each_probe_within_its_walked_bound_never_without_bound(monkeypatch):
+    """Probes farther than ``near`` (the misses a mend asks about: 0.2-0.3 nm of two spheres 0.2 nm apart, near
+    0.05) are searched within near, then within their class of walked bounds (near 2^j), never without bound (main
+    searched them again without bound: a plan of 17 cells each way per small engine), and every face's
+    result is bit for bit the exact search's where it is above the floor, the walked sphere's engine given or
+    built per batch."""
+    mesh = shapes.bumpy(shapes.sphere(5.0), 0.3)
+    other = shapes.bumpy(shapes.sphere(5.2), 0.3, seed=1)
+    each = np.arange(mesh.n_faces)
+    exact = _exact_farthest(mesh, other, each, mesh.n_faces)
+    floor = float(np.median(exact))
+    reaches = []
+    query = SurfaceDistance.query
+
+    def recorded(self, points, max_distance=None, closest=False):
+        reaches.append(max_distance)
+        return query(self, points, max_distance, closest)
+
+    monkeypatch.setattr(SurfaceDistance, "query", recorded)
+    for surface in (None, SurfaceDistance(other)):
+        reaches.clear()
+        got = verify.farthest(mesh, other, each, mesh.n_faces, 0.05, floor=floor, surface=surface)
+        above = got > floor
+        assert above.sum() > 100 and np.array_equal(got[above], exact[above])
+        assert reaches and all(r is not None and np.isfinite(r) for r in reaches)
+        assert max(reaches) > 0.2  # the far probes' classes
+
+
 def test_farthest_takes_an_earlier_calls_walks_where_they_cover_the_faces_measured(monkeypatch):
     """The check's walked bounds, taken again by missed(): a call on the same two meshes with the walks of a call
     that measured all faces walks nothing and gives bit for bit what walking again gives; walks of other meshes, or

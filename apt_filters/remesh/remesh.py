@@ -212,14 +212,14 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         return result
     clock = time.perf_counter()
     component = mesh.face_components()
-    walks = (check.Walks(), check.Walks())  # the check's walked bounds, which missed() takes again
+    walks = (check.Walks(), check.Walks())  # the check's walked bounds, which the mend and missed() take again
     checks = check.check_components(mesh, result.mesh, component, out_component, edge=edge, source_surface=surface,
                                     walks=walks)
     failed = np.array([not c.ok for c in checks])
     # remeshed again: the failed components but those off in area alone (triangles of the target edge that
     # flatten bumps of their own size; a finer remesh where points were missed leaves that as it is)
     retry = failed & np.array([c.mendable for c in checks], bool)
-    out, kept = _mend_misses(mesh, result.mesh, component, out_component, checks, edge, surface)
+    out, kept = _mend_misses(mesh, result.mesh, component, out_component, checks, edge, surface, walks)
     failed = np.array([not c.ok for c in checks])
     retry &= failed
     if failed.any():
@@ -252,7 +252,7 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
                                                  source_surface=part_surface, walks=walks)
             # mended where it missed before a further whole try, as the first try is
             taken_mesh, taken_component = _mend_misses(part, again.mesh, part_component, again_component,
-                                                       part_checks, edge, part_surface)
+                                                       part_checks, edge, part_surface, walks)
             for c in part_checks:
                 if c.ok:
                     passed[original[c.component]] = True
@@ -736,16 +736,17 @@ def _closest_in_window(p, curve, lo, hi, ptr, s, points, length, closed):
 
 
 def _mend_misses(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, checks: list,
-                 edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray]:
+                 edge: float, surface: SurfaceDistance, walks: tuple) -> tuple[TriMesh, np.ndarray]:
     """``out`` (a remesh of ``mesh``) mended (:func:`_mend`) where components that fail only in distances missed,
     faces elsewhere as they were: a retry remeshes a whole component again. Where the mend leaves no miss by its
     own measure, the mended components are checked in full, and those that pass replace their entries of
-    ``checks`` (changed in place). Returns the mesh, mended or ``out``, and its faces' input components."""
+    ``checks`` (changed in place). Returns the mesh, mended or ``out``, and its faces' input components.
+    ``walks``: the check's walked bounds of ``mesh`` and ``out`` (:class:`~apt_filters.remesh.verify.Walks`)."""
     local = np.array([not c.ok and c.mendable and c.distances_only for c in checks], bool)
     if not local.any():
         return out, out_component
     mended, mended_component, done = _mend(mesh, out, component, out_component, np.flatnonzero(local), edge,
-                                           surface)
+                                           surface, walks)
     if not done:
         return out, out_component
     for c in check.check_components(mesh, mended, component, mended_component, edge=edge, source_surface=surface,
@@ -756,12 +757,13 @@ def _mend_misses(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_compone
 
 
 def _mend(mesh: TriMesh, out: TriMesh, component: np.ndarray, out_component: np.ndarray, components: np.ndarray,
-          edge: float, surface: SurfaceDistance) -> tuple[TriMesh, np.ndarray, bool]:
+          edge: float, surface: SurfaceDistance, walks: tuple) -> tuple[TriMesh, np.ndarray, bool]:
     """:func:`apt_filters.remesh.mend.mend` of ``out``'s ``components`` (input component ids) where they miss
     ``mesh``, with scalars: a new or moved vertex's interpolated from ``mesh``, a face's from the face it is a
-    piece of. Returns the mesh, its faces' input components and whether no miss is left (:func:`mend`'s)."""
+    piece of. Returns the mesh, its faces' input components and whether no miss is left (:func:`mend`'s).
+    ``walks``: the check's walked bounds, which the mend's first measure takes (:func:`mend`'s)."""
     m = mend(mesh, out, component, out_component, components, edge=edge, tolerance=check.HAUSDORFF_FRACTION,
-             surface=surface)
+             surface=surface, walks=walks)
     mended = TriMesh(m.vertices, m.faces, {}, {k: np.asarray(v)[m.parent] for k, v in out.face_scalars.items()})
     if out.vertex_scalars:
         old = m.origin >= 0
