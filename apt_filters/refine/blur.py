@@ -186,8 +186,8 @@ class BlurEstimate:
     Attributes
     ----------
     lateral : float, nm
-        ``sqrt(max(shrunk_slope(slope=slope, se=slope_se), 0))``: the lateral sigma with the depth sigma taken as
-        0, the fitted slope weighed against :data:`SLOPE_PRIOR` by its standard error.
+        ``sqrt(max(slope, 0))``: the lateral sigma with the depth sigma taken as 0, the fit's own reading (what the
+        cross-fit's ball model takes, :attr:`shrunk_lateral` what the correction takes).
     slope : float, nm²
         Fitted ``sigma_lat^2 - sigma_depth^2``.
     slope_se : float, nm²
@@ -207,6 +207,13 @@ class BlurEstimate:
     widths: np.ndarray
     tilt: np.ndarray
     source: str = "step"
+
+    @property
+    def shrunk_lateral(self) -> float:
+        """nm: ``sqrt(max(shrunk_slope(slope=slope, se=slope_se), 0))``, the lateral sigma the curvature correction
+        takes (:data:`SLOPE_PRIOR`; the correction is linear in the slope, so the posterior mean is its
+        least-squares reading)."""
+        return float(np.sqrt(max(shrunk_slope(slope=self.slope, se=self.slope_se), 0.0)))
 
 
 def _step_width(distance: np.ndarray, u: np.ndarray, weight: np.ndarray, half_width: float,
@@ -322,8 +329,8 @@ def _by_tilt(distance: np.ndarray, nz2: np.ndarray, width, classes: int, half_wi
     design = np.column_stack([np.ones_like(means), means]) / sy[:, None]
     coef, *_ = np.linalg.lstsq(design, y / sy, rcond=None)
     cov = np.linalg.pinv(design.T @ design)
-    slope, se = float(coef[1]), float(np.sqrt(cov[1, 1]))
-    return BlurEstimate(float(np.sqrt(max(shrunk_slope(slope=slope, se=se), 0.0))), slope, se, widths, means, source)
+    slope = float(coef[1])
+    return BlurEstimate(float(np.sqrt(max(slope, 0.0))), slope, float(np.sqrt(cov[1, 1])), widths, means, source)
 
 
 def shrunk_slope(*, slope: float, se: float) -> float:
