@@ -1539,7 +1539,11 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                  p.marker)
     if auto:
         estimate = estimate or _estimate_blur(ions_near, profiles, along, components, scores, p.half_width)
-        blur = (estimate.lateral, 0.0) if estimate is not None else None
+        # weighed against the prior by its error: a wide interface's step on a few small objects reads the slope to
+        # no better than its own size (blur.SLOPE_PRIOR). The cross-fit's ball model keeps the fit's own reading: its
+        # held-out choice (BALL_SE) was set on it, and a ball blur lifted off 0 there flips level choices (dev lath
+        # 32048 V +5.6 -> +7.5 %, seen rod 10137 rod 0 -22.4 -> -29.2 %)
+        blur = (estimate.shrunk_lateral, 0.0) if estimate is not None else None
     lift = marks.shift if marks is not None and marks.marked else None
     before = vertices
     vertices, n_facets, sharpened, g, corrected, between = _finisher(found, faces, blur, lift, components,
