@@ -153,7 +153,7 @@ def test_the_run_options_reach_the_configuration_and_bad_pairs_are_refused():
 
 def test_a_profile_that_ends_within_its_step_gets_one_width_where_two_are_undetermined():
     """A cut object's cap: the inside thins out to no ion 1 nm in, short of the step's plateau (symmetric, sigma
-    0.8 nm). Where the two widths of the split normal cannot be told apart (on main: widths 3.8 ± 8.3, 3.5 ± 17,
+    0.8 nm). Where the two widths of the split normal cannot be told apart (two free widths: 3.8 ± 8.3, 3.5 ± 17,
     2.4 ± 5.6 nm, the inside plateau 0.58 ± 2.3 for 0.41), one width is fitted: every fit's width is determined
     (its error below it), its inside plateau a fraction, and a fit with one width within two errors of the
     truth."""
@@ -170,7 +170,7 @@ def test_a_profile_that_ends_within_its_step_gets_one_width_where_two_are_undete
 def test_the_pooled_profile_of_thin_objects_finds_its_segregation_peak():
     """Objects so thin that no ion lies 1.3 nm inside, a B shell (sigma 0.6 nm) and 0.15 % B in both phases:
     the step-and-peak fit of the pooled B profile finds the peak and the inside level within 3 errors of the model
-    in at least 18 of 20 draws. From the deeper bins' mean alone as the start (main) 5 of 20 ended in a step to
+    in at least 18 of 20 draws. From the deeper bins' mean alone as the start, 5 of 20 ended in a step to
     0.13-0.65 with no peak, as thin 10131's B did (0.56 ± 0.90)."""
     profile = np.arange(-4.0, 4.0, 0.1) + 0.05
     off = 0
