@@ -16,7 +16,8 @@ species' two phases (all ranged species in the denominator):
 Per true object: volume and area errors with their counting sigma (the Cramér-Rao floor of
 :func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one; for an object cut by
 the edge, of its part compared, from the ions there), mean and
-Hausdorff distance to the true surface, and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
+Hausdorff distance to the true surface (for an interface, beside its mean distance the counting floor of it,
+:func:`~apt_filters.truth.distance_floor`), and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
 the proxigram over the range its fitted width asks for, :func:`~apt_filters.analysis.width.fitted_proxigram`, and
 per object the segregant's Krakauer-Seidman excess, :func:`~apt_filters.analysis.excess.interfacial_excess`, and
 the iso species' inside plateau, the window composition of the report's summary) against what the object's
