@@ -5,12 +5,13 @@ level-set areas), at a contrast where the default 3 x 3 x 1.5 nm delocalization 
 iso-value: the first contour is a sliver of it (the refinement used to keep it: -91 % in volume).
 """
 
+import numpy as np
 import pytest
 
 from apt_filters.core.mesh import split_components
 from apt_filters.pipeline.config import SurfaceConfig
 from apt_filters.pipeline.surface import contour_surface, finished_surface
-from apt_filters.synth import Capsule, generate
+from apt_filters.synth import Capsule, Cylinder, generate
 from apt_filters.synth.geometry import Box
 from apt_filters.synth.specimen import Feature, SpecimenSpec
 from apt_filters.refine.composition import ion_atoms
@@ -56,6 +57,29 @@ def test_defaults_find_the_thin_rod_and_its_volume(rod):
     assert len(record.refine["thin"]["replaced_nm3"]) == 1
     p, z = record.specks.of(mesh, 2.0)
     assert p[0] < 1e-3 and z[0] > 3, "the object table's p-value is its finer test's"
+
+
+def test_the_counting_floor_of_a_disc_thinner_than_its_plateau_window():
+    """A disc 1.4 nm thick holds no ion 1 nm deep, so the floor's inside plateau comes from half its depth.
+    Against the exact Cramér-Rao bound of the generating model (tanh profile of width w between the true
+    compositions, no blur, summed over the ions): 0.89 of it here; read from 1 nm deep, it was 3.5 times it."""
+    w = 0.3
+    spec = SpecimenSpec(Box((14.0, 14.0, 10.0)), MATRIX,
+                        (Feature(Cylinder((0.0, 0.0, -5.0), 4.0, 1.4, rotation=2), INSIDE, w, (), "disc"),),
+                        efficiency=0.5, blur=(0.0, 0.0), name="thin disc")
+    sp = generate(spec, seed=3)
+    basis = ion_atoms(sp.ions, sp.ranges, ConcentrationBasis())
+    positions = sp.ions.positions.astype(np.float64)
+    floor, = counting_floor([sp.feature_sdf(0)], [spec.features[0].shape.level_area],
+                            [sp.truth["features"][0]["volume_nm3"]], positions, basis.atoms)
+    d = sp.feature_sdf(0)(positions)
+    near = np.abs(d) < 2.0
+    inside, outside = (np.array([c[e] for e in basis.elements]) for c in (INSIDE, MATRIX))
+    step = 0.5 * (1 - np.tanh(d[near] / w))[:, None]
+    slope = -(inside - outside) * 0.5 / (w * np.cosh(d[near] / w)[:, None] ** 2)
+    bound = 1 / np.sqrt(np.sum(basis.atoms[near].sum(axis=1) * np.sum(slope**2 / (outside + (inside - outside) * step),
+                                                                          axis=1)))
+    assert 0.8 < floor.offset / bound < 1.25, (floor.offset, bound)
 
 
 def test_a_resolved_object_costs_no_finer_speck_test():
