@@ -526,7 +526,9 @@ def crossing(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray, edge: fl
     # edge long)
     reach = np.linalg.norm(a - ca[:, None], axis=2).max() + 2.0 * edge
     # a tree over the centroids within the triangles' box grown by the reach, not over all faces (one a change)
-    centroid = vertices[faces].mean(axis=1)
+    # summed corner by corner: a (f, 3, 3) gather and its mean over the short axis took three times as long, and
+    # this runs over every face for each split tried (a sixth of the mend's crossing tests); the same bits
+    centroid = (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3
     box = np.flatnonzero(((centroid >= ca.min(axis=0) - reach) & (centroid <= ca.max(axis=0) + reach)).all(axis=1))
     pairs = cKDTree(ca).sparse_distance_matrix(cKDTree(centroid[box]), reach, output_type="ndarray")
     i, j = pairs["i"].astype(np.int64), box[pairs["j"].astype(np.int64)]
