@@ -29,10 +29,10 @@ def triangles_intersect(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     and the six in-plane edge normals (which separate coplanar triangles); the triangles
     intersect when no axis separates their projections. It runs only on the pairs whose bounding
     boxes meet: the mend's candidates (every face within a few edges, mend.crossing) meet in 1 of
-    40 (22,334 pairs, 575 meeting, on a bumpy sheet), and 17 axes per pair were a third of its
-    search. A box apart by more than ``BOX_SLACK`` of the largest coordinate holds triangles farther
-    apart than that, which one of the 17 axes separates by as much (the closest points' direction
-    is a normal or an edge-edge cross product), far above the projections' rounding.
+    40 (22,334 pairs, 575 meeting, on a bumpy sheet; its crossing tests 0.18 -> 0.07 s). Boxes
+    apart by more than ``BOX_SLACK`` of the largest coordinate hold triangles farther apart than
+    that, which one of the 17 axes separates by as much (the closest points' direction is a
+    normal or an edge-edge cross product), far above the projections' rounding.
     """
     lo_a, hi_a, lo_b, hi_b = a.min(axis=1), a.max(axis=1), b.min(axis=1), b.max(axis=1)
     slack = BOX_SLACK * np.maximum(np.abs(a).max(axis=(1, 2)), np.abs(b).max(axis=(1, 2)))[:, None]
