@@ -42,6 +42,7 @@ from apt_filters.core.checks import triangles_intersect
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import optimize
+from apt_filters.remesh._arrays import isin
 from apt_filters.remesh.verify import farthest
 
 # Misses over this fraction of the tolerance are mended: a margin under the tolerance itself, so that the points
@@ -306,12 +307,13 @@ def _changed(source: TriMesh, before: TriMesh, after: TriMesh, missing: tuple, l
     moved[n:] = True
     moved[:n] = (after.vertices[:n] != before.vertices).any(axis=1)
 
-    def rows(faces):
-        return np.ascontiguousarray(faces, np.int64).view(np.dtype((np.void, 24))).ravel()
+    def rows(faces):  # one int64 per face, as unique_rows keys rows; sorted, not hashed as np.isin's (_arrays)
+        faces = np.asarray(faces, np.int64)
+        return (faces[:, 0] * after.n_vertices + faces[:, 1]) * after.n_vertices + faces[:, 2]
 
-    kept_after = np.isin(rows(after.faces), rows(before.faces)) & ~moved[after.faces].any(axis=1)
-    gone = ~np.isin(rows(before.faces), rows(after.faces[kept_after]))
-    out = ~kept_after | np.isin(rows(after.faces), rows(before.faces[missing[1]]))
+    kept_after = isin(rows(after.faces), rows(before.faces)) & ~moved[after.faces].any(axis=1)
+    gone = ~isin(rows(before.faces), rows(after.faces[kept_after]))
+    out = ~kept_after | isin(rows(after.faces), rows(before.faces[missing[1]]))
     inside = missing[0].copy()
     if gone.any():
         corners = before.vertices[before.faces[gone]]
