@@ -528,7 +528,7 @@ def test_triangles_intersect_tests_axes_only_for_pairs_whose_boxes_meet(monkeypa
     from apt_filters.core import checks
 
     # analytic pairs, far from the origin (rounding of 1e3 nm coordinates): a triangle through another, two
-    # meeting at one corner only, two coplanar ones overlapping, and copies of the first pair pulled apart
+    # meeting at one corner only, two coplanar ones overlapping, and copies of the first triangle pulled apart
     # along x by 1 nm, 1e-3 nm and 1e-5 nm (boxes apart; the 1e-9 share of a 1e3 coordinate is 1e-6)
     base = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     through = np.array([[0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [1.5, 0.2, 0.0]])

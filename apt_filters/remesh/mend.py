@@ -307,7 +307,7 @@ def _changed(source: TriMesh, before: TriMesh, after: TriMesh, missing: tuple, l
     moved[n:] = True
     moved[:n] = (after.vertices[:n] != before.vertices).any(axis=1)
 
-    def rows(faces):  # one int64 per face, as unique_rows keys rows; sorted, not hashed as np.isin's (_arrays)
+    def rows(faces):  # one int64 per face row, as _arrays.unique_rows keys them: matched by sorting (np.isin hashes)
         faces = np.asarray(faces, np.int64)
         return (faces[:, 0] * after.n_vertices + faces[:, 1]) * after.n_vertices + faces[:, 2]
 
