@@ -66,11 +66,12 @@ def _open_cube() -> TriMesh:
 
 
 def _beyond(al: float) -> IonTable:
-    """Ions 0.5-1.5 nm above the cube's top, Al at fraction ``al`` (the rest Ni), exactly."""
+    """400 ions 0.5-1.5 nm above the cube's top, evenly in height, every tenth ``10 al`` of them Al (the rest Ni):
+    its outer half too holds Al at ``al`` exactly."""
     rng = np.random.default_rng(0)
     n = 400
-    positions = np.column_stack([rng.uniform(4, 5, n), rng.uniform(4, 5, n), rng.uniform(5.5, 6.5, n)])
-    mz = np.where(np.arange(n) < round(al * n), 27.0, 58.0)
+    positions = np.column_stack([rng.uniform(4, 5, n), rng.uniform(4, 5, n), np.linspace(5.5, 6.5, n)])
+    mz = np.where(np.arange(n) % 10 < round(10 * al), 27.0, 58.0)
     return IonTable(positions.astype(np.float32), mz.astype(np.float32))
 
 

@@ -10,13 +10,14 @@ object enters the refinement with a hole, is refined as an open sheet and report
 a sphere of radius 1.96 nm 1.2 nm from the side, holed by a 4-vertex loop, placed at V -19.8 % and low-passed as
 an open surface to -34.2 %; one of radius 4.28 nm 1.1 nm from the side holed likewise).
 
-The ions between a hole and the specimen's side tell the two apart. Each hole's ions *beyond* it -- those
+The ions between a hole and the specimen's side tell the two apart. Of each hole's ions *beyond* it -- those
 within its footprint (laterally within its radius plus :data:`LATERAL` of its centroid) and :data:`BEYOND` nm past
 its plane along the outward normal of the cap that would close it (wound like the faces around it: out of the
-region above the iso-value) -- hold the object's inside phase where the object meets the side, and the matrix
-between its surface and the side where it stops short of it. An object every hole of which holds the iso species
-below the iso-value beyond it (with at least :data:`MIN_ATOMS` atoms there) is closed, each hole by a fan from its
-centroid (:func:`close_clipped`); the refinement then places the caps with the rest of the object.
+region above the iso-value) -- the outer half (:data:`OUTER`), the layer at the side, holds the object's inside
+phase where the object meets the side, and the matrix between its surface and the side where it stops short of
+it. An object every hole of which holds the iso species below the iso-value there (with at least
+:data:`MIN_ATOMS` atoms) is closed, each hole by a fan from its centroid (:func:`close_clipped`); the refinement
+then places the caps with the rest of the object.
 
 A hole is a boundary loop whose cap faces the specimen's outside: the grid point a voxel beyond its centroid along
 the cap's normal lies outside the mask, the one a voxel before it inside. An object with any other rim keeps all
@@ -26,7 +27,7 @@ bicontinuous structure) is a loop at the edge too, but its cap faces back into t
 
 Limitations: the test reads composition, not significance; at a contrast of a few points a small hole's ions
 beyond can read either side of the iso-value by noise (a closed object then stays open, as before). An object
-cut by the side over a cap shallower than ``BEYOND[0]`` reads as closed.
+cut by the side over a cap shallower than half the layer beyond its hole reads as closed.
 """
 
 from __future__ import annotations
@@ -42,17 +43,21 @@ from apt_filters.refine.composition import ion_atoms
 from apt_filters.remesh.repair import boundary_loops
 from apt_filters.voxel import ConcentrationBasis, Grid
 
-BEYOND = (0.5, 2.0)
-"""nm past a loop's plane: the ions between the hole and the side. The hole lies on the mask's boundary, within
-about a voxel (1 nm) of the side, and a closed object's own surface within ~0.3 nm past it (the first contour's
-bulge toward the side: 0.21 nm on zoo sphere 10149), so from 0.5 nm on the ions are the matrix's where the
-object stops short and the object's where it meets the side; 2 nm bounds the layer the clip can remove."""
+BEYOND = 2.0
+"""nm past a hole's plane within which its ions beyond are taken: the hole lies on the mask's boundary, within about
+a voxel (1 nm) of the side, so the layer the clip removed lies within it."""
+
+OUTER = 0.5
+"""Share of the ions beyond a hole that are read: the outer ones (farthest past its plane), the layer at the side. A
+closed object's own surface lies within ~0.3 nm past the hole (the first contour's bulge toward the side: 0.21 nm on
+zoo sphere 10149), the side 0.5-1.5 nm past it; all of them read the object's interface too (zoo sphere 10149's
+obj 2: 0.114 within 1.5 nm against an iso-value of 0.120, the matrix 0.093), the outer half the matrix (0.093)."""
 
 LATERAL = 0.5
 """nm beyond a loop's radius that its footprint reaches (a hole of one cell holds ~0.6 nm)."""
 
 MIN_ATOMS = 20
-"""Atoms (of the basis) beyond a loop below which it keeps its rim (nothing past it: the specimen's side)."""
+"""Atoms (of the basis) in a hole's outer layer below which it keeps its rim (nothing past it: the specimen's side)."""
 
 
 @dataclass
@@ -68,7 +73,7 @@ class Clipped:
     objects : int
         Objects (components) closed.
     fractions : list of float
-        Each tested loop's iso-species fraction beyond it (NaN: fewer than :data:`MIN_ATOMS` atoms).
+        Each tested loop's iso-species fraction in its outer layer beyond (NaN: fewer than :data:`MIN_ATOMS` atoms).
     """
 
     loops: int = 0
@@ -133,7 +138,7 @@ def close_clipped(mesh: TriMesh, *, mask: np.ndarray, grid: Grid, ions: IonTable
     report.loops = len(loops)
     if not loops:
         return mesh, report
-    counts = np.zeros((len(loops), 2))  # per loop: atoms of species, atoms in the basis
+    beyond = [[] for _ in loops]  # per loop: (height, atoms of species, atoms in the basis) of its ions beyond
     for start in range(0, len(ions), CHUNK):
         chunk = ions.subset(slice(start, start + CHUNK))
         positions = np.asarray(chunk.positions, dtype=np.float64)
@@ -141,13 +146,19 @@ def close_clipped(mesh: TriMesh, *, mask: np.ndarray, grid: Grid, ions: IonTable
         for k, (centre, n, reach) in enumerate(frames):
             rel = positions - centre
             height = rel @ n
-            near = (height > BEYOND[0]) & (height < BEYOND[1])
+            near = (height > 0) & (height < BEYOND)
             near[near] = np.einsum("ij,ij->i", rel[near], rel[near]) - height[near] ** 2 < reach ** 2
             if not near.any():
                 continue
             atoms = ion_atoms(chunk, ranges, basis) if atoms is None else atoms
             a = atoms.atoms[near]
-            counts[k] += a[:, atoms.elements.index(species)].sum(), a.sum()
+            beyond[k].append(np.column_stack([height[near], a[:, atoms.elements.index(species)], a.sum(axis=1)]))
+    counts = np.zeros((len(loops), 2))  # per loop, its outer layer's atoms of species and in the basis
+    for k, parts in enumerate(beyond):
+        if parts:
+            h, own, total = np.vstack(parts).T
+            outer = h >= np.quantile(h, 1 - OUTER)
+            counts[k] = own[outer].sum(), total[outer].sum()
     fraction = counts[:, 0] / np.maximum(counts[:, 1], 1e-12)
     tested = counts[:, 1] >= MIN_ATOMS
     report.fractions = np.where(tested, fraction, np.nan).tolist()
