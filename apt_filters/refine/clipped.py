@@ -19,8 +19,10 @@ it. An object every hole of which holds the iso species below the iso-value ther
 :data:`MIN_ATOMS` atoms) is closed, each hole by a fan from its centroid (:func:`close_clipped`); the refinement
 then places the caps with the rest of the object.
 
-A hole is a boundary loop whose cap faces the specimen's outside: the grid point a voxel beyond its centroid along
-the cap's normal lies outside the mask, the one a voxel before it inside. An object with any other rim keeps all
+A hole is a boundary loop whose cap faces the specimen's outside: a grid point one or two voxels beyond its centroid
+along the cap's normal lies outside the mask (the mask's boundary is the bulk count's threshold, not a plane: zoo
+sphere 36106's hole 0.9 nm from the side had the grid point a voxel beyond it inside), the one a voxel before it
+inside. An object with any other rim keeps all
 of them: the rim of a sheet across the specimen (an open or curved interface) runs along the edge, but its
 centroid lies deep inside; the mouth of a tube of the phase *below* the iso-value that leaves through the side (a
 bicontinuous structure) is a loop at the edge too, but its cap faces back into the specimen.
@@ -129,8 +131,8 @@ def close_clipped(mesh: TriMesh, *, mask: np.ndarray, grid: Grid, ions: IonTable
         frames.append((centre, n, radius + LATERAL))
         # a vertex with two rims (a pinch) can break a walk: only loops that close on their own are holes
         hole.append(len(loop) >= 3 and (int(loop[-1]), int(loop[0])) in half
-                    and _outside(centre + grid.voxel * n, mask, grid) and not _outside(centre - grid.voxel * n, mask,
-                                                                                        grid))
+                    and any(_outside(centre + step * grid.voxel * n, mask, grid) for step in (1, 2))
+                    and not _outside(centre - grid.voxel * n, mask, grid))
     # an object is closed again only where every loop of it is such a hole
     rimmed = {component[loop[0]] for loop, h in zip(loops, hole) if not h}
     keep = [k for k in range(len(loops)) if hole[k] and component[loops[k][0]] not in rimmed]
