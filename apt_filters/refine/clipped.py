@@ -53,7 +53,7 @@ OUTER = 0.5
 """Share of the ions beyond a hole that are read: the outer ones (farthest past its plane), the layer at the side. A
 closed object's own surface lies within ~0.3 nm past the hole (the first contour's bulge toward the side: 0.21 nm on
 zoo sphere 10149), the side 0.5-1.5 nm past it; all of them read the object's interface too (zoo sphere 10149's
-obj 2: 0.114 within 1.5 nm against an iso-value of 0.120, the matrix 0.093), the outer half the matrix (0.093)."""
+obj 2: 0.114 within 1.5 nm against an iso-value of 0.120, the outer half 0.094, the matrix 0.093)."""
 
 LATERAL = 0.5
 """nm beyond a loop's radius that its footprint reaches (a hole of one cell holds ~0.6 nm)."""
