@@ -8,7 +8,8 @@ only, weighted toward the object: the first contour of a closed object whose sur
 the side bulges toward it and reaches the mask there. The cells it would cross there emit nothing, and the
 object enters the refinement with a hole, is refined as an open sheet and reported open (zoo sphere 10149:
 a sphere of radius 1.96 nm 1.2 nm from the side, holed by a 4-vertex loop, placed at V -19.8 % and low-passed as
-an open surface to -34.2 %; one of radius 4.28 nm 1.1 nm from the side holed likewise).
+an open surface to -34.2 %; one of radius 4.28 nm 1.1 nm from the side holed likewise). Closed again, the
+first ends at V -11.1 % (sigma 8.9; was -28.8 %).
 
 The ions between a hole and the specimen's side tell the two apart. Of each hole's ions *beyond* it -- those
 within its footprint (laterally within its radius plus :data:`LATERAL` of its centroid) and :data:`BEYOND` nm past
@@ -19,13 +20,13 @@ it. An object every hole of which holds the iso species below the iso-value ther
 :data:`MIN_ATOMS` atoms) is closed, each hole by a fan from its centroid (:func:`close_clipped`); the refinement
 then places the caps with the rest of the object.
 
-A hole is a boundary loop whose cap faces the specimen's outside: a grid point one or two voxels beyond its centroid
-along the cap's normal lies outside the mask (the mask's boundary is the bulk count's threshold, not a plane: zoo
-sphere 36106's hole 0.9 nm from the side had the grid point a voxel beyond it inside), the one a voxel before it
-inside. An object with any other rim keeps all
-of them: the rim of a sheet across the specimen (an open or curved interface) runs along the edge, but its
-centroid lies deep inside; the mouth of a tube of the phase *below* the iso-value that leaves through the side (a
-bicontinuous structure) is a loop at the edge too, but its cap faces back into the specimen.
+A hole is a boundary loop whose cap faces the specimen's outside: a grid point one or two voxels beyond its
+centroid along the cap's normal lies outside the mask (the mask's boundary is the bulk count's threshold, not a
+plane: zoo sphere 36106's hole 0.9 nm from the side had the grid point a voxel beyond it inside), the one a voxel
+before it inside. An object with any other rim keeps all of them: the rim of a sheet across the specimen (an open
+or curved interface) runs along the edge, but its centroid lies deep inside; the mouth of a tube of the phase
+*below* the iso-value that leaves through the side (a bicontinuous structure) is a loop at the edge too, but its
+cap faces back into the specimen.
 
 Limitations: the test reads composition, not significance; at a contrast of a few points a small hole's ions
 beyond can read either side of the iso-value by noise (a closed object then stays open, as before). An object
