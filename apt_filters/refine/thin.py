@@ -15,17 +15,24 @@ is thinned by the coarse scale: its thickness ``V / A`` is less than half the fi
 scales an octave apart an object resolved at both keeps its thickness; one the coarse scale does not resolve
 loses more than the scale ratio, or breaks into slivers along a rod).
 
+A real finer component the first contour missed altogether (its axis diluted under the iso-value, or slivers
+there that the speck rule removed) is added where it stands apart from every object the first contour kept
+(:func:`_apart`: beyond the coarse kernel's reach, so not a lobe of one or a noise blob on its plateau) and
+stands out of a matrix below the iso-value by its counts (:func:`_stand_out`: surroundings under the iso-value,
+inside over its surroundings by the exact binomial tail, Holm over the finer family).
+
 The finer speck test costs a finer voxelization and contour per null draw and the exact distances of the ions
 near every finer component; it is drawn only where some finer component may replace a coarse one by the rule
-above (:func:`_may_replace`: bounding boxes and thicknesses), so that a specimen whose objects are all resolved
-pays for one finer voxelization and contour. Its family stays every finer component.
+above (:func:`_may_replace`: bounding boxes and thicknesses) or be added (:func:`_apart`), so that a specimen
+whose objects are all resolved and whose finer noise draws nothing apart from them pays for one finer
+voxelization and contour. Its family stays every finer component.
 
 Everything else keeps the first contour: resolved objects (their coarse contour is smoother and as close), a
 finer component holding a resolved one (at low contrast the finer field's noise joins objects), and a finer
-component holding none: at an iso-value near an object's own plateau the finer field's noise draws
-significant blobs inside thick objects (the ``small`` preset at 20 at.% Al, its objects' composition: three
-blobs of 4-20 nm³ in a 6 nm cube and a 3 nm sphere), which nothing in the contours tells from a thin object
-the coarse scale missed. Such objects are not found.
+component holding none within the coarse kernel's reach of a first-contour object. At an iso-value at an
+object's own plateau (the ``small`` preset at 20 at.% Al, its objects' composition, whose first contour holds
+specks only) the finer contour draws parts of the objects (blobs of 4-20 nm³ in its 6 nm cube and 3 nm sphere),
+which stand out of the matrix and are added as such.
 
 References
 ----------
