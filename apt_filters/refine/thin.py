@@ -17,7 +17,8 @@ loses more than the scale ratio, or breaks into slivers along a rod).
 
 A real finer component the first contour missed altogether (its axis diluted under the iso-value, or slivers
 there that the speck rule removed) is added where it stands apart from every object the first contour kept
-(:func:`_apart`: beyond the coarse kernel's reach, so not a lobe of one or a noise blob on its plateau) and
+(:func:`_apart`: beyond the coarse kernel's reach, so not a lobe of one or a noise blob on its plateau, and
+holding every vertex of the raw first contour within that reach, so not an object at the iso-value) and
 stands out of a matrix below the iso-value by its counts (:func:`_stand_out`: surroundings under the iso-value,
 inside over its surroundings by the exact binomial tail, Holm over the finer family).
 
@@ -29,10 +30,10 @@ voxelization and contour. Its family stays every finer component.
 
 Everything else keeps the first contour: resolved objects (their coarse contour is smoother and as close), a
 finer component holding a resolved one (at low contrast the finer field's noise joins objects), and a finer
-component holding none within the coarse kernel's reach of a first-contour object. At an iso-value at an
-object's own plateau (the ``small`` preset at 20 at.% Al, its objects' composition, whose first contour holds
-specks only) the finer contour draws parts of the objects (blobs of 4-20 nm³ in its 6 nm cube and 3 nm sphere),
-which stand out of the matrix and are added as such.
+component holding none within the coarse kernel's reach of a first-contour object or beside coarse specks: at
+an iso-value at an object's own plateau (the ``small`` preset at 20 at.% Al, its objects' composition, whose
+first contour holds specks only) the finer contour draws blobs of 4-20 nm³ in its 6 nm cube and 3 nm sphere
+that stand out of the matrix, and coarse specks lie beside them.
 
 References
 ----------
@@ -130,14 +131,16 @@ def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list
     return out
 
 
-def _apart(finer: list[TriMesh], points: list[np.ndarray], reach: np.ndarray) -> np.ndarray:
-    """(f,) bool: the ``finer`` components that are objects of their own, apart from the first contour's.
+def _apart(finer: list[TriMesh], points: list[np.ndarray], raw: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(f,) bool: the ``finer`` components that are objects of their own, which the coarse scale missed.
 
     Closed and enclosing their inside (positive volume), with no vertex of a first-contour component ``points``
     in the bounding box of their vertices grown by ``reach`` (3,) nm, the coarse kernel's delocalization: beyond
-    it the coarse field owes nothing to a first-contour object, so a significant finer component there is an
-    object the coarse scale missed, not a lobe or a noise blob on the plateau of an object it resolved (at an
-    iso-value near an object's own plateau the finer noise draws significant blobs inside and beside it).
+    it the coarse field owes nothing to a first-contour object, so the component is not a lobe of one or a noise
+    blob on its plateau. And every vertex of the raw first contour ``raw`` (n, 3) nm, specks included, in that
+    box lies inside the component: the coarse scale drew the object as slivers within it or not at all (the
+    replacement rule's "wholly inside"); coarse specks beside or around it say the coarse field hovers about the
+    iso-value there, an object whose composition is the iso-value, whose finer noise blobs are no objects.
     """
     near = np.vstack(points) if points else np.zeros((0, 3))
     out = np.zeros(len(finer), bool)
@@ -146,7 +149,10 @@ def _apart(finer: list[TriMesh], points: list[np.ndarray], reach: np.ndarray) ->
             continue
         own = part.vertices[np.unique(part.faces)]
         lo, hi = own.min(axis=0) - reach, own.max(axis=0) + reach
-        out[j] = not np.any(np.all((near >= lo) & (near <= hi), axis=1))
+        if np.any(np.all((near >= lo) & (near <= hi), axis=1)):
+            continue
+        specks = raw[np.all((raw >= lo) & (raw <= hi), axis=1)]
+        out[j] = not len(specks) or bool(np.all(SurfaceDistance(part).query(specks).distance < 0))
     return out
 
 
@@ -227,7 +233,10 @@ def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mas
     points = [c.vertices[np.unique(c.faces)] for c in coarse]  # each component's own vertices
     parts = split_components(contour)
     may = _may_replace(parts, points, [_thickness(c) for c in coarse])
-    apart = _apart(parts, points, np.asarray(fields.delocalization, dtype=np.float64))
+    first = marching_cubes(fields.concentration(species, basis).dense(), iso, spacing=fields.grid.voxel,
+                           origin=fields.grid.origin, mask=mask)  # the first contour, specks included
+    apart = _apart(parts, points, first.vertices[np.unique(first.faces)],
+                   np.asarray(fields.delocalization, dtype=np.float64))
     if not (may | apart).any():  # no finer component can change the surface whatever its test says: none is drawn
         return mesh, report
     real, report.tested = remove_specks(contour, fields=fine, mask=mask, ions=ions, ranges=ranges, species=species,
