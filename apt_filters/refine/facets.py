@@ -1424,16 +1424,17 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     past is held there, the radius in ``[0, depth of the deepest ion]``, the share in ``[0, 1]``; converged when the
     misfit falls by less than ``tolerance`` of the residuals' variance): first with sharp edges, every plane's
     offset and the share of the profile's variance due to the blur (from half); then sharp and rounded again, each
-    with its own share (the blur's variance weighed against :data:`~apt_filters.refine.blur.SLOPE_PRIOR`), the
-    rounded fit's radius started by a bounded scalar search at the sharp fit's share. The planes' own fit (the
-    product of their steps: a blurred sharp polyhedron) reads an interface profile's edges, which are round outside
-    and hold half the contrast on the edge, as planes moved out (a 3 nm lath's by 0.05-0.17 nm under a 0.6 nm
-    interface) and a rounded edge's as a smaller radius. An emptier edge is either a sharp edge more blurred or a
-    rounded one less so: the first fit's share is kept where the ions choose it over share 1 by the Bayesian
-    information criterion (likelihood ratio above ``log(b)``; otherwise the share is 1 and the offsets are those
-    given, the blurred sharp polyhedron), and gives the sharp edges' offsets. The radius is kept where the rounded
-    fit's misfit (the prior's term included) lies more than 4 residual variances below the sharp one's, a likelihood
-    ratio of two standard errors; otherwise the edges stay sharp, their offsets as the first fit has them.
+    with its own share (the blur's variance weighed against :data:`~apt_filters.refine.blur.SLOPE_PRIOR`; the width
+    refitted, no less than half ``width``), the rounded fit's radius started by a bounded scalar search at the sharp
+    fit's share. The planes' own fit (the product of their steps: a blurred sharp polyhedron) reads an interface
+    profile's edges, which are round outside and hold half the contrast on the edge, as planes moved out (a 3 nm
+    lath's by 0.05-0.17 nm under a 0.6 nm interface) and a rounded edge's as a smaller radius. An emptier edge is
+    either a sharp edge more blurred or a rounded one less so: the first fit's share is kept where the ions choose
+    it over share 1 by the Bayesian information criterion (likelihood ratio above ``log(b)``; otherwise the share is
+    1 and the offsets are those given, the blurred sharp polyhedron), and gives the sharp edges' offsets. The radius
+    is kept where the rounded fit's misfit (the prior's term included) lies more than 4 residual variances below the
+    sharp one's, a likelihood ratio of two standard errors; otherwise the edges stay sharp, their offsets as the
+    first fit has them.
 
     Returns
     -------
@@ -1537,6 +1538,9 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     # read LR 0.0-3.2 (dev cuboid 36409, lath 36409, held-out cuboid 10012)
     variance = fitted / max(len(u) - m - 2, 1)
     penalty = variance / sd ** 2
+    # the width no less than half the object's: with the share free beside it, a sharp box drawn from the profile at
+    # 20 points of contrast (8,000 ions, width 0.15 nm) collapsed it to 0.03 nm and read a 0.41 nm radius (LR 11)
+    lower[m + 2] = 0.5 * width
     weighed = np.r_[np.ones(m, dtype=bool), False, True, True]
     start = np.r_[np.zeros(m), 0.0, np.clip(mean / width_fitted ** 2, 0.0, 1.0), width_fitted]
     sharp_params, sharp_cost, _ = fit(start, weighed)
