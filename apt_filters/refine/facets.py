@@ -1529,13 +1529,13 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     ratio = (blurred - fitted) / (fitted / max(len(u) - m - 2, 1))
     if not ratio > np.log(len(u)):
         shift = np.zeros(m)
-    # sharp or rounded, as the ions choose. An emptier edge is a sharp edge more blurred or a rounded one less so, and
-    # at the share the sharp fit chose the blur had taken the rounding in (seen rounded 10120: share 0.16-0.19 for a
-    # true 0.10-0.17, radius 0 for a true 0.85 nm). So each shape is fitted with its own share, the blur's variance
-    # weighed against the prior of the reconstruction's blur (SLOPE_PRIOR) as one more observation, and the radius is
-    # kept where the rounded fit's misfit (the prior's term included) lies more than 4 residual variances, two
-    # standard errors, below the sharp one's: 10120 0.76 nm (LR 4.7); sharp cuboids and laths of the same chemistry
-    # read LR 0.0-3.2 (dev cuboid 36409, lath 36409, held-out cuboid 10012)
+    # sharp or rounded, as the ions choose. An emptier edge is a sharp edge more blurred or a rounded one less so,
+    # and at the share the sharp fit chose the blur had taken the rounding in (seen rounded 10120: share 0.16-0.19,
+    # the rounded fits' own 0.10-0.11; radius 0 for a true 0.85 nm). So each shape is fitted with its own share, the
+    # blur's variance weighed against the prior of the reconstruction's blur (SLOPE_PRIOR) as one more observation,
+    # and the radius is kept where the rounded fit's misfit (the prior's term included) lies more than 4 residual
+    # variances, two standard errors, below the sharp one's: 10120 0.76 nm (LR 4.7); sharp cuboids and laths of the
+    # same chemistry read LR 0.0-3.2 (dev cuboid 36409, lath 36409, held-out cuboid 10012)
     variance = fitted / max(len(u) - m - 2, 1)
     penalty = variance / sd ** 2
     # the width no less than half the object's: with the share free beside it, a sharp box drawn from the profile at
