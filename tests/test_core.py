@@ -524,6 +524,29 @@ def test_touching_pairs_are_exactly_the_overlapping_balls_and_one_sliver_pairs_o
     assert len(got) == 5000 and (got[:, 1] == 5000).all()
 
 
+def test_triangles_intersect_tests_axes_only_for_pairs_whose_boxes_meet(monkeypatch):
+    from apt_filters.core import checks
+
+    # analytic pairs, far from the origin (rounding of 1e3 nm coordinates): a triangle through another, two
+    # meeting at one corner only, two coplanar ones overlapping, and copies of the first triangle pulled apart
+    # along x by 1 nm, 1e-3 nm and 1e-5 nm (boxes apart; the 1e-9 share of a 1e3 coordinate is 1e-6)
+    base = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    through = np.array([[0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [1.5, 0.2, 0.0]])
+    corner = np.array([[2.0, 0.0, 0.0], [3.0, 0.0, 1.0], [3.0, 1.0, 1.0]])
+    flat = base + [0.5, 0.5, 0.0]
+    pulled = [base - [gap + 2.0, 0.0, 0.0] for gap in (1.0, 1e-3, 1e-5)]
+    a = np.stack([base, base, base] + [base] * 3) + 1e3
+    b = np.stack([through, corner, flat] + pulled) + 1e3
+    truth = np.array([True, True, True, False, False, False])
+    seen = []
+    full = checks._separated
+    monkeypatch.setattr(checks, "_separated", lambda a, b: seen.append(len(a)) or full(a, b))
+    assert (checks.triangles_intersect(a, b) == truth).all()
+    assert seen == [3]  # the three pairs whose boxes are apart are not tested axis by axis
+    # every pair the separating axes see gives the answer they give on their own
+    assert (~full(a, b) == truth).all()
+
+
 def test_self_intersections_of_a_crumpled_sheet_equal_the_all_pairs_oracle():
     from apt_filters.core.checks import self_intersecting_faces, triangles_intersect
 

@@ -175,6 +175,7 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
     from apt_filters.contour import dual_contouring, marching_cubes
     from apt_filters.meshlab.chains import apply_chain
     from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.refine.clipped import close_clipped
     from apt_filters.refine.specks import trim_lobes
     from apt_filters.refine.segregants import segregant_ions
     from apt_filters.refine.thin import add_thin_objects
@@ -232,6 +233,9 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                                           species=surface.species, iso=surface.iso, basis=surface_basis,
                                           alpha=r.speck_alpha)
             record.specks = thin.specks
+            # closed objects the specimen-edge clip holed, closed again where the ions beyond the hole are matrix
+            mesh, clipped = close_clipped(mesh, mask=mask, grid=fields.grid, ions=ions, ranges=ranges,
+                                          species=surface.species, iso=surface.iso, basis=surface_basis)
             refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
                                      refine_params(r) if params is None else params)
             mesh, record.refined = refined.mesh, refined
@@ -239,8 +243,10 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                              "segregants": None if segregants is None else dataclasses.asdict(segregants),
                              "lobes": dataclasses.asdict(lobes),
                              "thin": thin.as_dict(),
+                             "clipped": dataclasses.asdict(clipped),
                              **_refine_record(thin.specks, refined)}
             s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, "
+                         f"{clipped.describe()}, "
                          f"mean displacement {refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
         record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")

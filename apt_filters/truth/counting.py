@@ -14,6 +14,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from apt_filters.analysis.width import inside_windows
 from apt_filters.core.mesh import TriMesh
 from apt_filters.refine.blur import vertex_areas
 from apt_filters.refine.crossval import LENGTHS, open_low_pass
@@ -50,9 +51,9 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
 
     The profile of each basis element's fraction against the true signed distance ``d``, pooled over
     all the objects given (all alike, e.g. the precipitates of one phase), is fitted by error-function
-    steps ``f_k(d) = out_k + (in_k - out_k) Phi(-(d - c) / s)`` (plateaus from ``|d| > 1`` nm, a common
-    centre and width; a fit, since the noise of a binned profile's slope would add information that is
-    not there). Each atom within ``reach`` nm of an object carries the Fisher information
+    steps ``f_k(d) = out_k + (in_k - out_k) Phi(-(d - c) / s)`` (plateaus from ``|d| > 1`` nm, inside
+    from half the objects' depth where that is nearer; a common centre and width; a fit, since the noise
+    of a binned profile's slope would add information that is not there). Each atom within ``reach`` nm of an object carries the Fisher information
     ``sum_k f_k'(d)^2 / f_k(d)`` about a shift of the object's surface, and the bound is one over the
     square root of their sum.
 
@@ -99,7 +100,11 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
         np.add.at(totals, b, a.sum(axis=1))
         near.append((d[rows], a, marker[rows]))
     fraction = counts / np.maximum(totals, 1.0)[:, None]
-    inside = counts[centre < -1.0].sum(axis=0) / max(totals[centre < -1.0].sum(), 1.0)
+    # the inside plateau from 1 nm deep, or from half the objects' depth where they are thinner (the report's
+    # window, :func:`~apt_filters.analysis.width.inside_windows`): discs and rods whose ions all lie within
+    # 1 nm of their surface left it empty, and the fit then read no step at all (floors of 1e49)
+    deep = centre < -inside_windows(depth=-centre, atoms=totals, inner=1.0)[0]
+    inside = counts[deep].sum(axis=0) / max(totals[deep].sum(), 1.0)
     outside = counts[centre > 1.0].sum(axis=0) / max(totals[centre > 1.0].sum(), 1.0)
     weight = np.sqrt(totals)[:, None]
 
@@ -119,7 +124,8 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
             bump = peak.amplitude * np.exp(-0.5 * ((d - peak.centre) / peak.width) ** 2)
             mf = peak.background + bump
             mark[k] = np.sum((a.sum(axis=1) + m) * (bump * (d - peak.centre) / peak.width ** 2) ** 2 / (mf * (1 - mf)))
-    offsets = 1.0 / np.sqrt(np.maximum(step, 1e-300))
+    # no information (no step in the ions): no floor, rather than one so wide that any error passes within it
+    offsets = 1.0 / np.sqrt(np.where(step > 0, step, np.nan))
     if len(near) > 1 and mark.all():
         offsets = combined_offset_errors(offsets, 1.0 / np.sqrt(mark))
     out = []
