@@ -16,7 +16,8 @@ species' two phases (all ranged species in the denominator):
 Per true object: volume and area errors with their counting sigma (the Cramér-Rao floor of
 :func:`~apt_filters.refine.evaluate.counting_floor`, segregant as marker where there is one; for an object cut by
 the edge, of its part compared, from the ions there), mean and
-Hausdorff distance to the true surface, and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
+Hausdorff distance to the true surface (for an interface, beside its mean distance the counting floor of it,
+:func:`~apt_filters.truth.distance_floor`), and the chemistry ``apt-filters run`` reports (:func:`run_chemistry`:
 the proxigram over the range its fitted width asks for, :func:`~apt_filters.analysis.width.fitted_proxigram`, and
 per object the segregant's Krakauer-Seidman excess, :func:`~apt_filters.analysis.excess.interfacial_excess`, and
 the iso species' inside plateau, the window composition of the report's summary) against what the object's
@@ -38,6 +39,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
@@ -54,7 +56,8 @@ from apt_filters.refine import remove_specks
 from apt_filters.refine.composition import ion_atoms
 from apt_filters.synth import generate
 from apt_filters.synth.zoo import SPLITS, draws, zoo_specimen
-from apt_filters.truth import counted_truth, counting_floor, match_objects, surface_error, surface_error_within
+from apt_filters.truth import (counted_truth, counting_floor, distance_floor, match_objects, surface_error,
+                               surface_error_within)
 from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
 from benchmarks.results import ratio, write_results
 
@@ -135,6 +138,16 @@ def truths(sp, species: str) -> dict:
                             [s.volume() for s in inner], pos[there], atoms[there],
                             marker=None if marker is None else marker[there])
         floors |= dict(zip(cut, fl))
+    # an interface's mean distance has a floor of its own: the ideal estimate low-passed as the refinement's
+    # (distance_floor), from the offset floor of its part inside the compared region
+    for i in (i for i, f in enumerate(sp.truth["features"]) if not f["bounded"]):
+        there, region = _interior(sp, i, pos), _region(sp)
+        pts, _ = sample_mesh(sp.meshes[i], 200.0, np.random.default_rng(0))
+        area = sp.meshes[i].area() * float(np.mean(region(pts) < 0))
+        [fl] = counting_floor([sp.feature_sdf(i)], [lambda d, a=area: np.full(len(d), a)], [area], pos[there],
+                              atoms[there])
+        floors[i] = distance_floor(true_mesh=sp.meshes[i], sdf=sp.feature_sdf(i), offset=fl.offset, area=area,
+                                   region=region)
     out = {}
     for i, tf in enumerate(sp.truth["features"]):
         inside = np.array([tf["composition_inside"].get(e, 0.0) for e in everything.elements])
@@ -156,11 +169,16 @@ def _reaches_edge(sp, i: int) -> bool:
     return shape.bounds() is None or shape.cut
 
 
+def _region(sp) -> Callable[[np.ndarray], np.ndarray]:
+    """The box shrunk by ``MARGIN`` (negative inside), where surfaces that reach the edge are compared."""
+    return lambda points: sp.spec.geometry.sdf(np.asarray(points, dtype=np.float64)) + MARGIN
+
+
 def _interior(sp, i: int, points: np.ndarray) -> np.ndarray:
     """Where feature ``i`` is compared: everywhere for a whole object, else inside the box shrunk by ``MARGIN``."""
     if not _reaches_edge(sp, i):
         return np.ones(len(points), dtype=bool)
-    return sp.spec.geometry.sdf(np.asarray(points, dtype=np.float64)) + MARGIN < 0
+    return _region(sp)(points) < 0
 
 
 def _clipped(sp, i: int, mesh: TriMesh) -> TriMesh:
@@ -178,11 +196,7 @@ def _joined(parts: list[TriMesh]) -> TriMesh:
 
 def _edge_error(sp, i: int, part: TriMesh, seed: int):
     """An open interface or a cut object against its truth inside the box shrunk by ``MARGIN``."""
-    shape, box = sp.spec.features[i].shape, sp.spec.geometry
-
-    def region(p):
-        return box.sdf(p) + MARGIN
-
+    shape, box, region = sp.spec.features[i].shape, sp.spec.geometry, _region(sp)
     if shape.cut:  # the same sphere cut by the face moved in: exact volume and area inside the region
         inner = shape.moved_in(MARGIN)
         lo, hi = shape.bounds()
@@ -257,6 +271,8 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
         row |= {"area": err.area_error, "mean": err.mean_distance, "hausdorff": err.hausdorff}
         if tf["bounded"]:
             row |= {"volume": err.volume_error, "volume_sigma": tr["floor"].volume, "area_sigma": tr["floor"].area}
+        else:
+            row |= {"d_floor": tr["floor"]}
         if _reaches_edge(sp, i):  # the surface, its ions and their count inside the compared region only
             inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
@@ -291,7 +307,9 @@ def fmt(r: dict) -> str:
                   f"A {100 * r['area']:+.1f}% (σ {100 * r['area_sigma']:.1f})"]
     else:
         cells.append(f"area/volume {100 * r['area']:+.1f}%")
-    cells += [f"d {r['mean']:.3f}", f"H {r['hausdorff']:.2f}"]
+    cells.append(f"d {r['mean']:.3f}" + (f" (floor {r['d_floor'].mean:.3f} at l {r['d_floor'].length:.1f} nm)"
+                                         if "d_floor" in r else ""))
+    cells.append(f"H {r['hausdorff']:.2f}")
     if "excess_rel" in r:
         cells.append(f"excess {100 * r['excess_rel']:+.1f}% ({r['excess'] / r['excess_sigma']:+.1f}σ)")
     if r["plateau_sigma"] > 0:

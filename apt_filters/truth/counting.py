@@ -15,6 +15,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from apt_filters.analysis.width import inside_windows
+from apt_filters.core.mesh import TriMesh
+from apt_filters.refine.blur import vertex_areas
+from apt_filters.refine.crossval import LENGTHS, open_low_pass
 from apt_filters.refine.levels import PLATEAU_WINDOW
 from apt_filters.refine.marker import combined_offset_errors
 from apt_filters.refine.peak import fit_peak
@@ -193,3 +196,91 @@ def counted_truth(sdf: Callable[[np.ndarray], np.ndarray], positions: np.ndarray
     n_in, n_out = totals[win_in].sum(), totals[win_out].sum()
     return CountedTruth(atoms[band].sum(axis=0) - expected, atoms[win_in].sum(axis=0) / max(n_in, 1.0),
                         atoms[win_out].sum(axis=0) / max(n_out, 1.0), float(n_in), float(n_out))
+
+
+SMOOTHED_NOISE = 13.0 / 128.0
+"""``l^2`` times the variance that :func:`~apt_filters.refine.spectral.rim_held_low_pass` at length ``l`` leaves of
+a white offset noise of unit variance per nm²: ``int H(k)^2 d^2k / (2 pi)^2`` with the twiced Tikhonov damping
+``H = (1 + 2a) / (1 + a)^2``, ``a = (l k)^4``, is ``(1 / (4 pi l^2)) int_0^inf ((1 + 2v^2) / (1 + v^2)^2)^2 dv`` and
+the integral is ``13 pi / 32`` (an effective area of ``9.8 l^2``: 19 nm² at ``l`` = 1.4 nm)."""
+
+
+@dataclass
+class DistanceFloor:
+    """Counting floor of an open surface's mean distance to its truth at the best smoothing length.
+
+    Attributes
+    ----------
+    mean : float, nm
+        Expected mean ``|d|`` of the ideal estimate low-passed at ``length``: over the true surface, ``E|b + s Z|``
+        (``b`` the filter's bias there, ``s`` the noise it leaves, ``Z`` standard normal).
+    length : float, nm
+        The smoothing length (of those given) at which ``mean`` is smallest.
+    noise : float, nm
+        ``s`` at ``length``.
+    bias : float, nm
+        Mean ``|b|`` at ``length``.
+    """
+
+    mean: float
+    length: float
+    noise: float
+    bias: float
+
+
+def distance_floor(*, true_mesh: TriMesh, sdf: Callable[[np.ndarray], np.ndarray], offset: float, area: float,
+                   region: Callable[[np.ndarray], np.ndarray] | None = None,
+                   lengths: Sequence[float] = LENGTHS) -> DistanceFloor:
+    """Counting floor of the mean distance of an open surface (an interface leaving the specimen) low-passed as
+    the refinement low-passes it (:func:`~apt_filters.refine.crossval.open_low_pass`, rim held), from its ions.
+
+    The ideal estimate of the surface places each area element at the unbiased offset its ions support: an
+    offset noise, white along the surface, of variance ``offset^2 area`` per nm² (``offset`` the Cramér-Rao floor
+    of one uniform offset of ``area`` nm² of the surface, :func:`counting_floor`, which assumes the ions' density
+    and the step uniform along the surface). The low-pass at length ``l`` leaves ``s^2 = SMOOTHED_NOISE offset^2
+    area / l^2`` of it (:data:`SMOOTHED_NOISE`) and moves the true surface by ``b`` (the filter applied to
+    ``true_mesh``; ``b`` its vertices' SDF): its expected mean distance is the area-weighted mean over
+    the true surface of ``E|b + s Z| = s sqrt(2/pi) exp(-b^2 / 2 s^2) + b (1 - 2 Phi(-b / s))``. The floor is
+    that at the best of ``lengths`` (the refinement's candidates, :data:`~apt_filters.refine.crossval.LENGTHS`;
+    tried from the shortest until it rises):
+    what the refinement could reach with the held-out ions' choice made by the truth and a placement as efficient
+    as the counts allow; a mean distance near it is the counts' and one well above it the estimator's.
+
+    Parameters
+    ----------
+    true_mesh : TriMesh
+        The true surface (one or more open components, each with its rim at the specimen's edge).
+    sdf : callable
+        Its exact SDF (nm).
+    offset : float, nm
+        Cramér-Rao floor of a uniform offset of ``area`` of the surface (``CountingFloor.offset`` of the ions
+        there).
+    area : float, nm²
+        The area those ions cover.
+    region : callable, optional
+        Where the surface is compared (``region(points) < 0``); everywhere if None.
+    lengths : floats, nm
+    """
+    from scipy.special import erfc
+
+    faces = true_mesh.faces
+    labels = true_mesh.face_components()
+    components = np.full(true_mesh.n_vertices, -1, dtype=np.int64)
+    components[faces.ravel()] = np.repeat(labels, 3)
+    weight = vertex_areas(true_mesh.vertices, faces)
+    if region is not None:
+        weight = weight * (region(true_mesh.vertices) < 0)
+    best = None
+    # rough to smooth: the noise falls and the bias grows with the length, so the first rise is past the floor
+    for length in sorted(lengths):
+        moved = open_low_pass(true_mesh.vertices, faces, components, dict.fromkeys(range(int(labels.max()) + 1),
+                                                                                  float(length)))
+        b = np.abs(sdf(moved))
+        s = offset * np.sqrt(SMOOTHED_NOISE * area) / length
+        expected = s * np.sqrt(2 / np.pi) * np.exp(-0.5 * (b / s) ** 2) + b * (1 - erfc(b / (np.sqrt(2) * s)))
+        floor = DistanceFloor(float(np.average(expected, weights=weight)), float(length), float(s),
+                              float(np.average(b, weights=weight)))
+        if best is not None and floor.mean >= best.mean:
+            break
+        best = floor
+    return best
