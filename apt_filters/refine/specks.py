@@ -153,12 +153,12 @@ def holm(p: np.ndarray) -> np.ndarray:
     return adjusted
 
 
-def side_counts(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-                reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None,
-                labels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(n_up, k_up, n_down, k_down), each (c,) float: of each component of ``mesh``, the atoms (all, and of
-    ``species``) within ``reach`` nm on the side above the iso-value (signed distance in [-reach, 0)) and on the side
-    below, from ``gap`` to ``gap + reach`` nm.
+def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
+           reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None,
+           labels: np.ndarray | None = None) -> np.ndarray:
+    """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
+    on the side above the iso-value (signed distance in [-reach, 0)) against those on the side below, from
+    ``gap`` to ``gap + reach`` nm (pooled binomial variance; 0 where a side is empty).
 
     ``labels``, optional: (f,) int, a part of the surface per face (default its components); each atom counts for
     the part of its nearest face.
@@ -166,7 +166,7 @@ def side_counts(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: s
     ``near``, optional: the ions of ``ions`` near this very ``mesh`` selected already
     (:func:`~apt_filters.core.nearby.select_near` to at least ``reach + gap`` nm, with exact distances and faces
     within ``reach + gap``, e.g. :func:`~apt_filters.refine.segregants.segregant_ions`); default: selected here.
-    The counts are whole atoms, so they are the same to the bit either way."""
+    The counts are whole atoms, so the z is the same to the bit either way."""
     labels = mesh.face_components() if labels is None else np.asarray(labels)
     n_comp = int(labels.max()) + 1 if len(labels) else 0
     if near is None:
@@ -184,17 +184,7 @@ def side_counts(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: s
     def count(w):
         return np.bincount(comp, weights=w, minlength=n_comp)
 
-    return count(total * up), count(mine * up), count(total * down), count(mine * down)
-
-
-def side_z(mesh: TriMesh, *, ions: IonTable, ranges: RangeTable, species: str, basis: ConcentrationBasis,
-           reach: float = REACH, gap: float = 0.0, near: NearSurface | None = None,
-           labels: np.ndarray | None = None) -> np.ndarray:
-    """(c,) two-sample z of each component of ``mesh``: the ``species`` fraction of the atoms within ``reach`` nm
-    on the side above the iso-value against those on the side below, from ``gap`` to ``gap + reach`` nm
-    (:func:`side_counts`, whose arguments these are; pooled binomial variance; 0 where a side is empty)."""
-    n_up, k_up, n_down, k_down = side_counts(mesh, ions=ions, ranges=ranges, species=species, basis=basis,
-                                             reach=reach, gap=gap, near=near, labels=labels)
+    n_up, k_up, n_down, k_down = count(total * up), count(mine * up), count(total * down), count(mine * down)
     pooled = (k_up + k_down) / np.maximum(n_up + n_down, 1.0)
     var = pooled * (1 - pooled) * (1 / np.maximum(n_up, 1.0) + 1 / np.maximum(n_down, 1.0))
     diff = k_up / np.maximum(n_up, 1.0) - k_down / np.maximum(n_down, 1.0)

@@ -15,25 +15,17 @@ is thinned by the coarse scale: its thickness ``V / A`` is less than half the fi
 scales an octave apart an object resolved at both keeps its thickness; one the coarse scale does not resolve
 loses more than the scale ratio, or breaks into slivers along a rod).
 
-A real finer component the first contour missed altogether (its axis diluted under the iso-value, or slivers
-there that the speck rule removed) is added where it stands apart from every object the first contour kept
-(:func:`_apart`: beyond the coarse kernel's reach, so not a lobe of one or a noise blob on its plateau, and
-holding every vertex of the raw first contour within that reach, so not an object at the iso-value) and
-stands out of a matrix below the iso-value by its counts (:func:`_stand_out`: surroundings under the iso-value,
-inside over its surroundings by the exact binomial tail, Holm over the finer family).
-
 The finer speck test costs a finer voxelization and contour per null draw and the exact distances of the ions
 near every finer component; it is drawn only where some finer component may replace a coarse one by the rule
-above (:func:`_may_replace`: bounding boxes and thicknesses) or be added (:func:`_apart`), so that a specimen
-whose objects are all resolved and whose finer noise draws nothing apart from them pays for one finer
-voxelization and contour. Its family stays every finer component.
+above (:func:`_may_replace`: bounding boxes and thicknesses), so that a specimen whose objects are all resolved
+pays for one finer voxelization and contour. Its family stays every finer component.
 
 Everything else keeps the first contour: resolved objects (their coarse contour is smoother and as close), a
 finer component holding a resolved one (at low contrast the finer field's noise joins objects), and a finer
-component holding none within the coarse kernel's reach of a first-contour object or beside coarse specks: at
-an iso-value at an object's own plateau (the ``small`` preset at 20 at.% Al, its objects' composition, whose
-first contour holds specks only) the finer contour draws blobs of 4-20 nm³ in its 6 nm cube and 3 nm sphere
-that stand out of the matrix, and coarse specks lie beside them.
+component holding none: at an iso-value near an object's own plateau the finer field's noise draws
+significant blobs inside thick objects (the ``small`` preset at 20 at.% Al, its objects' composition: three
+blobs of 4-20 nm³ in a 6 nm cube and a 3 nm sphere), which nothing in the contours tells from a thin object
+the coarse scale missed. Such objects are not found.
 
 References
 ----------
@@ -46,13 +38,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from apt_filters.contour import marching_cubes
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh, merge, split_components
 from apt_filters.io import IonTable, RangeTable
-from apt_filters.refine.specks import ALPHA, REACH, Specks, holm, kernel_sigma, remove_specks, side_counts
+from apt_filters.refine.specks import ALPHA, Specks, remove_specks
 from apt_filters.voxel import ConcentrationBasis, voxelize
 
 OCTAVE = 0.5
@@ -69,11 +60,9 @@ class ThinObjects:
         The finer kernel's delocalization.
     replaced : list of (float, float)
         (coarse, finer) volumes (nm³) of the components each finer one replaced (the coarse ones summed).
-    added : list of float
-        Volumes (nm³) of the finer components added where the first contour holds no object (:func:`_apart`).
     tested : Specks or None
         The speck test of the finer contour's components (None where no finer component may replace a coarse
-        one or be added: not drawn).
+        one: not drawn).
     specks : Specks or None
         The first contour's speck test with each output component's p-value and z (``Specks.kept``, for
         :meth:`Specks.of`); the input's where nothing changed.
@@ -81,21 +70,18 @@ class ThinObjects:
 
     delocalization: tuple[float, float, float]
     replaced: list[tuple[float, float]] = field(default_factory=list)
-    added: list[float] = field(default_factory=list)
     tested: Specks | None = field(default=None, repr=False)
     specks: Specks | None = field(default=None, repr=False)
 
     def describe(self) -> str:
         """One line for the run's log."""
         finer = "x".join(f"{d:g}" for d in self.delocalization)
-        if not self.replaced and not self.added:
+        if not self.replaced:
             return f"no object too thin for the delocalization (checked at {finer} nm)"
-        return (f"{len(self.replaced)} object(s) too thin for the delocalization drawn again and {len(self.added)} "
-                f"it missed added at {finer} nm")
+        return f"{len(self.replaced)} object(s) too thin for the delocalization drawn again at {finer} nm"
 
     def as_dict(self) -> dict:
-        return {"delocalization_nm": list(self.delocalization), "replaced_nm3": [list(r) for r in self.replaced],
-                "added_nm3": list(self.added)}
+        return {"delocalization_nm": list(self.delocalization), "replaced_nm3": [list(r) for r in self.replaced]}
 
 
 def _thickness(part: TriMesh) -> float:
@@ -131,60 +117,6 @@ def _may_replace(finer: list[TriMesh], points: list[np.ndarray], thickness: list
     return out
 
 
-def _apart(finer: list[TriMesh], points: list[np.ndarray], raw: np.ndarray, reach: np.ndarray) -> np.ndarray:
-    """(f,) bool: the ``finer`` components that are objects of their own, which the coarse scale missed.
-
-    Closed and enclosing their inside (positive volume), with no vertex of a first-contour component ``points``
-    in the bounding box of their vertices grown by ``reach`` (3,) nm, the coarse kernel's delocalization: beyond
-    it the coarse field owes nothing to a first-contour object, so the component is not a lobe of one or a noise
-    blob on its plateau. And every vertex of the raw first contour ``raw`` (n, 3) nm, specks included, in that
-    box lies inside the component: the coarse scale drew the object as slivers within it or not at all (the
-    replacement rule's "wholly inside"); coarse specks beside or around it say the coarse field hovers about the
-    iso-value there, an object whose composition is the iso-value, whose finer noise blobs are no objects.
-    """
-    near = np.vstack(points) if points else np.zeros((0, 3))
-    out = np.zeros(len(finer), bool)
-    for j, part in enumerate(finer):
-        if len(part.boundary_edges()) or part.signed_volume() <= 0:
-            continue
-        own = part.vertices[np.unique(part.faces)]
-        lo, hi = own.min(axis=0) - reach, own.max(axis=0) + reach
-        if np.any(np.all((near >= lo) & (near <= hi), axis=1)):
-            continue
-        specks = raw[np.all((raw >= lo) & (raw <= hi), axis=1)]
-        out[j] = not len(specks) or bool(np.all(SurfaceDistance(part).query(specks).distance < 0))
-    return out
-
-
-def _stand_out(parts: list[TriMesh], family: int, *, fields, ions: IonTable, ranges: RangeTable, species: str,
-               iso: float, basis: ConcentrationBasis, alpha: float) -> np.ndarray:
-    """(p,) bool: the ``parts`` that stand out of a matrix below ``iso``, by counting significance.
-
-    Each part's atoms are counted as in the speck test (:func:`~apt_filters.refine.specks.side_counts` on
-    ``fields``' scale): those within :data:`~apt_filters.refine.specks.REACH` nm inside it, ``k_in`` of
-    ``n_in`` of ``species``, and those from the kernel's sigma to ``REACH`` beyond it outside, at fraction
-    ``f_out`` of ``n_out``. Two one-sided tests must both reject (an intersection-union test, level ``alpha``):
-
-    - its surroundings lie below the iso-value: ``z = (iso - f_out) / sqrt(iso (1 - iso) / n_out)`` (thousands of
-      atoms: normal). A thin object the coarse kernel diluted stands in the matrix; a finer noise blob on the
-      plateau of an object whose composition is the iso-value stands in that object;
-    - its inside holds more of ``species`` than its surroundings: the exact binomial tail
-      ``P(X >= k_in | n_in, f_out)``. A finer component holds a few atoms only (a 0.2 nm³ blob 16), where the
-      speck test's normal score is no p-value.
-
-    The larger p-value of the two is Holm-adjusted over ``family`` tests, the finer components the parts were
-    chosen from: each was a candidate before its place was known."""
-    from scipy.stats import binom, norm
-
-    n_in, k_in, n_out, k_out = side_counts(merge(parts), ions=ions, ranges=ranges, species=species, basis=basis,
-                                           reach=REACH, gap=kernel_sigma(fields))
-    f_out = k_out / np.maximum(n_out, 1.0)
-    z = np.where(n_out > 0, (iso - f_out) / np.sqrt(iso * (1.0 - iso) / np.maximum(n_out, 1.0)), 0.0)
-    inside = binom.sf(np.rint(k_in) - 1, np.rint(n_in), f_out)  # P(X >= k_in); atoms are whole
-    p = np.maximum(norm.sf(z), inside)
-    return holm(np.concatenate([p, np.ones(max(family - len(p), 0))]))[:len(p)] <= alpha
-
-
 def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mask: np.ndarray, ions: IonTable,
                      ranges: RangeTable, species: str, iso: float, basis: ConcentrationBasis | None = None,
                      alpha: float = ALPHA) -> tuple[TriMesh, ThinObjects]:
@@ -218,7 +150,7 @@ def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mas
     basis = fields.basis if basis is None else basis
     finer = tuple(OCTAVE * float(d) for d in fields.delocalization)
     report = ThinObjects(finer, specks=specks)
-    if fields.kernel != "gaussian":  # no scale to halve
+    if fields.kernel != "gaussian" or mesh.n_faces == 0:  # no scale to halve; nothing to replace
         return mesh, report
     fine = voxelize(ions, ranges, grid=fields.grid, kernel=fields.kernel, delocalization=finer, species=fields.kind,
                     basis=fields.basis, efficiency=fields.efficiency)
@@ -229,31 +161,17 @@ def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mas
     contour = marching_cubes(values, iso, spacing=fields.grid.voxel, origin=fields.grid.origin, mask=mask)
     if contour.n_faces == 0:
         return mesh, report
-    coarse = split_components(mesh) if mesh.n_faces else []
+    coarse = split_components(mesh)
     points = [c.vertices[np.unique(c.faces)] for c in coarse]  # each component's own vertices
-    parts = split_components(contour)
-    may = _may_replace(parts, points, [_thickness(c) for c in coarse])
-    first = marching_cubes(fields.concentration(species, basis).dense(), iso, spacing=fields.grid.voxel,
-                           origin=fields.grid.origin, mask=mask)  # the first contour, specks included
-    apart = _apart(parts, points, first.vertices[np.unique(first.faces)],
-                   np.asarray(fields.delocalization, dtype=np.float64))
-    if not (may | apart).any():  # no finer component can change the surface whatever its test says: none is drawn
+    may = _may_replace(split_components(contour), points, [_thickness(c) for c in coarse])
+    if not may.any():  # no finer component can replace a coarse one whatever its test says: none is drawn
         return mesh, report
     real, report.tested = remove_specks(contour, fields=fine, mask=mask, ions=ions, ranges=ranges, species=species,
                                         iso=iso, basis=basis, alpha=alpha)
     finer_parts = split_components(real) if real.n_faces else []
-    significant = ~(report.tested.p_values > alpha)  # the test removes whole components, in order
-    may, apart = may[significant], apart[significant]
-    if apart.any():  # an object of its own only where the matrix surrounds it
-        apart[apart] = _stand_out([finer_parts[j] for j in np.flatnonzero(apart)], report.tested.tested,
-                                  fields=fine, ions=ions, ranges=ranges, species=species, iso=iso, basis=basis,
-                                  alpha=alpha)
+    may = may[~(report.tested.p_values > alpha)]  # of the real ones (the test removes whole components, in order)
     dropped, extra = set(), []
     for j, part in enumerate(finer_parts):
-        if apart[j]:  # a real object the first contour missed: added
-            extra.append(j)
-            report.added.append(float(part.signed_volume()))
-            continue
         if not may[j]:  # fails the bounds' necessary condition; an open one ends at the specimen edge
             continue
         # a coarse component lies in this one where its vertices are inside it (negative distance)
@@ -268,17 +186,8 @@ def add_thin_objects(mesh: TriMesh, specks: Specks | None = None, *, fields, mas
         return mesh, report
     kept = [k for k in range(len(coarse)) if k not in dropped]
     out = merge([coarse[k] for k in kept] + [finer_parts[j] for j in extra])
-    if specks is not None and specks.kept is not None:
-        # each output component's test, at the scale it came from; the test's kept components are told from the
-        # replaced ones by their vertices (the noise-lobe cut after the test may have changed the components)
-        first, p, z = specks.kept
-        tested = split_components(first) if first.n_faces else []
-        stay = list(range(len(tested)))
-        if dropped:
-            gone = cKDTree(np.vstack([points[k] for k in dropped]))
-            stay = [c for c in stay if not np.isfinite(gone.query(tested[c].vertices[np.unique(tested[c].faces)],
-                                                                  distance_upper_bound=1e-6)[0]).any()]
-        report.specks = replace(specks, kept=(merge([tested[c] for c in stay] + [finer_parts[j] for j in extra]),
-                                              np.concatenate([p[stay], report.tested.kept[1][extra]]),
-                                              np.concatenate([z[stay], report.tested.kept[2][extra]])))
+    if specks is not None and specks.kept is not None:  # each output component's test, at the scale it came from
+        first = specks.kept
+        report.specks = replace(specks, kept=(out, np.concatenate([first[1][kept], report.tested.kept[1][extra]]),
+                                              np.concatenate([first[2][kept], report.tested.kept[2][extra]])))
     return out, report
