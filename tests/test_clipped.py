@@ -15,34 +15,18 @@ import pytest
 from apt_filters.core.mesh import TriMesh, split_components
 from apt_filters.io.ions import IonTable
 from apt_filters.io.ranges import Range, RangeTable
-from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
-from apt_filters.pipeline.surface import finished_surface
 from apt_filters.refine.clipped import close_clipped
-from apt_filters.synth import Box, generate
 from apt_filters.synth.shapes import Sphere
-from apt_filters.synth.specimen import Feature, SpecimenSpec
-from apt_filters.voxel import ConcentrationBasis, Grid, inside_mask, voxelize
+from apt_filters.voxel import Grid
+from tests.near_side import refined
 
-MATRIX = {"Ni": 0.80, "Al": 0.09, "Cr": 0.11}
-INSIDE = {"Ni": 0.67, "Al": 0.30, "Cr": 0.03}
 RADIUS, GAP = 2.0, 1.0
 
 
 @pytest.fixture(scope="module")
 def near_side():
-    box = Box((15.6, 16.0, 18.0))  # the face x = 7.8 between the grid's points 7 (inside the mask) and 8
     shape = Sphere((7.8 - GAP - RADIUS, -1.0, -9.0), RADIUS)
-    spec = SpecimenSpec(box, MATRIX, (Feature(shape, INSIDE, 0.2, (), "sphere 0"),), efficiency=0.5,
-                        blur=(0.3, 0.1), name="sphere near the side")
-    sp = generate(spec, 3)
-    config = PipelineConfig()
-    v = config.voxel
-    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
-    fields = voxelize(sp.ions, sp.ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size,
-                      basis=basis, efficiency=config.analysis.efficiency)
-    iso = 0.5 * (MATRIX["Al"] + INSIDE["Al"])
-    mesh, record = finished_surface(fields, inside_mask(fields).dense(), sp.ions, sp.ranges, SurfaceConfig("Al", iso),
-                                    config=config, basis=basis)
+    mesh, record = refined([shape], 3, "sphere near the side")
     return shape, mesh, record
 
 

@@ -20,30 +20,17 @@ import numpy as np
 import pytest
 
 from apt_filters.core.mesh import topology
-from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
-from apt_filters.pipeline.surface import finished_surface
-from apt_filters.synth import Box, generate
+from apt_filters.synth import Box
 from apt_filters.synth.implicit import CutSphere, SphereInterface
 from apt_filters.synth.specimen import Feature, SpecimenSpec
-from apt_filters.voxel import ConcentrationBasis, inside_mask, voxelize
+from apt_filters.voxel import ConcentrationBasis
+from tests.near_side import defaults
 
 MATRIX = {"Al": 0.78, "Mg": 0.09, "Cu": 0.13}
 INSIDE = {"Al": 0.80, "Mg": 0.17, "Cu": 0.03}
 WIDE_INSIDE = {"Al": 0.835, "Mg": 0.135, "Cu": 0.03}
 CUT_MATRIX = {"Ni": 0.80, "Al": 0.09, "Cr": 0.11}
 CUT_INSIDE = {"Ni": 0.42, "Al": 0.55, "Cr": 0.03}
-
-
-def _defaults(spec: SpecimenSpec, seed: int, species: str, iso: float):
-    """(mesh, record) of ``finished_surface`` on ``spec``'s ions drawn from ``seed``, every option at its default."""
-    sp = generate(spec, seed)
-    config = PipelineConfig()
-    v = config.voxel
-    basis = ConcentrationBasis(tuple(v.exclude), v.include_unranged)
-    fields = voxelize(sp.ions, sp.ranges, kernel=v.kernel, delocalization=v.delocalization, voxel=v.size,
-                      basis=basis, efficiency=config.analysis.efficiency)
-    return finished_surface(fields, inside_mask(fields).dense(), sp.ions, sp.ranges, SurfaceConfig(species, iso),
-                            config=config, basis=basis)
 
 
 def _offsets(mesh, shape, box) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +48,7 @@ def _curved_interface(inside: dict, width: float, seed: int):
     shape = SphereInterface(box, (2.0, -1.5, -49.0), 40.0, convex=True)
     spec = SpecimenSpec(box, MATRIX, (Feature(shape, inside, width, (), "curved interface"),), efficiency=0.4,
                         blur=(0.25, 0.12), name="curved")
-    mesh, record = _defaults(spec, seed, "Mg", 0.5 * (MATRIX["Mg"] + inside["Mg"]))
+    mesh, record = defaults(spec, seed, "Mg", 0.5 * (MATRIX["Mg"] + inside["Mg"]))
     return shape, box, mesh, record
 
 
@@ -82,7 +69,7 @@ def cut():
     shape = CutSphere((8.8, -1.0, -9.0), 4.5, (1.0, 0.0, 0.0), 8.0)
     spec = SpecimenSpec(box, CUT_MATRIX, (Feature(shape, CUT_INSIDE, 0.3, (), "edge 0"),), efficiency=0.5,
                         blur=(0.4, 0.07), name="cut sphere")
-    mesh, record = _defaults(spec, 5, "Al", 0.5 * (CUT_MATRIX["Al"] + CUT_INSIDE["Al"]))
+    mesh, record = defaults(spec, 5, "Al", 0.5 * (CUT_MATRIX["Al"] + CUT_INSIDE["Al"]))
     return shape, box, mesh, record
 
 

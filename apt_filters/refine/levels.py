@@ -706,7 +706,7 @@ def object_shapes(vertices: np.ndarray, faces: np.ndarray, components: np.ndarra
     cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     comp = components[faces[:, 0]]
-    volume = np.bincount(comp, weights=np.einsum("ij,ij->i", p[:, 0], cross) / 6, minlength=n_components)
+    volume = object_volumes(vertices, faces, components, n_components)
     area = np.bincount(comp, weights=0.5 * area2, minlength=n_components)
     normal = cross / np.maximum(area2, 1e-300)[:, None]
     topo = topology(faces, len(vertices))
@@ -722,6 +722,15 @@ def object_shapes(vertices: np.ndarray, faces: np.ndarray, components: np.ndarra
     ratio = np.divide(curvature * volume, area ** 2, out=np.zeros(n_components), where=area > 0)
     dims = np.clip(1.0 / np.maximum(1.0 - ratio, 1e-9), 1.0, 3.0)
     return dims * np.divide(volume, area, out=np.zeros(n_components), where=area > 0), dims
+
+
+def object_volumes(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, n_components: int) -> np.ndarray:
+    """(n_components,) nm³ each closed object's signed volume (divergence theorem; negative where it is inside out;
+    ``components``: each vertex's object)."""
+    p = vertices[faces]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return np.bincount(components[faces[:, 0]], weights=np.einsum("ij,ij->i", p[:, 0], cross) / 6,
+                       minlength=n_components)
 
 
 @dataclass
