@@ -51,11 +51,10 @@ Method
    it, round outside an edge and half the contrast on it, and read as the former it moves the planes out (a
    3 nm lath's by 0.06-0.17 nm under a 0.6 nm interface). So the object's ions are fitted again by the
    interface's profile in the signed distance to the polyhedron, blurred (:func:`rounded_scores`, the blur's
-   share of the width fitted), its edges rounded by a radius: first sharp (offsets, share, width), then sharp and
-   rounded each with its own share under the prior on the blur's variance, the radius kept where the ions prefer
-   it by a likelihood ratio of two standard errors (at the sharp fit's share the blur took the rounding in). A
-   rounded object's rims then go onto the fillets (step 2 against the planes moved in by the radius and grown by a
-   ball of it) and its edge rows and corners onto the fillets' middles (step 3). A
+   share of the width fitted), its edges rounded by a radius: first sharp (offsets, share, width), then the
+   radius at that share, kept where it stands two standard errors above 0 (with the offsets refitted
+   alongside). A rounded object's rims then go onto the fillets (step 2 against the planes moved in by the
+   radius and grown by a ball of it) and its edge rows and corners onto the fillets' middles (step 3). A
    cuboid rounded by 0.7 nm had kept its facets and came out +8 % in area with sharp edges (dev `cuboid`
    seed 31 rebuilt with rounded edges); +1 % with them. The planes beyond an ion's nearest two take only the
    blur's share off its score (the interface's offset is one draw for every plane): with the whole width each, a
@@ -97,7 +96,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from apt_filters.core.mesh import TriMesh, topology, vertex_normals
 from apt_filters.core.special import erfc, erfc_scalar
 from apt_filters.refine.band import adjacency
-from apt_filters.refine.blur import SLOPE_PRIOR, vertex_areas
+from apt_filters.refine.blur import vertex_areas
 
 MAX_CANDIDATES = 400
 """Candidate directions tried per mode search (vertex normals, subsampled evenly)."""
@@ -1423,18 +1422,16 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     lowers the misfit, a line search by quadratic interpolation; a parameter at its bound that a step would push
     past is held there, the radius in ``[0, depth of the deepest ion]``, the share in ``[0, 1]``; converged when the
     misfit falls by less than ``tolerance`` of the residuals' variance): first with sharp edges, every plane's
-    offset and the share of the profile's variance due to the blur (from half); then sharp and rounded again, each
-    with its own share (the blur's variance weighed against :data:`~apt_filters.refine.blur.SLOPE_PRIOR`; the width
-    refitted, no less than half ``width``), the rounded fit's radius started by a bounded scalar search at the sharp
-    fit's share. The planes' own fit (the product of their steps: a blurred sharp polyhedron) reads an interface
-    profile's edges, which are round outside and hold half the contrast on the edge, as planes moved out (a 3 nm
-    lath's by 0.05-0.17 nm under a 0.6 nm interface) and a rounded edge's as a smaller radius. An emptier edge is
-    either a sharp edge more blurred or a rounded one less so: the first fit's share is kept where the ions choose
-    it over share 1 by the Bayesian information criterion (likelihood ratio above ``log(b)``; otherwise the share is
-    1 and the offsets are those given, the blurred sharp polyhedron), and gives the sharp edges' offsets. The radius
-    is kept where the rounded fit's misfit (the prior's term included) lies more than 4 residual variances below the
-    sharp one's, a likelihood ratio of two standard errors; otherwise the edges stay sharp, their offsets as the
-    first fit has them.
+    offset and the share of the profile's variance due to the blur (from half); then the radius alone at that share
+    (bounded scalar search), then the radius and every offset together. The planes' own fit (the product of their
+    steps: a blurred sharp polyhedron) reads an interface profile's edges, which are round outside and hold half the
+    contrast on the edge, as planes moved out (a 3 nm lath's by 0.05-0.17 nm under a 0.6 nm interface) and a rounded
+    edge's as a smaller radius. The share and the radius are not fitted together: an emptier edge is either a sharp
+    edge more blurred or a rounded one less so, and sharp cuboids fitted both ways came out rounded (0.2-0.4 nm,
+    area -7 %). The share is kept where the ions choose it over share 1 by the Bayesian information criterion
+    (likelihood ratio above ``log(b)``); otherwise the share is 1 and the width and offsets are those given (the
+    blurred sharp polyhedron). A radius within two standard errors of 0, or whose standard error is not finite, is
+    not one the ions show: the edges stay sharp, their offsets as the first fit has them.
 
     Returns
     -------
@@ -1445,26 +1442,17 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     from scipy.optimize import minimize_scalar
 
     m = signed.shape[1]
+    root_w = np.sqrt(weight)
     deepest = float(np.max(-signed.max(axis=1), initial=0.0))  # the inner polyhedron must hold a point
 
     # the parameters (m offsets, radius, share, width) stay within these bounds
     lower = np.r_[np.full(m, -np.inf), 0.0, 0.0, 0.05 * width]
     upper = np.r_[np.full(m, np.inf), deepest, 1.0, np.inf]
 
-    # the blur's variance ``share width^2`` as one more observation, of the prior's mean (weight ``penalty``:
-    # the residuals' variance over the prior's), where the share and the radius are weighed against each other
-    mean, sd = SLOPE_PRIOR
-    penalty = 0.0
-
     def evaluate(params: np.ndarray, free: np.ndarray):
         base, jac = _scores_and_slopes(signed, params[:m], params[m], params[m + 1], params[m + 2], free)
-        blur = np.zeros(m + 3)
-        blur[m + 1], blur[m + 2] = params[m + 2] ** 2, 2 * params[m + 1] * params[m + 2]
-        residual = np.r_[u - base, mean - params[m + 1] * params[m + 2] ** 2]
-        return float(weights() @ residual ** 2), residual, np.vstack([jac, blur[free]])
-
-    def weights() -> np.ndarray:
-        return np.r_[weight, penalty]
+        residual = u - base
+        return float(weight @ residual ** 2), residual, jac
 
     def fit(params: np.ndarray, free: np.ndarray):
         """The free parameters fitted from ``params`` (m + 3,): the parameters, their misfit (the atoms-weighted
@@ -1474,7 +1462,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
         index = np.flatnonzero(free)
         cost, residual, jac = evaluate(params, free)
         for _ in range(iterations):
-            weighted = jac * weights()[:, None]
+            weighted = jac * weight[:, None]
             normal, gradient = weighted.T @ jac, weighted.T @ residual
             at, moving = params[index], np.ones(len(index), dtype=bool)
             # a parameter at its bound that the step would push past is held there, and the others' step solved
@@ -1517,7 +1505,7 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
 
     sharp = np.r_[np.ones(m, dtype=bool), False, True, True]
     fitted_params, fitted, _ = fit(np.r_[np.zeros(m), 0.0, 0.5, width], sharp)
-    shift, width_fitted = fitted_params[:m], fitted_params[m + 2]
+    shift, share, width_fitted = fitted_params[:m], fitted_params[m + 1], fitted_params[m + 2]
     # the share is one parameter more than the blurred sharp polyhedron (share 1, offsets and width refitted), and
     # it moves every plane: kept where the ions choose it by the Bayesian information criterion, the likelihood
     # ratio (atoms-weighted residuals taken as Gaussian, their variance from the fit) above log(ions). A share
@@ -1528,28 +1516,21 @@ def edge_rounding(signed: np.ndarray, u: np.ndarray, weight: np.ndarray, width: 
     _, blurred, _ = fit(np.r_[np.zeros(m), 0.0, 1.0, width], offsets_and_width)
     ratio = (blurred - fitted) / (fitted / max(len(u) - m - 2, 1))
     if not ratio > np.log(len(u)):
-        shift = np.zeros(m)
-    # sharp or rounded, as the ions choose. An emptier edge is a sharp edge more blurred or a rounded one less so,
-    # and at the share the sharp fit chose the blur had taken the rounding in (seen rounded 10120: share 0.16-0.19,
-    # the rounded fits' own 0.10-0.11; radius 0 for a true 0.85 nm). So each shape is fitted with its own share, the
-    # blur's variance weighed against the prior of the reconstruction's blur (SLOPE_PRIOR) as one more observation,
-    # and the radius is kept where the rounded fit's misfit (the prior's term included) lies more than 4 residual
-    # variances, two standard errors, below the sharp one's: 10120 0.76 nm (LR 4.7); sharp cuboids and laths of the
-    # same chemistry read LR 0.0-3.2 (dev cuboid 36409, lath 36409, held-out cuboid 10012)
-    variance = fitted / max(len(u) - m - 2, 1)
-    penalty = variance / sd ** 2
-    # the width no less than half the object's: with the share free beside it, a sharp box drawn from the profile at
-    # 20 points of contrast (8,000 ions, width 0.15 nm) collapsed it to 0.03 nm and read a 0.41 nm radius (LR 11)
-    lower[m + 2] = 0.5 * width
-    weighed = np.r_[np.ones(m, dtype=bool), False, True, True]
-    start = np.r_[np.zeros(m), 0.0, np.clip(mean / width_fitted ** 2, 0.0, 1.0), width_fitted]
-    sharp_params, sharp_cost, _ = fit(start, weighed)
-    order = np.sort(signed - sharp_params[:m], axis=1)
-    at = sharp_params[m + 1:]
-    others = _other_steps(order, _others_width(at[1], at[0]))
-    alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, at[1], at[0]) * others) ** 2)),
+        shift, share = np.zeros(m), 1.0
+    else:
+        width = width_fitted
+    order = np.sort(signed - shift, axis=1)
+    others = _other_steps(order, _others_width(width, share))
+    alone = minimize_scalar(lambda r: float(np.sum(weight * (u - _edge_scores(order, r, width, share) * others) ** 2)),
                             bounds=(0.0, deepest), method="bounded", options={"xatol": 1e-3})
-    params, cost, _ = fit(np.r_[sharp_params[:m], float(alone.x), at], np.r_[weighed[:m], True, True, True])
-    if not (sharp_cost - cost) / variance > 4.0:
+    rounded = np.r_[np.ones(m, dtype=bool), True, False, False]
+    params, cost, jac = fit(np.r_[shift, float(alone.x), share, width], rounded)
+    moved, rounding = params[:m], float(params[m])
+    # the radius's standard error from the Gauss-Newton normal matrix at the fit, scaled by the residuals' variance;
+    # one that is not finite (a singular normal matrix) shows no radius either
+    scaled = jac * root_w[:, None]
+    with np.errstate(invalid="ignore"):  # a negative diagonal (a singular matrix's rounding) gives NaN: refused
+        error = np.sqrt(cost / max(len(u) - m - 1, 1) * np.linalg.pinv(scaled.T @ scaled)[m, m])
+    if not rounding > 2 * error:
         return shift, 0.0
-    return params[:m], float(params[m])
+    return moved, rounding
