@@ -21,7 +21,6 @@ from scipy.special import erfc
 
 from apt_filters.core.special import erfc_scalar
 from apt_filters.refine.blur import lateral_blur, peak_blur
-from apt_filters.refine.crossval import open_low_pass
 from apt_filters.refine.facets import edge_and_corner_steps, facet_frames, facet_steps, find_facets
 from apt_filters.refine.spectral import harmonics, low_pass, rim_held_low_pass
 from apt_filters.synth import Cuboid, Sphere
@@ -101,34 +100,6 @@ def test_rim_held_low_pass_keeps_a_cap_and_its_rim_and_removes_noise():
     assert rms(smooth) < 0.2 * rms(noisy)  # measured 0.13 of it
     assert abs(np.mean(error(smooth)[inner])) < 0.01  # measured 0.0003
     assert np.array_equal(rim_held_low_pass(noisy, faces, 0.0), noisy)
-
-
-def test_open_low_pass_keeps_a_cap_at_long_lengths_and_removes_noise():
-    """The cap above, low-passed as the refinement low-passes an open object: its quadric trend kept, so the
-    longer lengths a low-contrast sheet asks for keep its shape (at 4 nm 0.035 nm at most, 0.26 with the
-    rim-held low-pass alone), and normal noise goes. A sphere cut beyond its equator, or a sheet rough at the
-    scale of its edges, is not taken as a height field over its mean plane: it is low-passed as it is."""
-    vertices, faces, centre = _cap()
-    radius = 30.0
-    error = lambda v: np.linalg.norm(v - centre, axis=1) - radius  # noqa: E731
-    one = np.zeros(len(vertices), dtype=np.int64)
-    assert np.abs(error(open_low_pass(vertices, faces, one, {0: 4.0}))).max() < 0.05
-    assert np.abs(error(rim_held_low_pass(vertices, faces, 4.0))).max() > 0.2
-    rng = np.random.default_rng(2)
-    noisy = vertices + (vertices - centre) / radius * rng.normal(0.0, 0.05, (len(vertices), 1))
-    inner = (np.abs(vertices[:, :2]) < 10.0).all(axis=1)
-    rms = lambda v: np.sqrt(np.mean(error(v)[inner] ** 2))  # noqa: E731
-    assert rms(open_low_pass(noisy, faces, one, {0: 2.8})) < 0.3 * rms(noisy)  # measured 0.21 of it
-    # rough at the scale of its edges (0.2 nm a vertex, 0.4 nm edges) its area is no longer its projection's: low-passed
-    # as it is (as main did)
-    rough = vertices + (vertices - centre) / radius * rng.normal(0.0, 0.2, (len(vertices), 1))
-    assert np.array_equal(open_low_pass(rough, faces, one, {0: 2.8}), rim_held_low_pass(rough, faces, 2.8))
-    mesh = _sphere()
-    below = mesh.faces[(mesh.vertices[mesh.faces][:, :, 2] < 1.5).all(axis=1)]
-    used, local = np.unique(below, return_inverse=True)
-    cut = mesh.vertices[used]
-    assert np.array_equal(open_low_pass(cut, local.reshape(-1, 3), np.zeros(len(cut), dtype=np.int64), {0: 1.4}),
-                          rim_held_low_pass(cut, local.reshape(-1, 3), 1.4))
 
 
 def test_low_pass_keeps_the_axes_of_an_asymmetric_ellipsoid():

@@ -420,55 +420,8 @@ def open_low_pass(vertices: np.ndarray, faces: np.ndarray, components: np.ndarra
             idx = np.flatnonzero(components == c)
             local = np.full(len(vertices), -1, dtype=np.int64)
             local[idx] = np.arange(len(idx))
-            out[idx] = detrended_low_pass(vertices[idx], local[faces[components[faces[:, 0]] == c]], length)
+            out[idx] = rim_held_low_pass(vertices[idx], local[faces[components[faces[:, 0]] == c]], length)
     return out
-
-
-SHEET = 0.9
-"""An open object is taken as a height field over its mean plane (:func:`detrended_low_pass`) where its area
-projected on that plane, the faces facing away counted negative, is at least this share of its area: a cap of
-half-angle 37 degrees (a 30-80 nm sphere cap across the zoo's box: 0.97 or more), not a sphere cut near its
-equator (0.5) nor a bicontinuous structure's piece."""
-
-
-def sheet_plane(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(centre, (3, 3) frame: the plane's two axes and its normal as rows) of one open mesh's mean plane where its
-    projected area is at least :data:`SHEET` of its area (a height field over it, nearly flat), else None."""
-    centre = vertices.mean(axis=0)
-    frame = np.linalg.svd(vertices - centre, full_matrices=False)[2]
-    normals = TriMesh(vertices, faces).face_normals(normalize=False)  # length: twice the face's area
-    projected = abs(float((normals @ frame[2]).sum())) / max(float(np.linalg.norm(normals, axis=1).sum()), 1e-300)
-    return (centre, frame) if projected >= SHEET else None
-
-
-def detrended_low_pass(vertices: np.ndarray, faces: np.ndarray, length: float) -> np.ndarray:
-    """(n, 3) one open mesh low-passed at ``length`` nm, its rim held, its quadric trend kept.
-
-    The rim-held low-pass (:func:`~apt_filters.refine.spectral.rim_held_low_pass`) keeps the rim's harmonic
-    extension and damps the rest, a curved sheet's bulge included: on seen curved 10142 (a sphere cap across the
-    box) the truth itself moved 0.053 nm at ``l`` = 2.8 nm and 0.131 at 4, so the longer lengths the counts ask for
-    at low contrast were out of reach (the distance floor, :func:`~apt_filters.truth.distance_floor`: 0.087 nm
-    there, the noise alone 0.050 at 4 nm). Where the sheet is a height field over its mean plane
-    (:func:`sheet_plane`), the heights above the quadric fitted to them (least squares over the vertices) are
-    low-passed instead, in the plane's frame, and the quadric added back at the low-passed positions: the true cap
-    moves 0.011 nm at 4 nm, 0.013 at 5.6. Other objects (a bicontinuous structure's pieces, a sphere cut by the
-    edge) are low-passed as they are.
-    """
-    if length <= 0:
-        return vertices.copy()
-    plane = sheet_plane(vertices, faces)
-    if plane is None:
-        return rim_held_low_pass(vertices, faces, length)
-    centre, frame = plane
-    u, v, h = ((vertices - centre) @ frame.T).T
-
-    def terms(a, b):
-        return np.column_stack([np.ones_like(a), a, b, a * a, a * b, b * b])
-
-    trend = np.linalg.lstsq(terms(u, v), h, rcond=None)[0]
-    low = rim_held_low_pass(np.column_stack([u, v, h - terms(u, v) @ trend]), faces, length)
-    low[:, 2] += terms(low[:, 0], low[:, 1]) @ trend
-    return low @ frame + centre
 
 
 def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, components: np.ndarray, objects: list[int],
@@ -480,10 +433,7 @@ def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, component
     best (0: the surface as it is), among those whose cut-off wavelength ``2 pi l`` is within the object's
     extent (the square root of its area): longer ones flatten the object's shape, not its noise, and with few
     ions the standard errors are wide enough to let the flattest candidate through (a 40 nm cap across a
-    14 nm box came out 0.26 nm flat). A height field over its mean plane (:func:`sheet_plane`, on the first
-    half's surface) keeps its quadric trend at every length (:func:`detrended_low_pass`) and is not bounded so
-    (held-out curved 10002: 2.8 -> 8 nm, mean distance 0.054 -> 0.045 nm). Arguments as
-    :func:`cross_validated_modes`'s.
+    14 nm box came out 0.26 nm flat). Arguments as :func:`cross_validated_modes`'s.
 
     The halves' surfaces must not share noise the held-out ions hold: a start contoured from all the ions does,
     and where the placement cannot undo it (shorter than its own smoothing of the moves) the held-out ions
@@ -496,13 +446,6 @@ def cross_validated_lengths(fits: list[np.ndarray], faces: np.ndarray, component
     # no cut-off wavelength (2 pi l) beyond the object's own extent (the square root of its area): there the
     # filter would flatten the object's shape, not its noise
     extent = np.sqrt(np.bincount(components[faces[:, 0]], TriMesh(fits[0], faces).face_areas(), minlength=n_comp))
-    # a height field keeps its quadric trend (detrended_low_pass): the longest lengths flatten its noise only
-    for c in objects:
-        idx = np.flatnonzero(components == c)
-        local = np.full(len(components), -1, dtype=np.int64)
-        local[idx] = np.arange(len(idx))
-        if sheet_plane(fits[0][idx], local[faces[components[faces[:, 0]] == c]]) is not None:
-            extent[c] = np.inf
     for k, fit in enumerate(fits):
         comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
         per_ion = np.column_stack([loss(open_low_pass(fit, faces, components,
