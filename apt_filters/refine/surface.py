@@ -111,9 +111,8 @@ from apt_filters.refine.untangle import unfold, untangle
 from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
                                       levels_from_sums, lobe_weights, object_shapes, object_volumes, plateau_sums,
-                                      plateaus,
-                                      pooled_profiles, profile_better, profile_levels, short_of_plateau, split_worth,
-                                      unmixed_sums, unmixing_shift, window_labels, within_rim)
+                                      plateaus, pooled_profiles, profile_better, profile_levels, short_of_plateau,
+                                      split_worth, unmixed_sums, unmixing_shift, window_labels, within_rim)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
