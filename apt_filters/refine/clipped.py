@@ -85,6 +85,9 @@ class Clipped:
     fractions: list = field(default_factory=list)
 
     def describe(self) -> str:
+        """One line for the run's log."""
+        if not self.loops:
+            return "no closed object holed at the specimen side"
         return f"{self.objects} object(s) short of the specimen side closed ({self.closed} of {self.loops} holes)"
 
 
