@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apt_filters.core.mesh import Topology, TriMesh, topology
+from apt_filters.core.mesh import TriMesh, topology
 from apt_filters.core.nearby import CHUNK
 from apt_filters.io import IonTable, RangeTable
 from apt_filters.refine.composition import ion_atoms
@@ -117,12 +117,14 @@ def close_clipped(mesh: TriMesh, *, mask: np.ndarray, grid: Grid, ions: IonTable
         ``mesh`` with one vertex (at the hole's centroid) and a fan of faces added per closed hole, the scalars
         carried over; ``mesh`` itself where none is closed.
     """
-    loops = [np.asarray(loop) for loop in boundary_loops(mesh.faces)] if mesh.n_faces else []
     report = Clipped()
-    if not loops:
+    # the cached topology the refinement reads next: a closed mesh (most runs) costs no table of its own here
+    top = topology(mesh.faces, mesh.n_vertices) if mesh.n_faces else None
+    if top is None or not len(top.boundary_half_edges):
         return mesh, report
-    half = {tuple(e) for e in Topology.of(mesh.faces, mesh.n_vertices).boundary_half_edges.tolist()}
-    component = topology(mesh.faces, mesh.n_vertices).vertex_components
+    loops = [np.asarray(loop) for loop in boundary_loops(mesh.faces)]
+    half = {tuple(e) for e in top.boundary_half_edges.tolist()}
+    component = top.vertex_components
     vertices = mesh.vertices.astype(np.float64)
     frames, hole = [], []
     for loop in loops:

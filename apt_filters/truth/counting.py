@@ -53,9 +53,9 @@ def counting_floor(sdfs: Sequence[Callable[[np.ndarray], np.ndarray]],
     all the objects given (all alike, e.g. the precipitates of one phase), is fitted by error-function
     steps ``f_k(d) = out_k + (in_k - out_k) Phi(-(d - c) / s)`` (plateaus from ``|d| > 1`` nm, inside
     from half the objects' depth where that is nearer; a common centre and width; a fit, since the noise
-    of a binned profile's slope would add information that is not there). Each atom within ``reach`` nm of an object carries the Fisher information
-    ``sum_k f_k'(d)^2 / f_k(d)`` about a shift of the object's surface, and the bound is one over the
-    square root of their sum.
+    of a binned profile's slope would add information that is not there). Each atom within ``reach`` nm
+    of an object carries the Fisher information ``sum_k f_k'(d)^2 / f_k(d)`` about a shift of the object's
+    surface, and the bound is one over the square root of their sum (NaN where the ions hold no step).
 
     With a ``marker`` (a segregant left out of the basis, whose layer marks the interface:
     :mod:`apt_filters.refine.marker`), its peak against the true distance, pooled likewise, is fitted by a
