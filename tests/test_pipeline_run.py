@@ -73,6 +73,17 @@ def test_each_objects_inside_composition_is_reported_with_its_window(small_run):
     assert "Inside composition per object" in (out / "report.html").read_text()
 
 
+def test_the_segregant_found_and_the_basis_are_stated_at_the_top(small_run):
+    # the defaults leave B (segregated in the small preset) out of the basis: the reader is told which species,
+    # on what evidence, and that every concentration is of the others
+    out, report, truth = small_run
+    found = report["surfaces"][0]["mesh"]["refine"]["segregants"]
+    assert list(found["species"]) == ["B"] and found["peaks"]["B"]["z"] > 5
+    top = (out / "report.html").read_text().split("Check before use")[0].split("<ul class='run'>")[1]
+    assert "Al15: segregant found at the first contour: B peaks at" in top
+    assert "concentrations of all ranged species except B" in top
+
+
 def test_report_numbers_against_the_truth(small_run):
     _, report, truth = small_run
     assert report["ions"]["count"] == truth["ions"]["total"]

@@ -48,7 +48,6 @@ def demo_config(specimen: Path):
     from apt_filters.pipeline.config import PipelineConfig, SurfaceConfig
 
     config = PipelineConfig(surface=[SurfaceConfig("Al", DEMO_ISO)])
-    config.voxel.exclude = ["B"]  # the segregant would dilute Al at the interfaces
     config.input.ions = str(specimen / "specimen.pos")
     config.input.ranges = str(specimen / "specimen.rrng")
     return config

@@ -156,6 +156,7 @@ def _what_was_run(report: dict) -> str:
              f"voxels {v['size']:g} nm, {kernel}"
              + (f", {', '.join(v['exclude'])} left out of the concentration" if v["exclude"] else ""),
              ", ".join(html.escape(surface_title(s)) for s in report["surfaces"]),
+             *filter(None, (_segregant_words(s) for s in report["surfaces"])),
              "contoured by " + {"mc": "marching cubes", "dc": "dual contouring"}[cfg["contour"]["method"]]
              + (", refined against the ions" if cfg["refine"]["enabled"] else "")
              + ", cleaned by a MeshLab chain"
@@ -163,6 +164,21 @@ def _what_was_run(report: dict) -> str:
              f"detection efficiency {cfg['analysis']['efficiency']:g}; proxigram bins {cfg['proxigram']['bin']:g} nm; "
              + _windows_words(cfg["proxigram"])]
     return "<ul class='run'>" + "".join(f"<li>{s}</li>" for s in steps) + "</ul>"
+
+
+def _segregant_words(surface: dict) -> str:
+    """The basis a surface was drawn and refined in, where the run found segregants at it: the reader must know
+    that its concentrations leave a species out, and why (refine.segregants)."""
+    refine = surface["mesh"].get("refine") or {}
+    found = refine.get("segregants") or {}
+    if not found.get("species") and not found.get("kept"):
+        return ""
+    peaks = [f"{s} peaks at {100 * found['peaks'][s]['peak']:.1f} at.% against a plateau of "
+             f"{100 * found['peaks'][s]['plateau']:.1f} at.% ({found['peaks'][s]['z']:.0f} standard errors)" for s in found["species"]]
+    kept = [f"{', '.join(found['kept'])} kept in as asked"] if found.get("kept") else []
+    return (f"{html.escape(surface['label'])}: segregant{'s' * (len(found['species']) != 1)} found at the first "
+            f"contour: {html.escape('; '.join(peaks + kept))}; concentrations of {html.escape(refine['basis'])}"
+            + (" (<code>--include</code> keeps a species in)" if found["species"] else ""))
 
 
 def _windows_words(p: dict) -> str:
