@@ -64,3 +64,26 @@ def test_boundary_loops_leave_no_topology_cached():
     assert not any(entry[0]() is faces for entry in core_mesh._cache)
     rim = np.unique(mesh.topology.boundary_half_edges)
     assert sorted(v for loop in loops for v in loop) == sorted(rim.tolist())
+
+
+def test_edge_tables_are_np_uniques_at_half_the_bytes():
+    """The topology's edge tables (one key per half-edge, lower vertex first) equal np.unique's of those keys, and
+    the boundary half-edges the rows of the (f, 3, 2) half-edge stack that no other face uses, bit for bit, on a
+    gyroid open on the cube's faces; built together at under 130 bytes per face (np.unique and the stack: 233)."""
+    mesh = shapes.gyroid(half=8.0)
+    f, n = mesh.faces, mesh.n_vertices
+    following = np.roll(f, -1, axis=1)
+    keys, inverse, counts = np.unique(np.minimum(f, following) * n + np.maximum(f, following), return_inverse=True,
+                                      return_counts=True)
+    half = np.stack([f, following], axis=2)[counts[inverse] == 1]
+
+    def build():
+        top = core_mesh.Topology.of(f, n)
+        return top, top.boundary_half_edges
+
+    (top, rim), peak = _traced(build)
+    assert np.array_equal(top.edge_vertices, np.stack([keys // n, keys % n], axis=1))
+    assert np.array_equal(top.face_edge, inverse.reshape(-1, 3)) and np.array_equal(top.edge_faces, counts)
+    assert np.array_equal(rim, half) and 0 < len(rim) < len(f)
+    assert peak < 130 * len(f), peak / len(f)
+
