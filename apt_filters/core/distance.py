@@ -111,24 +111,30 @@ class PseudoNormals:
     def of(cls, mesh: TriMesh) -> "PseudoNormals":
         top = mesh.topology
         nf = mesh.face_normals()
-        corner_angles = _corner_angles(mesh.vertices[mesh.faces])
-        edge_normals = _sum_rows(top.face_edge.ravel(), np.repeat(nf, 3, axis=0), len(top.edge_vertices))
-        vertex_normals = _sum_rows(mesh.faces.ravel(), (corner_angles[:, :, None] * nf[:, None, :]).reshape(-1, 3),
+        corner_angles = _corner_angles(mesh.vertices, mesh.faces)
+        edge_normals = _sum_rows(top.face_edge.ravel(), lambda k: np.repeat(nf[:, k], 3), len(top.edge_vertices))
+        vertex_normals = _sum_rows(mesh.faces.ravel(), lambda k: (corner_angles * nf[:, k:k + 1]).ravel(),
                                    mesh.n_vertices)
         return cls(nf, edge_normals, vertex_normals, corner_angles)
 
 
-def _sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """(n, 3) sums of the rows of ``values`` (k, 3) by ``index`` (k,) (np.add.at, but faster)."""
-    return np.stack([np.bincount(index, values[:, k], minlength=n) for k in range(3)], axis=1)
+def _sum_rows(index: np.ndarray, column, n: int) -> np.ndarray:
+    """(n, 3) sums by ``index`` (k,) of the rows whose coordinate j ``column(j)`` gives ((k,) each; np.add.at, but
+    faster), a coordinate at a time: (3m, 3) rows of a mesh's corners were 72 bytes per face."""
+    return np.stack([np.bincount(index, column(k), minlength=n) for k in range(3)], axis=1)
 
 
-def _corner_angles(tri: np.ndarray) -> np.ndarray:
-    """(m, 3) interior angles of triangles given as (m, 3, 3) corner coordinates."""
-    a = np.roll(tri, -1, axis=1) - tri
-    b = np.roll(tri, 1, axis=1) - tri
-    cross = np.linalg.norm(np.cross(a, b), axis=2)
-    return np.arctan2(cross, np.einsum("ijk,ijk->ij", a, b))
+def _corner_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m, 3) interior angles (radians) of ``faces`` (m, 3) over ``vertices`` (n, 3) at each of their corners,
+    corner by corner: the (m, 3, 3) corner points, their two rolled differences and cross products were 457 bytes
+    per face at their peak (now 177), an engine's build's peak."""
+    out = np.empty(faces.shape)
+    for k in range(3):
+        p = vertices[faces[:, k]]
+        a = vertices[faces[:, (k + 1) % 3]] - p
+        b = vertices[faces[:, k - 1]] - p
+        out[:, k] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+    return out
 
 
 @dataclass

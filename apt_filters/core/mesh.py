@@ -169,8 +169,22 @@ class Topology:
         keys *= n
         keys += np.maximum(faces, following)
         del following
-        keys, inverse, counts = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
-        return _frozen(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), counts.astype(np.int64))
+        # np.unique(keys, return_inverse=True, return_counts=True) by hand: it held a flat copy of the keys, the
+        # sorted keys and the cumulative sum beside its order and inverse (55 bytes per half-edge at its peak,
+        # the remesh's on the gyroid and the box-sphere-plate); here each goes as soon as it is used (29)
+        order = np.argsort(keys, axis=None)
+        keys = keys.ravel()[order]
+        first = np.empty(len(keys), dtype=bool)
+        first[:1] = True
+        np.not_equal(keys[1:], keys[:-1], out=first[1:])
+        keys = keys[first]
+        rank = np.cumsum(first)
+        rank -= 1
+        inverse = np.empty(len(rank), dtype=np.int64)
+        inverse[order] = rank
+        del order, rank
+        counts = np.diff(np.append(np.flatnonzero(first), len(first)))
+        return _frozen(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), counts)
 
     @property
     def edge_vertices(self) -> np.ndarray:
@@ -277,8 +291,10 @@ class Topology:
     @functools.cached_property
     def boundary_half_edges(self) -> np.ndarray:
         """(k, 2) the directed edges (a, b) of the faces, in face order, that no other face uses."""
-        half = np.stack([self._faces, np.roll(self._faces, -1, axis=1)], axis=2)
-        return _frozen(np.ascontiguousarray(half[self.edge_faces[self.face_edge] == 1]))[0]
+        # only the rows taken are stacked: a (m, 3, 2) stack of all half-edges was 48 bytes per face, held while
+        # the edge tables were built (the remesh's peak on the gyroid)
+        face, corner = np.nonzero(self.edge_faces[self.face_edge] == 1)  # in face order, then corner order
+        return _frozen(np.stack([self._faces[face, corner], self._faces[face, (corner + 1) % 3]], axis=1))[0]
 
     @functools.cached_property
     def boundary_pieces(self) -> tuple[int, np.ndarray]:

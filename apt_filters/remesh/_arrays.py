@@ -26,17 +26,43 @@ def isin(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return b[pos] == a
 
 
+def row_keys(rows: np.ndarray) -> np.ndarray:
+    """(k,) int64: one key per row of a non-negative int (k, d) array, equal where the rows are equal and in the
+    rows' lexicographic order.
+
+    The key is ``(r0 * n + r1) * n + r2 ...`` with ``n`` the largest entry + 1, where that stays under 2**63; a
+    face row keyed so overflows past n = 2**21 (2.1 M vertices) and distinct faces collide. Where the next column
+    would overflow, the key so far is first replaced by its rank among the distinct keys (< k), which keeps the
+    order: one sort of k keys per such column (on int32 indices, k * n < 2**62 stays exact)."""
+    rows = np.asarray(rows, np.int64)
+    if rows.size == 0:
+        return np.zeros(len(rows), np.int64)
+    n = int(rows.max()) + 1
+    key = rows[:, 0].copy()
+    span = n  # every key so far lies in [0, span)
+    for col in range(1, rows.shape[1]):
+        if span * n > 2**63:  # Python ints: exact
+            order = np.argsort(key, kind="stable")
+            k = key[order]
+            rank = np.cumsum(np.r_[True, k[1:] != k[:-1]]) - 1
+            span = int(rank[-1]) + 1
+            key[order] = rank
+            if span * n > 2**63:
+                raise OverflowError(f"{len(rows)} rows of entries up to {n - 1} cannot be keyed in int64")
+        key *= n
+        key += rows[:, col]
+        span *= n
+    return key
+
+
 def unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Distinct rows of a non-negative int (k, d) array, d <= 3.
+    """Distinct rows of a non-negative int (k, d) array, sorted (:func:`row_keys`).
 
     Returns ``(uniq, index, inverse, counts)`` as ``np.unique(axis=0, return_index=True,
     return_inverse=True, return_counts=True)`` would, with ``index`` the first occurrence.
     """
     rows = np.ascontiguousarray(rows, np.int64)
-    n = int(rows.max()) + 1 if rows.size else 1
-    key = rows[:, 0].copy()
-    for col in range(1, rows.shape[1]):
-        key = key * n + rows[:, col]
+    key = row_keys(rows)
     order = np.argsort(key, kind="stable")
     k = key[order]
     first = np.r_[True, k[1:] != k[:-1]] if len(k) else np.zeros(0, bool)

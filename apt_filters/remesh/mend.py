@@ -42,7 +42,7 @@ from apt_filters.core.checks import triangles_intersect
 from apt_filters.core.distance import SurfaceDistance
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh import optimize
-from apt_filters.remesh._arrays import isin
+from apt_filters.remesh._arrays import isin, row_keys
 from apt_filters.remesh.verify import farthest
 
 # Misses over this fraction of the tolerance are mended: a margin under the tolerance itself, so that the points
@@ -307,13 +307,13 @@ def _changed(source: TriMesh, before: TriMesh, after: TriMesh, missing: tuple, l
     moved[n:] = True
     moved[:n] = (after.vertices[:n] != before.vertices).any(axis=1)
 
-    def rows(faces):  # one int64 per face row, as _arrays.unique_rows keys them: matched by sorting (np.isin hashes)
-        faces = np.asarray(faces, np.int64)
-        return (faces[:, 0] * after.n_vertices + faces[:, 1]) * after.n_vertices + faces[:, 2]
-
-    kept_after = isin(rows(after.faces), rows(before.faces)) & ~moved[after.faces].any(axis=1)
-    gone = ~isin(rows(before.faces), rows(after.faces[kept_after]))
-    out = ~kept_after | isin(rows(after.faces), rows(before.faces[missing[1]]))
+    # one int64 per face row, both meshes keyed together (the keys of one are those of the other): matched by
+    # sorting (np.isin hashes)
+    keys = row_keys(np.vstack([after.faces, before.faces]))
+    keys_after, keys_before = keys[:after.n_faces], keys[after.n_faces:]
+    kept_after = isin(keys_after, keys_before) & ~moved[after.faces].any(axis=1)
+    gone = ~isin(keys_before, keys_after[kept_after])
+    out = ~kept_after | isin(keys_after, keys_before[missing[1]])
     inside = missing[0].copy()
     if gone.any():
         corners = before.vertices[before.faces[gone]]

@@ -233,10 +233,14 @@ def remesh(mesh: TriMesh, edge_length: float | None = None, n_vertices: int | No
         # sampling that fell badly
         boost, pins = np.ones(mesh.n_vertices), np.zeros(mesh.n_vertices, bool)
         part, last, last_mask, last_surface = mesh, result.mesh, retry[component], surface
+        del surface
         last_used = np.arange(mesh.n_vertices)
         for attempt in range(1, RETRIES + 1):
             more, corners = missed(part, last, mask=last_mask, out_mask=last_out_mask,
                                    edge=edge, tolerance=check.HAUSDORFF_FRACTION, surface=last_surface, walks=walks)
+            # the last try's closest-point engine goes before this try builds its own: two held at once were 0.26
+            # kB per input face of the bumpy gyroid's remesh peak (2.9 kB, in its retry)
+            last_surface = part_surface = None
             walks = (check.Walks(), check.Walks())  # this try's check's, the last ones let go before the remesh
             boost[last_used] *= more
             pins[last_used[corners]] = True
@@ -332,6 +336,7 @@ def _cvt_remesh(mesh: TriMesh, edge: float, *, feature_angle: float, adaptive: f
         # curve generators too (a corner among the dozens a bumpy 3 nm sphere has at 40 deg kept a
         # hole), but never a generator of the open boundary
         lone = bad & repair.lone_generators(faces, len(gens.positions)) & ~on_boundary
+        del faces  # not held through the connection and the next extraction (180 bytes per input face, thin plate)
         labels = cvt.connect_cells(samples, labels, group, gens, features.n_patches, bad, lone)
         faces, skipped = extract.dual_faces(samples, labels, gens.positions, pinned, sliver)
     del group

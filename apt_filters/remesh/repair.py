@@ -270,7 +270,10 @@ def repair(vertices: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray, pin
         if filled.shape == faces.shape and np.array_equal(filled, faces):
             break
         faces = filled
-    # the faces before the rim's triangles let go first: with their topology (cached while they live) they were
-    # 1,000 bytes per input face of a thin plate's remesh, held through the re-orientation at its peak
-    faces = fill_rim_notches(restore_rim(vertices, faces, on_boundary), on_boundary)
+    del filled  # where the fill ended with nothing to add: a copy of faces, not held through the rim's steps
+    # the faces before each of the rim's steps let go before the next: with their topology (cached while they
+    # live) they were 1,000 bytes per input face of a thin plate's remesh, held through the re-orientation at its
+    # peak
+    faces = restore_rim(vertices, faces, on_boundary)
+    faces = fill_rim_notches(faces, on_boundary)
     return orient_coherently(vertices, faces)
