@@ -47,12 +47,40 @@ def test_corner_by_corner_normals_and_flat_rings_are_the_corner_arrays_own():
         assert 0 < flat.sum() < len(v)
 
 
+def _naive_apexes(mesh, threshold: float, spacing: float) -> set:
+    """The oracle of ``features._apexes`` with no feature curve: a face at a time, the clusters by union-find."""
+    v, faces = mesh.vertices, mesh.faces
+    deficit = np.full(len(v), 2 * np.pi)
+    area = np.array([0.5 * np.linalg.norm(np.cross(v[b] - v[a], v[c] - v[a])) for a, b, c in faces])
+    parent = list(range(len(v)))
+
+    def root(i):
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for f, face_area in zip(faces, area):
+        angles = []
+        for k in range(3):
+            u, w = v[f[(k + 1) % 3]] - v[f[k]], v[f[k - 1]] - v[f[k]]
+            angles.append(np.arctan2(np.linalg.norm(np.cross(u, w)), u @ w))
+        deficit[f] -= np.array(angles) + (np.pi - sum(angles)) / 3
+        for k in range(3):
+            if np.linalg.norm(v[f[(k + 1) % 3]] - v[f[k]]) < spacing or face_area < 0.01 * area.mean():
+                parent[root(f[k])] = root(f[(k + 1) % 3])
+    clusters = {}
+    for i in range(len(v)):
+        clusters.setdefault(root(i), []).append(i)
+    return {max(c, key=lambda i: abs(deficit[i])) for c in clusters.values() if abs(deficit[c].sum()) > threshold}
+
+
 def test_apexes_hold_no_corner_copies():
-    """The cone apexes of the box-sphere-plate (24 at 17°, as the (f, 3, 3) form found) at under 420 bytes per
-    face (that form: 492)."""
+    """The cone apexes of the box-sphere-plate (24 or 25 at 17°, as pymeshlab's boolean union triangulates it:
+    the count is the naive oracle's, a face at a time) at under 420 bytes per face (the (f, 3, 3) form: 492)."""
     mesh = shapes.box_minus_sphere_plate(0.5)
     apex, peak = _traced(feat._apexes, mesh, 0.3, 0.01, np.zeros(mesh.n_vertices, bool))
-    assert apex.sum() == 24 and peak < 420 * mesh.n_faces, peak / mesh.n_faces
+    assert set(np.flatnonzero(apex)) == _naive_apexes(mesh, 0.3, 0.01) and apex.sum() >= 24
+    assert peak < 420 * mesh.n_faces, peak / mesh.n_faces
 
 
 def test_boundary_loops_leave_no_topology_cached():
