@@ -15,8 +15,9 @@ shrinks a sphere at every pass). How many modes the ions support differs per obj
 an elongated object more; a cube 4-36 when the facets rebuild its edges afterwards), so
 :mod:`apt_filters.refine.crossval` chooses ``k`` per object from held-out ions.
 
-Cost: one shift-inverted sparse eigensolve per object, ``k`` modes (``scipy.sparse.linalg.eigsh``);
-memory ``n x k`` float64 (an object of 1,500 vertices and 47 modes: 0.6 MB).
+Cost: one shift-inverted sparse eigensolve per object, ``k`` modes (``scipy.sparse.linalg.eigsh``), or a dense one
+where ``k`` is a tenth of the vertices or more (:data:`DENSE`); memory ``n x k`` float64 (an object of 1,500 vertices
+and 47 modes: 0.6 MB).
 """
 
 from __future__ import annotations
