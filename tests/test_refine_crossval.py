@@ -15,7 +15,7 @@ from apt_filters.refine.band import NearIons, adjacency
 from apt_filters.refine.composition import ObjectScores, ion_atoms
 from apt_filters.truth import counting_floor, match_objects, surface_error
 from apt_filters.refine.crossval import (CANDIDATES, SCORED, HeldOutLoss, basis_size, cross_validated_modes,
-                                         object_harmonics)
+                                         finer_candidates, mode_limit, object_harmonics)
 from apt_filters.refine.spectral import low_pass
 from apt_filters.refine.facets import Facet, Side, find_facets
 from apt_filters.refine.surface import _finisher, _low_passed, _slabs_unflattened, _unclosed, umbrella
@@ -332,3 +332,23 @@ def test_a_plates_rims_go_out_to_its_sharp_edges_where_its_two_faces_are_kept():
     assert abs(offset["rim"]) < 0.05 and abs(offset["side"]) < 0.05, offset
     assert abs(part.area() / plate.area() - 1) < 0.03
     assert abs(part.signed_volume() / plate.volume() - 1) < 0.03
+
+
+def test_a_thin_disc_is_offered_the_modes_that_hold_its_rim_a_sphere_only_those_it_had():
+    """Exact shapes. ``mode_limit`` is ``A^3 / (pi V^2)``: 36 on a sphere (a fine icosphere within 0.2 %), so a
+    sphere is offered CANDIDATES alone; on a disc 1.8 nm thick and 6 nm in radius the exact cylinder's 195.3
+    (its 0.6 nm mesh within 0.5 %), offered 64, 100 and 144 modes as well. Those modes hold its rim: the disc
+    low-passed to 36 modes loses 11 % of its area (its rim rounded off), to 100 modes 5 % (measured on the
+    0.5 nm mesh: -11.1 and -4.6 %; 144 modes -3.7 %)."""
+    sphere = icosphere(3.0, 4)
+    assert abs(mode_limit(sphere.vertices, sphere.faces) / 36 - 1) < 2e-3
+    assert finer_candidates(CANDIDATES, mode_limit(sphere.vertices, sphere.faces)) == CANDIDATES
+    disc = Cylinder((0.0, 0.0, 0.0), 6.0, 1.8)
+    exact = disc.area() ** 3 / (np.pi * disc.volume() ** 2)
+    mesh = disc.mesh(0.6)
+    assert abs(mode_limit(mesh.vertices, mesh.faces) / exact - 1) < 5e-3 and abs(exact - 195.29) < 0.01
+    assert finer_candidates(CANDIDATES, exact) == CANDIDATES + (64, 100, 144)
+    basis = object_harmonics(mesh.vertices, mesh.faces, np.zeros(mesh.n_vertices, int), [0], basis_size(100))[0][1]
+    area = {k: TriMesh(low_pass(mesh.vertices, basis, basis.cut(k)), mesh.faces).area() / disc.area() - 1
+            for k in (36, 100)}
+    assert area[36] < -0.09 and abs(area[100]) < 0.06, area

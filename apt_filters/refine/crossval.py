@@ -93,17 +93,45 @@ class ModeSelection:
     lengths: dict[int, float] = field(default_factory=dict)
 
 
-def object_harmonics(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects, k: int
-                     ) -> dict[int, tuple[np.ndarray, Harmonics]]:
-    """Component -> (its vertex indices, its ``k`` lowest harmonics) for each of ``objects``."""
+def object_harmonics(vertices: np.ndarray, faces: np.ndarray, components: np.ndarray, objects,
+                     k: int | dict[int, int]) -> dict[int, tuple[np.ndarray, Harmonics]]:
+    """Component -> (its vertex indices, its ``k`` lowest harmonics) for each of ``objects`` (``k`` one number
+    for all, or per object)."""
     out = {}
     for c in objects:
         idx = np.flatnonzero(components == c)
         local = np.full(len(vertices), -1, dtype=np.int64)
         local[idx] = np.arange(len(idx))
         mine = faces[components[faces[:, 0]] == c]
-        out[c] = (idx, harmonics(vertices[idx], local[mine], k))
+        out[c] = (idx, harmonics(vertices[idx], local[mine], k[c] if isinstance(k, dict) else k))
     return out
+
+
+def mode_limit(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The modes an object's shape holds down to its thickness: ``A^3 / (pi V^2)`` = ``A / (pi tau^2)``, ``tau = V
+    / A`` (nm; a sphere's radius / 3, a disc's half-thickness), for one closed object's ``vertices`` (n, 3) nm and
+    ``faces`` (m, 3).
+
+    Weyl's law puts the number of Laplace-Beltrami modes of wavelength above ``l`` on a surface of area ``A`` at
+    ``~ pi A / l^2``: the count that resolves the object's thinnest extent grows as ``A / tau^2``. Scaled so that a
+    sphere's is the largest of :data:`CANDIDATES` (``4 pi R^2 / (pi R^2 / 9)`` = 36, its complete degrees up to 5):
+    a cube 69, a lath 3 x 6.5 x 11.5 nm 108, a disc 1.9 nm thick of radius 6.4 nm 199, whose rim the 36 modes of
+    a sphere round off.
+    """
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    volume = abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0
+    return float(area ** 3 / (np.pi * volume ** 2)) if volume > 0 else 0.0
+
+
+def finer_candidates(candidates: tuple[int, ...], limit: float) -> tuple[int, ...]:
+    """``candidates`` continued past the last, ``(d + 1)^2`` modes of degree ``d``, in steps of two degrees (64, 100,
+    144, ...), as far as ``limit`` (:func:`mode_limit`) reaches."""
+    out, degree = list(candidates), int(round(np.sqrt(candidates[-1]))) + 1
+    while (degree + 1) ** 2 <= limit:
+        out.append((degree + 1) ** 2)
+        degree += 2
+    return tuple(out)
 
 
 def apply_modes(vertices: np.ndarray, bases: dict[int, tuple[np.ndarray, Harmonics]], modes: dict[int, int]
@@ -159,6 +187,10 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
         (below), not merely where they do not reject them.
     """
     n_comp = len(scores.usable)
+    # each object's candidates go as far as its shape's detail (mode_limit, the less of the two halves' surfaces)
+    own = {c: finer_candidates(candidates, min(mode_limit(fit, mine) for fit in fits))
+           for c in objects for mine in [faces[components[faces[:, 0]] == c]]}
+    candidates = max(own.values(), key=len, default=tuple(candidates))
     plain = list(candidates) + [0]
     half = len(plain)
     # each candidate finished with the facets, then without them (the second set only where there are facets)
@@ -169,17 +201,16 @@ def cross_validated_modes(fits: list[np.ndarray], faces: np.ndarray, components:
     # per object: sums and the Gram matrix of the per-ion losses, for the losses and their differences' errors
     sums, gram, count = np.zeros((n_comp, m)), np.zeros((n_comp, m, m)), np.zeros(n_comp)
     missing = np.zeros((n_comp, m), dtype=bool)
-    top = basis_size(max(candidates))
     folds = []
     for k, fit in enumerate(fits):
-        bases = object_harmonics(fit, faces, components, objects, top)
+        bases = object_harmonics(fit, faces, components, objects, {c: basis_size(max(own[c])) for c in objects})
         finish = {True: finisher(k, True), False: finisher(k, False)}
         comp, loss = held_out_loss(fit, faces, components, objects, held_out[1 - k], scores, widths)
         # the candidates without facets are read for the faceted objects alone (the others' ions score 0 there)
         faceted_ions = np.flatnonzero(faceted[comp])
         per_ion = np.empty((len(comp), m))
         for j, (modes, with_facets) in enumerate(columns):
-            trial = {c: modes for c in objects if basis_size(modes) <= bases[c][1].size}
+            trial = {c: modes for c in objects if modes in own[c] and basis_size(modes) <= bases[c][1].size}
             missing[np.ix_([c for c in objects if c not in trial and modes], [j])] = True
             if not with_facets and not faceted.any():
                 missing[:, j] = True

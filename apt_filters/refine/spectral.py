@@ -15,8 +15,9 @@ shrinks a sphere at every pass). How many modes the ions support differs per obj
 an elongated object more; a cube 4-36 when the facets rebuild its edges afterwards), so
 :mod:`apt_filters.refine.crossval` chooses ``k`` per object from held-out ions.
 
-Cost: one shift-inverted sparse eigensolve per object, ``k`` modes (``scipy.sparse.linalg.eigsh``);
-memory ``n x k`` float64 (an object of 1,500 vertices and 47 modes: 0.6 MB).
+Cost: one shift-inverted sparse eigensolve per object, ``k`` modes (``scipy.sparse.linalg.eigsh``), or a dense one
+where ``k`` is a tenth of the vertices or more (:data:`DENSE`); memory ``n x k`` float64 (an object of 1,500 vertices
+and 47 modes: 0.6 MB).
 """
 
 from __future__ import annotations
@@ -28,6 +29,12 @@ from scipy.sparse import coo_matrix, csc_matrix, diags
 from scipy.sparse.linalg import eigsh
 
 from apt_filters.refine.blur import vertex_areas
+
+
+DENSE = 10
+"""The dense eigensolver is used where ``DENSE`` times the modes wanted reach the vertices: measured on a disc's
+mesh, 182 modes of 1,082 vertices 4.3 s by ``eigsh``, 1.0 s dense; of 2,054 vertices 3.5 and 3.3 s; 82 of 1,082
+0.25 and 0.72 s."""
 
 
 @dataclass
@@ -105,12 +112,13 @@ def harmonics(vertices: np.ndarray, faces: np.ndarray, k: int) -> Harmonics:
     k = min(k, n)
     stiffness = cotangent_laplacian(vertices, faces)
     mass = np.maximum(vertex_areas(vertices, faces), 1e-12)
-    if k >= n - 1 or n <= 200:
-        # small meshes: the dense problem is cheaper and eigsh cannot return all n modes
+    if k >= n - 1 or n <= 200 or DENSE * k >= n:
+        # small meshes, or many modes of one: the dense problem is cheaper (ARPACK's Lanczos basis of 2k + 1 vectors
+        # nears n), and eigsh cannot return all n modes
         from scipy.linalg import eigh
 
-        values, vectors = eigh(stiffness.toarray(), np.diag(mass))
-        return Harmonics(values[:k], vectors[:, :k], mass)
+        values, vectors = eigh(stiffness.toarray(), np.diag(mass), subset_by_index=[0, k - 1])
+        return Harmonics(values, vectors, mass)
     # shift-invert just below 0: the operator is singular (constants), its lowest modes converge fast; a
     # fixed start vector, since ARPACK's random one makes reruns differ in the last digits
     start = np.random.default_rng(0).random(n)
