@@ -266,6 +266,10 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                      ) -> tuple[TriMesh, SurfaceRecord]:
     """The finished iso-surface of ``surface`` from voxelized ``fields`` and their ``ions``.
 
+    Contour (segregants read off its real components left out of the basis), refinement, clean chain and remesh;
+    drawn once more without the segregants the finished surface shows where the first contour lay beyond the
+    first search's reach (:func:`refined_segregants`).
+
     Parameters
     ----------
     fields : voxel.Fields
