@@ -131,10 +131,133 @@ def segregant_basis(mesh: TriMesh, ions, ranges, species: str, basis, include=()
     return ConcentrationBasis(tuple(basis.exclude) + found.species, basis.include_unranged), found
 
 
+def refined_segregants(finished: TriMesh, refined, ions, ranges, species: str, basis, include=()):
+    """The segregants the finished surface shows where some object's first contour lay beyond the first search's
+    reach; None where none did (no ion read).
+
+    :func:`segregant_basis` reads the peak against the first contour, which need only lie near the interface (a
+    shell within ``GAP`` of it stands out of its references): it does where the delocalization shrinks an object
+    by a voxel or so. An object thinner than the delocalization, or one a segregant's dilution shrinks to a
+    sliver, is drawn as a sliver inside itself, whose distances smear the shell over several nm (seen plate
+    10164, 2.2 nm plates with a Si shell at 10 points of contrast: Si 4.9 standard errors on the first contour,
+    7.2 on the finished one). So where a component of the refinement (``refined``, a
+    :class:`~apt_filters.refine.RefineResult`: its mesh's ``displacement`` per vertex, nm) moved more than ``GAP``
+    on average from its first contour, the ``finished`` surface (cleaned and remeshed: the refined mesh's coarse
+    triangles can cross at a thin object's rim, and the sides they give the ions read Si at 4.2) is searched again
+    (:func:`~apt_filters.refine.segregants.find_segregants`; ``basis``: the one it was drawn in, so only species it
+    still counts are tested; ``include`` stays).
+    """
+    from apt_filters.refine.segregants import GAP, find_segregants
+
+    if refined is None or not species or finished.n_faces == 0:
+        return None
+    moved = refined.mesh
+    component = moved.topology.vertex_components
+    used = component >= 0
+    far = np.bincount(component[used], np.abs(moved.vertex_scalars["displacement"][used])) > GAP * np.bincount(
+        component[used])
+    if not far.any():
+        return None
+    return find_segregants(finished, ions, ranges, species, basis=basis, include=tuple(include))
+
+
 def _same_mesh(a: TriMesh, b: TriMesh) -> bool:
     """Whether two meshes have the same vertices and faces in the same order (ions selected near one, with their
     closest faces, serve the other)."""
     return np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+
+
+def _drawn_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, surface: SurfaceConfig,
+                   config: PipelineConfig, basis, step: Callable[[str], ContextManager], params
+                   ) -> tuple[TriMesh, SurfaceRecord, object]:
+    """:func:`finished_surface`'s contour and refinement steps in ``basis`` (segregants its first contour shows left
+    out as well), before the clean chain; with the basis it was drawn in."""
+    from apt_filters.contour import dual_contouring, marching_cubes
+    from apt_filters.refine import refine_surface, remove_specks
+    from apt_filters.refine.clipped import close_clipped
+    from apt_filters.refine.specks import trim_lobes
+    from apt_filters.refine.segregants import segregant_ions
+    from apt_filters.refine.thin import add_thin_objects
+    from apt_filters.voxel.noise import noise_limited_fields
+
+    label = surface_label(surface)
+    record = SurfaceRecord()
+    with step("contour") as s:
+        c = config.contour
+        mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge, basis=basis)
+        # one streamed pass selects the ions near the first contour for the segregant search and the speck test
+        near = segregant_ions(mesh, ions) if surface.species else None
+        first, tested = mesh, None  # the contour the speck test below is drawn on, and that test
+        objects = mesh
+        if surface.species:
+            # the segregants are read off the objects: a low-contrast contour's noise specks are drawn where the iso
+            # species is high by chance, and the dip of every other species inside them reads as a peak (dev plate
+            # 37539, no shell: Ti 6.5 standard errors with its 32 specks, 0.8 without, left out of the basis and
+            # both plates lost)
+            tested = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges, species=surface.species,
+                                   iso=surface.iso, basis=basis, alpha=config.refine.speck_alpha, near=near)
+            objects = tested[0] if tested[0].n_faces else mesh  # all specks: the contour is all there is to read
+        surface_basis, segregants = segregant_basis(objects, ions, ranges, surface.species, basis,
+                                                    config.voxel.include,
+                                                    near=near if _same_mesh(objects, mesh) else None)
+        if surface_basis is not basis:  # contoured again without the segregants' dilution
+            mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
+                                   basis=surface_basis)
+            near = None  # another mesh: the speck test selects its own ions
+        if surface.species and fields.kernel == "gaussian":
+            # a wide low-contrast interface is drawn at the delocalization its noise allows (voxel.noise)
+            fields, mask, scale = noise_limited_fields(fields, mask, ions, ranges, surface.species, surface.iso,
+                                                       basis=surface_basis)
+            record.noise_scale = dataclasses.asdict(scale)
+            if scale.factor > 1.0:
+                mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
+                                       basis=surface_basis)
+                near = None
+        record.raw_area = mesh.area()
+        s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
+                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else "")
+                     + (f"; delocalization x{scale.factor:.2f} for its noise" if record.noise_scale
+                        and scale.factor > 1.0 else ""))
+    if config.refine.enabled and surface.species:
+        with step("refine") as s:
+            r = config.refine
+            if mesh is first:  # drawn in the basis and on the fields of the speck test above: its outcome
+                mesh, specks = tested
+            else:
+                first = mesh
+                mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
+                                             species=surface.species, iso=surface.iso, basis=surface_basis,
+                                             alpha=r.speck_alpha, near=near)
+            # noise lobes joined to an object at low contrast: each part of a component tested like a speck
+            contour = dual_contouring if c.method == "dc" else marching_cubes
+            mesh, lobes = trim_lobes(mesh, specks, values=field_values(fields, surface.species, surface.iso,
+                                                                       surface_basis),
+                                     fields=fields, mask=mask, ions=ions, ranges=ranges, species=surface.species,
+                                     iso=surface.iso, basis=surface_basis, alpha=r.speck_alpha,
+                                     contour=functools.partial(contour, close=c.close_at_edge),
+                                     near=near if near is not None and _same_mesh(mesh, first) else None)
+            near = None  # its memory back before the refinement
+            # objects thinner than the delocalization, drawn one octave finer where this scale thins them
+            mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
+                                          species=surface.species, iso=surface.iso, basis=surface_basis,
+                                          alpha=r.speck_alpha)
+            record.specks = thin.specks
+            # closed objects the specimen-edge clip holed, closed again where the ions beyond the hole are matrix
+            mesh, clipped = close_clipped(mesh, mask=mask, grid=fields.grid, ions=ions, ranges=ranges,
+                                          species=surface.species, iso=surface.iso, basis=surface_basis)
+            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
+                                     refine_params(r) if params is None else params)
+            mesh, record.refined = refined.mesh, refined
+            record.refine = {"basis": surface_basis.describe(),
+                             "segregants": None if segregants is None else dataclasses.asdict(segregants),
+                             "lobes": dataclasses.asdict(lobes),
+                             "thin": thin.as_dict(),
+                             "clipped": dataclasses.asdict(clipped),
+                             **_refine_record(thin.specks, refined)}
+            s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, "
+                         f"{clipped.describe()}, "
+                         f"mean displacement {refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+    return mesh, record, surface_basis
 
 
 def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTable, surface: SurfaceConfig, *,
@@ -142,6 +265,10 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                      step: Callable[[str], ContextManager] = _quiet_step, params=None
                      ) -> tuple[TriMesh, SurfaceRecord]:
     """The finished iso-surface of ``surface`` from voxelized ``fields`` and their ``ions``.
+
+    Contour (segregants read off its real components left out of the basis), refinement, clean chain and remesh;
+    drawn once more without the segregants the finished surface shows where the first contour lay beyond the
+    first search's reach (:func:`refined_segregants`).
 
     Parameters
     ----------
@@ -172,92 +299,42 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
         The surface (refined only for a concentration surface with ``[refine] enabled``) and what each
         step did.
     """
-    from apt_filters.contour import dual_contouring, marching_cubes
-    from apt_filters.meshlab.chains import apply_chain
-    from apt_filters.refine import refine_surface, remove_specks
-    from apt_filters.refine.clipped import close_clipped
-    from apt_filters.refine.specks import trim_lobes
-    from apt_filters.refine.segregants import segregant_ions
-    from apt_filters.refine.thin import add_thin_objects
-    from apt_filters.remesh import remesh
     from apt_filters.voxel import ConcentrationBasis
-    from apt_filters.voxel.noise import noise_limited_fields
 
     config = PipelineConfig() if config is None else config
     basis = ConcentrationBasis(tuple(config.voxel.exclude), config.voxel.include_unranged) if basis is None else basis
     label = surface_label(surface)
-    record = SurfaceRecord()
-    with step("contour") as s:
-        c = config.contour
-        mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge)
-        # one streamed pass selects the ions near the first contour for the segregant search and the speck test
-        near = segregant_ions(mesh, ions) if surface.species else None
-        surface_basis, segregants = segregant_basis(mesh, ions, ranges, surface.species, basis, config.voxel.include,
-                                                    near=near)
-        if surface_basis is not basis:  # contoured again without the segregants' dilution
-            mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
-                                   basis=surface_basis)
-            near = None  # another mesh: the speck test selects its own ions
-        if surface.species and fields.kernel == "gaussian":
-            # a wide low-contrast interface is drawn at the delocalization its noise allows (voxel.noise)
-            fields, mask, scale = noise_limited_fields(fields, mask, ions, ranges, surface.species, surface.iso,
-                                                       basis=surface_basis)
-            record.noise_scale = dataclasses.asdict(scale)
-            if scale.factor > 1.0:
-                mesh = contour_surface(fields, mask, surface.species, surface.iso, c.method, c.close_at_edge,
-                                       basis=surface_basis)
-                near = None
-        record.raw_area = mesh.area()
-        s.summary = (f"{label}: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} faces ({c.method})"
-                     + (f"; {segregants.describe()}, basis: {surface_basis.describe()}" if segregants else "")
-                     + (f"; delocalization x{scale.factor:.2f} for its noise" if record.noise_scale
-                        and scale.factor > 1.0 else ""))
-    if config.refine.enabled and surface.species:
-        with step("refine") as s:
-            r = config.refine
-            first = mesh
-            mesh, specks = remove_specks(mesh, fields=fields, mask=mask, ions=ions, ranges=ranges,
-                                         species=surface.species, iso=surface.iso, basis=surface_basis,
-                                         alpha=r.speck_alpha, near=near)
-            # noise lobes joined to an object at low contrast: each part of a component tested like a speck
-            contour = dual_contouring if c.method == "dc" else marching_cubes
-            mesh, lobes = trim_lobes(mesh, specks, values=field_values(fields, surface.species, surface.iso,
-                                                                       surface_basis),
-                                     fields=fields, mask=mask, ions=ions, ranges=ranges, species=surface.species,
-                                     iso=surface.iso, basis=surface_basis, alpha=r.speck_alpha,
-                                     contour=functools.partial(contour, close=c.close_at_edge),
-                                     near=near if near is not None and _same_mesh(mesh, first) else None)
-            near = None  # its memory back before the refinement
-            # objects thinner than the delocalization, drawn one octave finer where this scale thins them
-            mesh, thin = add_thin_objects(mesh, specks, fields=fields, mask=mask, ions=ions, ranges=ranges,
-                                          species=surface.species, iso=surface.iso, basis=surface_basis,
-                                          alpha=r.speck_alpha)
-            record.specks = thin.specks
-            # closed objects the specimen-edge clip holed, closed again where the ions beyond the hole are matrix
-            mesh, clipped = close_clipped(mesh, mask=mask, grid=fields.grid, ions=ions, ranges=ranges,
-                                          species=surface.species, iso=surface.iso, basis=surface_basis)
-            refined = refine_surface(mesh, ions, ranges, surface.species, surface_basis,
-                                     refine_params(r) if params is None else params)
-            mesh, record.refined = refined.mesh, refined
-            record.refine = {"basis": surface_basis.describe(),
-                             "segregants": None if segregants is None else dataclasses.asdict(segregants),
-                             "lobes": dataclasses.asdict(lobes),
-                             "thin": thin.as_dict(),
-                             "clipped": dataclasses.asdict(clipped),
-                             **_refine_record(thin.specks, refined)}
-            s.summary = (f"{label}: {specks.count} specks removed, {lobes.describe()}, {thin.describe()}, "
-                         f"{clipped.describe()}, "
-                         f"mean displacement {refined.displacement['mean']:+.2f} nm, {refined.folded_pairs} folds")
+    mesh, record, drawn = _drawn_surface(fields, mask, ions, ranges, surface, config, basis, step, params)
+    mesh = _cleaned(mesh, record, label, config, fields.grid.voxel, clean_script, step)
+    found = refined_segregants(mesh, record.refined, ions, ranges, surface.species, drawn, config.voxel.include)
+    if found is not None and found.species:  # drawn again without them: the run a user who knew would make
+        with step("segregants") as s:
+            s.summary = (f"{label}: {found.describe()} on the finished surface, beyond the first search's reach; "
+                         f"drawn again without them")
+        again = ConcentrationBasis(tuple(drawn.exclude) + found.species, drawn.include_unranged)
+        mesh, record, _ = _drawn_surface(fields, mask, ions, ranges, surface, config, again, step, params)
+        mesh = _cleaned(mesh, record, label, config, fields.grid.voxel, clean_script, step)
+        record.refine["segregants_refined"] = dataclasses.asdict(found)
+    return mesh, record
+
+
+def _cleaned(mesh: TriMesh, record: SurfaceRecord, label: str, config: PipelineConfig, voxel: float,
+             clean_script, step: Callable[[str], ContextManager]) -> TriMesh:
+    """:func:`finished_surface`'s clean chain and remesh of a drawn surface (``record`` takes their account), with
+    one object numbering for the object table, the proxigram and the excess (``object_id``)."""
+    from apt_filters.meshlab.chains import apply_chain
+    from apt_filters.remesh import remesh
+
     if mesh.n_faces == 0:  # every component was a speck: said, and nothing left to clean or remesh
         record.warnings.append(f"no surface at this iso-value: every component of {label} was a speck")
         mesh.face_scalars["object_id"] = np.zeros(0, dtype=np.int64)
-        return mesh, record
+        return mesh
     with step("clean") as s:
         mesh, _ = apply_chain(mesh, "clean", script=clean_script, overwrite=True)
         s.summary = f"{label}: {mesh.n_faces:,} faces after the clean chain"
     if config.remesh.method == "cvt":
         with step("remesh") as s:
-            edge = config.remesh.edge_length or fields.grid.voxel / 2
+            edge = config.remesh.edge_length or voxel / 2
             try:
                 remeshed = remesh(mesh, edge_length=edge, feature_angle=config.remesh.feature_angle)
                 mesh, kept = remeshed.mesh, remeshed.kept_input
@@ -273,9 +350,8 @@ def finished_surface(fields, mask: np.ndarray, ions: IonTable, ranges: RangeTabl
                 warning = f"remeshing {label} failed ({type(exc).__name__}: {exc}); the cleaned mesh is used"
                 record.warnings.append(" ".join(warning.split()))
                 s.summary = "WARNING " + record.warnings[-1]
-    # One object numbering for the object table, the proxigram and the excess.
     mesh.face_scalars["object_id"] = mesh.face_components()
-    return mesh, record
+    return mesh
 
 
 def analysis_ions(ions: IonTable, mesh: TriMesh, *, reach: float, cap_open: bool = True):
