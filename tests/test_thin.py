@@ -134,9 +134,10 @@ def test_a_thin_disc_whose_start_crumples_keeps_its_volume_when_untangled():
 def test_a_sliver_of_a_disc_is_thinned_by_its_volume_a_shrunk_sphere_is_not():
     """Exact shapes: the finer contour of a disc 1.4 nm thick and 6 nm in radius (V / A 0.568 nm) and a coarse
     sliver of it, a ball of radius 0.9 nm: V / A 0.30 nm, more than half the disc's, yet 1.9 % of its volume (as dev
-    disc 37219's 3.1 nm³ sliver, V / A 0.229 against its finer contour's 0.418 and 109 nm³), is thinned; a sphere of radius 2 nm whose coarse contour the kernel shrank to 1.5 nm (the blur's curvature shift
-    sigma² / R of the 1 nm kernel, against 0.25 / R one octave finer: 1.875 nm) holds 0.51 of the finer volume and
-    is resolved; a coarse disc of the full radius is thinned by its thickness alone."""
+    disc 37219's 3.1 nm³ sliver, V / A 0.229 against its finer contour's 0.418 and 109 nm³), is thinned; a sphere
+    of radius 2 nm whose coarse contour the kernel shrank to 1.5 nm (the blur's curvature shift sigma² / R of the
+    1 nm kernel, against 0.25 / R one octave finer: 1.875 nm) holds 0.51 of the finer volume and is resolved; a
+    coarse disc of the full radius is thinned by its thickness alone."""
     from apt_filters.refine.thin import HELD, OCTAVE, _may_replace, _thickness, _thinned
     from apt_filters.synth import Sphere
 

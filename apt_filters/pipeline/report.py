@@ -173,8 +173,8 @@ def _segregant_words(surface: dict) -> str:
     found = refine.get("segregants") or {}
     if not found.get("species") and not found.get("kept"):
         return ""
-    peaks = [f"{s} peaks at {100 * found['peaks'][s]['peak']:.1f} at.% against a plateau of "
-             f"{100 * found['peaks'][s]['plateau']:.1f} at.% ({found['peaks'][s]['z']:.0f} standard errors)" for s in found["species"]]
+    peaks = [f"{s} peaks at {100 * p['peak']:.1f} at.% against a plateau of {100 * p['plateau']:.1f} at.% "
+             f"({p['z']:.0f} standard errors)" for s, p in ((s, found["peaks"][s]) for s in found["species"])]
     kept = [f"{', '.join(found['kept'])} kept in as asked"] if found.get("kept") else []
     return (f"{html.escape(surface['label'])}: segregant{'s' * (len(found['species']) != 1)} found at the first "
             f"contour: {html.escape('; '.join(peaks + kept))}; concentrations of {html.escape(refine['basis'])}"
