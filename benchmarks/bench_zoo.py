@@ -267,6 +267,10 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
                         if np.abs(sp.feature_sdf(i)(p.vertices[np.unique(p.faces)])).mean() < 1.5]
                 used.update(near)
                 part = _joined([parts[j] for j in near])
+            inner = _clipped(sp, i, part)
+            if not inner.n_faces:  # the run's surface lies only outside the compared region: not found there
+                rows.append(row | {"found": False})
+                continue
             err = _edge_error(sp, i, part, seed)
         row |= {"area": err.area_error, "mean": err.mean_distance, "hausdorff": err.hausdorff}
         if tf["bounded"]:
@@ -274,7 +278,7 @@ def evaluate(sp, mesh, species: str, truth: dict, seed: int, family: str) -> tup
         else:
             row |= {"d_floor": tr["floor"]}
         if _reaches_edge(sp, i):  # the surface, its ions and their count inside the compared region only
-            inner, keep = _clipped(sp, i, part), _interior(sp, i, sp.ions.positions)
+            keep = _interior(sp, i, sp.ions.positions)
             ions = IonTable(sp.ions.positions[keep], sp.ions.mz[keep], {k: v[keep] for k, v in sp.ions.extra.items()})
             found, windows = run_chemistry(inner, ions, sp.ranges, species, seg)
             (per_area, inside, start), true_area = found.get(POOLED, found.get(0)), err.true_area
