@@ -294,7 +294,7 @@ def _cube_sums(vertices, faces, centroid, mine, origin, size, step):
                 z = np.int64(np.floor((point[2] - origin[2]) / size))
                 # neighbouring samples mostly share a cube: the last one's first, then the table
                 if c < 0 or cells[c, 0] != x or cells[c, 1] != y or cells[c, 2] != z:
-                    c, slot = _cube_row(x, y, z, slot, cells, n)
+                    c = _cube_row(x, y, z, slot, cells, n)
                     if c == n:  # a new cube
                         if n == len(cells):  # grown by doubling
                             cells, total, part = _doubled(cells), _doubled(total), _doubled(part)
@@ -302,6 +302,8 @@ def _cube_sums(vertices, faces, centroid, mine, origin, size, step):
                         cells[c, 0], cells[c, 1], cells[c, 2] = x, y, z
                         total[c], part[c], count[c], stamp[c] = 0.0, 0.0, 0.0, -1
                         n += 1
+                        if 2 * n > len(slot):  # at most half full: short probes
+                            slot = _rehashed(cells, n, 2 * len(slot))
                 if stamp[c] != start:
                     stamp[c] = start
                     if n_touched == len(touched):
@@ -320,37 +322,31 @@ def _cube_sums(vertices, faces, centroid, mine, origin, size, step):
 
 
 @njit(nogil=True, cache=True, inline="always")
-def _cube_hash(x, y, z, mask):
-    """Slot of cube (x, y, z) in a hash table of ``mask`` + 1 (a power of two) slots."""
-    return ((x * 73856093) ^ (y * 19349663) ^ (z * 83492791)) & mask
-
-
-@njit(nogil=True, cache=True)
 def _cube_row(x, y, z, slot, cells, n):
     """Row of cube (x, y, z) among the ``n`` rows of ``cells`` (k, 3), found in the open-addressing hash table
-    ``slot`` (a power of two of rows, -1 free, at most half full), or ``n`` where it is new (entered in the
-    table as row ``n``); returns the row and the table (twice as large once more than half full)."""
+    ``slot`` (a power of two of rows, -1 free), or ``n`` where it is new (then entered in the table as row
+    ``n``)."""
     mask = len(slot) - 1
-    h = _cube_hash(x, y, z, mask)
+    # Fibonacci hashing of the cube's coordinates: the top bits of the product, spread even for cubes on a plane
+    h = np.int64(((np.uint64(x) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(y)) * np.uint64(0x9E3779B97F4A7C15)
+                  + np.uint64(z)) * np.uint64(0x9E3779B97F4A7C15) >> np.uint64(32)) & mask
     while slot[h] >= 0:
         r = slot[h]
         if cells[r, 0] == x and cells[r, 1] == y and cells[r, 2] == z:
-            return r, slot
+            return r
         h = (h + 1) & mask
     slot[h] = n
-    if 2 * (n + 1) > len(slot):  # rebuilt twice as large: probes stay short
-        slot = np.full(2 * len(slot), -1, np.int64)
-        mask = len(slot) - 1
-        for r in range(n):
-            h = _cube_hash(cells[r, 0], cells[r, 1], cells[r, 2], mask)
-            while slot[h] >= 0:
-                h = (h + 1) & mask
-            slot[h] = r
-        h = _cube_hash(x, y, z, mask)
-        while slot[h] >= 0:
-            h = (h + 1) & mask
-        slot[h] = n
-    return n, slot
+    return n
+
+
+@njit(nogil=True, cache=True)
+def _rehashed(cells, n, size):
+    """A hash table of ``size`` (a power of two) slots holding the first ``n`` rows of ``cells``
+    (:func:`_cube_row`'s)."""
+    slot = np.full(size, -1, np.int64)
+    for r in range(n):
+        _cube_row(cells[r, 0], cells[r, 1], cells[r, 2], slot, cells, r)
+    return slot
 
 
 @njit(nogil=True, cache=True)
