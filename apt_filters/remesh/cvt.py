@@ -264,7 +264,7 @@ def _voxel_means(args: tuple, origin: np.ndarray, size: float, step: int) -> np.
     compiled pass over the samples, made face by face, with only the cubes held (about as many as generators).
     Sums are taken per ``step`` input faces, then over those, in their order: the sums (and means) of the numpy
     form this replaced, which materialised the samples a chunk at a time, bit for bit (a numpy pass per chunk of
-    a few hundred samples was a quarter of the remesh's CPU on the 2 nm spheres)."""
+    a few hundred samples was a tenth of the remesh's CPU on the 2 nm spheres)."""
     cells, total, count = _cube_sums(*args, origin, size, step)
     order = np.lexsort(cells.T[::-1])
     return total[order] / count[order, None]
