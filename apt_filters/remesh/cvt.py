@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from apt_filters.remesh._arrays import isin, unique_rows
+from apt_filters.remesh._arrays import isin
 from apt_filters.core.mesh import TriMesh
 from apt_filters.remesh.features import Features
 from apt_filters.remesh.sampling import Samples, chunk_length, sample_point
@@ -223,38 +223,138 @@ class PatchSurfaces:
         return self._own[p]
 
 
-def _initial_patch_points(chunks, area: float, count: int, seed: int) -> np.ndarray:
-    """``count`` evenly spread points among the points that ``chunks()`` yields ((k, 3) arrays, a patch's
-    samples a chunk at a time) over an ``area`` (nm²): voxel down-sampling, then a random subset."""
+def _initial_patch_points(samples: Samples, faces: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``count`` evenly spread points among the samples of the input ``faces`` (a patch's): voxel down-sampling,
+    then a random subset."""
     if count <= 0:
         return np.empty((0, 3))
     rng = np.random.default_rng(seed)
-    size = np.sqrt(area / count)
-    origin = np.min([points.min(axis=0) for points in chunks()], axis=0)
+    size = np.sqrt(samples.face_area[faces].sum() / count)
+    lat = samples.lattice
+    args = (lat.vertices, lat.faces, lat.centroid, np.asarray(faces, np.int64))
+    origin = _samples_min(*args)
     for _ in range(6):
-        down = _voxel_means(chunks, origin, size)
+        down = _voxel_means(args, origin, size, max(samples.chunk // samples.per_face, 1))
         if len(down) >= count:
             break
         size *= 0.8 * np.sqrt(max(len(down), 1) / count)
     if len(down) < count:  # a patch too small to hold them apart: take samples at random
-        down = np.vstack(list(chunks()))
+        down = samples.points(samples.of_faces(faces))
     chosen = down[rng.choice(len(down), size=count, replace=False)]
     return chosen[_spatial_order(chosen, size)]
 
 
-def _voxel_means(chunks, origin: np.ndarray, size: float) -> np.ndarray:
-    """Mean of the points that ``chunks()`` yields in each occupied cube of side ``size`` (nm) counted
-    from ``origin`` (3,), no point below it (voxel down-sampling): sums per cube chunk by chunk, so that
-    only one chunk and the cubes (about as many as generators) are held."""
-    cells, sums, counts = [], [], []
-    for points in chunks():
-        cell, _, inverse, count = unique_rows(np.floor((points - origin) / size).astype(np.int64))
-        cells.append(cell)
-        counts.append(count)
-        sums.append(np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1))
-    inverse = unique_rows(np.vstack(cells))[2]
-    total = np.stack([np.bincount(inverse, np.concatenate([s[:, k] for s in sums])) for k in range(3)], 1)
-    return total / np.bincount(inverse, np.concatenate(counts))[:, None]
+@njit(nogil=True, cache=True)
+def _samples_min(vertices, faces, centroid, mine):
+    """(3,) smallest coordinates (nm) of the samples of input faces ``mine`` (made face by face, as in
+    :func:`_lloyd_pass`)."""
+    low, point = np.full(3, np.inf), np.empty(3)
+    per_face = len(centroid)
+    for f in mine:
+        for j in range(per_face):
+            sample_point(vertices, faces, centroid, f * per_face + j, point)
+            for k in range(3):
+                low[k] = min(low[k], point[k])
+    return low
+
+
+def _voxel_means(args: tuple, origin: np.ndarray, size: float, step: int) -> np.ndarray:
+    """Mean (nm) of the samples of input faces ``args[3]`` in each occupied cube of side ``size`` (nm) counted
+    from ``origin`` (3,), no sample below it (voxel down-sampling), in lexicographic order of the cubes: one
+    compiled pass over the samples, made face by face, with only the cubes held (about as many as generators).
+    Sums are taken per ``step`` input faces, then over those, in their order: the sums (and means) of the numpy
+    form this replaced, which materialised the samples a chunk at a time, bit for bit (a numpy pass per chunk of
+    a few hundred samples was a tenth of the remesh's CPU on the 2 nm spheres)."""
+    cells, total, count = _cube_sums(*args, origin, size, step)
+    order = np.lexsort(cells.T[::-1])
+    return total[order] / count[order, None]
+
+
+@njit(nogil=True, cache=True)
+def _cube_sums(vertices, faces, centroid, mine, origin, size, step):
+    """Occupied cubes (k, 3) int64 (first-seen order), the sums (k, 3) of their samples' coordinates and their
+    sample counts (k,) float64, for :func:`_voxel_means`: each cube's sum is taken per ``step`` input faces,
+    starting at 0 and in sample order, then the parts are added in their order (what ``np.bincount`` over each
+    chunk and then over the chunks' sums gave)."""
+    slot = np.full(64, -1, np.int64)  # open-addressing hash table: cube -> its row, -1 free
+    n = 0
+    cells, total, part = np.empty((16, 3), np.int64), np.empty((16, 3)), np.empty((16, 3))
+    count, stamp = np.empty(16), np.empty(16, np.int64)  # stamp: the last part that touched the cube
+    touched = np.empty(16, np.int64)  # the cubes the present part touched
+    per_face = len(centroid)
+    point = np.empty(3)
+    c = -1
+    for start in range(0, len(mine), step):
+        n_touched = 0
+        for f in mine[start:start + step]:
+            for j in range(per_face):
+                sample_point(vertices, faces, centroid, f * per_face + j, point)
+                x = np.int64(np.floor((point[0] - origin[0]) / size))
+                y = np.int64(np.floor((point[1] - origin[1]) / size))
+                z = np.int64(np.floor((point[2] - origin[2]) / size))
+                # neighbouring samples mostly share a cube: the last one's first, then the table
+                if c < 0 or cells[c, 0] != x or cells[c, 1] != y or cells[c, 2] != z:
+                    c = _cube_row(x, y, z, slot, cells, n)
+                    if c == n:  # a new cube
+                        if n == len(cells):  # grown by doubling
+                            cells, total, part = _doubled(cells), _doubled(total), _doubled(part)
+                            count, stamp = _doubled(count), _doubled(stamp)
+                        cells[c, 0], cells[c, 1], cells[c, 2] = x, y, z
+                        total[c], part[c], count[c], stamp[c] = 0.0, 0.0, 0.0, -1
+                        n += 1
+                        if 2 * n > len(slot):  # at most half full: short probes
+                            slot = _rehashed(cells, n, 2 * len(slot))
+                if stamp[c] != start:
+                    stamp[c] = start
+                    if n_touched == len(touched):
+                        touched = _doubled(touched)
+                    touched[n_touched] = c
+                    n_touched += 1
+                for k in range(3):
+                    part[c, k] += point[k]
+                count[c] += 1.0
+        for i in range(n_touched):
+            c2 = touched[i]
+            for k in range(3):
+                total[c2, k] += part[c2, k]
+                part[c2, k] = 0.0
+    return cells[:n].copy(), total[:n].copy(), count[:n].copy()
+
+
+@njit(nogil=True, cache=True, inline="always")
+def _cube_row(x, y, z, slot, cells, n):
+    """Row of cube (x, y, z) among the ``n`` rows of ``cells`` (k, 3), found in the open-addressing hash table
+    ``slot`` (a power of two of rows, -1 free), or ``n`` where it is new (then entered in the table as row
+    ``n``)."""
+    mask = len(slot) - 1
+    # Fibonacci hashing of the cube's coordinates: the top bits of the product, spread even for cubes on a plane
+    h = np.int64(((np.uint64(x) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(y)) * np.uint64(0x9E3779B97F4A7C15)
+                  + np.uint64(z)) * np.uint64(0x9E3779B97F4A7C15) >> np.uint64(32)) & mask
+    while slot[h] >= 0:
+        r = slot[h]
+        if cells[r, 0] == x and cells[r, 1] == y and cells[r, 2] == z:
+            return r
+        h = (h + 1) & mask
+    slot[h] = n
+    return n
+
+
+@njit(nogil=True, cache=True)
+def _rehashed(cells, n, size):
+    """A hash table of ``size`` (a power of two) slots holding the first ``n`` rows of ``cells``
+    (:func:`_cube_row`'s)."""
+    slot = np.full(size, -1, np.int64)
+    for r in range(n):
+        _cube_row(cells[r, 0], cells[r, 1], cells[r, 2], slot, cells, r)
+    return slot
+
+
+@njit(nogil=True, cache=True)
+def _doubled(a):
+    """``a`` in an array twice as long (along its first axis), the rest uninitialised."""
+    out = np.empty((2 * len(a),) + a.shape[1:], a.dtype)
+    out[:len(a)] = a
+    return out
 
 
 def _spatial_order(points: np.ndarray, cell: float) -> np.ndarray:
@@ -302,13 +402,7 @@ def initialise(mesh: TriMesh, features: Features, samples: Samples, edge: float,
         free = (measure - 0.5 * _AREA_PER_VERTEX * edge * border[p]) / (_AREA_PER_VERTEX * edge**2)
         count = int(round(free)) if border[p] > 0 else max(int(round(free)), 4)
         count = min(max(count, 0), len(mine) * samples.per_face)
-        step = max(samples.chunk // samples.per_face, 1)
-
-        def chunks(mine=mine, step=step):
-            for start in range(0, len(mine), step):
-                yield samples.points(samples.of_faces(mine[start:start + step]))
-
-        pts = _initial_patch_points(chunks, samples.face_area[mine].sum(), count, seed + p)
+        pts = _initial_patch_points(samples, mine, count, seed + p)
         pos.append(pts)
         kind.append(np.full(len(pts), PATCH))
         owner.append(np.full(len(pts), p))

@@ -31,7 +31,7 @@ def chunk_length(n_faces: int) -> int:
     """Points per chunk for a surface of ``n_faces`` input faces: a quarter of them, between 256 and
     :data:`CHUNK`, so that chunked temporaries stay near 100 bytes per input face on small surfaces
     too (a fixed 16k chunk was 4 kB per face of a 1,700-face plate)."""
-    return int(np.clip(n_faces // 4, 256, CHUNK))
+    return min(max(int(n_faces) // 4, 256), CHUNK)  # not np.clip: a scalar call of it was 20 µs, twice per chunk
 
 
 @dataclass
