@@ -447,6 +447,37 @@ def test_a_window_is_short_of_its_plateau_where_its_miss_exceeds_its_counting_er
         assert abs(C_IN - w) <= 2 * se, (w, se)
 
 
+def test_a_level_kept_on_its_shortfall_reports_an_error_that_covers_it():
+    # eight 1.8 nm spheres of one phase under a 0.7 nm interface, ~240 window atoms each, their windows kept and
+    # shrunk toward their pool: every window falls ~3.6 points short of the inside phase alike, so the pool keeps
+    # the shortfall and each shrunk level lies 2.3-2.7 points low against a counting error of 1.1 (its worth, the
+    # pool's atoms). Read against the profile level (here the truth, worth 5000 atoms) under the true ball, the
+    # estimated squared bias (window_bias, its positive part) lowers each level's worth to its mean squared error's
+    # (surface._count_bias): the reported error then covers the level's real error within 2 sigma, where the
+    # counting error alone misses it by more than 2
+    from apt_filters.refine.levels import PLATEAU_PRIOR, BallFit, levels_from_sums, window_bias
+    from apt_filters.refine.surface import _count_bias
+    radius, width = 1.8, 0.7
+    sums, shares = [], []
+    for seed in range(8):
+        d, iso, _ = _erf_sphere(radius, 80.0, 200 + seed, width=width)
+        sides = [(d <= -WINDOW[0]) & (d >= -WINDOW[1]), (d >= WINDOW[0]) & (d <= WINDOW[1])]
+        sums.append([[iso[s].sum(), (1 - iso[s]).sum()] for s in sides])
+        shares.append(ball_profile(d[sides[0]] + 0.1, radius=radius + 0.1, dims=3.0, width=width, blur=BLUR).mean())
+    sums = np.array(sums)
+    levels = levels_from_sums(sums, ["A", "B"], "A")
+    truth = BallFit(-0.1, width, C_IN, C_OUT, np.zeros((2, 2)))
+    profile = (np.array([C_IN, 1 - C_IN]), 5000.0)
+    reads = [window_bias(profile, truth, sums[c, 0], sums[:, 0].sum(axis=0), shares[c], 0, PLATEAU_PRIOR)
+             for c in range(len(sums))]
+    before = np.array([lv.worth_inside for lv in levels])
+    _count_bias(levels, np.array([max(b ** 2 - v, 0.0) for b, v, _, _ in reads]), 0)
+    for lv, worth in zip(levels, before):
+        f = lv.inside[0]
+        assert abs(f - C_IN) > 2 * np.sqrt(f * (1 - f) / worth), (f, worth)
+        assert abs(f - C_IN) <= 2 * np.sqrt(f * (1 - f) / lv.worth_inside), (f, lv.worth_inside)
+
+
 def test_objects_fitted_together_compute_each_ones_profile_once_per_offset_and_width(monkeypatch):
     # the joint fits take their derivatives one object's offset or width at a time: every other object's profile is
     # the one already computed (each object's profile at a given offset and width is computed once, not once per

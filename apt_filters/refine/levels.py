@@ -1280,16 +1280,13 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     -------
     bool
     """
-    inside, worth = level
-    p_in, n_in, n_pool = inside[k], window.sum(), pool.sum()
-    if n_pool <= 0:
+    read = window_bias(level, fit, window, pool, g_in, k, prior)
+    if read is None:
         return False
-    w = n_in / (n_in + prior)
-    s = (window[k] + prior * pool[k] / n_pool) / (n_in + prior)
-    var_s = s * (1 - s) * (n_in + prior ** 2 / n_pool) / (n_in + prior) ** 2
+    bias, var_bias, var_s, w = read
+    inside, worth = level
+    p_in, n_in = inside[k], window.sum()
     var_p = p_in * (1 - p_in) / worth
-    bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
-    var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
     misfit = var_misfit = var_own = 0.0
     if n_in > 0 and g_in > 0:  # the window unmixed by the model is a reading of the inside phase P must agree with
         own = window[k] / n_in
@@ -1316,6 +1313,33 @@ def profile_better(level: tuple[np.ndarray, float], fit: BallFit, window: np.nda
     own_fall = 2 * abs(misfit) * (misfitted > 0) * PROFILE_SE * np.sqrt(var_own)
     return min(max(biased + sign * d_biased, 0.0) + var_s - max(misfitted + sign * d_misfitted - own_fall, 0.0)
                - var_p for sign in (-1.0, 1.0)) > 0
+
+
+def window_bias(level: tuple[np.ndarray, float], fit: BallFit, window: np.ndarray, pool: np.ndarray, g_in: float,
+                k: int, prior: float) -> tuple[float, float, float, float] | None:
+    """How far the level ``S`` an object's inside window gives it (its atoms shrunk toward the pooled windows by
+    ``prior`` atoms, :func:`levels_from_sums`) is expected to lie from its profile level ``P`` (:func:`profile_levels`)
+    under the fitted ball (:func:`profile_better`, which the arguments are those of).
+
+    Returns
+    -------
+    (bias, var_bias, var_s, w) or None
+        ``b = E[S] - P`` (fraction; the window reads ``O + (P - O) g_in``, the pool its own level), its variance
+        (``P``'s count carried by ``1 - w g_in``, the pool's by ``1 - w``), ``var S`` (the window's atoms and the
+        pool's: a prior of ``prior`` atoms drawn from a pool of fewer is no more certain than the pool) and ``w``, the
+        window's own share of ``S``. None for an empty pool.
+    """
+    inside, worth = level
+    p_in, n_in, n_pool = inside[k], window.sum(), pool.sum()
+    if n_pool <= 0:
+        return None
+    w = n_in / (n_in + prior)
+    s = (window[k] + prior * pool[k] / n_pool) / (n_in + prior)
+    var_s = s * (1 - s) * (n_in + prior ** 2 / n_pool) / (n_in + prior) ** 2
+    var_p = p_in * (1 - p_in) / worth
+    bias = w * (fit.outside + (p_in - fit.outside) * g_in) + (1 - w) * pool[k] / n_pool - p_in
+    var_bias = var_p * (1 - w * g_in) ** 2 + (1 - w) ** 2 * s * (1 - s) / n_pool
+    return float(bias), float(var_bias), float(var_s), float(w)
 
 
 def short_of_plateau(window: np.ndarray, fit: BallFit, g_in: float, k: int) -> bool:

@@ -112,7 +112,8 @@ from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agr
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
                                       levels_from_sums, lobe_weights, object_shapes, object_volumes, plateau_sums,
                                       plateaus, pooled_profiles, profile_better, profile_levels, short_of_plateau,
-                                      split_worth, unmixed_sums, unmixing_shift, window_labels, within_rim)
+                                      split_worth, unmixed_sums, unmixing_shift, window_bias, window_labels,
+                                      within_rim)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -869,16 +870,30 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     windows = agreeing_pools(sums, k, p.plateau_prior)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior, windows)
-    unmixed, chosen, balls, share, shared = _curved_levels(fits, faces, held, bands, sums, windows, species, p, closed)
+    unmixed, chosen, balls, share, shared, bias = _curved_levels(fits, faces, held, bands, sums, windows, species, p,
+                                                                 closed)
     best = np.where(chosen[:, None, None], unmixed, sums)
     pooled = chosen_pools(windows, best, chosen, balls, shared, k, p.plateau_prior)
     levels = levels_from_sums(best, held[0].atoms.elements, species, p.plateau_prior, pooled)
+    _count_bias(levels, bias, k)
     # a thin object is placed where its step, taken at this share of its inside level, stops at its interface
     for c in np.flatnonzero(share != 1.0):
         lv = levels[c]
         lv.inside = lv.outside + share[c] * (lv.inside - lv.outside)
         lv.iso = float(0.5 * (lv.inside + lv.outside)[held[0].atoms.elements.index(species)])
     return levels
+
+
+def _count_bias(levels: list[ObjectLevels], bias: np.ndarray, k: int) -> None:
+    """Each object's inside level's worth (:attr:`~apt_filters.refine.levels.ObjectLevels.worth_inside`) lowered, in
+    place, to count ``bias`` (n_components,) fraction², its estimated squared bias (:func:`_curved_levels`): the
+    level is as certain as ``f (1 - f) / (var + bias)`` atoms, its mean squared error (``f`` its fraction of basis
+    element ``k``, ``var`` its counting variance), so that the reported errors (:func:`_level_offset_errors`) cover
+    a shortfall the level keeps."""
+    for c in np.flatnonzero(bias > 0):
+        lv = levels[c]
+        f = float(lv.inside[k])
+        lv.worth_inside = f * (1 - f) / (f * (1 - f) / lv.worth_inside + bias[c])
 
 
 def _lobe_weighted(sums: np.ndarray, bands: list[Band], held: list[NearIons], components: np.ndarray, k: int,
@@ -958,6 +973,11 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
         Every closed object's profile level (:func:`~apt_filters.refine.levels.profile_levels`) pooled, times the
         pool's worth in atoms (:func:`~apt_filters.refine.levels.pooled_profiles`): what an unmixed object's inside
         level is shrunk toward.
+    bias : (n_components,) float64
+        Fraction²: the squared bias of each kept object's shrunk window level as its profile reads it, the positive
+        part of ``b^2 - var b`` (:func:`~apt_filters.refine.levels.window_bias`; the joint profile's where the joint
+        ball's held-out gain offers it, else its own); 0 for the objects chosen for their ball or profile level,
+        whose worth carries their own errors. Only the reported errors take it (:func:`_count_bias`).
     """
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = len(sums)
@@ -991,6 +1011,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     mixed, weight, worth = np.tile([1.0, 0.0], (n_comp, 1)), np.zeros(n_comp), np.zeros((n_comp, 2))
     chosen = np.zeros(n_comp, dtype=bool)
     balls = np.zeros(n_comp, dtype=bool)
+    bias = np.zeros(n_comp)
     share = np.ones(n_comp)
     profiled = {}
     order = np.argsort(comp, kind="stable")
@@ -1040,7 +1061,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
             # the shift that is bias (a fit that does not fix the interface unmixes by shares it does not know:
             # weight 0); windows that cannot tell the phases apart are left as they are (unmixed_sums keeps them)
             if unmixing.weight > 0 and unmixing.mixed[0] - unmixing.mixed[1] > 0.1:
-                return unmixing, None, 1.0, level
+                return unmixing, None, 1.0, level, 0.0
         # an object not unmixed: its inside level from its whole profile where that is expected nearer the truth
         deep = mine[window[mine] == 0]
 
@@ -1081,8 +1102,14 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
                 return None, taken[0] * taken[1], crossing_share(
                     distance[mine], total[mine], model, radius=radius[c], dims=dims[c], blur=sigma,
                     lift=0.5 * sigma ** 2 * (dims[c] - 1) / max(radius[c] + model.offset, 1e-3),
-                    half_width=p.half_width, bin_width=p.bin_width), level
-        return None, None, 1.0, level
+                    half_width=p.half_width, bin_width=p.bin_width), level, 0.0
+        # kept on its windows: its level's error counts the bias its profile reads in them, by the joint profile where
+        # the joint ball describes its ions (the objects of one phase share their windows' shortfall, which their
+        # pool keeps: window_bias), else by its own
+        model, taken = (joint[2][c], together()) if offered and together() is not None else (fit, level)
+        read = None if taken is None else window_bias(taken, model, sums[c, 0], pools[c, 0], inside_share(model), k,
+                                                      p.plateau_prior)
+        return None, None, 1.0, level, 0.0 if read is None else max(read[0] ** 2 - read[1], 0.0)
 
     objects = np.flatnonzero(closed).tolist()
     # the closed objects fitted together (shared levels) on each half and on all ions (fit_balls); {} for fewer than two
@@ -1109,7 +1136,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     for c, result in zip(objects, per_item(level_of, objects)):
         if result is None:
             continue
-        unmixing, inside, share[c], level = result
+        unmixing, inside, share[c], level, bias[c] = result
         if level is not None and level[1] > 0:
             profiles.append(level)
         if unmixing is not None:
@@ -1123,7 +1150,7 @@ def _curved_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons],
     # the pool of the model's levels: every closed object's profile level, their scatter beyond their stated errors
     # counted (a level's worth moves with its own error)
     shared = pooled_profiles(levels=profiles, species=k) if profiles else np.zeros(len(held[0].atoms.elements))
-    return out, chosen, balls, share, shared
+    return out, chosen, balls, share, shared, bias
 
 
 def _normalised(near: NearIons, band: Band, components: np.ndarray,
