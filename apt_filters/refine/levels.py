@@ -129,12 +129,15 @@ def _window_sums(comp, window_of, index, atoms, weight, out):
 
 def window_labels(band: Band, comp: np.ndarray, n_components: int, window=PLATEAU_WINDOW) -> np.ndarray:
     """(b,) int64 each ion's plateau window: 0 inside, 1 outside, -1 neither or of no object (``comp``: each ion's
-    object, -1 none)."""
+    object, -1 none). ``window``: (inner, outer) nm, ``outer`` one edge for every object or (n_components,) each
+    object's own (:func:`open_window_edges`)."""
     inner, outer = window
     comp = np.ascontiguousarray(comp, dtype=np.int64)
     window_of = np.empty(len(comp), dtype=np.int64)
     _window_labels(np.ascontiguousarray(band.distance, dtype=np.float64), comp,
-                   inside_inner(band, comp, n_components, inner), float(inner), float(outer), window_of)
+                   inside_inner(band, comp, n_components, inner), float(inner),
+                   np.ascontiguousarray(np.broadcast_to(np.asarray(outer, dtype=np.float64), (n_components,))),
+                   window_of)
     return window_of
 
 
@@ -147,8 +150,8 @@ def _window_labels(distance, comp, starts, inner, outer, out):
         if c < 0:
             out[i] = -1
             continue
-        beyond = (inner <= d) & (d <= outer)
-        under = (-outer <= d) & (d <= -starts[c])
+        beyond = (inner <= d) & (d <= outer[c])
+        under = (-outer[c] <= d) & (d <= -starts[c])
         out[i] = np.int64(beyond | under) + np.int64(beyond) - 1
 
 
@@ -175,6 +178,71 @@ def _deepest(distance, comp, depth):
         c = comp[i]
         if c >= 0 and -distance[i] > depth[c]:
             depth[c] = -distance[i]
+
+
+OPEN_REACH = 9.0
+"""nm: the farthest an open object's plateau windows may reach (:func:`open_window_edges`). It bounds the ions the
+refinement selects around a surface with an open object (all within ``OPEN_REACH + 2.5`` nm: a 20 nm box's sheet
+holds most of its specimen there); where the windows stop is set by the ions (:data:`FLAT_SE`)."""
+
+FLAT_SE = 2.0
+"""Standard errors by which a shell's midpoint may differ from its window's and still widen it
+(:func:`open_window_edges`): a two-sided two-sigma test. A shell wrongly refused (~5 % of them) only keeps the
+narrower window that the refinement used before; one with a real gradient or another phase is refused."""
+
+
+def open_window_edges(band: Band, atoms: IonAtoms, components: np.ndarray, objects: np.ndarray, k: int,
+                      window=PLATEAU_WINDOW, reach: float = OPEN_REACH, z: float = FLAT_SE) -> np.ndarray:
+    """(n_components,) nm: the outer edge of each object's two plateau windows (the ``outer`` of
+    :func:`window_labels`): ``window[1]`` for every object but ``objects`` ((n_components,) bool, the open ones:
+    interfaces leaving the specimen, bicontinuous structures, objects cut by its edge); each of those widened by
+    shells as wide as the window (``window[1] - window[0]`` nm, up to ``reach``) while each shell's midpoint of
+    species ``k`` (its inside and outside fractions averaged) agrees with that of its windows so far within ``z``
+    standard errors (binomial, on the atoms counted). A side whose shell holds no atoms (the specimen, or another
+    object's nearer ions, ends its windows) is left out of the test and adds nothing; the widening stops where
+    neither side holds any. ``band``: the ions within ``reach`` (nm) of the surface, those beyond an open object's
+    rim left out (:func:`within_rim`); ``components``: each vertex's object.
+
+    Why the midpoint: the placement crosses it, and a flat interface's tails, which bias its two windows' fractions
+    toward each other by the same amount, leave it unbiased: the windows may widen across a wide interface's tails
+    (where a test of each side's flatness would stop them), but not into a gradient or a neighbour on one side. An
+    open object's 1-3 nm windows hold a few tens of thousands of atoms a side, whose counting error moved its
+    midpoint by the equivalent of 0.02-0.06 nm at the zoo's low contrasts (session 37, windows of 1-9 nm halved it),
+    and each cross-fit half, which reads its own levels from half of them, by more."""
+    inner, outer = float(window[0]), float(window[1])
+    width = outer - inner
+    n_comp = len(objects)
+    edges = np.full(n_comp, outer)
+    n_shells = int(np.floor((reach - outer) / width + 1e-9))
+    comp = components[band.vertex]
+    depth = np.abs(band.distance)
+    sel = (comp >= 0) & (depth >= inner) & (depth <= outer + n_shells * width)
+    sel[sel] = objects[comp[sel]]
+    if n_shells < 1 or not sel.any():
+        return edges
+    shell = np.maximum(np.ceil((depth[sel] - outer) / width), 0).astype(np.int64)  # 0: the window itself
+    key = (comp[sel] * 2 + (band.distance[sel] > 0)) * (n_shells + 1) + shell
+    held = atoms.atoms[band.index[sel]]
+    size = n_comp * 2 * (n_shells + 1)
+    total = np.bincount(key, held.sum(axis=1), size).reshape(n_comp, 2, n_shells + 1)
+    part = np.bincount(key, held[:, k], size).reshape(n_comp, 2, n_shells + 1)
+    for c in np.flatnonzero(objects):
+        n_win, k_win = total[c, :, 0].copy(), part[c, :, 0].copy()
+        for j in range(1, n_shells + 1):
+            n_shell, k_shell = total[c, :, j], part[c, :, j]
+            both = (n_shell > 0) & (n_win > 0)
+            if not both.any():
+                break
+            f_shell, f_win = k_shell[both] / n_shell[both], k_win[both] / n_win[both]
+            f = (k_shell[both] + k_win[both]) / (n_shell[both] + n_win[both])
+            # twice the midpoints' difference and its standard error: the factor cancels
+            diff = float(np.sum(f_shell - f_win))
+            se = float(np.sqrt(np.sum(f * (1 - f) * (1 / n_shell[both] + 1 / n_win[both]))))
+            if abs(diff) > z * se:
+                break
+            n_win, k_win = n_win + n_shell, k_win + k_shell
+            edges[c] = outer + j * width
+    return edges
 
 
 def lobe_weights(*, positions: np.ndarray, atoms: np.ndarray, objects: np.ndarray, outside: np.ndarray, k: int,

@@ -15,7 +15,8 @@ Each outer iteration:
    beyond the selection's margin get their ions added, :meth:`~apt_filters.refine.band.NearIons.cover`),
    and their nearest vertices followed as the mesh moves by walking its edges (:mod:`apt_filters.refine.nearest`).
 2. Each object's plateaus (inside and outside, ``plateau_window`` nm from its surface, see
-   :data:`REFINE_WINDOW`) give the score weights
+   :data:`REFINE_WINDOW`; an open object's reach farther, as far as its ions' midpoint stays flat,
+   :func:`_window_edges`) give the score weights
    (:func:`~apt_filters.refine.composition.contrast_weights`: only elements whose plateaus
    differ significantly) and the score's two levels ``s_in`` and ``s_out``. With
    ``cross_fit=True`` (default) they are measured once, before the iterations, on ions that did not place
@@ -74,7 +75,8 @@ crossings of faces farther apart, and any fold left, are smoothed away at the en
 ``self_intersections`` measure the output (0 on every benchmark specimen).
 
 Peak memory: one chunk of the ion table at a time (it may be memory-mapped), then the ions within
-``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface: rows (int64), positions (float64),
+``max(plateau_window[1], half_width) + 1 + RESELECT`` nm of the surface (``OPEN_REACH + 1 + RESELECT``, 11.5 nm,
+where it has an open object): rows (int64), positions (float64),
 nearest vertex (int64) and atoms per element and per basis element (float32), 40 + 4 (k + K) bytes per ion,
 their halves and held-out subsets (as much again at most); the triangle grid
 of the distance engine (:mod:`apt_filters.core.distance`, ~170 bytes per triangle) and a few (vertices × bins)
@@ -108,12 +110,12 @@ from apt_filters.refine.facets import (Facet, closes, edge_and_corner_steps, fac
 from apt_filters.refine.marker import MarkerOffsets, marker_offsets
 from apt_filters.refine.subdivide import subdivide
 from apt_filters.refine.untangle import unfold, untangle
-from apt_filters.refine.levels import (PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
+from apt_filters.refine.levels import (OPEN_REACH, PLATEAU_PRIOR, BallFit, ObjectLevels, agreeing_pools, ball_profile,
                                       chosen_pools, crossing_share, fit_ball, fit_balls, held_out_gain,
-                                      levels_from_sums, lobe_weights, object_shapes, object_volumes, plateau_sums,
-                                      plateaus, pooled_profiles, profile_better, profile_levels, short_of_plateau,
-                                      split_worth, unmixed_sums, unmixing_shift, window_bias, window_labels,
-                                      within_rim)
+                                      levels_from_sums, lobe_weights, object_shapes, object_volumes, open_window_edges,
+                                      plateau_sums, plateaus, pooled_profiles, profile_better, profile_levels,
+                                      short_of_plateau, split_worth, unmixed_sums, unmixing_shift, window_bias,
+                                      window_labels, within_rim)
 from apt_filters.voxel import ConcentrationBasis
 
 GUARD_HALVINGS = 6
@@ -158,7 +160,9 @@ class RefineParams:
         beyond the matched filter's reach (two profile widths, ~0.7 nm), so the ions that place the surface
         barely take part in measuring its plateaus: at 0.75 nm the windows follow the surface's own noise
         (gamma-prime, 12 precipitates: inside plateau +0.98 at.%, surfaces ~0.04 nm inside); at 1.0 nm
-        +0.24 at.%, and the cross-fit removes the rest.
+        +0.24 at.%, and the cross-fit removes the rest. An open object's outer edge is widened from ``outer``
+        in shells as wide as the window, up to :data:`~apt_filters.refine.levels.OPEN_REACH`, as far as its
+        ions' midpoint stays flat (:func:`_window_edges`).
     plateau_prior : float, atoms, [0, 1e9]
         Weight of the pooled plateaus of all objects in each object's own (see
         :func:`~apt_filters.refine.levels.object_levels`): a 3 nm sphere holds only ~300 atoms in its window. The
@@ -624,22 +628,25 @@ def _prepare(mesh: TriMesh, subdivisions: int, relax_start: int) -> tuple[TriMes
 
 
 def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str,
-           fixed: list[ObjectLevels] | None, p: RefineParams, pairs_near: Pairs) -> _Placed:
+           fixed: list[ObjectLevels] | None, p: RefineParams, pairs_near: Pairs, edges: np.ndarray) -> _Placed:
     """The iterations of :func:`refine_surface` (module docstring, steps 1-4 and the guards) from ``vertices``.
 
     ``near``: the ions within ``reach + RESELECT`` of the start, completed from the ion table where the surface
     moves farther than :data:`RESELECT` (:meth:`~apt_filters.refine.band.NearIons.cover`); ``pairs_near``: the
     profiles' pooling pairs of ``vertices`` (:meth:`~apt_filters.refine.band.Pairs.find` with ``p.pool_radius``;
-    one search serves every run from the same start)."""
+    one search serves every run from the same start); ``edges``: (c,) nm, the outer edge of each object's plateau
+    windows (:func:`_window_edges`; read only where ``fixed`` is None)."""
     vertices = vertices.copy()
     n = len(vertices)
     components = topology(faces, n).vertex_components
     n_comp = int(components.max()) + 1 if n else 0
     adj = adjacency(faces, n)
     plain = umbrella(adj)
-    reach = _reach(p)
+    # with the levels fixed no window is counted: the ions within the refinement's own windows' reach serve
+    reach = _reach(p, edges if fixed is None else None)
+    window = (p.plateau_window[0], edges)
     # the ions beyond the profiles only count in a plateau window (none without measuring plateaus)
-    shell = _shell(p, p.half_width, p.plateau_window[1] if fixed is None else np.inf)
+    shell = _shell(p, p.half_width, edges.max(initial=p.plateau_window[1]) if fixed is None else np.inf)
     guarded, history, levels = 0, [], []
     widths = np.ones(n_comp)
     beyond = _beyond_rim(vertices, faces, near, reach, p.distance, shell)
@@ -654,13 +661,15 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
             normals = plain @ normals
             normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
         within = profile_reach(vertices, faces, p.half_width) if narrow else reach
+        # the rim's paraboloids fitted within the profiles' and closed windows' reach, however far an open object's
+        # windows reach: the ions beyond a rim lie within a few nm of it laterally
         band = _tangent_beyond(near.cover(vertices, reach).band(vertices, normals, min(within, reach), p.distance,
                                                                 shell), beyond, near, vertices, normals, components,
-                               reach)
+                               _reach(p))
         # measured again every iteration: plateaus measured against a surface still off the interface
         # take interface ions into a window
-        levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species,
-                                                          p.plateau_window, p.plateau_prior)
+        levels = fixed if fixed is not None else plateaus(band, near.atoms, components, n_comp, species, window,
+                                                          p.plateau_prior)
         scores = object_scores(levels, near.atoms.elements, species, p.score, p.plateau_prior)
         usable = np.append(scores.usable, False)  # last entry: unused vertices (-1)
         s_in, s_out = scores.inside, scores.outside
@@ -712,7 +721,7 @@ def _place(vertices: np.ndarray, faces: np.ndarray, near: NearIons, species: str
     normals = smoothed_normals(vertices, faces, p.normal_smoothing)
     if fixed is None:
         levels = plateaus(near.band(vertices, normals, reach, p.distance, shell), near.atoms, components, n_comp,
-                          species, p.plateau_window, p.plateau_prior)
+                          species, window, p.plateau_prior)
     return _Placed(vertices, levels, widths, normals, near, guarded, history, it)
 
 
@@ -724,9 +733,33 @@ def _shell(p: RefineParams, profile: float, outer: float) -> tuple[float, float]
     return (lo, outer) if lo < outer else None
 
 
-def _reach(p: RefineParams) -> float:
-    """nm from the surface within which the iterations use ions (profiles and plateau windows)."""
-    return max(p.plateau_window[1], p.half_width) + 1.0
+def _reach(p: RefineParams, edges: np.ndarray | None = None) -> float:
+    """nm from the surface within which the iterations use ions (profiles and plateau windows; ``edges``: (c,) nm,
+    each object's windows' outer edge, :func:`_window_edges`, ``p.plateau_window[1]`` for all where None)."""
+    outer = p.plateau_window[1] if edges is None else edges.max(initial=p.plateau_window[1])
+    return max(outer, p.half_width) + 1.0
+
+
+def _window_edges(near: NearIons, start: np.ndarray, faces: np.ndarray, components: np.ndarray, rimmed: np.ndarray,
+                  species: str, p: RefineParams) -> np.ndarray:
+    """(c,) nm: the outer edge of each object's plateau windows: ``p.plateau_window[1]`` for a closed object, as far
+    as its ions are flat for an open one (:func:`~apt_filters.refine.levels.open_window_edges`, on all the ions
+    against the start: a surface within a nm of the interface places the shells beyond its window as well as the
+    refined one would). ``near``: the ions within :data:`~apt_filters.refine.levels.OPEN_REACH` + 1 nm of
+    ``start`` where ``rimmed`` (the open objects) is not empty.
+
+    A closed object keeps its windows: beyond them lie its neighbours, and its levels' choice (``curved_levels``)
+    was set on them."""
+    n_comp = int(components.max()) + 1 if len(components) else 0
+    if not len(rimmed):
+        return np.full(n_comp, p.plateau_window[1])
+    opened = np.zeros(n_comp, dtype=bool)
+    opened[rimmed] = True
+    reach = OPEN_REACH + 1.0
+    band = within_rim(near.band(start, smoothed_normals(start, faces, p.normal_smoothing), reach, p.distance),
+                      near, TriMesh(start, faces), reach)
+    return open_window_edges(band, near.atoms, components, opened, near.atoms.elements.index(species),
+                             p.plateau_window, OPEN_REACH)
 
 
 def _beyond_rim(vertices: np.ndarray, faces: np.ndarray, near: NearIons, reach: float, distance: str,
@@ -841,13 +874,16 @@ def _right_side_out(fit: _Placed, start: np.ndarray, faces: np.ndarray, componen
 
 
 def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[NearIons], species: str,
-                         p: RefineParams, closed: np.ndarray) -> list[ObjectLevels]:
+                         p: RefineParams, closed: np.ndarray, edges: np.ndarray) -> list[ObjectLevels]:
     """Each object's plateaus from the even ions against the odd ions' surface plus the odd ions against the
     even ions' (see ``cross_fit`` of :class:`RefineParams`); ``held[k]``: the ions of half ``k`` assigned to the
-    other half's surface; ``closed``: the objects without a rim (``curved_levels`` unmixes theirs)."""
+    other half's surface; ``closed``: the objects without a rim (``curved_levels`` unmixes theirs); ``edges``: (c,)
+    nm, the outer edge of each object's windows (:func:`_window_edges`)."""
     components = topology(faces, len(fits[0].vertices)).vertex_components
     n_comp = int(components.max()) + 1 if len(components) else 0
-    reach = p.plateau_window[1] + 1.0
+    outer = edges.max(initial=p.plateau_window[1])
+    reach = outer + 1.0
+    window = (p.plateau_window[0], edges)
     # the model's bands with exact distances for every ion (the interface's share of each window ion is modelled);
     # the windows' sums stay those of the bounded distances, so that an object that keeps them keeps its levels.
     # Both from one pass over each half's ions
@@ -855,18 +891,18 @@ def _cross_fitted_levels(fits: list[_Placed], faces: np.ndarray, held: list[Near
     sums, bands, windows_of = 0.0, [], []
     for k in (0, 1):
         other = fits[1 - k]
-        args = (other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, p.plateau_window[1]))
+        args = (other.vertices, other.normals, reach, p.distance, _shell(p, 0.0, outer))
         band, exact = held[k].bands(*args) if curved else (held[k].band(*args), None)
         # the ions beyond an open object's rim are on neither side of it (within_rim): an object cut by the specimen
         # edge took the matrix beyond its rim into its inside window (edge draw 31: 811 of 3,736 atoms truly
         # outside, its level 0.47 for 0.55, its surface inflated by 0.09 nm)
         band = within_rim(band, held[k], TriMesh(other.vertices, faces), reach)
-        sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, p.plateau_window)
+        sums = sums + plateau_sums(band, held[k].atoms, components, n_comp, window)
         bands.append(exact)
         windows_of.append(band)
     sums = np.asarray(sums).reshape(n_comp, 2, -1)
     k = held[0].atoms.elements.index(species)
-    sums = _lobe_weighted(sums, windows_of, held, components, k, p.plateau_window)
+    sums = _lobe_weighted(sums, windows_of, held, components, k, window, p.plateau_window[1])
     windows = agreeing_pools(sums, k, p.plateau_prior)
     if not curved:
         return levels_from_sums(sums, held[0].atoms.elements, species, p.plateau_prior, windows)
@@ -897,10 +933,11 @@ def _count_bias(levels: list[ObjectLevels], bias: np.ndarray, k: int) -> None:
 
 
 def _lobe_weighted(sums: np.ndarray, bands: list[Band], held: list[NearIons], components: np.ndarray, k: int,
-                   window: tuple[float, float]) -> np.ndarray:
+                   window: tuple, cell: float) -> np.ndarray:
     """``sums`` (:func:`plateau_sums` of both halves' ``bands``) with each inside window ion counted at its
     posterior of lying inside its object rather than in a lobe of matrix the surface holds (:func:`lobe_weights`,
-    the two halves' ions pooled into its cubes); ``sums`` itself where no object's window is shown to hold one."""
+    the two halves' ions pooled into its cubes of ``cell`` nm); ``sums`` itself where no object's window is shown to
+    hold one. ``window``: as :func:`~apt_filters.refine.levels.window_labels`'."""
     n_comp = len(sums)
     inside = [(window_labels(band, components[band.vertex], n_comp, window) == 0) & (components[band.vertex] >= 0)
               for band in bands]
@@ -909,7 +946,7 @@ def _lobe_weighted(sums: np.ndarray, bands: list[Band], held: list[NearIons], co
     weight = lobe_weights(positions=np.concatenate([h.positions[b.index[i]] for h, b, i in zip(held, bands, inside)]),
                           atoms=np.concatenate([h.atoms.atoms[b.index[i]] for h, b, i in zip(held, bands, inside)]),
                           objects=np.concatenate([components[b.vertex[i]] for b, i in zip(bands, inside)]),
-                          outside=outside, k=k, cell=window[1])
+                          outside=outside, k=k, cell=cell)
     if np.all(weight == 1.0):
         return sums
     cut = np.cumsum([0] + [int(i.sum()) for i in inside])
@@ -1501,29 +1538,30 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     rimmed = np.unique(components[TriMesh(start, faces).boundary_edges().ravel()])
     if p.select_modes:  # open surfaces: no noise of the start shared by the halves' surfaces (open_start)
         start = open_start(start, faces, components, rimmed, p.smoothing)
-    radius = _reach(p) + RESELECT
-
+    # an open object's windows reach as far as its ions are flat: they are selected that far
+    radius = max(_reach(p), OPEN_REACH + 1.0 if len(rimmed) else 0.0) + RESELECT
     near = NearIons.select(ions, ranges, basis, start, faces, radius)  # one streamed pass over the ion table
+    edges = _window_edges(near, start, faces, components, rimmed, species, p)
     fits, held, fixed = [], [], None
     pairs_start = Pairs.find(start, components, p.pool_radius)
     if p.cross_fit:
         clock = time.perf_counter()
         # the halves are independent: one thread each (their compiled loops and numpy release the GIL)
-        fits = on_threads(lambda k: _place(start, faces, near.half(k, start), species, None, p, pairs_start),
+        fits = on_threads(lambda k: _place(start, faces, near.half(k, start), species, None, p, pairs_start, edges),
                           [(0,), (1,)])
         # the ions of each half against the other half's surface: its plateaus, and the held-out ions of the
         # smoothness selection
-        reach = max(p.plateau_window[1] + 1.0, SCORED + 1.0)
+        reach = max(_reach(p, edges), SCORED + 1.0)
         closed = np.ones(int(components.max()) + 1 if n else 0, dtype=bool)
         closed[rimmed] = False
         fits = [_right_side_out(fit, start, faces, components, closed, p) for fit in fits]
         held = [_against(fits[k].near, fits[1 - k].vertices, reach) for k in (0, 1)]
-        fixed = _cross_fitted_levels(fits, faces, held, species, p, closed)
+        fixed = _cross_fitted_levels(fits, faces, held, species, p, closed, edges)
         stages.append(StageReport.between("cross_fit", start, fits[0].vertices, clock,
                                           max(f.iterations for f in fits),
                                           "plateaus of each half's ions against the other half's surface"))
     clock = time.perf_counter()
-    placed = _place(start, faces, near, species, fixed, p, pairs_start)
+    placed = _place(start, faces, near, species, fixed, p, pairs_start, edges)
     stages.append(StageReport.between("place", start, placed.vertices, clock, placed.iterations,
                                       f"largest move of the last iteration {placed.history[-1] if placed.history else 0:.3f} nm"))
     scores = object_scores(placed.levels, placed.near.atoms.elements, species, p.score, p.plateau_prior)
