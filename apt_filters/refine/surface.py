@@ -1200,7 +1200,7 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         sel = np.flatnonzero(comp == pair[0].component)
         side, rounding = slab_fit(pair, side, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                                   float(placed.widths[pair[0].component]))
-        return [replace(f, side=side, rounding=rounding) for f in pair]
+        return [replace(f, side=side, rounding=rounding, fitted=True) for f in pair]
 
     def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
@@ -1399,15 +1399,25 @@ def _slabs_unflattened(vertices: np.ndarray, placed: np.ndarray, faces: np.ndarr
     return out
 
 
-def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray) -> dict[int, int]:
-    """The objects with facets ``found`` that they do not close (:func:`closes`), or that make a slab of them
+def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+              halves: list[list[Facet]] = ()) -> dict[int, int]:
+    """The objects with facets ``found`` that they do not close (:func:`closes`), that make a slab of them
     (:func:`~apt_filters.refine.facets.slab_pair` of the surface ``vertices`` (n, 3), unit ``normals`` (n, 3), each
-    vertex's object ``components`` (n,)), each with its number of facets: no polyhedron is refitted to their ions."""
+    vertex's object ``components`` (n,)), or whose polyhedron the ions refused: every half (``halves``, each half's
+    facets as :func:`_placed_facets` fitted them) whose facets close the object kept its vertices' planes
+    (:func:`~apt_filters.refine.facets.fit_to_ions` found something else). Each with its number of facets: no
+    polyhedron is refitted to their ions."""
     per = {}
     for f in found:
         per.setdefault(f.component, []).append(f)
+
+    def refused(c: int) -> bool:
+        closing = [t for t in ([h for h in half if h.component == c] for half in halves) if t and closes(t)]
+        return bool(closing) and not any(h.fitted for t in closing for h in t)
+
     return {c: len(mine) for c, mine in per.items()
-            if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None}
+            if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None
+            or refused(c)}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1521,7 +1531,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found},
                                           unclosed=_unclosed(whole_facets, placed.vertices, placed.normals,
-                                                            components))
+                                                            components, half_facets))
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
