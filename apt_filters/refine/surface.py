@@ -1400,24 +1400,21 @@ def _slabs_unflattened(vertices: np.ndarray, placed: np.ndarray, faces: np.ndarr
 
 
 def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
-              halves: list[list[Facet]] = ()) -> dict[int, int]:
+              fitted: list[Facet] = ()) -> dict[int, int]:
     """The objects with facets ``found`` that they do not close (:func:`closes`), that make a slab of them
     (:func:`~apt_filters.refine.facets.slab_pair` of the surface ``vertices`` (n, 3), unit ``normals`` (n, 3), each
-    vertex's object ``components`` (n,)), or whose polyhedron the ions refused: every half (``halves``, each half's
-    facets as :func:`_placed_facets` fitted them) whose facets close the object kept its vertices' planes
-    (:func:`~apt_filters.refine.facets.fit_to_ions` found something else). Each with its number of facets: no
+    vertex's object ``components`` (n,)), or whose polyhedron the ions refused: ``fitted``, the same facets as
+    :func:`_placed_facets` fitted them, kept the vertices' planes of the object (``Facet.fitted`` False:
+    :func:`~apt_filters.refine.facets.fit_to_ions` found something else). Each with its number of facets: no
     polyhedron is refitted to their ions."""
-    per = {}
+    per, ions = {}, {}
     for f in found:
         per.setdefault(f.component, []).append(f)
-
-    def refused(c: int) -> bool:
-        closing = [t for t in ([h for h in half if h.component == c] for half in halves) if t and closes(t)]
-        return bool(closing) and not any(h.fitted for t in closing for h in t)
-
+    for f in fitted:
+        ions[f.component] = ions.get(f.component, False) or f.fitted
     return {c: len(mine) for c, mine in per.items()
             if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None
-            or refused(c)}
+            or not ions.get(c, True)}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1515,7 +1512,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
-    selection, half_facets, whole_facets = None, None, None
+    selection, half_facets, whole_facets, whole_fitted = None, None, None, None
     vertices, guarded = placed.vertices, placed.guarded
     shape_errors = np.full((len(closed), 2), np.nan)
     clock = time.perf_counter()
@@ -1523,15 +1520,18 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # candidates are finished with the blur given, or without one while it is still to be estimated
         half_facets = on_threads(lambda fit: _placed_facets(fit, faces, components, scores, p.facets, p.half_width,
                                                             p.distance), [(fit,) for fit in fits])
-        # the whole's facets as the halves judge them, found here since those that close no object must win
+        # the whole's facets as the halves judge them, found and fitted to the ions here since those that close no
+        # object, or whose planes the ions refuse, must win
         whole_facets = _found_facets(placed.vertices, faces, p.facets, half_facets)
+        whole_fitted = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                                      None, half_facets, found=whole_facets)
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces,
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found},
                                           unclosed=_unclosed(whole_facets, placed.vertices, placed.normals,
-                                                            components, half_facets))
+                                                            components, whole_fitted))
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
@@ -1555,9 +1555,12 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                           + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
     # facets only as the held-out ions judged them: those the halves found, where the ions preferred them
-    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
-                           selection.facets if selection is not None else None, half_facets,
-                           unjudged=selection is None, found=whole_facets)
+    if whole_fitted is not None:  # fitted already, for the held-out test: those of the objects that keep them
+        found = [f for f in whole_fitted if selection.facets.get(f.component, True)]
+    else:
+        found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                               selection.facets if selection is not None else None, half_facets,
+                               unjudged=selection is None, found=whole_facets)
     vertices = _slabs_unflattened(vertices, placed.vertices, faces, components, found)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
