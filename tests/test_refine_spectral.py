@@ -464,8 +464,11 @@ def test_rounded_edges_stay_rounded_as_their_ions_show():
     assert abs(rounded.area_error) < 0.01 and abs(rounded.volume_error) < 0.01, (rounded, sharp)
     # a sharp cube's ions show no rounding at all: its edges are rebuilt sharp as before
     _, p, u = _blurred_cube_ions(0, 0.9, 0.05)
-    assert fit_to_ions(_tilted_faces(Cuboid((0.3, -0.2, 0.1), (6.0, 6.0, 6.0), rotation=27),
-                                     np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)[0].rounding == 0.0
+    sharp = fit_to_ions(_tilted_faces(Cuboid((0.3, -0.2, 0.1), (6.0, 6.0, 6.0), rotation=27),
+                                      np.random.default_rng(100)), p, u, np.ones(len(p)), 0.3)
+    assert sharp[0].rounding == 0.0
+    # planes the ions' fit holds are marked as theirs (a refused fit gives the facets back as found, unmarked)
+    assert all(f.fitted for f in fitted + sharp) and not any(f.fitted for f in found)
 
 
 def _small_cube_ions(box, seed):

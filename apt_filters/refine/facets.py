@@ -126,6 +126,9 @@ class Facet:
         (:func:`fit_to_ions`, :func:`slab_fit`); 0 for sharp edges.
     side : Side or None
         Of a slab's two facets (:func:`slab_fit`), the side between them; None elsewhere.
+    fitted : bool
+        Whether the plane was refitted to the object's ions (:func:`fit_to_ions`, :func:`slab_fit`); False where it
+        is the plane of its vertices (found so, or the ions' fit refused).
     """
 
     component: int
@@ -137,6 +140,7 @@ class Facet:
     rms: float
     rounding: float = 0.0
     side: Side | None = None
+    fitted: bool = False
 
 
 @dataclass(frozen=True)
@@ -835,7 +839,7 @@ def fit_to_ions(facets: list[Facet], positions: np.ndarray, u: np.ndarray, weigh
     normals, params = normals[face], params[face]
     shift, rounding = edge_rounding(q @ normals.T - params[:, 2], u, weight, width)
     return [Facet(facets[k].component, normals[i], float(normals[i] @ centre + params[i, 2] + shift[i]),
-                  facets[k].vertices, facets[k].core, facets[k].area, facets[k].rms, rounding)
+                  facets[k].vertices, facets[k].core, facets[k].area, facets[k].rms, rounding, fitted=True)
             for i, k in enumerate(face)]
 
 

@@ -1264,7 +1264,7 @@ def _fitted_facets(found: list, placed: _Placed, components: np.ndarray, scores:
         sel = np.flatnonzero(comp == pair[0].component)
         side, rounding = slab_fit(pair, side, placed.near.positions[band.index[keep[sel]]], u[sel], total[sel],
                                   float(placed.widths[pair[0].component]))
-        return [replace(f, side=side, rounding=rounding) for f in pair]
+        return [replace(f, side=side, rounding=rounding, fitted=True) for f in pair]
 
     def fitted(c: int) -> list:
         mine = [f for f in found if f.component == c]
@@ -1463,15 +1463,22 @@ def _slabs_unflattened(vertices: np.ndarray, placed: np.ndarray, faces: np.ndarr
     return out
 
 
-def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray) -> dict[int, int]:
-    """The objects with facets ``found`` that they do not close (:func:`closes`), or that make a slab of them
+def _unclosed(found: list[Facet], vertices: np.ndarray, normals: np.ndarray, components: np.ndarray,
+              fitted: list[Facet] = ()) -> dict[int, int]:
+    """The objects with facets ``found`` that they do not close (:func:`closes`), that make a slab of them
     (:func:`~apt_filters.refine.facets.slab_pair` of the surface ``vertices`` (n, 3), unit ``normals`` (n, 3), each
-    vertex's object ``components`` (n,)), each with its number of facets: no polyhedron is refitted to their ions."""
-    per = {}
+    vertex's object ``components`` (n,)), or whose polyhedron the ions refused: ``fitted``, the same facets as
+    :func:`_placed_facets` fitted them, kept the vertices' planes of the object (``Facet.fitted`` False:
+    :func:`~apt_filters.refine.facets.fit_to_ions` found something else). Each with its number of facets: no
+    polyhedron is refitted to their ions."""
+    per, ions = {}, {}
     for f in found:
         per.setdefault(f.component, []).append(f)
+    for f in fitted:
+        ions[f.component] = ions.get(f.component, False) or f.fitted
     return {c: len(mine) for c, mine in per.items()
-            if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None}
+            if not closes(mine) or slab_pair(mine, vertices[components == c], normals[components == c]) is not None
+            or not ions.get(c, True)}
 
 
 def _half_spreads(fits: list[_Placed], half_facets: list[list[Facet]], keep: dict, faces: np.ndarray,
@@ -1570,7 +1577,7 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
     objects = [c for c in range(len(closed)) if closed[c] and scores.usable[c]]
     auto = isinstance(p.blur, str)
     blur = p.blur
-    selection, half_facets, whole_facets = None, None, None
+    selection, half_facets, whole_facets, whole_fitted = None, None, None, None
     vertices, guarded = placed.vertices, placed.guarded
     shape_errors = np.full((len(closed), 2), np.nan)
     clock = time.perf_counter()
@@ -1578,15 +1585,18 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
         # candidates are finished with the blur given, or without one while it is still to be estimated
         half_facets = on_threads(lambda fit: _placed_facets(fit, faces, components, scores, p.facets, p.half_width,
                                                             p.distance), [(fit,) for fit in fits])
-        # the whole's facets as the halves judge them, found here since those that close no object must win
+        # the whole's facets as the halves judge them, found and fitted to the ions here since those that close no
+        # object, or whose planes the ions refuse, must win
         whole_facets = _found_facets(placed.vertices, faces, p.facets, half_facets)
+        whole_fitted = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                                      None, half_facets, found=whole_facets)
         selection = cross_validated_modes([f.vertices for f in fits], faces, components, objects, held, scores,
                                           placed.widths,
                                           lambda k, kept: _finisher(half_facets[k] if kept else [], faces,
                                                                     None if auto else blur),
                                           faceted_objects={f.component for found in half_facets for f in found},
                                           unclosed=_unclosed(whole_facets, placed.vertices, placed.normals,
-                                                            components))
+                                                            components, whole_fitted))
         kept = {c: k for c, k in selection.modes.items() if k}
         bases = (object_harmonics(vertices, faces, components, list(kept), basis_size(max(kept.values())))
                  if kept else None)
@@ -1610,9 +1620,12 @@ def refine_surface(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: s
                                           + ", ".join(f"{v:g}" for v in lengths.values()) + " nm"))
     clock = time.perf_counter()
     # facets only as the held-out ions judged them: those the halves found, where the ions preferred them
-    found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
-                           selection.facets if selection is not None else None, half_facets,
-                           unjudged=selection is None, found=whole_facets)
+    if whole_fitted is not None:  # fitted already, for the held-out test: those of the objects that keep them
+        found = [f for f in whole_fitted if selection.facets.get(f.component, True)]
+    else:
+        found = _placed_facets(placed, faces, components, scores, p.facets, p.half_width, p.distance,
+                               selection.facets if selection is not None else None, half_facets,
+                               unjudged=selection is None, found=whole_facets)
     vertices = _slabs_unflattened(vertices, placed.vertices, faces, components, found)
     # read on the finished shape (rounded cube edges would widen the edge-on profiles) before the blur correction,
     # whose curvature bias shifts the step's midpoint and a segregant's peak alike
