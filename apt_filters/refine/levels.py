@@ -463,15 +463,16 @@ def chosen_pools(windows: np.ndarray, best: np.ndarray, chosen: np.ndarray, unmi
 
 
 def plateaus(band: Band, atoms: IonAtoms, components: np.ndarray, n_components: int, species: str,
-             window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR) -> list[ObjectLevels]:
+             window=PLATEAU_WINDOW, prior: float = PLATEAU_PRIOR, agreeing: bool = True) -> list[ObjectLevels]:
     """Plateaus of every component from ions already in a band (see :func:`object_levels`), each shrunk toward the
     objects whose windows agree with its own (:func:`agreeing_pools`), as the cross-fit's levels are: pooled with
     every object, an object's level moved with whatever another object's windows read (a 4 nm sphere at 30 at.%
-    beside a 3.5 nm one at 60: 0.358, seven of its errors; tests/test_agreeing_pools.py), and with it the half
-    placements, the held-out tests read on them and the excess (:func:`~apt_filters.refine.excess.object_excess`)."""
+    beside a 3.5 nm one at 60: 0.358, seven of its errors; tests/test_agreeing_pools.py), and with it its excess
+    (:func:`~apt_filters.refine.excess.object_excess`). ``agreeing`` False: toward every object's windows, for
+    windows measured against a provisional surface (:func:`~apt_filters.refine.surface._place`)."""
     sums = plateau_sums(band, atoms, components, n_components, window)
     return levels_from_sums(sums, atoms.elements, species, prior,
-                            agreeing_pools(sums, atoms.elements.index(species), prior))
+                            agreeing_pools(sums, atoms.elements.index(species), prior) if agreeing else None)
 
 
 def object_levels(mesh: TriMesh, ions: IonTable, ranges: RangeTable, species: str,
