@@ -80,6 +80,25 @@ def test_a_hole_at_the_edge_is_closed_only_where_its_ions_beyond_are_below_the_i
         assert out is cube
 
 
+def test_a_hole_in_sparse_data_is_tested_on_a_footprint_wide_enough_to_hold_its_count():
+    """Ions beyond the hole at 5 per nm³ (the slab 0.5-1.5 nm above the cube's top, 12 x 12 nm wide, one in ten Al):
+    the hole's own footprint (its radius 0.71 + LATERAL nm) holds ~11 atoms in its outer layer, under MIN_ATOMS, so
+    it kept its rim (fraction NaN); at the specimen's mean density the footprint widens until the layer is expected
+    to hold twice MIN_ATOMS, reads the matrix and closes the hole."""
+    rng = np.random.default_rng(1)
+    n = 720  # 5 per nm³ in the 144 nm³ slab
+    positions = np.column_stack([rng.uniform(0, 12, n), rng.uniform(0, 12, n), rng.uniform(5.5, 6.5, n)])
+    mz = np.where(np.arange(n) % 10 == 0, 27.0, 58.0)
+    mask = np.ones((12, 12, 12), dtype=bool)
+    mask[:, :, 6:] = False
+    out, report = close_clipped(_open_cube(), mask=mask, grid=Grid((0.0, 0.0, 0.0), 1.0, (12, 12, 12)),
+                                ions=IonTable(positions.astype(np.float32), mz.astype(np.float32)), ranges=RANGES,
+                                species="Al", iso=0.3)
+    assert report.loops == 1 and report.closed == 1, report
+    assert report.fractions[0] == pytest.approx(0.1, abs=0.06)
+    assert not len(out.boundary_edges())
+
+
 @pytest.mark.parametrize("side, inward", [(8, False), (6, True)])
 def test_a_loop_whose_cap_does_not_face_the_specimens_outside_is_not_tested(side, inward):
     """The rim of a sheet across the specimen runs along its edge, its centroid deep inside (the side 3 voxels above
