@@ -678,7 +678,7 @@ def _toggling_mend(monkeypatch, rounds: int, heights: tuple):
         measured.append(1)
         return measure(*args, **kwargs)
 
-    def toggle(vertices, faces, component, parent, where, to, edge, floor):
+    def toggle(vertices, faces, component, parent, where, to, edge, floor, placed, halve):
         vertices = vertices.copy()
         vertices[v] = at[0] if np.array_equal(vertices[v], at[1]) else at[1]
         return vertices, faces.copy(), component, parent, (faces == v).any(axis=1)
