@@ -484,6 +484,30 @@ def test_an_input_spike_the_output_misses_is_inserted_exactly():
     assert np.array_equal(parent[:out.n_faces], np.arange(out.n_faces))
 
 
+def test_a_corner_two_misses_ask_for_goes_half_way_the_second_time():
+    """The mend moves an output vertex onto a miss; once it has gone round a cycle, a later round's miss that asks
+    for the same vertex (two misses near one corner) moves it half way there instead, so that it does not go back
+    and forth between them. A flat hexagon fan (centre 0 at the origin, ring of radius 1): the first move lands on
+    the miss exactly, so does a second before a cycle, one after it at the midpoint of where it stood and the new
+    miss, and a move that would fold leaves it where it was."""
+    from apt_filters.remesh.mend import _move
+
+    ring = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.radians(np.arange(0, 360, 60))])
+    vertices = np.vstack([np.zeros(3), ring])
+    faces = np.array([[0, k, k % 6 + 1] for k in range(1, 7)])
+    placed = np.zeros(7, bool)
+    a, b = np.array([0.2, 0.0, 0.05]), np.array([-0.1, 0.1, 0.05])
+    floor = np.radians(20.0)
+    assert _move(vertices, faces, np.zeros(6, bool), 0, b, 1.0, floor, placed, False)
+    assert np.array_equal(vertices[0], b) and placed.tolist() == [True] + [False] * 6
+    assert _move(vertices, faces, np.zeros(6, bool), 0, a, 1.0, floor, placed, False)
+    assert np.array_equal(vertices[0], a)
+    assert _move(vertices, faces, np.zeros(6, bool), 0, b, 1.0, floor, placed, True)
+    assert np.array_equal(vertices[0], 0.5 * (a + b))
+    assert not _move(vertices, faces, np.zeros(6, bool), 0, np.array([2.5, 0.0, 0.0]), 1.0, floor, placed, True)
+    assert np.array_equal(vertices[0], 0.5 * (a + b))
+
+
 def test_a_rim_vertex_pulled_off_the_rim_is_mended():
     """An output rim vertex of an open sphere pulled 0.5 edge up off the input's rim and surface: the check fails
     (out->in and rim), the mend brings it back within the tolerance with the Euler characteristic and boundary
@@ -654,7 +678,7 @@ def _toggling_mend(monkeypatch, rounds: int, heights: tuple):
         measured.append(1)
         return measure(*args, **kwargs)
 
-    def toggle(vertices, faces, component, parent, where, to, edge, floor):
+    def toggle(vertices, faces, component, parent, where, to, edge, floor, placed, halve):
         vertices = vertices.copy()
         vertices[v] = at[0] if np.array_equal(vertices[v], at[1]) else at[1]
         return vertices, faces.copy(), component, parent, (faces == v).any(axis=1)
